@@ -1,0 +1,63 @@
+//! A volume mesh of one element shape: node coordinates (m) and flat connectivity.
+
+use nalgebra::Vector3;
+
+/// Element shapes hytled meshes with. Node order follows VTK/ABAQUS: hex8 bottom face
+/// 0-1-2-3 counter-clockwise seen from +z then top face 4-5-6-7 above them; tet4 with
+/// positive volume (x1-x0).((x2-x0)x(x3-x0)) > 0.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ElementShape {
+    Hex8,
+    Tet4,
+}
+
+impl ElementShape {
+    /// Nodes per element.
+    pub fn nodes_per_cell(self) -> usize {
+        match self {
+            ElementShape::Hex8 => 8,
+            ElementShape::Tet4 => 4,
+        }
+    }
+
+    /// VTK cell type id (12 hexahedron, 10 tetrahedron).
+    pub fn vtk_type(self) -> u8 {
+        match self {
+            ElementShape::Hex8 => 12,
+            ElementShape::Tet4 => 10,
+        }
+    }
+}
+
+/// A single-shape volume mesh. Coordinates in metres.
+#[derive(Debug, Clone)]
+pub struct Mesh {
+    pub nodes: Vec<Vector3<f64>>,
+    pub shape: ElementShape,
+    /// Flat connectivity, `shape.nodes_per_cell()` node indices per element.
+    pub cells: Vec<usize>,
+}
+
+impl Mesh {
+    /// Number of elements.
+    pub fn num_cells(&self) -> usize {
+        self.cells.len() / self.shape.nodes_per_cell()
+    }
+
+    /// Node indices of element `e`.
+    pub fn cell(&self, e: usize) -> &[usize] {
+        let n = self.shape.nodes_per_cell();
+        &self.cells[e * n..(e + 1) * n]
+    }
+
+    /// Axis-aligned bounding box (min, max) of the nodes.
+    pub fn bounding_box(&self) -> (Vector3<f64>, Vector3<f64>) {
+        let mut lo = Vector3::repeat(f64::INFINITY);
+        let mut hi = Vector3::repeat(f64::NEG_INFINITY);
+        for p in &self.nodes {
+            lo = lo.inf(p);
+            hi = hi.sup(p);
+        }
+        (lo, hi)
+    }
+}

@@ -1,0 +1,3 @@
+//! Readers and writers: VTU/PVD for ParaView, CSV time histories.
+
+pub mod vtu;

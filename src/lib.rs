@@ -1,0 +1,12 @@
+//! hytled: hybrid TLED finite-element / MTLED meshless solver for large deformation of soft tissue.
+//!
+//! Units are SI throughout: metres, kilograms, seconds, newtons, pascals, joules.
+//!
+//! Data flows one way: scene file -> geometry -> discretization (a flat list of quadrature
+//! points) -> explicit solver -> outputs.
+
+pub mod error;
+pub mod geometry;
+pub mod io;
+
+pub use error::{Error, Result};
