@@ -10,3 +10,12 @@ pub mod geometry;
 pub mod io;
 
 pub use error::{Error, Result};
+pub mod bc;
+pub mod fe;
+pub mod material;
+pub mod quadrature;
+pub mod solver;
+pub mod scene;
+pub mod probe;
+pub mod report;
+pub mod simulation;

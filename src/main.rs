@@ -1,1 +1,158 @@
-fn main(){}
+//! hytled command-line interface (clap only; the work lives in the library).
+
+use std::io::IsTerminal;
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use clap::{Parser, Subcommand, ValueEnum};
+
+use hytled::io::vtu::VtuFormat;
+use hytled::simulation::{self, RunOptions};
+
+/// Hybrid TLED finite-element / meshless solver for large soft-tissue deformation. SI units
+/// throughout (m, kg, s, N, Pa, J).
+#[derive(Parser)]
+#[command(name = "hytled", version, about)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+enum VtuArg {
+    Ascii,
+    Binary,
+    Appended,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Run a scene and print a summary (or JSON).
+    Run {
+        /// Scene file (TOML), e.g. cases/cylinder-compression.toml.
+        scene: PathBuf,
+        /// Override a scene value by its dotted path, e.g. --set discretization.element=tet4-anp.
+        #[arg(long = "set", value_name = "KEY.PATH=VALUE")]
+        set: Vec<String>,
+        /// Write VTU frames + .pvd, history.csv and summary.json to this directory.
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// Print one JSON object on stdout instead of the table.
+        #[arg(long)]
+        json: bool,
+        /// Worker threads (default: all cores). Results are identical for any count.
+        #[arg(long)]
+        threads: Option<usize>,
+        /// VTU encoding.
+        #[arg(long, value_enum, default_value = "appended")]
+        vtu_format: VtuArg,
+    },
+    /// Validate a scene (schema, selections, mesh, probes) without running it.
+    Check {
+        scene: PathBuf,
+        #[arg(long = "set", value_name = "KEY.PATH=VALUE")]
+        set: Vec<String>,
+    },
+    /// Mesh a scene's geometry and write it as VTU (default meshes/NAME-ELEMENT.vtu).
+    Mesh {
+        scene: PathBuf,
+        #[arg(long = "set", value_name = "KEY.PATH=VALUE")]
+        set: Vec<String>,
+        /// Output file (.vtu).
+        #[arg(long)]
+        out: Option<PathBuf>,
+    },
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    match execute(cli.command) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+fn execute(cmd: Command) -> hytled::Result<()> {
+    match cmd {
+        Command::Run { scene, set, out, json, threads, vtu_format } => {
+            if let Some(n) = threads {
+                if n == 0 {
+                    return Err(hytled::Error::Input("--threads must be at least 1".into()));
+                }
+                rayon::ThreadPoolBuilder::new()
+                    .num_threads(n)
+                    .build_global()
+                    .map_err(|e| hytled::Error::Input(format!("cannot start {n} threads: {e}")))?;
+            }
+            let sc = hytled::scene::load(&scene, &set)?;
+            let opts = RunOptions {
+                out: out.clone(),
+                progress: !json && std::io::stderr().is_terminal(),
+                vtu_format: match vtu_format {
+                    VtuArg::Ascii => VtuFormat::Ascii,
+                    VtuArg::Binary => VtuFormat::Binary,
+                    VtuArg::Appended => VtuFormat::Appended,
+                },
+            };
+            let summary = simulation::run_scene(&sc, &opts)?;
+            if json {
+                println!("{}", serde_json::to_string_pretty(&summary).unwrap_or_default());
+            } else {
+                print!("{}", summary.table());
+                if let Some(dir) = out {
+                    println!("outputs written to {}", dir.display());
+                }
+            }
+            Ok(())
+        }
+        Command::Check { scene, set } => {
+            let sc = hytled::scene::load(&scene, &set)?;
+            let prep = simulation::prepare(&sc)?;
+            let c = hytled::material::Material::wave_speed(&prep.model.forces.material);
+            let (dt, p) = hytled::solver::timestep::critical_time_step(&prep.model.points, c);
+            println!("{}: valid", scene.display());
+            println!("  nodes {}, elements {}, integration points {}", prep.mesh.nodes.len(), prep.mesh.num_cells(), prep.model.points.len());
+            for b in &prep.model.boundaries {
+                println!("  boundary {:<12} {} nodes", b.name, b.nodes.len());
+            }
+            for pr in &prep.probes {
+                println!("  probe {:<15} in element {}", pr.name, pr.element);
+            }
+            if let Some((a, e)) = prep.min_dihedral {
+                println!("  min dihedral angle {a:.2} deg (element {e})");
+            }
+            println!("  critical time step {dt:.4e} s (point {p}); dt = {:.4e} s", dt * sc.solver.dt_factor);
+            Ok(())
+        }
+        Command::Mesh { scene, set, out } => {
+            let sc = hytled::scene::load(&scene, &set)?;
+            let mesh = simulation::build_mesh(&sc)?;
+            let path = out.unwrap_or_else(|| {
+                PathBuf::from(format!("meshes/{}-{}.vtu", sc.name.clone().unwrap_or_default(), hytled::fe::ElementKind::from(sc.discretization.element).name()))
+            });
+            if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+                std::fs::create_dir_all(dir).map_err(|e| hytled::Error::io(dir, e))?;
+            }
+            let npc = mesh.shape.nodes_per_cell();
+            let offsets: Vec<usize> = (1..=mesh.num_cells()).map(|e| e * npc).collect();
+            let types = vec![mesh.shape.vtk_type(); mesh.num_cells()];
+            let piece = hytled::io::vtu::Piece {
+                points: &mesh.nodes,
+                connectivity: &mesh.cells,
+                offsets: &offsets,
+                types: &types,
+                point_data: vec![],
+                cell_data: vec![],
+            };
+            hytled::io::vtu::write_vtu(&path, &piece, VtuFormat::Appended)?;
+            println!("{}: {} nodes, {} elements", path.display(), mesh.nodes.len(), mesh.num_cells());
+            if let Some((a, e)) = hytled::geometry::quality::min_dihedral_angle(&mesh) {
+                println!("min dihedral angle {a:.2} deg (element {e})");
+            }
+            Ok(())
+        }
+    }
+}

@@ -1,0 +1,125 @@
+//! Essential boundary conditions imposed directly on nodes (Kronecker-delta shape functions),
+//! and the load curves that drive them.
+
+use serde::{Deserialize, Serialize};
+
+use crate::{Error, Result};
+
+/// Time history of a prescribed displacement, as a fraction of its final value.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "kebab-case")]
+pub enum LoadCurve {
+    /// d(t) = d_max (10 - 15 tau + 6 tau^2) tau^3, tau = t / T: zero velocity and acceleration at
+    /// both ends (REFERENCE.md, the curve of every benchmark case).
+    #[default]
+    Smooth,
+    /// d(t) = d_max tau.
+    Ramp,
+    /// d(t) = d_max from the first step.
+    Constant,
+}
+
+impl LoadCurve {
+    /// Fraction of the final value at normalised time tau = t / T (clamped to [0, 1]).
+    #[inline]
+    pub fn value(self, tau: f64) -> f64 {
+        let t = tau.clamp(0.0, 1.0);
+        match self {
+            LoadCurve::Smooth => (10.0 - 15.0 * t + 6.0 * t * t) * t * t * t,
+            LoadCurve::Ramp => t,
+            LoadCurve::Constant => 1.0,
+        }
+    }
+}
+
+/// One named boundary: its nodes and, per component, the final prescribed displacement (m)
+/// or `None` where the component is free.
+#[derive(Debug, Clone)]
+pub struct Boundary {
+    pub name: String,
+    pub nodes: Vec<usize>,
+    pub components: [Option<f64>; 3],
+    pub curve: LoadCurve,
+}
+
+/// All constrained degrees of freedom, flattened for the time loop.
+#[derive(Debug, Clone, Default)]
+pub struct Constraints {
+    /// (node, component) of each constrained DOF.
+    pub dofs: Vec<(u32, u8)>,
+    /// Final prescribed value of each DOF, m.
+    pub amplitude: Vec<f64>,
+    pub curve: Vec<LoadCurve>,
+    /// Per node and component: constrained or free.
+    pub mask: Vec<[bool; 3]>,
+}
+
+impl Constraints {
+    /// Merges the boundaries' conditions. A DOF named by two boundaries must get the same value
+    /// and curve from both; otherwise the conflict is an error naming the node and both boundaries.
+    pub fn new(boundaries: &[Boundary], num_nodes: usize) -> Result<Self> {
+        let mut owner: Vec<[Option<(usize, f64)>; 3]> = vec![[None; 3]; num_nodes];
+        let mut c = Constraints { mask: vec![[false; 3]; num_nodes], ..Default::default() };
+        for (bi, b) in boundaries.iter().enumerate() {
+            for &n in &b.nodes {
+                for (k, comp) in b.components.iter().enumerate() {
+                    let Some(v) = *comp else { continue };
+                    match owner[n][k] {
+                        Some((other, v0)) => {
+                            let same_curve = boundaries[other].curve == b.curve || (v == 0.0 && v0 == 0.0);
+                            if v != v0 || !same_curve {
+                                return Err(Error::Input(format!(
+                                    "node {n} component {} is prescribed by boundary '{}' ({v0} m) and by boundary '{}' ({v} m); \
+                                     make the selections disjoint or give both the same value and curve",
+                                    ["x", "y", "z"][k], boundaries[other].name, b.name
+                                )));
+                            }
+                        }
+                        None => {
+                            owner[n][k] = Some((bi, v));
+                            c.dofs.push((n as u32, k as u8));
+                            c.amplitude.push(v);
+                            c.curve.push(b.curve);
+                            c.mask[n][k] = true;
+                        }
+                    }
+                }
+            }
+        }
+        Ok(c)
+    }
+
+    /// Number of constrained DOFs.
+    pub fn len(&self) -> usize {
+        self.dofs.len()
+    }
+
+    /// True when nothing is constrained.
+    pub fn is_empty(&self) -> bool {
+        self.dofs.is_empty()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn smooth_curve_has_zero_rate_at_ends_and_reaches_one() {
+        let c = LoadCurve::Smooth;
+        assert_eq!(c.value(0.0), 0.0);
+        assert!((c.value(1.0) - 1.0).abs() < 1e-15);
+        assert!((c.value(0.5) - 0.5).abs() < 1e-15);
+        let h = 1e-6;
+        assert!(((c.value(1.0) - c.value(1.0 - h)) / h).abs() < 1e-5);
+        assert!(((c.value(h) - c.value(0.0)) / h).abs() < 1e-5);
+    }
+
+    #[test]
+    fn conflicting_values_are_an_error_naming_both_boundaries() {
+        let b = |name: &str, v: f64| Boundary { name: name.into(), nodes: vec![0, 1], components: [None, None, Some(v)], curve: LoadCurve::Smooth };
+        let err = Constraints::new(&[b("top", -0.02), b("lid", 0.01)], 2).unwrap_err().to_string();
+        assert!(err.contains("'top'") && err.contains("'lid'"), "{err}");
+        assert_eq!(Constraints::new(&[b("a", 0.0), b("b", 0.0)], 2).unwrap().len(), 2);
+    }
+}

@@ -1,0 +1,77 @@
+//! TLED finite elements (Miller et al. 2007): reference-configuration derivatives, volumes and
+//! hourglass matrices, turned into quadrature points for the shared force kernel.
+
+pub mod hex8;
+pub mod tet4;
+
+use crate::geometry::{ElementShape, Mesh};
+use crate::quadrature::{PointKind, QuadraturePoints};
+use crate::{Error, Result};
+
+/// Finite-element formulations hytled offers.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ElementKind {
+    /// One-point uniform-strain hexahedron with Joldes et al. hourglass control.
+    Hex8,
+    /// Linear tetrahedron, one point.
+    Tet4,
+    /// Average-nodal-pressure tetrahedron (Joldes et al. 2009) for near-incompressible solids.
+    Tet4Anp,
+}
+
+impl ElementKind {
+    /// The mesh shape this formulation needs.
+    pub fn shape(self) -> ElementShape {
+        match self {
+            ElementKind::Hex8 => ElementShape::Hex8,
+            ElementKind::Tet4 | ElementKind::Tet4Anp => ElementShape::Tet4,
+        }
+    }
+
+    /// Name as written in scene files.
+    pub fn name(self) -> &'static str {
+        match self {
+            ElementKind::Hex8 => "hex8",
+            ElementKind::Tet4 => "tet4",
+            ElementKind::Tet4Anp => "tet4-anp",
+        }
+    }
+}
+
+/// Builds one quadrature point per element. `hourglass_coefficient` is kappa_hg (hex8 only) and
+/// `lambda_plus_2mu` the P-wave modulus (Pa) that scales it. Rejects inverted or degenerate
+/// elements with an error naming the element and its volume.
+pub fn element_points(
+    mesh: &Mesh,
+    kind: ElementKind,
+    hourglass_coefficient: f64,
+    lambda_plus_2mu: f64,
+) -> Result<QuadraturePoints> {
+    if mesh.shape != kind.shape() {
+        return Err(Error::Input(format!(
+            "element '{}' needs a {:?} mesh but the mesh holds {:?} cells",
+            kind.name(),
+            kind.shape(),
+            mesh.shape
+        )));
+    }
+    let mut qp = QuadraturePoints::with_capacity(mesh.num_cells(), mesh.cells.len());
+    for e in 0..mesh.num_cells() {
+        let ids = mesh.cell(e);
+        match kind {
+            ElementKind::Hex8 => {
+                let x: [_; 8] = std::array::from_fn(|a| mesh.nodes[ids[a]]);
+                let h = hex8::Hex8Reference::new(&x).map_err(|volume| Error::InvalidElement { element: e, volume })?;
+                let hg = h.hourglass_matrix(&x, hourglass_coefficient, lambda_plus_2mu);
+                qp.push_hourglass(ids, &h.b, h.volume, hg);
+            }
+            ElementKind::Tet4 | ElementKind::Tet4Anp => {
+                let x: [_; 4] = std::array::from_fn(|a| mesh.nodes[ids[a]]);
+                let (b, volume) = tet4::derivatives(&x).map_err(|volume| Error::InvalidElement { element: e, volume })?;
+                let pk = if kind == ElementKind::Tet4Anp { PointKind::Anp } else { PointKind::Standard };
+                qp.push(ids, &b, volume, pk);
+            }
+        }
+    }
+    Ok(qp)
+}

@@ -1,0 +1,71 @@
+//! Probes: displacement at arbitrary material points, interpolated with the shape functions of
+//! the element that contains the point (FE).
+
+use nalgebra::Vector3;
+
+use crate::fe::{hex8, tet4};
+use crate::geometry::{ElementShape, Mesh};
+use crate::{Error, Result};
+
+/// A material point and the interpolation that gives its displacement from nodal values.
+#[derive(Debug, Clone)]
+pub struct Probe {
+    pub name: String,
+    /// Reference position, m.
+    pub position: Vector3<f64>,
+    pub nodes: Vec<usize>,
+    pub weights: Vec<f64>,
+    /// Element used for the interpolation.
+    pub element: usize,
+}
+
+impl Probe {
+    /// Locates `position` in the mesh. A point just outside the faceted surface (e.g. on the
+    /// true circle of a polygonal cylinder) is accepted up to 5 % of an element beyond its
+    /// faces, using the element's shape functions; farther away is an error.
+    pub fn locate(name: &str, position: Vector3<f64>, mesh: &Mesh) -> Result<Probe> {
+        // best = (how far outside in natural coordinates, element, weights)
+        let mut best: Option<(f64, usize, Vec<f64>)> = None;
+        for e in 0..mesh.num_cells() {
+            let ids = mesh.cell(e);
+            let (outside, w): (f64, Vec<f64>) = match mesh.shape {
+                ElementShape::Hex8 => {
+                    let x: [Vector3<f64>; 8] = std::array::from_fn(|a| mesh.nodes[ids[a]]);
+                    // Cheap bounding-box rejection before Newton.
+                    let (lo, hi) = x.iter().fold((x[0], x[0]), |(l, h), p| (l.inf(p), h.sup(p)));
+                    let pad = 0.1 * (hi - lo).amax();
+                    if (0..3).any(|k| position[k] < lo[k] - pad || position[k] > hi[k] + pad) {
+                        continue;
+                    }
+                    let Some(xi) = hex8::natural_coordinates(&x, &position) else { continue };
+                    let out = xi.iter().map(|v| (v.abs() - 1.0).max(0.0)).fold(0.0, f64::max) / 2.0;
+                    (out, hex8::shape(xi).to_vec())
+                }
+                ElementShape::Tet4 => {
+                    let x: [Vector3<f64>; 4] = std::array::from_fn(|a| mesh.nodes[ids[a]]);
+                    let Some(l) = tet4::barycentric(&x, &position) else { continue };
+                    let out = l.iter().map(|v| (-v).max(0.0)).fold(0.0, f64::max);
+                    (out, l.to_vec())
+                }
+            };
+            if best.as_ref().is_none_or(|b| outside < b.0) {
+                best = Some((outside, e, w));
+                if outside == 0.0 {
+                    break;
+                }
+            }
+        }
+        match best {
+            Some((out, e, w)) if out <= 0.05 => Ok(Probe { name: name.into(), position, nodes: mesh.cell(e).to_vec(), weights: w, element: e }),
+            _ => Err(Error::Input(format!(
+                "probe '{name}' at {:?} m lies outside the mesh; move it inside the body",
+                position.as_slice()
+            ))),
+        }
+    }
+
+    /// Interpolated displacement, m.
+    pub fn displacement(&self, u: &[Vector3<f64>]) -> Vector3<f64> {
+        self.nodes.iter().zip(&self.weights).fold(Vector3::zeros(), |acc, (&n, &w)| acc + u[n] * w)
+    }
+}

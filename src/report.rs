@@ -1,0 +1,149 @@
+//! Run summaries: the JSON object of `hytled run --json` and the readable table.
+
+use std::collections::BTreeMap;
+
+use serde::Serialize;
+
+use crate::solver::integrate::RelaxationRecord;
+
+/// Wall-clock times, s.
+#[derive(Debug, Clone, Serialize)]
+pub struct WallSeconds {
+    pub preprocess: f64,
+    pub solve: f64,
+    pub total: f64,
+}
+
+/// A probe's result, m.
+#[derive(Debug, Clone, Serialize)]
+pub struct ProbeResult {
+    pub position: [f64; 3],
+    pub displacement: [f64; 3],
+}
+
+/// Energies at the end of the run, J.
+#[derive(Debug, Clone, Serialize)]
+pub struct Energy {
+    pub external_work: f64,
+    pub strain_energy: f64,
+    pub kinetic: f64,
+    /// |W_ext - (U + K)| / |W_ext| (dynamic runs; in relaxation the path is fictitious).
+    pub balance_error: f64,
+}
+
+/// A computed value against a reference.
+#[derive(Debug, Clone, Serialize)]
+pub struct Comparison {
+    pub quantity: String,
+    pub value: f64,
+    pub computed: f64,
+    pub relative_error: f64,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub source: Option<String>,
+}
+
+/// Mesh facts that bear on accuracy and the stable step.
+#[derive(Debug, Clone, Serialize)]
+pub struct MeshInfo {
+    pub elements: usize,
+    /// Smallest dihedral angle of a tet mesh, degrees, and the element that has it.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub min_dihedral_deg: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub min_dihedral_element: Option<usize>,
+    /// Integration point (= element for FE) that sets the critical step.
+    pub critical_point: usize,
+    /// Sum of the integration weights, m^3.
+    pub volume: f64,
+}
+
+/// Everything a run reports. Units: SI (m, kg, s, N, Pa, J).
+#[derive(Debug, Clone, Serialize)]
+pub struct Summary {
+    pub scene: String,
+    pub units: &'static str,
+    pub method: String,
+    pub element: String,
+    pub mode: String,
+    pub nodes: usize,
+    pub integration_points: usize,
+    pub dt: f64,
+    pub dt_critical: f64,
+    pub dt_factor: f64,
+    pub steps: usize,
+    pub simulated_time: f64,
+    pub converged: bool,
+    pub threads: usize,
+    pub wall_seconds: WallSeconds,
+    pub reactions: BTreeMap<String, [f64; 3]>,
+    pub probes: BTreeMap<String, ProbeResult>,
+    pub energy: Energy,
+    pub reference: BTreeMap<String, Comparison>,
+    pub mesh: MeshInfo,
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub relaxation: Vec<RelaxationRecord>,
+}
+
+impl Summary {
+    /// Human-readable summary table.
+    pub fn table(&self) -> String {
+        use std::fmt::Write;
+        let mut s = String::new();
+        let _ = writeln!(s, "scene            {}", self.scene);
+        let _ = writeln!(s, "method           {} / {} ({})", self.method, self.element, self.mode);
+        let _ = writeln!(s, "nodes            {}", self.nodes);
+        let _ = writeln!(s, "points           {} (elements {})", self.integration_points, self.mesh.elements);
+        if let Some(a) = self.mesh.min_dihedral_deg {
+            let _ = writeln!(s, "min dihedral     {a:.2} deg (element {})", self.mesh.min_dihedral_element.unwrap_or(0));
+        }
+        let _ = writeln!(
+            s,
+            "time step        {:.4e} s = {:.3} x critical {:.4e} s (set by point {})",
+            self.dt, self.dt_factor, self.dt_critical, self.mesh.critical_point
+        );
+        let _ = writeln!(s, "steps            {} (t = {:.4} s){}", self.steps, self.simulated_time, if self.converged { "" } else { "  NOT CONVERGED" });
+        let _ = writeln!(
+            s,
+            "wall time        {:.3} s (preprocess {:.3} s, solve {:.3} s; {:.3} ms/step, {} threads)",
+            self.wall_seconds.total,
+            self.wall_seconds.preprocess,
+            self.wall_seconds.solve,
+            1e3 * self.wall_seconds.solve / self.steps.max(1) as f64,
+            self.threads
+        );
+        let _ = writeln!(s, "reactions (N)");
+        for (k, v) in &self.reactions {
+            let _ = writeln!(s, "  {k:<14} {:>13.6e} {:>13.6e} {:>13.6e}", v[0], v[1], v[2]);
+        }
+        if !self.probes.is_empty() {
+            let _ = writeln!(s, "probes (m)");
+            for (k, p) in &self.probes {
+                let d = p.displacement;
+                let _ = writeln!(s, "  {k:<14} {:>13.6e} {:>13.6e} {:>13.6e}  at {:?}", d[0], d[1], d[2], p.position);
+            }
+        }
+        let e = &self.energy;
+        let _ = writeln!(
+            s,
+            "energy (J)       external work {:.6e}, strain {:.6e}, kinetic {:.6e}, balance error {:.3} %",
+            e.external_work,
+            e.strain_energy,
+            e.kinetic,
+            100.0 * e.balance_error
+        );
+        if !self.reference.is_empty() {
+            let _ = writeln!(s, "vs reference");
+            for (k, c) in &self.reference {
+                let _ = writeln!(
+                    s,
+                    "  {k:<14} {:<22} computed {:>12.6e}  reference {:>12.6e}  error {:>7.3} %",
+                    c.quantity,
+                    c.computed,
+                    c.value,
+                    100.0 * c.relative_error
+                );
+            }
+        }
+        s
+    }
+}

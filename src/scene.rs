@@ -1,0 +1,469 @@
+//! Scene files: the TOML schema, `--set` overrides by dotted path, and validation.
+//!
+//! All values are SI: metres, kilograms, seconds, pascals.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+use serde::{Deserialize, Serialize};
+
+use crate::bc::LoadCurve;
+use crate::geometry::select::Selection;
+use crate::solver::Mode;
+use crate::{Error, Result};
+
+/// A complete scene.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Scene {
+    /// Short name used in reports; defaults to the file stem.
+    #[serde(default)]
+    pub name: Option<String>,
+    #[serde(default)]
+    pub description: Option<String>,
+    pub geometry: Geometry,
+    #[serde(default)]
+    pub discretization: Discretization,
+    pub material: MaterialSpec,
+    #[serde(default)]
+    pub boundaries: BTreeMap<String, BoundarySpec>,
+    #[serde(default)]
+    pub solver: SolverSpec,
+    #[serde(default)]
+    pub probes: BTreeMap<String, ProbeSpec>,
+    #[serde(default)]
+    pub references: BTreeMap<String, ReferenceSpec>,
+    #[serde(default)]
+    pub output: OutputSpec,
+}
+
+/// Built-in shapes. Lengths in m.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(tag = "shape", rename_all = "lowercase", deny_unknown_fields)]
+pub enum Geometry {
+    /// Axis-aligned box [min, max].
+    Box { min: [f64; 3], max: [f64; 3] },
+    /// Circular cylinder along z, base at z = 0, centred on x = y = 0.
+    Cylinder { radius: f64, height: f64 },
+}
+
+/// Discretization method.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum Method {
+    /// TLED finite elements.
+    #[default]
+    Fe,
+}
+
+/// Element formulation names as written in scenes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+pub enum ElementName {
+    #[default]
+    #[serde(rename = "hex8")]
+    Hex8,
+    #[serde(rename = "tet4")]
+    Tet4,
+    #[serde(rename = "tet4-anp")]
+    Tet4Anp,
+}
+
+impl From<ElementName> for crate::fe::ElementKind {
+    fn from(e: ElementName) -> Self {
+        match e {
+            ElementName::Hex8 => crate::fe::ElementKind::Hex8,
+            ElementName::Tet4 => crate::fe::ElementKind::Tet4,
+            ElementName::Tet4Anp => crate::fe::ElementKind::Tet4Anp,
+        }
+    }
+}
+
+/// How tetrahedra are made.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum Mesher {
+    /// Structured hexahedra, or tetrahedra from splitting their extruded prisms (no slivers).
+    #[default]
+    Structured,
+    /// TetGen through tritet (feature `tetgen`; AGPL-3.0).
+    Tetgen,
+}
+
+/// `[discretization]`.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Discretization {
+    #[serde(default)]
+    pub method: Method,
+    #[serde(default)]
+    pub element: ElementName,
+    /// Target element edge length, m.
+    #[serde(default)]
+    pub size: Option<f64>,
+    /// Explicit divisions: box [nx, ny, nz]; cylinder [n_inner, n_radial, n_axial].
+    #[serde(default)]
+    pub divisions: Option<[usize; 3]>,
+    #[serde(default)]
+    pub mesher: Mesher,
+    /// Hourglass coefficient kappa_hg of hex8 (Joldes et al.), dimensionless.
+    #[serde(default = "default_hourglass")]
+    pub hourglass: f64,
+    /// TetGen radius-edge ratio bound (quality), when `mesher = "tetgen"`.
+    #[serde(default)]
+    pub radius_edge_ratio: Option<f64>,
+}
+
+fn default_hourglass() -> f64 {
+    0.075
+}
+
+impl Default for Discretization {
+    fn default() -> Self {
+        Discretization {
+            method: Method::Fe,
+            element: ElementName::Hex8,
+            size: None,
+            divisions: None,
+            mesher: Mesher::Structured,
+            hourglass: default_hourglass(),
+            radius_edge_ratio: None,
+        }
+    }
+}
+
+/// `[material]`: neo-Hookean from (E, nu) or (mu, kappa), plus density.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MaterialSpec {
+    #[serde(default = "default_model")]
+    pub model: String,
+    /// Young's modulus E, Pa.
+    #[serde(default)]
+    pub youngs_modulus: Option<f64>,
+    /// Poisson's ratio nu.
+    #[serde(default)]
+    pub poisson_ratio: Option<f64>,
+    /// Shear modulus mu, Pa.
+    #[serde(default)]
+    pub shear_modulus: Option<f64>,
+    /// Bulk modulus kappa, Pa.
+    #[serde(default)]
+    pub bulk_modulus: Option<f64>,
+    /// Density, kg/m^3.
+    pub density: f64,
+}
+
+fn default_model() -> String {
+    "neo-hookean".into()
+}
+
+/// A displacement component name.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Component {
+    X,
+    Y,
+    Z,
+    All,
+}
+
+/// Prescribed final displacement per component, m.
+#[derive(Debug, Clone, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Displacement {
+    pub x: Option<f64>,
+    pub y: Option<f64>,
+    pub z: Option<f64>,
+}
+
+/// `[boundaries.NAME]`.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BoundarySpec {
+    pub select: Selection,
+    /// Components held at zero.
+    #[serde(default)]
+    pub fix: Vec<Component>,
+    /// Components driven to these values along `curve`.
+    #[serde(default)]
+    pub displacement: Option<Displacement>,
+    #[serde(default)]
+    pub curve: LoadCurve,
+}
+
+/// `[solver]`.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SolverSpec {
+    #[serde(default)]
+    pub mode: Mode,
+    /// Dynamic: simulated time, s.
+    #[serde(default = "default_duration")]
+    pub duration: f64,
+    /// Dynamic: time over which the load curves run, s (default: the duration).
+    #[serde(default)]
+    pub load_time: Option<f64>,
+    /// Relaxation: pseudo-steps over which the load curves run.
+    #[serde(default = "default_load_steps")]
+    pub load_steps: usize,
+    #[serde(default = "default_dt_factor")]
+    pub dt_factor: f64,
+    /// Mass-proportional damping, 1/s (dynamic).
+    #[serde(default)]
+    pub damping: f64,
+    /// Relaxation convergence tolerance on the estimated displacement error, m.
+    #[serde(default = "default_tolerance")]
+    pub tolerance: f64,
+    #[serde(default = "default_max_steps")]
+    pub max_steps: usize,
+    /// Relaxation: steps between lowest-frequency estimates.
+    #[serde(default = "default_interval")]
+    pub estimate_interval: usize,
+}
+
+fn default_duration() -> f64 {
+    3.0
+}
+fn default_load_steps() -> usize {
+    1000
+}
+fn default_dt_factor() -> f64 {
+    0.9
+}
+fn default_tolerance() -> f64 {
+    1e-7
+}
+fn default_max_steps() -> usize {
+    1_000_000
+}
+fn default_interval() -> usize {
+    50
+}
+
+impl Default for SolverSpec {
+    fn default() -> Self {
+        SolverSpec {
+            mode: Mode::Dynamic,
+            duration: default_duration(),
+            load_time: None,
+            load_steps: default_load_steps(),
+            dt_factor: default_dt_factor(),
+            damping: 0.0,
+            tolerance: default_tolerance(),
+            max_steps: default_max_steps(),
+            estimate_interval: default_interval(),
+        }
+    }
+}
+
+/// `[probes.NAME]`: a material point whose displacement is reported.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ProbeSpec {
+    /// Reference position, m.
+    pub position: [f64; 3],
+}
+
+/// `[references.NAME]`: a published or exact value to compare with.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ReferenceSpec {
+    /// `reaction.BOUNDARY.x|y|z` (N) or `probe.NAME.x|y|z` (m).
+    pub quantity: String,
+    pub value: f64,
+    #[serde(default)]
+    pub source: Option<String>,
+}
+
+/// `[output]`.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct OutputSpec {
+    /// VTU frames (dynamic: equally spaced in time).
+    #[serde(default = "default_frames")]
+    pub frames: usize,
+    /// Rows in the time-history CSV (dynamic).
+    #[serde(default = "default_history")]
+    pub history_rows: usize,
+}
+
+fn default_frames() -> usize {
+    10
+}
+fn default_history() -> usize {
+    200
+}
+
+impl Default for OutputSpec {
+    fn default() -> Self {
+        OutputSpec { frames: default_frames(), history_rows: default_history() }
+    }
+}
+
+/// Loads a scene file, applies `--set key.path=value` overrides and validates it.
+pub fn load(path: &Path, overrides: &[String]) -> Result<Scene> {
+    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+    parse(&text, path, overrides)
+}
+
+/// Parses scene text (see [`load`]); `path` names the source in errors.
+pub fn parse(text: &str, path: &Path, overrides: &[String]) -> Result<Scene> {
+    let err = |message: String| Error::Scene { file: PathBuf::from(path), message };
+    // Deserialise the file as written first, so schema errors carry its line numbers.
+    let mut scene: Scene = toml::from_str(text).map_err(|e| err(with_suggestion(&e.to_string())))?;
+    if !overrides.is_empty() {
+        let mut value: toml::Table = toml::from_str(text).map_err(|e| err(e.to_string()))?;
+        for o in overrides {
+            apply_override(&mut value, o).map_err(|m| err(format!("--set {o}: {m}")))?;
+        }
+        scene = toml::Value::Table(value)
+            .try_into()
+            .map_err(|e: toml::de::Error| err(format!("after --set overrides: {}", with_suggestion(e.message()))))?;
+    }
+    if scene.name.is_none() {
+        scene.name = path.file_stem().map(|s| s.to_string_lossy().into_owned());
+    }
+    validate(&scene).map_err(err)?;
+    Ok(scene)
+}
+
+/// Sets `a.b.c = value` in a TOML table; the value is parsed as TOML (number, bool, array,
+/// inline table) or else taken as a string.
+pub fn apply_override(table: &mut toml::Table, assignment: &str) -> std::result::Result<(), String> {
+    let (key, raw) = assignment.split_once('=').ok_or("expected key.path=value")?;
+    let key = key.trim();
+    let raw = raw.trim();
+    if key.is_empty() {
+        return Err("empty key".into());
+    }
+    let value = match toml::from_str::<toml::Table>(&format!("v = {raw}")) {
+        Ok(mut t) => t.remove("v").unwrap_or(toml::Value::String(raw.into())),
+        Err(_) => toml::Value::String(raw.into()),
+    };
+    let parts: Vec<&str> = key.split('.').collect();
+    let mut cur = table;
+    for (i, part) in parts.iter().enumerate() {
+        if i + 1 == parts.len() {
+            cur.insert(part.to_string(), value);
+            return Ok(());
+        }
+        let entry = cur.entry(part.to_string()).or_insert_with(|| toml::Value::Table(toml::Table::new()));
+        cur = match entry {
+            toml::Value::Table(t) => t,
+            _ => return Err(format!("'{}' is not a table", parts[..=i].join("."))),
+        };
+    }
+    Ok(())
+}
+
+/// Appends "did you mean ...?" to serde's unknown-field / unknown-variant messages.
+fn with_suggestion(msg: &str) -> String {
+    for marker in ["unknown field `", "unknown variant `"] {
+        if let Some(start) = msg.find(marker) {
+            let rest = &msg[start + marker.len()..];
+            let Some(end) = rest.find('`') else { break };
+            let bad = &rest[..end];
+            let candidates: Vec<&str> = rest[end..].split('`').skip(1).step_by(2).collect();
+            let best = candidates
+                .iter()
+                .map(|c| (strsim::jaro_winkler(bad, c), *c))
+                .max_by(|a, b| a.0.total_cmp(&b.0));
+            if let Some((score, c)) = best {
+                if score > 0.7 {
+                    return format!("{msg}\n  did you mean `{c}`?");
+                }
+            }
+        }
+    }
+    msg.to_string()
+}
+
+/// Physical and structural checks that serde cannot express.
+fn validate(s: &Scene) -> std::result::Result<(), String> {
+    match &s.geometry {
+        Geometry::Box { min, max } => {
+            if (0..3).any(|k| !(max[k] > min[k])) {
+                return Err(format!("geometry: box max {max:?} must exceed min {min:?} in every coordinate"));
+            }
+        }
+        Geometry::Cylinder { radius, height } => {
+            if !(*radius > 0.0 && *height > 0.0) {
+                return Err(format!("geometry: cylinder radius ({radius}) and height ({height}) must be positive (m)"));
+            }
+        }
+    }
+    let d = &s.discretization;
+    if let Some(h) = d.size {
+        if !(h > 0.0) {
+            return Err(format!("discretization.size = {h}: must be a positive length in m"));
+        }
+    }
+    if let Some(div) = d.divisions {
+        if div.iter().any(|&n| n == 0) {
+            return Err(format!("discretization.divisions = {div:?}: every division must be at least 1"));
+        }
+    }
+    if d.size.is_none() && d.divisions.is_none() {
+        return Err("discretization: give `size` (target element length, m) or `divisions`".into());
+    }
+    if !(d.hourglass >= 0.0) {
+        return Err(format!("discretization.hourglass = {}: must be >= 0 (default 0.075)", d.hourglass));
+    }
+    let m = &s.material;
+    if m.model != "neo-hookean" {
+        return Err(format!("material.model = '{}': the available model is 'neo-hookean'", m.model));
+    }
+    if !(m.density > 0.0) {
+        return Err(format!("material.density = {}: must be positive (kg/m^3)", m.density));
+    }
+    match (m.youngs_modulus, m.poisson_ratio, m.shear_modulus, m.bulk_modulus) {
+        (Some(e), Some(nu), None, None) => {
+            if !(e > 0.0) || !(nu > -1.0 && nu < 0.5) {
+                return Err(format!("material: need youngs_modulus > 0 (got {e}) and -1 < poisson_ratio < 0.5 (got {nu})"));
+            }
+        }
+        (None, None, Some(mu), Some(k)) => {
+            if !(mu > 0.0 && k > 0.0) {
+                return Err(format!("material: shear_modulus ({mu}) and bulk_modulus ({k}) must be positive (Pa)"));
+            }
+        }
+        _ => return Err("material: give either youngs_modulus and poisson_ratio, or shear_modulus and bulk_modulus".into()),
+    }
+    for (name, b) in &s.boundaries {
+        if b.fix.is_empty() && b.displacement.as_ref().is_none_or(|d| d.x.is_none() && d.y.is_none() && d.z.is_none()) {
+            return Err(format!("boundaries.{name}: neither `fix` nor `displacement` is given, so it constrains nothing"));
+        }
+    }
+    let sv = &s.solver;
+    if !(sv.dt_factor > 0.0) {
+        return Err(format!("solver.dt_factor = {}: must be positive (default 0.9)", sv.dt_factor));
+    }
+    if !(sv.duration > 0.0) {
+        return Err(format!("solver.duration = {}: must be positive (s)", sv.duration));
+    }
+    if !(sv.tolerance > 0.0) {
+        return Err(format!("solver.tolerance = {}: must be positive (m)", sv.tolerance));
+    }
+    if !(sv.damping >= 0.0) {
+        return Err(format!("solver.damping = {}: must be >= 0 (1/s)", sv.damping));
+    }
+    for (name, r) in &s.references {
+        let parts: Vec<&str> = r.quantity.split('.').collect();
+        let ok = parts.len() == 3
+            && matches!(parts[2], "x" | "y" | "z")
+            && match parts[0] {
+                "reaction" => s.boundaries.contains_key(parts[1]),
+                "probe" => s.probes.contains_key(parts[1]),
+                _ => false,
+            };
+        if !ok {
+            return Err(format!(
+                "references.{name}.quantity = '{}': expected reaction.BOUNDARY.x|y|z or probe.NAME.x|y|z naming a boundary ({}) or probe ({})",
+                r.quantity,
+                s.boundaries.keys().cloned().collect::<Vec<_>>().join(", "),
+                s.probes.keys().cloned().collect::<Vec<_>>().join(", ")
+            ));
+        }
+    }
+    Ok(())
+}

@@ -1,0 +1,323 @@
+//! The pipeline of one run: scene -> mesh -> quadrature points -> model -> solver -> outputs.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use nalgebra::Vector3;
+
+use crate::bc::Boundary;
+use crate::fe::{self, ElementKind};
+use crate::geometry::{quality, shapes, ElementShape, Mesh};
+use crate::io::vtu::{self, DataArray, Piece, VtuFormat};
+use crate::material::{Material, NeoHookean};
+use crate::probe::Probe;
+use crate::report::{Comparison, Energy, MeshInfo, ProbeResult, Summary, WallSeconds};
+use crate::scene::{Component, Geometry, Mesher, Scene};
+use crate::solver::{self, Mode, Model, RunOutput, Settings};
+use crate::{Error, Result};
+
+/// How to run a scene.
+#[derive(Debug, Clone, Default)]
+pub struct RunOptions {
+    /// Directory for VTU frames, the time-history CSV and summary.json.
+    pub out: Option<PathBuf>,
+    /// Show a progress bar (on a terminal).
+    pub progress: bool,
+    pub vtu_format: VtuFormat,
+}
+
+/// The material a scene asks for.
+pub fn material(scene: &Scene) -> NeoHookean {
+    let m = &scene.material;
+    match (m.youngs_modulus, m.poisson_ratio) {
+        (Some(e), Some(nu)) => NeoHookean::from_young_poisson(e, nu, m.density),
+        _ => NeoHookean { mu: m.shear_modulus.unwrap_or(0.0), kappa: m.bulk_modulus.unwrap_or(0.0), density: m.density },
+    }
+}
+
+fn count(len: f64, h: f64, min: usize) -> usize {
+    ((len / h).round() as usize).max(min)
+}
+
+/// Builds the scene's mesh (structured hex/tet or TetGen tets).
+pub fn build_mesh(scene: &Scene) -> Result<Mesh> {
+    let d = &scene.discretization;
+    let kind: ElementKind = d.element.into();
+    let shape = kind.shape();
+    if d.mesher == Mesher::Tetgen {
+        if shape != ElementShape::Tet4 {
+            return Err(Error::Input("discretization.mesher = 'tetgen' makes tetrahedra: use element = 'tet4' or 'tet4-anp'".into()));
+        }
+        return tetgen_mesh(scene);
+    }
+    match &scene.geometry {
+        Geometry::Box { min, max } => {
+            let (lo, hi) = (Vector3::from(*min), Vector3::from(*max));
+            let div = match (d.divisions, d.size) {
+                (Some(div), _) => div,
+                (None, Some(h)) => std::array::from_fn(|k| count(hi[k] - lo[k], h, 1)),
+                (None, None) => unreachable_sizing()?,
+            };
+            match shape {
+                ElementShape::Hex8 => shapes::box_hex(lo, hi, div),
+                ElementShape::Tet4 => shapes::box_tet(lo, hi, div),
+            }
+        }
+        Geometry::Cylinder { radius, height } => {
+            let [ni, nr, nz] = match (d.divisions, d.size) {
+                (Some(div), _) => div,
+                (None, Some(h)) => [count(*radius, h, 2), count(0.5 * radius, h, 1), count(*height, h, 1)],
+                (None, None) => unreachable_sizing()?,
+            };
+            match shape {
+                ElementShape::Hex8 => shapes::cylinder_hex(*radius, *height, ni, nr, nz),
+                ElementShape::Tet4 => shapes::cylinder_tet(*radius, *height, ni, nr, nz),
+            }
+        }
+    }
+}
+
+fn unreachable_sizing<T>() -> Result<T> {
+    Err(Error::Input("discretization: give `size` (m) or `divisions`".into()))
+}
+
+#[cfg(feature = "tetgen")]
+fn tetgen_mesh(scene: &Scene) -> Result<Mesh> {
+    use crate::geometry::tetgen;
+    let d = &scene.discretization;
+    let h = d.size.ok_or_else(|| Error::Input("discretization.mesher = 'tetgen' needs `size` (target edge length, m)".into()))?;
+    // Volume of a regular tetrahedron of edge h.
+    let max_volume = Some(h.powi(3) / (6.0 * 2f64.sqrt()));
+    match &scene.geometry {
+        Geometry::Box { min, max } => tetgen::tetgen_box(Vector3::from(*min), Vector3::from(*max), max_volume, d.radius_edge_ratio),
+        Geometry::Cylinder { radius, height } => {
+            let n_circ = count(2.0 * std::f64::consts::PI * radius, h, 8);
+            tetgen::tetgen_cylinder(*radius, *height, n_circ, max_volume, d.radius_edge_ratio)
+        }
+    }
+}
+
+#[cfg(not(feature = "tetgen"))]
+fn tetgen_mesh(_scene: &Scene) -> Result<Mesh> {
+    Err(Error::Input("this hytled was built without the `tetgen` feature; use mesher = 'structured' or rebuild with default features".into()))
+}
+
+/// The scene's boundaries with their selected nodes.
+pub fn boundaries(scene: &Scene, nodes: &[Vector3<f64>]) -> Result<Vec<Boundary>> {
+    let mut out = Vec::new();
+    for (name, b) in &scene.boundaries {
+        let sel = b.select.select(nodes, &format!("boundary '{name}'"))?;
+        let mut comps = [None; 3];
+        for c in &b.fix {
+            match c {
+                Component::X => comps[0] = Some(0.0),
+                Component::Y => comps[1] = Some(0.0),
+                Component::Z => comps[2] = Some(0.0),
+                Component::All => comps = [Some(0.0); 3],
+            }
+        }
+        if let Some(d) = &b.displacement {
+            for (k, v) in [d.x, d.y, d.z].into_iter().enumerate() {
+                if let Some(v) = v {
+                    comps[k] = Some(v);
+                }
+            }
+        }
+        out.push(Boundary { name: name.clone(), nodes: sel, components: comps, curve: b.curve });
+    }
+    Ok(out)
+}
+
+/// A scene turned into a model, ready to run.
+pub struct Prepared {
+    pub mesh: Mesh,
+    pub model: Model<NeoHookean>,
+    pub probes: Vec<Probe>,
+    pub kind: ElementKind,
+    pub min_dihedral: Option<(f64, usize)>,
+    pub preprocess_seconds: f64,
+}
+
+/// Meshes the scene, builds the quadrature points, masses, constraints and probes.
+pub fn prepare(scene: &Scene) -> Result<Prepared> {
+    let t0 = Instant::now();
+    let mesh = build_mesh(scene)?;
+    let mat = material(scene);
+    let kind: ElementKind = scene.discretization.element.into();
+    let (lambda, mu) = mat.lame();
+    let points = fe::element_points(&mesh, kind, scene.discretization.hourglass, lambda + 2.0 * mu)?;
+    let bnd = boundaries(scene, &mesh.nodes)?;
+    let probes = scene
+        .probes
+        .iter()
+        .map(|(name, p)| Probe::locate(name, Vector3::from(p.position), &mesh))
+        .collect::<Result<Vec<_>>>()?;
+    let min_dihedral = quality::min_dihedral_angle(&mesh);
+    let model = Model::new(mesh.nodes.clone(), points, mat, bnd)?;
+    Ok(Prepared { mesh, model, probes, kind, min_dihedral, preprocess_seconds: t0.elapsed().as_secs_f64() })
+}
+
+/// Integrator settings from the scene.
+pub fn settings(scene: &Scene, progress: bool) -> Settings {
+    let s = &scene.solver;
+    Settings {
+        mode: s.mode,
+        duration: s.duration,
+        load_time: s.load_time.unwrap_or(s.duration),
+        load_steps: s.load_steps,
+        dt_factor: s.dt_factor,
+        damping: s.damping,
+        tolerance: s.tolerance,
+        max_steps: s.max_steps,
+        estimate_interval: s.estimate_interval,
+        history_rows: scene.output.history_rows,
+        frames: scene.output.frames,
+        progress,
+    }
+}
+
+/// Runs a scene end to end and returns its summary; writes outputs when `opts.out` is set.
+pub fn run_scene(scene: &Scene, opts: &RunOptions) -> Result<Summary> {
+    let t0 = Instant::now();
+    let mut prep = prepare(scene)?;
+    let settings = settings(scene, opts.progress);
+    let out = solver::run(&mut prep.model, &settings)?;
+    let summary = summarize(scene, &prep, &out, t0.elapsed().as_secs_f64());
+    if let Some(dir) = &opts.out {
+        write_outputs(dir, scene, &mut prep, &out, &summary, opts.vtu_format)?;
+    }
+    Ok(summary)
+}
+
+/// Builds the summary of a finished run.
+pub fn summarize(scene: &Scene, prep: &Prepared, out: &RunOutput, total_seconds: f64) -> Summary {
+    let model = &prep.model;
+    let reactions: BTreeMap<String, [f64; 3]> =
+        model.boundaries.iter().zip(model.reactions(&out.f_int)).map(|(b, r)| (b.name.clone(), [r.x, r.y, r.z])).collect();
+    let probes: BTreeMap<String, ProbeResult> = prep
+        .probes
+        .iter()
+        .map(|p| {
+            let d = p.displacement(&out.u);
+            (p.name.clone(), ProbeResult { position: [p.position.x, p.position.y, p.position.z], displacement: [d.x, d.y, d.z] })
+        })
+        .collect();
+    let reference = scene
+        .references
+        .iter()
+        .filter_map(|(name, r)| {
+            let parts: Vec<&str> = r.quantity.split('.').collect();
+            let k = match parts.get(2) {
+                Some(&"x") => 0,
+                Some(&"y") => 1,
+                _ => 2,
+            };
+            let computed = match parts[0] {
+                "reaction" => reactions.get(parts[1])?[k],
+                _ => probes.get(parts[1])?.displacement[k],
+            };
+            let relative_error = (computed - r.value).abs() / r.value.abs().max(f64::MIN_POSITIVE);
+            Some((name.clone(), Comparison { quantity: r.quantity.clone(), value: r.value, computed, relative_error, source: r.source.clone() }))
+        })
+        .collect();
+    let w = out.external_work;
+    Summary {
+        scene: scene.name.clone().unwrap_or_default(),
+        units: "SI: m, kg, s, N, Pa, J",
+        method: "fe".into(),
+        element: prep.kind.name().into(),
+        mode: match scene.solver.mode {
+            Mode::Dynamic => "dynamic".into(),
+            Mode::Relaxation => "relaxation".into(),
+        },
+        nodes: model.nodes.len(),
+        integration_points: model.points.len(),
+        dt: out.dt,
+        dt_critical: out.dt_critical,
+        dt_factor: out.dt / out.dt_critical,
+        steps: out.steps,
+        simulated_time: out.simulated_time,
+        converged: out.converged,
+        threads: rayon::current_num_threads(),
+        wall_seconds: WallSeconds { preprocess: prep.preprocess_seconds, solve: out.solve_seconds, total: total_seconds },
+        reactions,
+        probes,
+        energy: Energy {
+            external_work: w,
+            strain_energy: out.strain_energy,
+            kinetic: out.kinetic_energy,
+            balance_error: (w - out.strain_energy - out.kinetic_energy).abs() / w.abs().max(f64::MIN_POSITIVE),
+        },
+        reference,
+        mesh: MeshInfo {
+            elements: prep.mesh.num_cells(),
+            min_dihedral_deg: prep.min_dihedral.map(|m| m.0),
+            min_dihedral_element: prep.min_dihedral.map(|m| m.1),
+            critical_point: out.critical_point,
+            volume: model.points.total_weight(),
+        },
+        relaxation: out.relaxation.clone(),
+    }
+}
+
+/// Writes one VTU per frame (displacement; Cauchy stress, von Mises stress and J per element),
+/// a `.pvd` series, `history.csv`, `relaxation.csv` (relaxation runs) and `summary.json`.
+pub fn write_outputs(dir: &Path, scene: &Scene, prep: &mut Prepared, out: &RunOutput, summary: &Summary, format: VtuFormat) -> Result<()> {
+    std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
+    let name = scene.name.clone().unwrap_or_else(|| "run".into());
+    let mesh = &prep.mesh;
+    let npc = mesh.shape.nodes_per_cell();
+    let offsets: Vec<usize> = (1..=mesh.num_cells()).map(|e| e * npc).collect();
+    let types = vec![mesh.shape.vtk_type(); mesh.num_cells()];
+    let mut series = Vec::new();
+    for (k, (t, u)) in out.frames.iter().enumerate() {
+        let model = &mut prep.model;
+        let (sig, vm, jac) = model.forces.stress_fields(&model.points, &model.slots, u);
+        let disp: Vec<f64> = u.iter().flat_map(|v| [v.x, v.y, v.z]).collect();
+        let file = format!("{name}_{k:04}.vtu");
+        let piece = Piece {
+            points: &mesh.nodes,
+            connectivity: &mesh.cells,
+            offsets: &offsets,
+            types: &types,
+            point_data: vec![DataArray { name: "displacement", components: 3, values: &disp }],
+            cell_data: vec![
+                DataArray { name: "cauchy_stress", components: 9, values: &sig },
+                DataArray { name: "von_mises", components: 1, values: &vm },
+                DataArray { name: "J", components: 1, values: &jac },
+            ],
+        };
+        vtu::write_vtu(&dir.join(&file), &piece, format)?;
+        series.push((*t, file));
+    }
+    vtu::write_pvd(&dir.join(format!("{name}.pvd")), &series)?;
+
+    let mut header = vec!["step".to_string(), "time_s".to_string()];
+    for b in &prep.model.boundaries {
+        for c in ["x", "y", "z"] {
+            header.push(format!("reaction_{}_{c}_N", b.name));
+        }
+    }
+    header.extend(["external_work_J", "strain_energy_J", "kinetic_energy_J"].map(String::from));
+    let rows: Vec<Vec<f64>> = out
+        .history
+        .iter()
+        .map(|h| {
+            let mut r = vec![h.step as f64, h.time];
+            r.extend(h.reactions.iter().flatten());
+            r.extend([h.external_work, h.strain_energy, h.kinetic_energy]);
+            r
+        })
+        .collect();
+    crate::io::csv::write_csv(&dir.join("history.csv"), &header, &rows)?;
+    if !out.relaxation.is_empty() {
+        let header: Vec<String> = ["step", "omega_min_rad_s", "r", "accepted", "error_estimate_m"].map(String::from).to_vec();
+        let rows: Vec<Vec<f64>> =
+            out.relaxation.iter().map(|r| vec![r.step as f64, r.omega_min, r.r, r.accepted as u8 as f64, r.error_estimate]).collect();
+        crate::io::csv::write_csv(&dir.join("relaxation.csv"), &header, &rows)?;
+    }
+    let json = serde_json::to_string_pretty(summary).map_err(|e| Error::Input(format!("cannot serialise the summary: {e}")))?;
+    std::fs::write(dir.join("summary.json"), json).map_err(|e| Error::io(dir.join("summary.json"), e))?;
+    Ok(())
+}

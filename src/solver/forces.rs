@@ -1,0 +1,225 @@
+//! The one force kernel: internal nodal forces from every quadrature point, TLED style
+//! (Miller et al. 2007): F = I + sum_a u_a (x) dphi_a, S = S(F), f_a = w F S dphi_a, plus the
+//! hourglass force HG u for one-point hexahedra and the averaged pressure of ANP tetrahedra.
+//!
+//! Assembly is gather-style: each point writes only its own slots, then each node sums its
+//! slots in a fixed order, so forces are bitwise identical for any number of threads.
+
+use nalgebra::{Matrix3, Vector3};
+use rayon::prelude::*;
+
+use crate::material::Material;
+use crate::quadrature::{NodeSlots, PointKind, QuadraturePoints};
+
+/// A raw pointer that may cross threads: each parallel task writes a disjoint index range.
+#[derive(Clone, Copy)]
+struct SharedMut<T>(*mut T);
+unsafe impl<T> Send for SharedMut<T> {}
+unsafe impl<T> Sync for SharedMut<T> {}
+
+impl<T> SharedMut<T> {
+    /// The pointer; a method so closures capture the whole (Send + Sync) wrapper.
+    #[inline(always)]
+    fn get(self) -> *mut T {
+        self.0
+    }
+}
+
+/// Points per rayon task: large enough to amortise scheduling, small enough to balance.
+const CHUNK: usize = 256;
+
+/// Deformation gradient F = I + sum_a u_a (x) dphi_a at one point.
+#[inline(always)]
+pub fn deformation_gradient(qp: &QuadraturePoints, p: usize, u: &[Vector3<f64>]) -> Matrix3<f64> {
+    let mut f = Matrix3::identity();
+    for s in qp.slots(p) {
+        let ua = &u[qp.nodes[s] as usize];
+        let d = &qp.dphi[s];
+        f += ua * d.transpose();
+    }
+    f
+}
+
+/// Internal-force evaluator with its preallocated scratch space (no allocation per call).
+pub struct Forces<M: Material> {
+    pub material: M,
+    slot_forces: Vec<Vector3<f64>>,
+    /// det F at each point from the last evaluation (after ANP averaging for ANP points).
+    pub point_j: Vec<f64>,
+    /// Volume-weighted average J at nodes (ANP only).
+    node_j: Vec<f64>,
+    /// 1 / sum of ANP weights around each node (0 where a node has no ANP point).
+    node_anp_inv_weight: Vec<f64>,
+    has_anp: bool,
+}
+
+impl<M: Material> Forces<M> {
+    /// Prepares scratch space for `qp` on `num_nodes` nodes.
+    pub fn new(material: M, qp: &QuadraturePoints, slots: &NodeSlots, num_nodes: usize) -> Self {
+        let has_anp = qp.kinds.iter().any(|k| *k == PointKind::Anp);
+        let mut inv_w = vec![0.0; num_nodes];
+        if has_anp {
+            for (n, iw) in inv_w.iter_mut().enumerate() {
+                let w: f64 = slots
+                    .range(n)
+                    .map(|i| slots.points[i] as usize)
+                    .filter(|&p| qp.kinds[p] == PointKind::Anp)
+                    .map(|p| qp.weights[p])
+                    .sum();
+                *iw = if w > 0.0 { 1.0 / w } else { 0.0 };
+            }
+        }
+        Forces {
+            material,
+            slot_forces: vec![Vector3::zeros(); qp.nodes.len()],
+            point_j: vec![1.0; qp.len()],
+            node_j: vec![1.0; if has_anp { num_nodes } else { 0 }],
+            node_anp_inv_weight: inv_w,
+            has_anp,
+        }
+    }
+
+    /// Averaged nodal J for ANP points (Joldes et al. 2009): per node the volume-weighted mean of
+    /// the element J's around it. Parallel over points, then over nodes.
+    fn average_nodal_j(&mut self, qp: &QuadraturePoints, slots: &NodeSlots, u: &[Vector3<f64>]) {
+        let pj = SharedMut(self.point_j.as_mut_ptr());
+        (0..qp.len()).into_par_iter().with_min_len(CHUNK).for_each(|p| {
+            if qp.kinds[p] == PointKind::Anp {
+                let j = deformation_gradient(qp, p, u).determinant();
+                // SAFETY: each p writes only its own entry.
+                unsafe { *pj.get().add(p) = j };
+            }
+        });
+        let point_j = &self.point_j;
+        let inv_w = &self.node_anp_inv_weight;
+        self.node_j.par_iter_mut().with_min_len(CHUNK).enumerate().for_each(|(n, nj)| {
+            if inv_w[n] > 0.0 {
+                let mut acc = 0.0;
+                for i in slots.range(n) {
+                    let p = slots.points[i] as usize;
+                    if qp.kinds[p] == PointKind::Anp {
+                        acc += qp.weights[p] * point_j[p];
+                    }
+                }
+                *nj = acc * inv_w[n];
+            }
+        });
+    }
+
+    /// F used for the stress at point `p`: the plain F, or for ANP points F scaled by
+    /// (J_avg / J)^(1/3) with J_avg the mean of the point's nodal averaged J's.
+    #[inline(always)]
+    fn stress_gradient(&self, qp: &QuadraturePoints, p: usize, u: &[Vector3<f64>]) -> (Matrix3<f64>, f64) {
+        let f = deformation_gradient(qp, p, u);
+        let j = f.determinant();
+        if qp.kinds[p] == PointKind::Anp {
+            let r = qp.slots(p);
+            let n = r.len() as f64;
+            let j_avg: f64 = r.map(|s| self.node_j[qp.nodes[s] as usize]).sum::<f64>() / n;
+            ((j_avg / j).cbrt() * f, j_avg)
+        } else {
+            (f, j)
+        }
+    }
+
+    /// Internal nodal forces F_int(u), N, into `out` (one entry per node). Parallel.
+    pub fn compute(&mut self, qp: &QuadraturePoints, slots: &NodeSlots, u: &[Vector3<f64>], out: &mut [Vector3<f64>]) {
+        if self.has_anp {
+            self.average_nodal_j(qp, slots, u);
+        }
+        let sf = SharedMut(self.slot_forces.as_mut_ptr());
+        let pj = SharedMut(self.point_j.as_mut_ptr());
+        let this = &*self;
+        (0..qp.len()).into_par_iter().with_min_len(CHUNK).for_each(|p| {
+            let (f, j) = this.stress_gradient(qp, p, u);
+            let s = this.material.pk2_stress(&f, j);
+            let pw = (f * s) * qp.weights[p];
+            let r = qp.slots(p);
+            let base = r.start;
+            // SAFETY: point p writes only its own slots offsets[p]..offsets[p+1] and entry p.
+            unsafe {
+                *pj.get().add(p) = j;
+                for sl in r {
+                    *sf.get().add(sl) = pw * qp.dphi[sl];
+                }
+                if let PointKind::Hourglass(h) = qp.kinds[p] {
+                    let hg = &qp.hourglass[h as usize];
+                    let ids = &qp.nodes[base..base + 8];
+                    for a in 0..8 {
+                        let mut acc = Vector3::zeros();
+                        for b in 0..8 {
+                            acc += u[ids[b] as usize] * hg[(a, b)];
+                        }
+                        *sf.get().add(base + a) += acc;
+                    }
+                }
+            }
+        });
+        let slot_forces = &self.slot_forces;
+        out.par_iter_mut().with_min_len(CHUNK).enumerate().for_each(|(n, o)| {
+            let mut acc = Vector3::zeros();
+            for i in slots.range(n) {
+                acc += slot_forces[slots.slots[i] as usize];
+            }
+            *o = acc;
+        });
+    }
+
+    /// Smallest det F over the points of the last evaluation, and the point that has it.
+    pub fn min_j(&self) -> (f64, usize) {
+        self.point_j
+            .par_iter()
+            .enumerate()
+            .map(|(p, &j)| (j, p))
+            .reduce(|| (f64::INFINITY, usize::MAX), |a, b| if b.0 < a.0 || (b.0 == a.0 && b.1 < a.1) { b } else { a })
+    }
+
+    /// Strain energy sum_p w_p W(F_p) + sum_hex u^T HG u / 2, J. Deterministic (fixed-order sum).
+    pub fn strain_energy(&mut self, qp: &QuadraturePoints, slots: &NodeSlots, u: &[Vector3<f64>]) -> f64 {
+        if self.has_anp {
+            self.average_nodal_j(qp, slots, u);
+        }
+        let mut per_point = vec![0.0; qp.len()];
+        let this = &*self;
+        per_point.par_iter_mut().enumerate().for_each(|(p, e)| {
+            let (f, _) = this.stress_gradient(qp, p, u);
+            let mut w = qp.weights[p] * this.material.strain_energy(&f);
+            if let PointKind::Hourglass(h) = qp.kinds[p] {
+                let hg = &qp.hourglass[h as usize];
+                let base = qp.offsets[p];
+                let ids = &qp.nodes[base..base + 8];
+                for a in 0..8 {
+                    for b in 0..8 {
+                        w += 0.5 * hg[(a, b)] * u[ids[a] as usize].dot(&u[ids[b] as usize]);
+                    }
+                }
+            }
+            *e = w;
+        });
+        per_point.iter().sum()
+    }
+
+    /// Per point: Cauchy stress (Pa, row-major 9 values), von Mises stress (Pa) and J.
+    pub fn stress_fields(&mut self, qp: &QuadraturePoints, slots: &NodeSlots, u: &[Vector3<f64>]) -> (Vec<f64>, Vec<f64>, Vec<f64>) {
+        if self.has_anp {
+            self.average_nodal_j(qp, slots, u);
+        }
+        let mut sig = vec![0.0; 9 * qp.len()];
+        let mut vm = vec![0.0; qp.len()];
+        let mut jj = vec![0.0; qp.len()];
+        for p in 0..qp.len() {
+            let (f, j) = self.stress_gradient(qp, p, u);
+            let s = self.material.pk2_stress(&f, j);
+            let c = f * s * f.transpose() / j;
+            for r in 0..3 {
+                for k in 0..3 {
+                    sig[9 * p + 3 * r + k] = c[(r, k)];
+                }
+            }
+            let dev = c - Matrix3::identity() * (c.trace() / 3.0);
+            vm[p] = (1.5 * dev.norm_squared()).sqrt();
+            jj[p] = j;
+        }
+        (sig, vm, jj)
+    }
+}

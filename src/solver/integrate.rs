@@ -1,0 +1,373 @@
+//! Time loops: explicit central differences (dynamics) and adaptive dynamic relaxation
+//! (Joldes, Wittek & Miller 2011) written as one update
+//! u(n+1) = A M^-1 (F_ext - F_int) + B u(n) + C u(n-1), with displacement conditions enforced
+//! at the end of each step.
+
+use std::time::Instant;
+
+use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+use nalgebra::Vector3;
+use serde::{Deserialize, Serialize};
+
+use super::timestep::critical_time_step;
+use super::Model;
+use crate::material::Material;
+use crate::{Error, Result};
+
+/// Which problem the loop solves.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum Mode {
+    /// Explicit dynamics over `duration` seconds.
+    #[default]
+    Dynamic,
+    /// Steady state by adaptive dynamic relaxation.
+    Relaxation,
+}
+
+/// Integrator settings. Times in s, displacements in m.
+#[derive(Debug, Clone)]
+pub struct Settings {
+    pub mode: Mode,
+    /// Dynamic: simulated time T, s.
+    pub duration: f64,
+    /// Dynamic: time over which load curves run from 0 to 1, s.
+    pub load_time: f64,
+    /// Relaxation: pseudo-steps over which load curves run from 0 to 1.
+    pub load_steps: usize,
+    /// dt = dt_factor x the critical step estimate.
+    pub dt_factor: f64,
+    /// Mass-proportional damping coefficient (dynamic), 1/s.
+    pub damping: f64,
+    /// Relaxation: stop when the estimated displacement error stays below this for 100 steps, m.
+    pub tolerance: f64,
+    /// Relaxation: give up after this many steps (reported as not converged).
+    pub max_steps: usize,
+    /// Relaxation: steps between estimates of the lowest frequency.
+    pub estimate_interval: usize,
+    /// Rows wanted in the time history (dynamic); relaxation records every `estimate_interval` steps.
+    pub history_rows: usize,
+    /// Output frames wanted (dynamic: equally spaced in time; relaxation: start and end).
+    pub frames: usize,
+    pub progress: bool,
+}
+
+impl Default for Settings {
+    fn default() -> Self {
+        Settings {
+            mode: Mode::Dynamic,
+            duration: 3.0,
+            load_time: 3.0,
+            load_steps: 1000,
+            dt_factor: 0.9,
+            damping: 0.0,
+            tolerance: 1e-7,
+            max_steps: 1_000_000,
+            estimate_interval: 50,
+            history_rows: 200,
+            frames: 10,
+            progress: false,
+        }
+    }
+}
+
+/// One row of the time history.
+#[derive(Debug, Clone, Serialize)]
+pub struct HistoryRow {
+    pub step: usize,
+    /// Simulated (dynamic) or pseudo (relaxation) time, s.
+    pub time: f64,
+    /// Reaction of each boundary, N.
+    pub reactions: Vec<[f64; 3]>,
+    /// Work of the boundary forces, J.
+    pub external_work: f64,
+    pub strain_energy: f64,
+    pub kinetic_energy: f64,
+}
+
+/// One record of the dynamic-relaxation parameters.
+#[derive(Debug, Clone, Serialize)]
+pub struct RelaxationRecord {
+    pub step: usize,
+    /// Estimated lowest circular frequency, rad/s.
+    pub omega_min: f64,
+    /// Convergence rate in use.
+    pub r: f64,
+    /// Whether this estimate was accepted (agreed with the previous one).
+    pub accepted: bool,
+    /// Estimated distance to the converged solution, m.
+    pub error_estimate: f64,
+}
+
+/// What a run produces.
+#[derive(Debug, Clone)]
+pub struct RunOutput {
+    pub u: Vec<Vector3<f64>>,
+    pub f_int: Vec<Vector3<f64>>,
+    pub dt: f64,
+    pub dt_critical: f64,
+    /// Point that sets the critical step.
+    pub critical_point: usize,
+    pub steps: usize,
+    pub simulated_time: f64,
+    pub converged: bool,
+    pub history: Vec<HistoryRow>,
+    pub relaxation: Vec<RelaxationRecord>,
+    /// (time, displacement) snapshots for output frames.
+    pub frames: Vec<(f64, Vec<Vector3<f64>>)>,
+    pub external_work: f64,
+    pub strain_energy: f64,
+    pub kinetic_energy: f64,
+    pub solve_seconds: f64,
+}
+
+/// Dynamic-relaxation rate from the lowest frequency: k = 2 / (w_min dt), r = (k - 1) / (k + 1).
+fn rate_from_omega(omega: f64, dt: f64) -> f64 {
+    let k = 2.0 / (omega * dt);
+    ((k - 1.0) / (k + 1.0)).clamp(0.0, 0.99999)
+}
+
+/// Runs the model to the end of the dynamic interval or to relaxation convergence.
+/// Fails with a clear message when the solution diverges or a point inverts.
+pub fn run<M: Material>(model: &mut Model<M>, s: &Settings) -> Result<RunOutput> {
+    let start = Instant::now();
+    let n = model.nodes.len();
+    let c = model.forces.material.wave_speed();
+    let (dt_crit, crit_point) = critical_time_step(&model.points, c);
+    if !(dt_crit.is_finite() && dt_crit > 0.0) {
+        return Err(Error::Input(format!("the critical time step estimate is {dt_crit} s; the discretization has no usable points")));
+    }
+    let dynamic = s.mode == Mode::Dynamic;
+    let mut dt = s.dt_factor * dt_crit;
+    let total_steps = if dynamic {
+        let k = (s.duration / dt).ceil().max(1.0) as usize;
+        dt = s.duration / k as f64;
+        k
+    } else {
+        s.max_steps
+    };
+    let (lo, hi) = model.nodes.iter().fold((Vector3::repeat(f64::INFINITY), Vector3::repeat(f64::NEG_INFINITY)), |(l, h), p| (l.inf(p), h.sup(p)));
+    let size = (hi - lo).norm();
+    let load_frac = |step: usize| -> f64 {
+        if dynamic {
+            if s.load_time > 0.0 { step as f64 * dt / s.load_time } else { 1.0 }
+        } else if s.load_steps > 0 {
+            step as f64 / s.load_steps as f64
+        } else {
+            1.0
+        }
+    };
+
+    let zero = vec![Vector3::zeros(); n];
+    let mut u = zero.clone();
+    let mut u_prev = zero.clone();
+    let mut u_next = zero.clone();
+    let mut f = zero.clone();
+    let mut u_ref = zero.clone();
+    let mut f_ref = zero.clone();
+    let cons = &model.constraints;
+    let prescribe = |target: &mut [Vector3<f64>], tau: f64| {
+        for (k, &(node, comp)) in cons.dofs.iter().enumerate() {
+            target[node as usize][comp as usize] = cons.amplitude[k] * cons.curve[k].value(tau);
+        }
+    };
+    prescribe(&mut u, load_frac(0));
+    u_prev.copy_from_slice(&u);
+
+    let frame_steps: Vec<usize> = if dynamic {
+        (0..=s.frames.max(1)).map(|k| (k * total_steps) / s.frames.max(1)).collect()
+    } else {
+        vec![0]
+    };
+    let mut frames: Vec<(f64, Vec<Vector3<f64>>)> = Vec::with_capacity(frame_steps.len() + 1);
+    let history_every = if dynamic { (total_steps / s.history_rows.max(1)).max(1) } else { s.estimate_interval.max(1) };
+    let mut history = Vec::with_capacity(if dynamic { s.history_rows + 2 } else { 1024 });
+    let mut relaxation = Vec::new();
+
+    let pb = if s.progress {
+        let pb = ProgressBar::with_draw_target(Some(total_steps as u64), ProgressDrawTarget::stderr_with_hz(5));
+        let tmpl = if dynamic { "{bar:40} {pos}/{len} steps {elapsed} (eta {eta}) {msg}" } else { "{spinner} relaxation step {pos} {elapsed} {msg}" };
+        pb.set_style(ProgressStyle::with_template(tmpl).unwrap_or_else(|_| ProgressStyle::default_bar()));
+        pb
+    } else {
+        ProgressBar::hidden()
+    };
+
+    let mut external_work = 0.0f64;
+    // Dynamic relaxation state.
+    let r_load = (1.0 - 10.0 / s.load_steps.max(20) as f64).clamp(0.5, 0.999);
+    let mut r = r_load;
+    let mut omega_prev: Option<f64> = None;
+    let mut ref_step = usize::MAX;
+    let mut below = 0usize;
+    let mut converged = dynamic;
+    let mut err_est = f64::INFINITY;
+    let mut finish = false;
+    let mut step = 0usize;
+    let max_rate = c * dt;
+
+    loop {
+        let t = step as f64 * dt;
+        model.forces.compute(&model.points, &model.slots, &u, &mut f);
+        let (min_j, p_min) = model.forces.min_j();
+        if !(min_j > 0.0) {
+            return Err(Error::Unstable(format!(
+                "integration point {p_min} (element {p_min} of an FE mesh) inverted (J = {min_j:.4}) at step {step}, t = {t:.6} s \
+                 (dt = {dt:.4e} s, {:.3} x the critical estimate {dt_crit:.4e} s). The load is too large or fast for this mesh, \
+                 or the step too large: reduce solver.dt_factor, refine the mesh, or use a slower load",
+                dt / dt_crit
+            )));
+        }
+        let at_end = (dynamic && step == total_steps) || finish || (!dynamic && step >= total_steps);
+        if step % history_every == 0 || at_end {
+            let se = model.forces.strain_energy(&model.points, &model.slots, &u);
+            let ke = kinetic(&model.mass, &u, &u_prev, dt);
+            if dynamic && step > 0 && ke > 10.0 * (external_work.abs() + se) + 1e-12 {
+                return Err(Error::Unstable(format!(
+                    "kinetic energy {ke:.4e} J exceeds ten times the work done on the body ({external_work:.4e} J) at step {step}, t = {t:.6} s: \
+                     the integration is unstable with dt = {dt:.4e} s ({:.3} x the critical estimate {dt_crit:.4e} s); reduce solver.dt_factor",
+                    dt / dt_crit
+                )));
+            }
+            let reactions = model.reactions(&f).iter().map(|v| [v.x, v.y, v.z]).collect();
+            history.push(HistoryRow { step, time: t, reactions, external_work, strain_energy: se, kinetic_energy: ke });
+        }
+        if frame_steps.contains(&step) {
+            frames.push((t, u.clone()));
+        }
+        if at_end {
+            if !dynamic && !finish {
+                converged = false;
+            }
+            break;
+        }
+
+        // Update coefficients.
+        let (a, b, cc) = if dynamic {
+            let h = 0.5 * s.damping * dt;
+            (dt * dt / (1.0 + h), 2.0 / (1.0 + h), -(1.0 - h) / (1.0 + h))
+        } else {
+            let a = 0.25 * ((1.0 + r) * dt).powi(2);
+            (a, 1.0 + r * r, -r * r)
+        };
+        let mut max_du = 0.0f64;
+        let mut max_u = 0.0f64;
+        for i in 0..n {
+            let inv_m = a / model.mass[i];
+            let mask = cons.mask[i];
+            for k in 0..3 {
+                if !mask[k] {
+                    let v = -inv_m * f[i][k] + b * u[i][k] + cc * u_prev[i][k];
+                    u_next[i][k] = v;
+                    max_du = max_du.max((v - u[i][k]).abs());
+                }
+            }
+        }
+        prescribe(&mut u_next, load_frac(step + 1));
+        // Work of the boundary forces: sum (F_int + M a) . (u(n+1) - u(n-1)) / 2 over constrained DOFs.
+        for &(node, comp) in cons.dofs.iter() {
+            let (i, k) = (node as usize, comp as usize);
+            let inertia = if dynamic { model.mass[i] * (u_next[i][k] - 2.0 * u[i][k] + u_prev[i][k]) / (dt * dt) } else { 0.0 };
+            external_work += (f[i][k] + inertia) * 0.5 * (u_next[i][k] - u_prev[i][k]);
+        }
+        for v in u_next.iter() {
+            max_u = max_u.max(v.amax());
+        }
+        if !max_u.is_finite() || !max_du.is_finite() || max_u > 10.0 * size || max_du > max_rate {
+            return Err(Error::Unstable(format!(
+                "the solution diverged at step {step}, t = {t:.6} s (largest displacement {max_u:.3e} m, largest change in one step {max_du:.3e} m): \
+                 dt = {dt:.4e} s is {:.3} x the critical estimate {dt_crit:.4e} s; reduce solver.dt_factor (default 0.9)",
+                dt / dt_crit
+            )));
+        }
+
+        if !dynamic && step + 1 >= s.load_steps {
+            let loaded_step = step + 1 - s.load_steps;
+            if loaded_step == 0 {
+                // Initial guess: Rayleigh quotient of the loaded shape over all DOFs.
+                let num: f64 = u.iter().zip(&f).map(|(x, y)| x.dot(y)).sum();
+                let den: f64 = u.iter().zip(&model.mass).map(|(x, m)| m * x.norm_squared()).sum();
+                if num > 0.0 && den > 0.0 {
+                    r = rate_from_omega((num / den).sqrt(), dt);
+                }
+                u_ref.copy_from_slice(&u);
+                f_ref.copy_from_slice(&f);
+                ref_step = step;
+            } else if step >= ref_step + s.estimate_interval.max(1) {
+                // w_min^2 = du.dF / du.M.du over free DOFs against the saved reference.
+                let (mut num, mut den) = (0.0, 0.0);
+                for i in 0..n {
+                    for k in 0..3 {
+                        if !cons.mask[i][k] {
+                            let du = u[i][k] - u_ref[i][k];
+                            num += du * (f[i][k] - f_ref[i][k]);
+                            den += model.mass[i] * du * du;
+                        }
+                    }
+                }
+                if num > 0.0 && den > 0.0 {
+                    let omega = (num / den).sqrt();
+                    let accepted = omega_prev.is_some_and(|w| (omega - w).abs() <= 0.05 * omega);
+                    if accepted {
+                        r = rate_from_omega(omega, dt);
+                    }
+                    omega_prev = Some(omega);
+                    let rp = r + 0.2 * (1.0 - r);
+                    relaxation.push(RelaxationRecord { step, omega_min: omega, r, accepted, error_estimate: max_du * rp / (1.0 - rp) });
+                }
+                u_ref.copy_from_slice(&u);
+                f_ref.copy_from_slice(&f);
+                ref_step = step;
+            }
+            let rp = r + 0.2 * (1.0 - r);
+            err_est = max_du * rp / (1.0 - rp);
+            if err_est < s.tolerance {
+                below += 1;
+                if below >= 100 {
+                    finish = true;
+                    converged = true;
+                }
+            } else {
+                below = 0;
+            }
+        }
+
+        std::mem::swap(&mut u_prev, &mut u);
+        std::mem::swap(&mut u, &mut u_next);
+        step += 1;
+        if step % 64 == 0 {
+            pb.set_position(step as u64);
+            if !dynamic {
+                pb.set_message(format!("error estimate {err_est:.2e} m, r = {r:.5}"));
+            }
+        }
+    }
+    pb.finish_and_clear();
+    if !dynamic {
+        frames.push((step as f64 * dt, u.clone()));
+    }
+    let last = history.last().cloned();
+    let (strain_energy, kinetic_energy) = last.map(|h| (h.strain_energy, h.kinetic_energy)).unwrap_or((0.0, 0.0));
+    Ok(RunOutput {
+        u,
+        f_int: f,
+        dt,
+        dt_critical: dt_crit,
+        critical_point: crit_point,
+        steps: step,
+        simulated_time: step as f64 * dt,
+        converged,
+        history,
+        relaxation,
+        frames,
+        external_work,
+        strain_energy,
+        kinetic_energy,
+        solve_seconds: start.elapsed().as_secs_f64(),
+    })
+}
+
+/// Kinetic energy with the backward-difference velocity (u(n) - u(n-1)) / dt, J. Fixed-order sum.
+fn kinetic(mass: &[f64], u: &[Vector3<f64>], u_prev: &[Vector3<f64>], dt: f64) -> f64 {
+    mass.iter().zip(u.iter().zip(u_prev)).map(|(m, (a, b))| 0.5 * m * ((a - b) / dt).norm_squared()).sum()
+}
