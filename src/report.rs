@@ -27,8 +27,8 @@ pub struct Energy {
     pub external_work: f64,
     pub strain_energy: f64,
     pub kinetic: f64,
-    /// |W_ext - (U + K)| / |W_ext| (dynamic runs; in relaxation the path is fictitious).
-    pub balance_error: f64,
+    /// |W_ext - (U + K)| / |W_ext|; null for relaxation, whose damped path is fictitious.
+    pub balance_error: Option<f64>,
 }
 
 /// A computed value against a reference.
@@ -123,13 +123,11 @@ impl Summary {
             }
         }
         let e = &self.energy;
+        let balance = e.balance_error.map(|b| format!(", balance error {:.4} %", 100.0 * b)).unwrap_or_default();
         let _ = writeln!(
             s,
-            "energy (J)       external work {:.6e}, strain {:.6e}, kinetic {:.6e}, balance error {:.3} %",
-            e.external_work,
-            e.strain_energy,
-            e.kinetic,
-            100.0 * e.balance_error
+            "energy (J)       external work {:.6e}, strain {:.6e}, kinetic {:.6e}{balance}",
+            e.external_work, e.strain_energy, e.kinetic
         );
         if !self.reference.is_empty() {
             let _ = writeln!(s, "vs reference");

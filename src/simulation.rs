@@ -247,7 +247,8 @@ pub fn summarize(scene: &Scene, prep: &Prepared, out: &RunOutput, total_seconds:
             external_work: w,
             strain_energy: out.strain_energy,
             kinetic: out.kinetic_energy,
-            balance_error: (w - out.strain_energy - out.kinetic_energy).abs() / w.abs().max(f64::MIN_POSITIVE),
+            balance_error: (scene.solver.mode == Mode::Dynamic)
+                .then(|| (w - out.strain_energy - out.kinetic_energy).abs() / w.abs().max(f64::MIN_POSITIVE)),
         },
         reference,
         mesh: MeshInfo {

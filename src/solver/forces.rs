@@ -51,6 +51,8 @@ pub struct Forces<M: Material> {
     /// 1 / sum of ANP weights around each node (0 where a node has no ANP point).
     node_anp_inv_weight: Vec<f64>,
     has_anp: bool,
+    /// Per-point energies, reused so that energy evaluations do not allocate.
+    energy_scratch: Vec<f64>,
 }
 
 impl<M: Material> Forces<M> {
@@ -76,6 +78,7 @@ impl<M: Material> Forces<M> {
             node_j: vec![1.0; if has_anp { num_nodes } else { 0 }],
             node_anp_inv_weight: inv_w,
             has_anp,
+            energy_scratch: vec![0.0; qp.len()],
         }
     }
 
@@ -179,7 +182,7 @@ impl<M: Material> Forces<M> {
         if self.has_anp {
             self.average_nodal_j(qp, slots, u);
         }
-        let mut per_point = vec![0.0; qp.len()];
+        let mut per_point = std::mem::take(&mut self.energy_scratch);
         let this = &*self;
         per_point.par_iter_mut().enumerate().for_each(|(p, e)| {
             let (f, _) = this.stress_gradient(qp, p, u);
@@ -196,7 +199,9 @@ impl<M: Material> Forces<M> {
             }
             *e = w;
         });
-        per_point.iter().sum()
+        let total = per_point.iter().sum();
+        self.energy_scratch = per_point;
+        total
     }
 
     /// Per point: Cauchy stress (Pa, row-major 9 values), von Mises stress (Pa) and J.

@@ -179,7 +179,9 @@ pub fn run<M: Material>(model: &mut Model<M>, s: &Settings) -> Result<RunOutput>
     } else {
         vec![0]
     };
-    let mut frames: Vec<(f64, Vec<Vector3<f64>>)> = Vec::with_capacity(frame_steps.len() + 1);
+    // Frame buffers are allocated here so that the loop only copies into them.
+    let mut frame_bufs: Vec<Vec<Vector3<f64>>> = (0..frame_steps.len() + usize::from(!dynamic)).map(|_| zero.clone()).collect();
+    let mut frames: Vec<(f64, Vec<Vector3<f64>>)> = Vec::with_capacity(frame_bufs.len());
     let history_every = if dynamic { (total_steps / s.history_rows.max(1)).max(1) } else { s.estimate_interval.max(1) };
     let mut history = Vec::with_capacity(if dynamic { s.history_rows + 2 } else { 1024 });
     let mut relaxation = Vec::new();
@@ -233,7 +235,10 @@ pub fn run<M: Material>(model: &mut Model<M>, s: &Settings) -> Result<RunOutput>
             history.push(HistoryRow { step, time: t, reactions, external_work, strain_energy: se, kinetic_energy: ke });
         }
         if frame_steps.contains(&step) {
-            frames.push((t, u.clone()));
+            if let Some(mut buf) = frame_bufs.pop() {
+                buf.copy_from_slice(&u);
+                frames.push((t, buf));
+            }
         }
         if at_end {
             if !dynamic && !finish {
@@ -344,7 +349,9 @@ pub fn run<M: Material>(model: &mut Model<M>, s: &Settings) -> Result<RunOutput>
     }
     pb.finish_and_clear();
     if !dynamic {
-        frames.push((step as f64 * dt, u.clone()));
+        let mut buf = frame_bufs.pop().unwrap_or_else(|| zero.clone());
+        buf.copy_from_slice(&u);
+        frames.push((step as f64 * dt, buf));
     }
     let last = history.last().cloned();
     let (strain_energy, kinetic_energy) = last.map(|h| (h.strain_energy, h.kinetic_energy)).unwrap_or((0.0, 0.0));
