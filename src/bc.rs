@@ -59,14 +59,18 @@ impl Constraints {
     /// and curve from both; otherwise the conflict is an error naming the node and both boundaries.
     pub fn new(boundaries: &[Boundary], num_nodes: usize) -> Result<Self> {
         let mut owner: Vec<[Option<(usize, f64)>; 3]> = vec![[None; 3]; num_nodes];
-        let mut c = Constraints { mask: vec![[false; 3]; num_nodes], ..Default::default() };
+        let mut c = Constraints {
+            mask: vec![[false; 3]; num_nodes],
+            ..Default::default()
+        };
         for (bi, b) in boundaries.iter().enumerate() {
             for &n in &b.nodes {
                 for (k, comp) in b.components.iter().enumerate() {
                     let Some(v) = *comp else { continue };
                     match owner[n][k] {
                         Some((other, v0)) => {
-                            let same_curve = boundaries[other].curve == b.curve || (v == 0.0 && v0 == 0.0);
+                            let same_curve =
+                                boundaries[other].curve == b.curve || (v == 0.0 && v0 == 0.0);
                             if v != v0 || !same_curve {
                                 return Err(Error::Input(format!(
                                     "node {n} component {} is prescribed by boundary '{}' ({v0} m) and by boundary '{}' ({v} m); \
@@ -117,9 +121,21 @@ mod tests {
 
     #[test]
     fn conflicting_values_are_an_error_naming_both_boundaries() {
-        let b = |name: &str, v: f64| Boundary { name: name.into(), nodes: vec![0, 1], components: [None, None, Some(v)], curve: LoadCurve::Smooth };
-        let err = Constraints::new(&[b("top", -0.02), b("lid", 0.01)], 2).unwrap_err().to_string();
+        let b = |name: &str, v: f64| Boundary {
+            name: name.into(),
+            nodes: vec![0, 1],
+            components: [None, None, Some(v)],
+            curve: LoadCurve::Smooth,
+        };
+        let err = Constraints::new(&[b("top", -0.02), b("lid", 0.01)], 2)
+            .unwrap_err()
+            .to_string();
         assert!(err.contains("'top'") && err.contains("'lid'"), "{err}");
-        assert_eq!(Constraints::new(&[b("a", 0.0), b("b", 0.0)], 2).unwrap().len(), 2);
+        assert_eq!(
+            Constraints::new(&[b("a", 0.0), b("b", 0.0)], 2)
+                .unwrap()
+                .len(),
+            2
+        );
     }
 }

@@ -53,6 +53,12 @@ enum Command {
         #[arg(long = "set", value_name = "KEY.PATH=VALUE")]
         set: Vec<String>,
     },
+    /// Print a Markdown table from run summaries (files written by `run --json` or summary.json).
+    Table {
+        /// JSON summary files.
+        #[arg(required = true)]
+        summaries: Vec<PathBuf>,
+    },
     /// Mesh a scene's geometry and write it as VTU (default meshes/NAME-ELEMENT.vtu).
     Mesh {
         scene: PathBuf,
@@ -77,7 +83,14 @@ fn main() -> ExitCode {
 
 fn execute(cmd: Command) -> hytled::Result<()> {
     match cmd {
-        Command::Run { scene, set, out, json, threads, vtu_format } => {
+        Command::Run {
+            scene,
+            set,
+            out,
+            json,
+            threads,
+            vtu_format,
+        } => {
             if let Some(n) = threads {
                 if n == 0 {
                     return Err(hytled::Error::Input("--threads must be at least 1".into()));
@@ -99,7 +112,10 @@ fn execute(cmd: Command) -> hytled::Result<()> {
             };
             let summary = simulation::run_scene(&sc, &opts)?;
             if json {
-                println!("{}", serde_json::to_string_pretty(&summary).unwrap_or_default());
+                println!(
+                    "{}",
+                    serde_json::to_string_pretty(&summary).unwrap_or_default()
+                );
             } else {
                 print!("{}", summary.table());
                 if let Some(dir) = out {
@@ -114,7 +130,12 @@ fn execute(cmd: Command) -> hytled::Result<()> {
             let c = hytled::material::Material::wave_speed(&prep.model.forces.material);
             let (dt, p) = hytled::solver::timestep::critical_time_step(&prep.model.points, c);
             println!("{}: valid", scene.display());
-            println!("  nodes {}, elements {}, integration points {}", prep.mesh.nodes.len(), prep.mesh.num_cells(), prep.model.points.len());
+            println!(
+                "  nodes {}, elements {}, integration points {}",
+                prep.mesh.nodes.len(),
+                prep.mesh.num_cells(),
+                prep.model.points.len()
+            );
             for b in &prep.model.boundaries {
                 println!("  boundary {:<12} {} nodes", b.name, b.nodes.len());
             }
@@ -124,14 +145,33 @@ fn execute(cmd: Command) -> hytled::Result<()> {
             if let Some((a, e)) = prep.min_dihedral {
                 println!("  min dihedral angle {a:.2} deg (element {e})");
             }
-            println!("  critical time step {dt:.4e} s (point {p}); dt = {:.4e} s", dt * sc.solver.dt_factor);
+            println!(
+                "  critical time step {dt:.4e} s (point {p}); dt = {:.4e} s",
+                dt * sc.solver.dt_factor
+            );
+            Ok(())
+        }
+        Command::Table { summaries } => {
+            let mut vals = Vec::new();
+            for p in &summaries {
+                let text = std::fs::read_to_string(p).map_err(|e| hytled::Error::io(p, e))?;
+                let v: serde_json::Value = serde_json::from_str(&text).map_err(|e| {
+                    hytled::Error::Input(format!("{}: not a JSON run summary: {e}", p.display()))
+                })?;
+                vals.push(v);
+            }
+            print!("{}", hytled::report::markdown_table(&vals));
             Ok(())
         }
         Command::Mesh { scene, set, out } => {
             let sc = hytled::scene::load(&scene, &set)?;
             let mesh = simulation::build_mesh(&sc)?;
             let path = out.unwrap_or_else(|| {
-                PathBuf::from(format!("meshes/{}-{}.vtu", sc.name.clone().unwrap_or_default(), hytled::fe::ElementKind::from(sc.discretization.element).name()))
+                PathBuf::from(format!(
+                    "meshes/{}-{}.vtu",
+                    sc.name.clone().unwrap_or_default(),
+                    hytled::fe::ElementKind::from(sc.discretization.element).name()
+                ))
             });
             if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
                 std::fs::create_dir_all(dir).map_err(|e| hytled::Error::io(dir, e))?;
@@ -148,7 +188,12 @@ fn execute(cmd: Command) -> hytled::Result<()> {
                 cell_data: vec![],
             };
             hytled::io::vtu::write_vtu(&path, &piece, VtuFormat::Appended)?;
-            println!("{}: {} nodes, {} elements", path.display(), mesh.nodes.len(), mesh.num_cells());
+            println!(
+                "{}: {} nodes, {} elements",
+                path.display(),
+                mesh.nodes.len(),
+                mesh.num_cells()
+            );
             if let Some((a, e)) = hytled::geometry::quality::min_dihedral_angle(&mesh) {
                 println!("min dihedral angle {a:.2} deg (element {e})");
             }

@@ -108,7 +108,9 @@ mod tests {
 
     /// Deterministic pseudo-random numbers (no extra crate for tests).
     fn lcg(state: &mut u64) -> f64 {
-        *state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+        *state = state
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
         ((*state >> 11) as f64) / ((1u64 << 53) as f64)
     }
 
@@ -189,6 +191,10 @@ mod tests {
         let f = Matrix3::from_diagonal(&nalgebra::Vector3::new(1.11574668, 1.11574668, 0.8));
         let sig = m.cauchy(&f);
         assert!(sig[(0, 0)].abs() < 1e-3, "lateral stress {}", sig[(0, 0)]);
-        assert!((sig[(2, 2)] + 613.1215).abs() < 1e-3, "axial {}", sig[(2, 2)]);
+        assert!(
+            (sig[(2, 2)] + 613.1215).abs() < 1e-3,
+            "axial {}",
+            sig[(2, 2)]
+        );
     }
 }

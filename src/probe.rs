@@ -32,18 +32,28 @@ impl Probe {
                 ElementShape::Hex8 => {
                     let x: [Vector3<f64>; 8] = std::array::from_fn(|a| mesh.nodes[ids[a]]);
                     // Cheap bounding-box rejection before Newton.
-                    let (lo, hi) = x.iter().fold((x[0], x[0]), |(l, h), p| (l.inf(p), h.sup(p)));
+                    let (lo, hi) = x
+                        .iter()
+                        .fold((x[0], x[0]), |(l, h), p| (l.inf(p), h.sup(p)));
                     let pad = 0.1 * (hi - lo).amax();
                     if (0..3).any(|k| position[k] < lo[k] - pad || position[k] > hi[k] + pad) {
                         continue;
                     }
-                    let Some(xi) = hex8::natural_coordinates(&x, &position) else { continue };
-                    let out = xi.iter().map(|v| (v.abs() - 1.0).max(0.0)).fold(0.0, f64::max) / 2.0;
+                    let Some(xi) = hex8::natural_coordinates(&x, &position) else {
+                        continue;
+                    };
+                    let out = xi
+                        .iter()
+                        .map(|v| (v.abs() - 1.0).max(0.0))
+                        .fold(0.0, f64::max)
+                        / 2.0;
                     (out, hex8::shape(xi).to_vec())
                 }
                 ElementShape::Tet4 => {
                     let x: [Vector3<f64>; 4] = std::array::from_fn(|a| mesh.nodes[ids[a]]);
-                    let Some(l) = tet4::barycentric(&x, &position) else { continue };
+                    let Some(l) = tet4::barycentric(&x, &position) else {
+                        continue;
+                    };
                     let out = l.iter().map(|v| (-v).max(0.0)).fold(0.0, f64::max);
                     (out, l.to_vec())
                 }
@@ -56,7 +66,13 @@ impl Probe {
             }
         }
         match best {
-            Some((out, e, w)) if out <= 0.05 => Ok(Probe { name: name.into(), position, nodes: mesh.cell(e).to_vec(), weights: w, element: e }),
+            Some((out, e, w)) if out <= 0.05 => Ok(Probe {
+                name: name.into(),
+                position,
+                nodes: mesh.cell(e).to_vec(),
+                weights: w,
+                element: e,
+            }),
             _ => Err(Error::Input(format!(
                 "probe '{name}' at {:?} m lies outside the mesh; move it inside the body",
                 position.as_slice()
@@ -66,6 +82,9 @@ impl Probe {
 
     /// Interpolated displacement, m.
     pub fn displacement(&self, u: &[Vector3<f64>]) -> Vector3<f64> {
-        self.nodes.iter().zip(&self.weights).fold(Vector3::zeros(), |acc, (&n, &w)| acc + u[n] * w)
+        self.nodes
+            .iter()
+            .zip(&self.weights)
+            .fold(Vector3::zeros(), |acc, (&n, &w)| acc + u[n] * w)
     }
 }

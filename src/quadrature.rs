@@ -73,7 +73,13 @@ impl QuadraturePoints {
     }
 
     /// Appends a one-point hexahedron with its hourglass matrix.
-    pub fn push_hourglass(&mut self, nodes: &[usize], dphi: &[Vector3<f64>; 8], w: f64, hg: SMatrix<f64, 8, 8>) {
+    pub fn push_hourglass(
+        &mut self,
+        nodes: &[usize],
+        dphi: &[Vector3<f64>; 8],
+        w: f64,
+        hg: SMatrix<f64, 8, 8>,
+    ) {
         let idx = self.hourglass.len() as u32;
         self.hourglass.push(hg);
         self.push(nodes, dphi, w, PointKind::Hourglass(idx));
@@ -86,7 +92,11 @@ impl QuadraturePoints {
 
     /// Largest node id referenced plus one.
     pub fn node_bound(&self) -> usize {
-        self.nodes.iter().map(|&n| n as usize + 1).max().unwrap_or(0)
+        self.nodes
+            .iter()
+            .map(|&n| n as usize + 1)
+            .max()
+            .unwrap_or(0)
     }
 }
 
@@ -123,7 +133,11 @@ impl NodeSlots {
                 fill[n] += 1;
             }
         }
-        NodeSlots { offsets, slots, points }
+        NodeSlots {
+            offsets,
+            slots,
+            points,
+        }
     }
 
     /// Range into `slots`/`points` for node `n`.

@@ -90,18 +90,40 @@ impl Summary {
         use std::fmt::Write;
         let mut s = String::new();
         let _ = writeln!(s, "scene            {}", self.scene);
-        let _ = writeln!(s, "method           {} / {} ({})", self.method, self.element, self.mode);
+        let _ = writeln!(
+            s,
+            "method           {} / {} ({})",
+            self.method, self.element, self.mode
+        );
         let _ = writeln!(s, "nodes            {}", self.nodes);
-        let _ = writeln!(s, "points           {} (elements {})", self.integration_points, self.mesh.elements);
+        let _ = writeln!(
+            s,
+            "points           {} (elements {})",
+            self.integration_points, self.mesh.elements
+        );
         if let Some(a) = self.mesh.min_dihedral_deg {
-            let _ = writeln!(s, "min dihedral     {a:.2} deg (element {})", self.mesh.min_dihedral_element.unwrap_or(0));
+            let _ = writeln!(
+                s,
+                "min dihedral     {a:.2} deg (element {})",
+                self.mesh.min_dihedral_element.unwrap_or(0)
+            );
         }
         let _ = writeln!(
             s,
             "time step        {:.4e} s = {:.3} x critical {:.4e} s (set by point {})",
             self.dt, self.dt_factor, self.dt_critical, self.mesh.critical_point
         );
-        let _ = writeln!(s, "steps            {} (t = {:.4} s){}", self.steps, self.simulated_time, if self.converged { "" } else { "  NOT CONVERGED" });
+        let _ = writeln!(
+            s,
+            "steps            {} (t = {:.4} s){}",
+            self.steps,
+            self.simulated_time,
+            if self.converged {
+                ""
+            } else {
+                "  NOT CONVERGED"
+            }
+        );
         let _ = writeln!(
             s,
             "wall time        {:.3} s (preprocess {:.3} s, solve {:.3} s; {:.3} ms/step, {} threads)",
@@ -113,17 +135,28 @@ impl Summary {
         );
         let _ = writeln!(s, "reactions (N)");
         for (k, v) in &self.reactions {
-            let _ = writeln!(s, "  {k:<14} {:>13.6e} {:>13.6e} {:>13.6e}", v[0], v[1], v[2]);
+            let _ = writeln!(
+                s,
+                "  {k:<14} {:>13.6e} {:>13.6e} {:>13.6e}",
+                v[0], v[1], v[2]
+            );
         }
         if !self.probes.is_empty() {
             let _ = writeln!(s, "probes (m)");
             for (k, p) in &self.probes {
                 let d = p.displacement;
-                let _ = writeln!(s, "  {k:<14} {:>13.6e} {:>13.6e} {:>13.6e}  at {:?}", d[0], d[1], d[2], p.position);
+                let _ = writeln!(
+                    s,
+                    "  {k:<14} {:>13.6e} {:>13.6e} {:>13.6e}  at {:?}",
+                    d[0], d[1], d[2], p.position
+                );
             }
         }
         let e = &self.energy;
-        let balance = e.balance_error.map(|b| format!(", balance error {:.4} %", 100.0 * b)).unwrap_or_default();
+        let balance = e
+            .balance_error
+            .map(|b| format!(", balance error {:.4} %", 100.0 * b))
+            .unwrap_or_default();
         let _ = writeln!(
             s,
             "energy (J)       external work {:.6e}, strain {:.6e}, kinetic {:.6e}{balance}",
@@ -144,4 +177,53 @@ impl Summary {
         }
         s
     }
+}
+
+/// Markdown table of run summaries (the JSON written by `run --json` or `summary.json`): one row
+/// per run with the first reference comparison of each, for README and study reports.
+pub fn markdown_table(summaries: &[serde_json::Value]) -> String {
+    use std::fmt::Write;
+    let mut s = String::from(
+        "| scene | element | mode | nodes | elements | reaction (N) | reference (N) | error | probe error | dt (s) | steps | solve (s) |\n\
+         |---|---|---|---|---|---|---|---|---|---|---|---|\n",
+    );
+    for v in summaries {
+        let refs = v["reference"].as_object();
+        let pick = |q: &str| {
+            refs.and_then(|r| {
+                r.values()
+                    .find(|c| c["quantity"].as_str().is_some_and(|x| x.starts_with(q)))
+            })
+        };
+        let (computed, value, err) = pick("reaction")
+            .map(|c| {
+                (
+                    c["computed"].as_f64().unwrap_or(f64::NAN),
+                    c["value"].as_f64().unwrap_or(f64::NAN),
+                    c["relative_error"].as_f64().unwrap_or(f64::NAN),
+                )
+            })
+            .unwrap_or((f64::NAN, f64::NAN, f64::NAN));
+        let perr = pick("probe")
+            .and_then(|c| c["relative_error"].as_f64())
+            .map(|e| format!("{:.2} %", 100.0 * e))
+            .unwrap_or_else(|| "-".into());
+        let _ = writeln!(
+            s,
+            "| {} | {} | {} | {} | {} | {:.4} | {:.4} | {:.2} % | {} | {:.3e} | {} | {:.2} |",
+            v["scene"].as_str().unwrap_or("?"),
+            v["element"].as_str().unwrap_or("?"),
+            v["mode"].as_str().unwrap_or("?"),
+            v["nodes"],
+            v["mesh"]["elements"],
+            computed,
+            value,
+            100.0 * err,
+            perr,
+            v["dt"].as_f64().unwrap_or(f64::NAN),
+            v["steps"],
+            v["wall_seconds"]["solve"].as_f64().unwrap_or(f64::NAN),
+        );
+    }
+    s
 }

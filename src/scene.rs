@@ -299,7 +299,10 @@ fn default_history() -> usize {
 
 impl Default for OutputSpec {
     fn default() -> Self {
-        OutputSpec { frames: default_frames(), history_rows: default_history() }
+        OutputSpec {
+            frames: default_frames(),
+            history_rows: default_history(),
+        }
     }
 }
 
@@ -311,9 +314,13 @@ pub fn load(path: &Path, overrides: &[String]) -> Result<Scene> {
 
 /// Parses scene text (see [`load`]); `path` names the source in errors.
 pub fn parse(text: &str, path: &Path, overrides: &[String]) -> Result<Scene> {
-    let err = |message: String| Error::Scene { file: PathBuf::from(path), message };
+    let err = |message: String| Error::Scene {
+        file: PathBuf::from(path),
+        message,
+    };
     // Deserialise the file as written first, so schema errors carry its line numbers.
-    let mut scene: Scene = toml::from_str(text).map_err(|e| err(with_suggestion(&e.to_string())))?;
+    let mut scene: Scene =
+        toml::from_str(text).map_err(|e| err(with_suggestion(&e.to_string())))?;
     if !overrides.is_empty() {
         let mut value: toml::Table = toml::from_str(text).map_err(|e| err(e.to_string()))?;
         for o in overrides {
@@ -321,7 +328,12 @@ pub fn parse(text: &str, path: &Path, overrides: &[String]) -> Result<Scene> {
         }
         scene = toml::Value::Table(value)
             .try_into()
-            .map_err(|e: toml::de::Error| err(format!("after --set overrides: {}", with_suggestion(e.message()))))?;
+            .map_err(|e: toml::de::Error| {
+                err(format!(
+                    "after --set overrides: {}",
+                    with_suggestion(e.message())
+                ))
+            })?;
     }
     if scene.name.is_none() {
         scene.name = path.file_stem().map(|s| s.to_string_lossy().into_owned());
@@ -332,8 +344,13 @@ pub fn parse(text: &str, path: &Path, overrides: &[String]) -> Result<Scene> {
 
 /// Sets `a.b.c = value` in a TOML table; the value is parsed as TOML (number, bool, array,
 /// inline table) or else taken as a string.
-pub fn apply_override(table: &mut toml::Table, assignment: &str) -> std::result::Result<(), String> {
-    let (key, raw) = assignment.split_once('=').ok_or("expected key.path=value")?;
+pub fn apply_override(
+    table: &mut toml::Table,
+    assignment: &str,
+) -> std::result::Result<(), String> {
+    let (key, raw) = assignment
+        .split_once('=')
+        .ok_or("expected key.path=value")?;
     let key = key.trim();
     let raw = raw.trim();
     if key.is_empty() {
@@ -350,7 +367,9 @@ pub fn apply_override(table: &mut toml::Table, assignment: &str) -> std::result:
             cur.insert(part.to_string(), value);
             return Ok(());
         }
-        let entry = cur.entry(part.to_string()).or_insert_with(|| toml::Value::Table(toml::Table::new()));
+        let entry = cur
+            .entry(part.to_string())
+            .or_insert_with(|| toml::Value::Table(toml::Table::new()));
         cur = match entry {
             toml::Value::Table(t) => t,
             _ => return Err(format!("'{}' is not a table", parts[..=i].join("."))),
@@ -366,14 +385,15 @@ fn with_suggestion(msg: &str) -> String {
             let rest = &msg[start + marker.len()..];
             let Some(end) = rest.find('`') else { break };
             let bad = &rest[..end];
-            let candidates: Vec<&str> = rest[end..].split('`').skip(1).step_by(2).collect();
+            // rest[end..] = "`, expected one of `a`, `b`": the names are every other piece.
+            let candidates: Vec<&str> = rest[end..].split('`').skip(2).step_by(2).collect();
             let best = candidates
                 .iter()
                 .map(|c| (strsim::jaro_winkler(bad, c), *c))
                 .max_by(|a, b| a.0.total_cmp(&b.0));
             if let Some((score, c)) = best {
                 if score > 0.7 {
-                    return format!("{msg}\n  did you mean `{c}`?");
+                    return format!("{}\n  did you mean `{c}`?", msg.trim_end());
                 }
             }
         }
@@ -386,7 +406,9 @@ fn validate(s: &Scene) -> std::result::Result<(), String> {
     match &s.geometry {
         Geometry::Box { min, max } => {
             if (0..3).any(|k| !(max[k] > min[k])) {
-                return Err(format!("geometry: box max {max:?} must exceed min {min:?} in every coordinate"));
+                return Err(format!(
+                    "geometry: box max {max:?} must exceed min {min:?} in every coordinate"
+                ));
             }
         }
         Geometry::Cylinder { radius, height } => {
@@ -398,26 +420,39 @@ fn validate(s: &Scene) -> std::result::Result<(), String> {
     let d = &s.discretization;
     if let Some(h) = d.size {
         if !(h > 0.0) {
-            return Err(format!("discretization.size = {h}: must be a positive length in m"));
+            return Err(format!(
+                "discretization.size = {h}: must be a positive length in m"
+            ));
         }
     }
     if let Some(div) = d.divisions {
         if div.iter().any(|&n| n == 0) {
-            return Err(format!("discretization.divisions = {div:?}: every division must be at least 1"));
+            return Err(format!(
+                "discretization.divisions = {div:?}: every division must be at least 1"
+            ));
         }
     }
     if d.size.is_none() && d.divisions.is_none() {
         return Err("discretization: give `size` (target element length, m) or `divisions`".into());
     }
     if !(d.hourglass >= 0.0) {
-        return Err(format!("discretization.hourglass = {}: must be >= 0 (default 0.01)", d.hourglass));
+        return Err(format!(
+            "discretization.hourglass = {}: must be >= 0 (default 0.01)",
+            d.hourglass
+        ));
     }
     let m = &s.material;
     if m.model != "neo-hookean" {
-        return Err(format!("material.model = '{}': the available model is 'neo-hookean'", m.model));
+        return Err(format!(
+            "material.model = '{}': the available model is 'neo-hookean'",
+            m.model
+        ));
     }
     if !(m.density > 0.0) {
-        return Err(format!("material.density = {}: must be positive (kg/m^3)", m.density));
+        return Err(format!(
+            "material.density = {}: must be positive (kg/m^3)",
+            m.density
+        ));
     }
     match (m.youngs_modulus, m.poisson_ratio, m.shear_modulus, m.bulk_modulus) {
         (Some(e), Some(nu), None, None) => {
@@ -433,22 +468,38 @@ fn validate(s: &Scene) -> std::result::Result<(), String> {
         _ => return Err("material: give either youngs_modulus and poisson_ratio, or shear_modulus and bulk_modulus".into()),
     }
     for (name, b) in &s.boundaries {
-        if b.fix.is_empty() && b.displacement.as_ref().is_none_or(|d| d.x.is_none() && d.y.is_none() && d.z.is_none()) {
+        if b.fix.is_empty()
+            && b.displacement
+                .as_ref()
+                .is_none_or(|d| d.x.is_none() && d.y.is_none() && d.z.is_none())
+        {
             return Err(format!("boundaries.{name}: neither `fix` nor `displacement` is given, so it constrains nothing"));
         }
     }
     let sv = &s.solver;
     if !(sv.dt_factor > 0.0) {
-        return Err(format!("solver.dt_factor = {}: must be positive (default 0.9)", sv.dt_factor));
+        return Err(format!(
+            "solver.dt_factor = {}: must be positive (default 0.9)",
+            sv.dt_factor
+        ));
     }
     if !(sv.duration > 0.0) {
-        return Err(format!("solver.duration = {}: must be positive (s)", sv.duration));
+        return Err(format!(
+            "solver.duration = {}: must be positive (s)",
+            sv.duration
+        ));
     }
     if !(sv.tolerance > 0.0) {
-        return Err(format!("solver.tolerance = {}: must be positive (m)", sv.tolerance));
+        return Err(format!(
+            "solver.tolerance = {}: must be positive (m)",
+            sv.tolerance
+        ));
     }
     if !(sv.damping >= 0.0) {
-        return Err(format!("solver.damping = {}: must be >= 0 (1/s)", sv.damping));
+        return Err(format!(
+            "solver.damping = {}: must be >= 0 (1/s)",
+            sv.damping
+        ));
     }
     for (name, r) in &s.references {
         let parts: Vec<&str> = r.quantity.split('.').collect();

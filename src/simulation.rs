@@ -32,7 +32,11 @@ pub fn material(scene: &Scene) -> NeoHookean {
     let m = &scene.material;
     match (m.youngs_modulus, m.poisson_ratio) {
         (Some(e), Some(nu)) => NeoHookean::from_young_poisson(e, nu, m.density),
-        _ => NeoHookean { mu: m.shear_modulus.unwrap_or(0.0), kappa: m.bulk_modulus.unwrap_or(0.0), density: m.density },
+        _ => NeoHookean {
+            mu: m.shear_modulus.unwrap_or(0.0),
+            kappa: m.bulk_modulus.unwrap_or(0.0),
+            density: m.density,
+        },
     }
 }
 
@@ -67,7 +71,11 @@ pub fn build_mesh(scene: &Scene) -> Result<Mesh> {
         Geometry::Cylinder { radius, height } => {
             let [ni, nr, nz] = match (d.divisions, d.size) {
                 (Some(div), _) => div,
-                (None, Some(h)) => [count(*radius, h, 2), count(0.5 * radius, h, 1), count(*height, h, 1)],
+                (None, Some(h)) => [
+                    count(*radius, h, 2),
+                    count(0.5 * radius, h, 1),
+                    count(*height, h, 1),
+                ],
                 (None, None) => unreachable_sizing()?,
             };
             match shape {
@@ -79,18 +87,27 @@ pub fn build_mesh(scene: &Scene) -> Result<Mesh> {
 }
 
 fn unreachable_sizing<T>() -> Result<T> {
-    Err(Error::Input("discretization: give `size` (m) or `divisions`".into()))
+    Err(Error::Input(
+        "discretization: give `size` (m) or `divisions`".into(),
+    ))
 }
 
 #[cfg(feature = "tetgen")]
 fn tetgen_mesh(scene: &Scene) -> Result<Mesh> {
     use crate::geometry::tetgen;
     let d = &scene.discretization;
-    let h = d.size.ok_or_else(|| Error::Input("discretization.mesher = 'tetgen' needs `size` (target edge length, m)".into()))?;
+    let h = d.size.ok_or_else(|| {
+        Error::Input("discretization.mesher = 'tetgen' needs `size` (target edge length, m)".into())
+    })?;
     // Volume of a regular tetrahedron of edge h.
     let max_volume = Some(h.powi(3) / (6.0 * 2f64.sqrt()));
     match &scene.geometry {
-        Geometry::Box { min, max } => tetgen::tetgen_box(Vector3::from(*min), Vector3::from(*max), max_volume, d.radius_edge_ratio),
+        Geometry::Box { min, max } => tetgen::tetgen_box(
+            Vector3::from(*min),
+            Vector3::from(*max),
+            max_volume,
+            d.radius_edge_ratio,
+        ),
         Geometry::Cylinder { radius, height } => {
             let n_circ = count(2.0 * std::f64::consts::PI * radius, h, 8);
             tetgen::tetgen_cylinder(*radius, *height, n_circ, max_volume, d.radius_edge_ratio)
@@ -124,7 +141,12 @@ pub fn boundaries(scene: &Scene, nodes: &[Vector3<f64>]) -> Result<Vec<Boundary>
                 }
             }
         }
-        out.push(Boundary { name: name.clone(), nodes: sel, components: comps, curve: b.curve });
+        out.push(Boundary {
+            name: name.clone(),
+            nodes: sel,
+            components: comps,
+            curve: b.curve,
+        });
     }
     Ok(out)
 }
@@ -146,7 +168,12 @@ pub fn prepare(scene: &Scene) -> Result<Prepared> {
     let mat = material(scene);
     let kind: ElementKind = scene.discretization.element.into();
     let (lambda, mu) = mat.lame();
-    let points = fe::element_points(&mesh, kind, scene.discretization.hourglass, lambda + 2.0 * mu)?;
+    let points = fe::element_points(
+        &mesh,
+        kind,
+        scene.discretization.hourglass,
+        lambda + 2.0 * mu,
+    )?;
     let bnd = boundaries(scene, &mesh.nodes)?;
     let probes = scene
         .probes
@@ -155,7 +182,14 @@ pub fn prepare(scene: &Scene) -> Result<Prepared> {
         .collect::<Result<Vec<_>>>()?;
     let min_dihedral = quality::min_dihedral_angle(&mesh);
     let model = Model::new(mesh.nodes.clone(), points, mat, bnd)?;
-    Ok(Prepared { mesh, model, probes, kind, min_dihedral, preprocess_seconds: t0.elapsed().as_secs_f64() })
+    Ok(Prepared {
+        mesh,
+        model,
+        probes,
+        kind,
+        min_dihedral,
+        preprocess_seconds: t0.elapsed().as_secs_f64(),
+    })
 }
 
 /// Integrator settings from the scene.
@@ -193,14 +227,24 @@ pub fn run_scene(scene: &Scene, opts: &RunOptions) -> Result<Summary> {
 /// Builds the summary of a finished run.
 pub fn summarize(scene: &Scene, prep: &Prepared, out: &RunOutput, total_seconds: f64) -> Summary {
     let model = &prep.model;
-    let reactions: BTreeMap<String, [f64; 3]> =
-        model.boundaries.iter().zip(model.reactions(&out.f_int)).map(|(b, r)| (b.name.clone(), [r.x, r.y, r.z])).collect();
+    let reactions: BTreeMap<String, [f64; 3]> = model
+        .boundaries
+        .iter()
+        .zip(model.reactions(&out.f_int))
+        .map(|(b, r)| (b.name.clone(), [r.x, r.y, r.z]))
+        .collect();
     let probes: BTreeMap<String, ProbeResult> = prep
         .probes
         .iter()
         .map(|p| {
             let d = p.displacement(&out.u);
-            (p.name.clone(), ProbeResult { position: [p.position.x, p.position.y, p.position.z], displacement: [d.x, d.y, d.z] })
+            (
+                p.name.clone(),
+                ProbeResult {
+                    position: [p.position.x, p.position.y, p.position.z],
+                    displacement: [d.x, d.y, d.z],
+                },
+            )
         })
         .collect();
     let reference = scene
@@ -218,7 +262,16 @@ pub fn summarize(scene: &Scene, prep: &Prepared, out: &RunOutput, total_seconds:
                 _ => probes.get(parts[1])?.displacement[k],
             };
             let relative_error = (computed - r.value).abs() / r.value.abs().max(f64::MIN_POSITIVE);
-            Some((name.clone(), Comparison { quantity: r.quantity.clone(), value: r.value, computed, relative_error, source: r.source.clone() }))
+            Some((
+                name.clone(),
+                Comparison {
+                    quantity: r.quantity.clone(),
+                    value: r.value,
+                    computed,
+                    relative_error,
+                    source: r.source.clone(),
+                },
+            ))
         })
         .collect();
     let w = out.external_work;
@@ -240,15 +293,20 @@ pub fn summarize(scene: &Scene, prep: &Prepared, out: &RunOutput, total_seconds:
         simulated_time: out.simulated_time,
         converged: out.converged,
         threads: rayon::current_num_threads(),
-        wall_seconds: WallSeconds { preprocess: prep.preprocess_seconds, solve: out.solve_seconds, total: total_seconds },
+        wall_seconds: WallSeconds {
+            preprocess: prep.preprocess_seconds,
+            solve: out.solve_seconds,
+            total: total_seconds,
+        },
         reactions,
         probes,
         energy: Energy {
             external_work: w,
             strain_energy: out.strain_energy,
             kinetic: out.kinetic_energy,
-            balance_error: (scene.solver.mode == Mode::Dynamic)
-                .then(|| (w - out.strain_energy - out.kinetic_energy).abs() / w.abs().max(f64::MIN_POSITIVE)),
+            balance_error: (scene.solver.mode == Mode::Dynamic).then(|| {
+                (w - out.strain_energy - out.kinetic_energy).abs() / w.abs().max(f64::MIN_POSITIVE)
+            }),
         },
         reference,
         mesh: MeshInfo {
@@ -264,7 +322,14 @@ pub fn summarize(scene: &Scene, prep: &Prepared, out: &RunOutput, total_seconds:
 
 /// Writes one VTU per frame (displacement; Cauchy stress, von Mises stress and J per element),
 /// a `.pvd` series, `history.csv`, `relaxation.csv` (relaxation runs) and `summary.json`.
-pub fn write_outputs(dir: &Path, scene: &Scene, prep: &mut Prepared, out: &RunOutput, summary: &Summary, format: VtuFormat) -> Result<()> {
+pub fn write_outputs(
+    dir: &Path,
+    scene: &Scene,
+    prep: &mut Prepared,
+    out: &RunOutput,
+    summary: &Summary,
+    format: VtuFormat,
+) -> Result<()> {
     std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
     let name = scene.name.clone().unwrap_or_else(|| "run".into());
     let mesh = &prep.mesh;
@@ -282,11 +347,27 @@ pub fn write_outputs(dir: &Path, scene: &Scene, prep: &mut Prepared, out: &RunOu
             connectivity: &mesh.cells,
             offsets: &offsets,
             types: &types,
-            point_data: vec![DataArray { name: "displacement", components: 3, values: &disp }],
+            point_data: vec![DataArray {
+                name: "displacement",
+                components: 3,
+                values: &disp,
+            }],
             cell_data: vec![
-                DataArray { name: "cauchy_stress", components: 9, values: &sig },
-                DataArray { name: "von_mises", components: 1, values: &vm },
-                DataArray { name: "J", components: 1, values: &jac },
+                DataArray {
+                    name: "cauchy_stress",
+                    components: 9,
+                    values: &sig,
+                },
+                DataArray {
+                    name: "von_mises",
+                    components: 1,
+                    values: &vm,
+                },
+                DataArray {
+                    name: "J",
+                    components: 1,
+                    values: &jac,
+                },
             ],
         };
         vtu::write_vtu(&dir.join(&file), &piece, format)?;
@@ -313,12 +394,33 @@ pub fn write_outputs(dir: &Path, scene: &Scene, prep: &mut Prepared, out: &RunOu
         .collect();
     crate::io::csv::write_csv(&dir.join("history.csv"), &header, &rows)?;
     if !out.relaxation.is_empty() {
-        let header: Vec<String> = ["step", "omega_min_rad_s", "r", "accepted", "error_estimate_m"].map(String::from).to_vec();
-        let rows: Vec<Vec<f64>> =
-            out.relaxation.iter().map(|r| vec![r.step as f64, r.omega_min, r.r, r.accepted as u8 as f64, r.error_estimate]).collect();
+        let header: Vec<String> = [
+            "step",
+            "omega_min_rad_s",
+            "r",
+            "accepted",
+            "error_estimate_m",
+        ]
+        .map(String::from)
+        .to_vec();
+        let rows: Vec<Vec<f64>> = out
+            .relaxation
+            .iter()
+            .map(|r| {
+                vec![
+                    r.step as f64,
+                    r.omega_min,
+                    r.r,
+                    r.accepted as u8 as f64,
+                    r.error_estimate,
+                ]
+            })
+            .collect();
         crate::io::csv::write_csv(&dir.join("relaxation.csv"), &header, &rows)?;
     }
-    let json = serde_json::to_string_pretty(summary).map_err(|e| Error::Input(format!("cannot serialise the summary: {e}")))?;
-    std::fs::write(dir.join("summary.json"), json).map_err(|e| Error::io(dir.join("summary.json"), e))?;
+    let json = serde_json::to_string_pretty(summary)
+        .map_err(|e| Error::Input(format!("cannot serialise the summary: {e}")))?;
+    std::fs::write(dir.join("summary.json"), json)
+        .map_err(|e| Error::io(dir.join("summary.json"), e))?;
     Ok(())
 }

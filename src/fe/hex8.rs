@@ -117,7 +117,9 @@ impl Hex8Reference {
 
 /// Cofactor matrix of J, so that J^-T det J = cof(J) and dN/dX det J = cof(J) dN/dxi.
 fn cofactor(j: &Matrix3<f64>) -> Matrix3<f64> {
-    let c = |r0: usize, c0: usize, r1: usize, c1: usize| j[(r0, c0)] * j[(r1, c1)] - j[(r0, c1)] * j[(r1, c0)];
+    let c = |r0: usize, c0: usize, r1: usize, c1: usize| {
+        j[(r0, c0)] * j[(r1, c1)] - j[(r0, c1)] * j[(r1, c0)]
+    };
     Matrix3::new(
         c(1, 1, 2, 2),
         -c(1, 0, 2, 2),
@@ -159,7 +161,8 @@ mod tests {
     use super::*;
 
     fn distorted() -> [Vector3<f64>; 8] {
-        let mut x: [Vector3<f64>; 8] = std::array::from_fn(|a| Vector3::new(XI[a][0], XI[a][1], XI[a][2]) * 0.01);
+        let mut x: [Vector3<f64>; 8] =
+            std::array::from_fn(|a| Vector3::new(XI[a][0], XI[a][1], XI[a][2]) * 0.01);
         x[6] += Vector3::new(0.003, 0.002, -0.001);
         x[1] += Vector3::new(-0.001, 0.002, 0.0015);
         x[4] += Vector3::new(0.002, 0.0, 0.0);
@@ -178,7 +181,8 @@ mod tests {
         assert!((m - Matrix3::identity()).norm() < 1e-12, "{m}");
         let s: Vector3<f64> = h.b.iter().sum();
         assert!(s.norm() < 1e-10);
-        let cube: [Vector3<f64>; 8] = std::array::from_fn(|a| Vector3::new(XI[a][0], XI[a][1], XI[a][2]) * 0.5);
+        let cube: [Vector3<f64>; 8] =
+            std::array::from_fn(|a| Vector3::new(XI[a][0], XI[a][1], XI[a][2]) * 0.5);
         assert!((Hex8Reference::new(&cube).unwrap().volume - 1.0).abs() < 1e-14);
     }
 
@@ -190,7 +194,11 @@ mod tests {
         // g^T x = Gamma^T x - Gamma^T x B^T x = 0 for each coordinate column: no force under affine motion.
         for i in 0..3 {
             let col = SMatrix::<f64, 8, 1>::from_fn(|a, _| x[a][i] + 0.3);
-            assert!((hg * col).norm() < 1e-9 * hg.norm(), "{}", (hg * col).norm());
+            assert!(
+                (hg * col).norm() < 1e-9 * hg.norm(),
+                "{}",
+                (hg * col).norm()
+            );
         }
         assert!(hg.norm() > 0.0);
     }

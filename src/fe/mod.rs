@@ -61,14 +61,20 @@ pub fn element_points(
         match kind {
             ElementKind::Hex8 => {
                 let x: [_; 8] = std::array::from_fn(|a| mesh.nodes[ids[a]]);
-                let h = hex8::Hex8Reference::new(&x).map_err(|volume| Error::InvalidElement { element: e, volume })?;
+                let h = hex8::Hex8Reference::new(&x)
+                    .map_err(|volume| Error::InvalidElement { element: e, volume })?;
                 let hg = h.hourglass_matrix(&x, hourglass_coefficient, lambda_plus_2mu);
                 qp.push_hourglass(ids, &h.b, h.volume, hg);
             }
             ElementKind::Tet4 | ElementKind::Tet4Anp => {
                 let x: [_; 4] = std::array::from_fn(|a| mesh.nodes[ids[a]]);
-                let (b, volume) = tet4::derivatives(&x).map_err(|volume| Error::InvalidElement { element: e, volume })?;
-                let pk = if kind == ElementKind::Tet4Anp { PointKind::Anp } else { PointKind::Standard };
+                let (b, volume) = tet4::derivatives(&x)
+                    .map_err(|volume| Error::InvalidElement { element: e, volume })?;
+                let pk = if kind == ElementKind::Tet4Anp {
+                    PointKind::Anp
+                } else {
+                    PointKind::Standard
+                };
                 qp.push(ids, &b, volume, pk);
             }
         }

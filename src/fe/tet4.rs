@@ -9,7 +9,10 @@ pub fn derivatives(x: &[Vector3<f64>; 4]) -> Result<([Vector3<f64>; 4], f64), f6
     let det = j.determinant();
     let volume = det / 6.0;
     // Relative threshold: a tet flatter than this has no usable derivatives.
-    let scale = (x[1] - x[0]).norm().max((x[2] - x[0]).norm()).max((x[3] - x[0]).norm());
+    let scale = (x[1] - x[0])
+        .norm()
+        .max((x[2] - x[0]).norm())
+        .max((x[3] - x[0]).norm());
     if !(volume > 1e-12 * scale.powi(3)) {
         return Err(volume);
     }

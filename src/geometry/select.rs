@@ -102,13 +102,33 @@ mod tests {
 
     #[test]
     fn plane_selection_and_empty_error() {
-        let nodes: Vec<_> = (0..5).map(|i| Vector3::new(0.0, 0.0, 0.025 * i as f64)).collect();
-        let s = Selection::Plane { axis: Axis::Z, value: 0.1, tolerance: None };
+        let nodes: Vec<_> = (0..5)
+            .map(|i| Vector3::new(0.0, 0.0, 0.025 * i as f64))
+            .collect();
+        let s = Selection::Plane {
+            axis: Axis::Z,
+            value: 0.1,
+            tolerance: None,
+        };
         assert_eq!(s.select(&nodes, "boundary 'top'").unwrap(), vec![4]);
-        let s = Selection::Plane { axis: Axis::Z, value: 0.2, tolerance: None };
+        let s = Selection::Plane {
+            axis: Axis::Z,
+            value: 0.2,
+            tolerance: None,
+        };
         let e = s.select(&nodes, "boundary 'top'").unwrap_err().to_string();
-        assert!(e.contains("boundary 'top'") && e.contains("selects no node"), "{e}");
-        let s = Selection::Sphere { center: [1.0, 1.0, 1.0], radius: 0.1 };
-        assert!(s.select(&nodes, "probe").unwrap_err().to_string().contains("contains no node"));
+        assert!(
+            e.contains("boundary 'top'") && e.contains("selects no node"),
+            "{e}"
+        );
+        let s = Selection::Sphere {
+            center: [1.0, 1.0, 1.0],
+            radius: 0.1,
+        };
+        assert!(s
+            .select(&nodes, "probe")
+            .unwrap_err()
+            .to_string()
+            .contains("contains no node"));
     }
 }

@@ -86,33 +86,45 @@ impl<M: Material> Forces<M> {
     /// the element J's around it. Parallel over points, then over nodes.
     fn average_nodal_j(&mut self, qp: &QuadraturePoints, slots: &NodeSlots, u: &[Vector3<f64>]) {
         let pj = SharedMut(self.point_j.as_mut_ptr());
-        (0..qp.len()).into_par_iter().with_min_len(CHUNK).for_each(|p| {
-            if qp.kinds[p] == PointKind::Anp {
-                let j = deformation_gradient(qp, p, u).determinant();
-                // SAFETY: each p writes only its own entry.
-                unsafe { *pj.get().add(p) = j };
-            }
-        });
+        (0..qp.len())
+            .into_par_iter()
+            .with_min_len(CHUNK)
+            .for_each(|p| {
+                if qp.kinds[p] == PointKind::Anp {
+                    let j = deformation_gradient(qp, p, u).determinant();
+                    // SAFETY: each p writes only its own entry.
+                    unsafe { *pj.get().add(p) = j };
+                }
+            });
         let point_j = &self.point_j;
         let inv_w = &self.node_anp_inv_weight;
-        self.node_j.par_iter_mut().with_min_len(CHUNK).enumerate().for_each(|(n, nj)| {
-            if inv_w[n] > 0.0 {
-                let mut acc = 0.0;
-                for i in slots.range(n) {
-                    let p = slots.points[i] as usize;
-                    if qp.kinds[p] == PointKind::Anp {
-                        acc += qp.weights[p] * point_j[p];
+        self.node_j
+            .par_iter_mut()
+            .with_min_len(CHUNK)
+            .enumerate()
+            .for_each(|(n, nj)| {
+                if inv_w[n] > 0.0 {
+                    let mut acc = 0.0;
+                    for i in slots.range(n) {
+                        let p = slots.points[i] as usize;
+                        if qp.kinds[p] == PointKind::Anp {
+                            acc += qp.weights[p] * point_j[p];
+                        }
                     }
+                    *nj = acc * inv_w[n];
                 }
-                *nj = acc * inv_w[n];
-            }
-        });
+            });
     }
 
     /// F used for the stress at point `p`: the plain F, or for ANP points F scaled by
     /// (J_avg / J)^(1/3) with J_avg the mean of the point's nodal averaged J's.
     #[inline(always)]
-    fn stress_gradient(&self, qp: &QuadraturePoints, p: usize, u: &[Vector3<f64>]) -> (Matrix3<f64>, f64) {
+    fn stress_gradient(
+        &self,
+        qp: &QuadraturePoints,
+        p: usize,
+        u: &[Vector3<f64>],
+    ) -> (Matrix3<f64>, f64) {
         let f = deformation_gradient(qp, p, u);
         let j = f.determinant();
         if qp.kinds[p] == PointKind::Anp {
@@ -126,46 +138,58 @@ impl<M: Material> Forces<M> {
     }
 
     /// Internal nodal forces F_int(u), N, into `out` (one entry per node). Parallel.
-    pub fn compute(&mut self, qp: &QuadraturePoints, slots: &NodeSlots, u: &[Vector3<f64>], out: &mut [Vector3<f64>]) {
+    pub fn compute(
+        &mut self,
+        qp: &QuadraturePoints,
+        slots: &NodeSlots,
+        u: &[Vector3<f64>],
+        out: &mut [Vector3<f64>],
+    ) {
         if self.has_anp {
             self.average_nodal_j(qp, slots, u);
         }
         let sf = SharedMut(self.slot_forces.as_mut_ptr());
         let pj = SharedMut(self.point_j.as_mut_ptr());
         let this = &*self;
-        (0..qp.len()).into_par_iter().with_min_len(CHUNK).for_each(|p| {
-            let (f, j) = this.stress_gradient(qp, p, u);
-            let s = this.material.pk2_stress(&f, j);
-            let pw = (f * s) * qp.weights[p];
-            let r = qp.slots(p);
-            let base = r.start;
-            // SAFETY: point p writes only its own slots offsets[p]..offsets[p+1] and entry p.
-            unsafe {
-                *pj.get().add(p) = j;
-                for sl in r {
-                    *sf.get().add(sl) = pw * qp.dphi[sl];
-                }
-                if let PointKind::Hourglass(h) = qp.kinds[p] {
-                    let hg = &qp.hourglass[h as usize];
-                    let ids = &qp.nodes[base..base + 8];
-                    for a in 0..8 {
-                        let mut acc = Vector3::zeros();
-                        for b in 0..8 {
-                            acc += u[ids[b] as usize] * hg[(a, b)];
+        (0..qp.len())
+            .into_par_iter()
+            .with_min_len(CHUNK)
+            .for_each(|p| {
+                let (f, j) = this.stress_gradient(qp, p, u);
+                let s = this.material.pk2_stress(&f, j);
+                let pw = (f * s) * qp.weights[p];
+                let r = qp.slots(p);
+                let base = r.start;
+                // SAFETY: point p writes only its own slots offsets[p]..offsets[p+1] and entry p.
+                unsafe {
+                    *pj.get().add(p) = j;
+                    for sl in r {
+                        *sf.get().add(sl) = pw * qp.dphi[sl];
+                    }
+                    if let PointKind::Hourglass(h) = qp.kinds[p] {
+                        let hg = &qp.hourglass[h as usize];
+                        let ids = &qp.nodes[base..base + 8];
+                        for a in 0..8 {
+                            let mut acc = Vector3::zeros();
+                            for b in 0..8 {
+                                acc += u[ids[b] as usize] * hg[(a, b)];
+                            }
+                            *sf.get().add(base + a) += acc;
                         }
-                        *sf.get().add(base + a) += acc;
                     }
                 }
-            }
-        });
+            });
         let slot_forces = &self.slot_forces;
-        out.par_iter_mut().with_min_len(CHUNK).enumerate().for_each(|(n, o)| {
-            let mut acc = Vector3::zeros();
-            for i in slots.range(n) {
-                acc += slot_forces[slots.slots[i] as usize];
-            }
-            *o = acc;
-        });
+        out.par_iter_mut()
+            .with_min_len(CHUNK)
+            .enumerate()
+            .for_each(|(n, o)| {
+                let mut acc = Vector3::zeros();
+                for i in slots.range(n) {
+                    acc += slot_forces[slots.slots[i] as usize];
+                }
+                *o = acc;
+            });
     }
 
     /// Smallest det F over the points of the last evaluation, and the point that has it.
@@ -174,11 +198,25 @@ impl<M: Material> Forces<M> {
             .par_iter()
             .enumerate()
             .map(|(p, &j)| (j, p))
-            .reduce(|| (f64::INFINITY, usize::MAX), |a, b| if b.0 < a.0 || (b.0 == a.0 && b.1 < a.1) { b } else { a })
+            .reduce(
+                || (f64::INFINITY, usize::MAX),
+                |a, b| {
+                    if b.0 < a.0 || (b.0 == a.0 && b.1 < a.1) {
+                        b
+                    } else {
+                        a
+                    }
+                },
+            )
     }
 
     /// Strain energy sum_p w_p W(F_p) + sum_hex u^T HG u / 2, J. Deterministic (fixed-order sum).
-    pub fn strain_energy(&mut self, qp: &QuadraturePoints, slots: &NodeSlots, u: &[Vector3<f64>]) -> f64 {
+    pub fn strain_energy(
+        &mut self,
+        qp: &QuadraturePoints,
+        slots: &NodeSlots,
+        u: &[Vector3<f64>],
+    ) -> f64 {
         if self.has_anp {
             self.average_nodal_j(qp, slots, u);
         }
@@ -205,7 +243,12 @@ impl<M: Material> Forces<M> {
     }
 
     /// Per point: Cauchy stress (Pa, row-major 9 values), von Mises stress (Pa) and J.
-    pub fn stress_fields(&mut self, qp: &QuadraturePoints, slots: &NodeSlots, u: &[Vector3<f64>]) -> (Vec<f64>, Vec<f64>, Vec<f64>) {
+    pub fn stress_fields(
+        &mut self,
+        qp: &QuadraturePoints,
+        slots: &NodeSlots,
+        u: &[Vector3<f64>],
+    ) -> (Vec<f64>, Vec<f64>, Vec<f64>) {
         if self.has_anp {
             self.average_nodal_j(qp, slots, u);
         }

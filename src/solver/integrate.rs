@@ -146,11 +146,21 @@ pub fn run<M: Material>(model: &mut Model<M>, s: &Settings) -> Result<RunOutput>
     } else {
         s.max_steps
     };
-    let (lo, hi) = model.nodes.iter().fold((Vector3::repeat(f64::INFINITY), Vector3::repeat(f64::NEG_INFINITY)), |(l, h), p| (l.inf(p), h.sup(p)));
+    let (lo, hi) = model.nodes.iter().fold(
+        (
+            Vector3::repeat(f64::INFINITY),
+            Vector3::repeat(f64::NEG_INFINITY),
+        ),
+        |(l, h), p| (l.inf(p), h.sup(p)),
+    );
     let size = (hi - lo).norm();
     let load_frac = |step: usize| -> f64 {
         if dynamic {
-            if s.load_time > 0.0 { step as f64 * dt / s.load_time } else { 1.0 }
+            if s.load_time > 0.0 {
+                step as f64 * dt / s.load_time
+            } else {
+                1.0
+            }
         } else if s.load_steps > 0 {
             step as f64 / s.load_steps as f64
         } else {
@@ -175,21 +185,38 @@ pub fn run<M: Material>(model: &mut Model<M>, s: &Settings) -> Result<RunOutput>
     u_prev.copy_from_slice(&u);
 
     let frame_steps: Vec<usize> = if dynamic {
-        (0..=s.frames.max(1)).map(|k| (k * total_steps) / s.frames.max(1)).collect()
+        (0..=s.frames.max(1))
+            .map(|k| (k * total_steps) / s.frames.max(1))
+            .collect()
     } else {
         vec![0]
     };
     // Frame buffers are allocated here so that the loop only copies into them.
-    let mut frame_bufs: Vec<Vec<Vector3<f64>>> = (0..frame_steps.len() + usize::from(!dynamic)).map(|_| zero.clone()).collect();
+    let mut frame_bufs: Vec<Vec<Vector3<f64>>> = (0..frame_steps.len() + usize::from(!dynamic))
+        .map(|_| zero.clone())
+        .collect();
     let mut frames: Vec<(f64, Vec<Vector3<f64>>)> = Vec::with_capacity(frame_bufs.len());
-    let history_every = if dynamic { (total_steps / s.history_rows.max(1)).max(1) } else { s.estimate_interval.max(1) };
+    let history_every = if dynamic {
+        (total_steps / s.history_rows.max(1)).max(1)
+    } else {
+        s.estimate_interval.max(1)
+    };
     let mut history = Vec::with_capacity(if dynamic { s.history_rows + 2 } else { 1024 });
     let mut relaxation = Vec::new();
 
     let pb = if s.progress {
-        let pb = ProgressBar::with_draw_target(Some(total_steps as u64), ProgressDrawTarget::stderr_with_hz(5));
-        let tmpl = if dynamic { "{bar:40} {pos}/{len} steps {elapsed} (eta {eta}) {msg}" } else { "{spinner} relaxation step {pos} {elapsed} {msg}" };
-        pb.set_style(ProgressStyle::with_template(tmpl).unwrap_or_else(|_| ProgressStyle::default_bar()));
+        let pb = ProgressBar::with_draw_target(
+            Some(total_steps as u64),
+            ProgressDrawTarget::stderr_with_hz(5),
+        );
+        let tmpl = if dynamic {
+            "{bar:40} {pos}/{len} steps {elapsed} (eta {eta}) {msg}"
+        } else {
+            "{spinner} relaxation step {pos} {elapsed} {msg}"
+        };
+        pb.set_style(
+            ProgressStyle::with_template(tmpl).unwrap_or_else(|_| ProgressStyle::default_bar()),
+        );
         pb
     } else {
         ProgressBar::hidden()
@@ -210,7 +237,9 @@ pub fn run<M: Material>(model: &mut Model<M>, s: &Settings) -> Result<RunOutput>
 
     loop {
         let t = step as f64 * dt;
-        model.forces.compute(&model.points, &model.slots, &u, &mut f);
+        model
+            .forces
+            .compute(&model.points, &model.slots, &u, &mut f);
         let (min_j, p_min) = model.forces.min_j();
         if !(min_j > 0.0) {
             return Err(Error::Unstable(format!(
@@ -220,7 +249,8 @@ pub fn run<M: Material>(model: &mut Model<M>, s: &Settings) -> Result<RunOutput>
                 dt / dt_crit
             )));
         }
-        let at_end = (dynamic && step == total_steps) || finish || (!dynamic && step >= total_steps);
+        let at_end =
+            (dynamic && step == total_steps) || finish || (!dynamic && step >= total_steps);
         if step % history_every == 0 || at_end {
             let se = model.forces.strain_energy(&model.points, &model.slots, &u);
             let ke = kinetic(&model.mass, &u, &u_prev, dt);
@@ -231,8 +261,19 @@ pub fn run<M: Material>(model: &mut Model<M>, s: &Settings) -> Result<RunOutput>
                     dt / dt_crit
                 )));
             }
-            let reactions = model.reactions(&f).iter().map(|v| [v.x, v.y, v.z]).collect();
-            history.push(HistoryRow { step, time: t, reactions, external_work, strain_energy: se, kinetic_energy: ke });
+            let reactions = model
+                .reactions(&f)
+                .iter()
+                .map(|v| [v.x, v.y, v.z])
+                .collect();
+            history.push(HistoryRow {
+                step,
+                time: t,
+                reactions,
+                external_work,
+                strain_energy: se,
+                kinetic_energy: ke,
+            });
         }
         if frame_steps.contains(&step) {
             if let Some(mut buf) = frame_bufs.pop() {
@@ -272,7 +313,11 @@ pub fn run<M: Material>(model: &mut Model<M>, s: &Settings) -> Result<RunOutput>
         // Work of the boundary forces: sum (F_int + M a) . (u(n+1) - u(n-1)) / 2 over constrained DOFs.
         for &(node, comp) in cons.dofs.iter() {
             let (i, k) = (node as usize, comp as usize);
-            let inertia = if dynamic { model.mass[i] * (u_next[i][k] - 2.0 * u[i][k] + u_prev[i][k]) / (dt * dt) } else { 0.0 };
+            let inertia = if dynamic {
+                model.mass[i] * (u_next[i][k] - 2.0 * u[i][k] + u_prev[i][k]) / (dt * dt)
+            } else {
+                0.0
+            };
             external_work += (f[i][k] + inertia) * 0.5 * (u_next[i][k] - u_prev[i][k]);
         }
         for v in u_next.iter() {
@@ -291,7 +336,11 @@ pub fn run<M: Material>(model: &mut Model<M>, s: &Settings) -> Result<RunOutput>
             if loaded_step == 0 {
                 // Initial guess: Rayleigh quotient of the loaded shape over all DOFs.
                 let num: f64 = u.iter().zip(&f).map(|(x, y)| x.dot(y)).sum();
-                let den: f64 = u.iter().zip(&model.mass).map(|(x, m)| m * x.norm_squared()).sum();
+                let den: f64 = u
+                    .iter()
+                    .zip(&model.mass)
+                    .map(|(x, m)| m * x.norm_squared())
+                    .sum();
                 if num > 0.0 && den > 0.0 {
                     r = rate_from_omega((num / den).sqrt(), dt);
                 }
@@ -318,7 +367,13 @@ pub fn run<M: Material>(model: &mut Model<M>, s: &Settings) -> Result<RunOutput>
                     }
                     omega_prev = Some(omega);
                     let rp = r + 0.2 * (1.0 - r);
-                    relaxation.push(RelaxationRecord { step, omega_min: omega, r, accepted, error_estimate: max_du * rp / (1.0 - rp) });
+                    relaxation.push(RelaxationRecord {
+                        step,
+                        omega_min: omega,
+                        r,
+                        accepted,
+                        error_estimate: max_du * rp / (1.0 - rp),
+                    });
                 }
                 u_ref.copy_from_slice(&u);
                 f_ref.copy_from_slice(&f);
@@ -354,7 +409,9 @@ pub fn run<M: Material>(model: &mut Model<M>, s: &Settings) -> Result<RunOutput>
         frames.push((step as f64 * dt, buf));
     }
     let last = history.last().cloned();
-    let (strain_energy, kinetic_energy) = last.map(|h| (h.strain_energy, h.kinetic_energy)).unwrap_or((0.0, 0.0));
+    let (strain_energy, kinetic_energy) = last
+        .map(|h| (h.strain_energy, h.kinetic_energy))
+        .unwrap_or((0.0, 0.0));
     Ok(RunOutput {
         u,
         f_int: f,
@@ -376,5 +433,8 @@ pub fn run<M: Material>(model: &mut Model<M>, s: &Settings) -> Result<RunOutput>
 
 /// Kinetic energy with the backward-difference velocity (u(n) - u(n-1)) / dt, J. Fixed-order sum.
 fn kinetic(mass: &[f64], u: &[Vector3<f64>], u_prev: &[Vector3<f64>], dt: f64) -> f64 {
-    mass.iter().zip(u.iter().zip(u_prev)).map(|(m, (a, b))| 0.5 * m * ((a - b) / dt).norm_squared()).sum()
+    mass.iter()
+        .zip(u.iter().zip(u_prev))
+        .map(|(m, (a, b))| 0.5 * m * ((a - b) / dt).norm_squared())
+        .sum()
 }

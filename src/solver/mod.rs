@@ -32,7 +32,12 @@ impl<M: Material> Model<M> {
     /// Assembles the model. Masses: each point's mass rho w is split evenly among its support
     /// nodes (for FE elements this is the usual element-mass lumping). A node that carries no
     /// mass is an error naming it.
-    pub fn new(nodes: Vec<Vector3<f64>>, points: QuadraturePoints, material: M, boundaries: Vec<Boundary>) -> Result<Self> {
+    pub fn new(
+        nodes: Vec<Vector3<f64>>,
+        points: QuadraturePoints,
+        material: M,
+        boundaries: Vec<Boundary>,
+    ) -> Result<Self> {
         let n = nodes.len();
         let slots = NodeSlots::new(&points, n);
         let rho = material.density();
@@ -55,12 +60,27 @@ impl<M: Material> Model<M> {
         }
         let constraints = Constraints::new(&boundaries, n)?;
         let forces = Forces::new(material, &points, &slots, n);
-        Ok(Model { nodes, points, slots, mass, boundaries, constraints, forces })
+        Ok(Model {
+            nodes,
+            points,
+            slots,
+            mass,
+            boundaries,
+            constraints,
+            forces,
+        })
     }
 
     /// Sum of internal nodal forces over each boundary's nodes, N: the force each boundary
     /// applies to the body (negative along the axis in compression, as in REFERENCE.md).
     pub fn reactions(&self, f_int: &[Vector3<f64>]) -> Vec<Vector3<f64>> {
-        self.boundaries.iter().map(|b| b.nodes.iter().fold(Vector3::zeros(), |acc, &i| acc + f_int[i])).collect()
+        self.boundaries
+            .iter()
+            .map(|b| {
+                b.nodes
+                    .iter()
+                    .fold(Vector3::zeros(), |acc, &i| acc + f_int[i])
+            })
+            .collect()
     }
 }

@@ -1,0 +1,41 @@
+//! Cube under unconstrained compression against the exact homogeneous solution (REFERENCE.md,
+//! "Cube": a = 1.11574668, F_z = -7.63269 N).
+
+mod common;
+use common::*;
+
+#[test]
+fn cube_hex8_relaxation_matches_exact_solution() {
+    let s = run_case("cases/cube-compression.toml", &[]);
+    assert!(s.converged);
+    let f = s.reactions["top"][2];
+    assert!((f - -7.63269).abs() / 7.63269 < 0.005, "top reaction {f} N");
+    // Lateral stretch a from the corner probe: u_x = (a - 1) 0.1 m.
+    let a = 1.0 + s.probes["corner"].displacement[0] / 0.1;
+    assert!((a - 1.11574668).abs() / 1.11574668 < 0.005, "a = {a}");
+    assert!(rel_err(&s, "top_force") < 0.005);
+}
+
+#[test]
+fn cube_tet4_anp_relaxation_matches_exact_solution() {
+    let s = run_case(
+        "cases/cube-compression.toml",
+        &["discretization.element=tet4-anp"],
+    );
+    assert!(s.converged);
+    let f = s.reactions["top"][2];
+    assert!((f - -7.63269).abs() / 7.63269 < 0.005, "top reaction {f} N");
+    let a = 1.0 + s.probes["corner"].displacement[1] / 0.1;
+    assert!((a - 1.11574668).abs() / 1.11574668 < 0.005, "a = {a}");
+}
+
+#[test]
+fn cube_reactions_balance_at_steady_state() {
+    // Top and bottom reactions are equal and opposite once relaxed.
+    let s = run_case("cases/cube-compression.toml", &[]);
+    let (top, bottom) = (s.reactions["top"][2], s.reactions["bottom"][2]);
+    assert!(
+        (top + bottom).abs() < 1e-4 * top.abs(),
+        "top {top} bottom {bottom}"
+    );
+}
