@@ -133,6 +133,16 @@ impl Summary {
             1e3 * self.wall_seconds.solve / self.steps.max(1) as f64,
             self.threads
         );
+        if let Some(r) = self.relaxation.last() {
+            let _ = writeln!(
+                s,
+                "relaxation       {} estimates of omega_min, last {:.4e} rad/s, r = {:.6}, error estimate {:.3e} m (relaxation.csv has the history)",
+                self.relaxation.len(),
+                r.omega_min,
+                r.r,
+                r.error_estimate
+            );
+        }
         let _ = writeln!(s, "reactions (N)");
         for (k, v) in &self.reactions {
             let _ = writeln!(
