@@ -166,6 +166,40 @@ mod tests {
         }
     }
 
+    /// W as a function of C alone (J = sqrt(det C)), to differentiate in C.
+    fn energy_of_c(m: &NeoHookean, c: &Matrix3<f64>) -> f64 {
+        let j = c.determinant().sqrt();
+        0.5 * m.mu * (j.powf(-2.0 / 3.0) * c.trace() - 3.0) + 0.5 * m.kappa * (j - 1.0).powi(2)
+    }
+
+    #[test]
+    fn pk2_matches_finite_difference_2_dw_dc() {
+        // S_ij = 2 dW/dC_ij. The symmetric perturbation h (E_ij + E_ji) changes W by
+        // 2 h dW/dC_ij (both entries, i != j) or 2 h dW/dC_ii (one entry moved by 2h), i.e. by S_ij h.
+        let m = mat();
+        let mut st = 3u64;
+        for _ in 0..50 {
+            let f = random_f(&mut st);
+            let c = f.transpose() * f;
+            let s = m.pk2_stress(&f, f.determinant());
+            let scale = s.abs().max().max(m.mu);
+            let h = 1e-6;
+            for i in 0..3 {
+                for j in 0..3 {
+                    let mut e = Matrix3::zeros();
+                    e[(i, j)] += h;
+                    e[(j, i)] += h;
+                    let dw = (energy_of_c(&m, &(c + e)) - energy_of_c(&m, &(c - e))) / (2.0 * h);
+                    assert!(
+                        (dw - s[(i, j)]).abs() <= 1e-6 * scale,
+                        "S[{i}{j}]: {} vs finite difference {dw}",
+                        s[(i, j)]
+                    );
+                }
+            }
+        }
+    }
+
     #[test]
     fn objectivity_rotated_f_gives_same_s() {
         let m = mat();

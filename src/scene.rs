@@ -228,7 +228,7 @@ fn default_duration() -> f64 {
     3.0
 }
 fn default_load_steps() -> usize {
-    1000
+    400
 }
 fn default_dt_factor() -> f64 {
     0.9
@@ -395,6 +395,26 @@ fn with_suggestion(msg: &str) -> String {
                 if score > 0.7 {
                     return format!("{}\n  did you mean `{c}`?", msg.trim_end());
                 }
+            }
+        }
+    }
+    // toml's own wording for inline tables: "unexpected keys in table: a, available keys: b, c".
+    if let Some(start) = msg.find("unexpected keys in table: ") {
+        let rest = &msg[start + "unexpected keys in table: ".len()..];
+        if let Some((bad, avail)) = rest.split_once(", available keys: ") {
+            let avail: Vec<&str> = avail.lines().next().unwrap_or("").split(", ").collect();
+            let hints: Vec<String> = bad
+                .split(", ")
+                .filter_map(|b| {
+                    let best = avail
+                        .iter()
+                        .map(|c| (strsim::jaro_winkler(b, c), *c))
+                        .max_by(|x, y| x.0.total_cmp(&y.0))?;
+                    (best.0 > 0.7).then(|| format!("`{b}` -> did you mean `{}`?", best.1))
+                })
+                .collect();
+            if !hints.is_empty() {
+                return format!("{}\n  {}", msg.trim_end(), hints.join("\n  "));
             }
         }
     }

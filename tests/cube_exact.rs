@@ -46,7 +46,11 @@ fn cube_tet4_anp_on_a_tetgen_mesh_matches_exact_solution() {
     // An unstructured TetGen mesh (with its slivers) still passes the exact cube.
     let s = run_case(
         "cases/cube-compression.toml",
-        &["discretization.element=tet4-anp", "discretization.mesher=tetgen", "discretization.size=0.02"],
+        &[
+            "discretization.element=tet4-anp",
+            "discretization.mesher=tetgen",
+            "discretization.size=0.02",
+        ],
     );
     assert!(s.mesh.min_dihedral_deg.is_some());
     let f = s.reactions["top"][2];

@@ -114,6 +114,11 @@ fn unknown_key_names_it_and_suggests_the_closest() {
         e.contains("youngs_modulu") && e.contains("did you mean `youngs_modulus`"),
         "{e}"
     );
+    let e = parse_err(&cube_text().replace("value = 0.1 }", "valu = 0.1 }"), &[]);
+    assert!(
+        e.contains("valu") && e.contains("did you mean `value`"),
+        "{e}"
+    );
     let e = parse_err(&cube_text(), &["solver.dt_facter=0.5"]);
     assert!(
         e.contains("dt_facter") && e.contains("did you mean `dt_factor`"),

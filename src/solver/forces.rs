@@ -169,10 +169,12 @@ impl<M: Material> Forces<M> {
                     if let PointKind::Hourglass(h) = qp.kinds[p] {
                         let hg = &qp.hourglass[h as usize];
                         let ids = &qp.nodes[base..base + 8];
+                        // Gather once: the 8x8 product then runs on registers, not 64 indirect loads.
+                        let ul: [Vector3<f64>; 8] = std::array::from_fn(|b| u[ids[b] as usize]);
                         for a in 0..8 {
                             let mut acc = Vector3::zeros();
-                            for b in 0..8 {
-                                acc += u[ids[b] as usize] * hg[(a, b)];
+                            for (b, ub) in ul.iter().enumerate() {
+                                acc += ub * hg[(a, b)];
                             }
                             *sf.get().add(base + a) += acc;
                         }
