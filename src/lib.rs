@@ -5,6 +5,9 @@
 //! Data flows one way: scene file -> geometry -> discretization (a flat list of quadrature
 //! points) -> explicit solver -> outputs.
 
+// `!(x > 0.0)` is deliberate throughout: it also rejects NaN, which `x <= 0.0` would let through.
+#![allow(clippy::neg_cmp_op_on_partial_ord, clippy::nonminimal_bool)]
+
 pub mod error;
 pub mod geometry;
 pub mod io;

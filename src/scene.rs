@@ -446,7 +446,7 @@ fn validate(s: &Scene) -> std::result::Result<(), String> {
         }
     }
     if let Some(div) = d.divisions {
-        if div.iter().any(|&n| n == 0) {
+        if div.contains(&0) {
             return Err(format!(
                 "discretization.divisions = {div:?}: every division must be at least 1"
             ));

@@ -58,7 +58,7 @@ pub struct Forces<M: Material> {
 impl<M: Material> Forces<M> {
     /// Prepares scratch space for `qp` on `num_nodes` nodes.
     pub fn new(material: M, qp: &QuadraturePoints, slots: &NodeSlots, num_nodes: usize) -> Self {
-        let has_anp = qp.kinds.iter().any(|k| *k == PointKind::Anp);
+        let has_anp = qp.kinds.contains(&PointKind::Anp);
         let mut inv_w = vec![0.0; num_nodes];
         if has_anp {
             for (n, iw) in inv_w.iter_mut().enumerate() {

@@ -252,7 +252,7 @@ pub fn run<M: Material>(model: &mut Model<M>, s: &Settings) -> Result<RunOutput>
         }
         let at_end =
             (dynamic && step == total_steps) || finish || (!dynamic && step >= total_steps);
-        if step % history_every == 0 || at_end {
+        if step.is_multiple_of(history_every) || at_end {
             let se = model.forces.strain_energy(&model.points, &model.slots, &u);
             let ke = kinetic(&model.mass, &u, &u_prev, dt);
             if dynamic && step > 0 && ke > 10.0 * (external_work.abs() + se) + 1e-12 {
@@ -404,7 +404,7 @@ pub fn run<M: Material>(model: &mut Model<M>, s: &Settings) -> Result<RunOutput>
         std::mem::swap(&mut u_prev, &mut u);
         std::mem::swap(&mut u, &mut u_next);
         step += 1;
-        if step % 64 == 0 {
+        if step.is_multiple_of(64) {
             pb.set_position(step as u64);
             if !dynamic {
                 pb.set_message(format!("error estimate {err_est:.2e} m, r = {r:.5}"));
