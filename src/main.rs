@@ -176,18 +176,7 @@ fn execute(cmd: Command) -> hytled::Result<()> {
             if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
                 std::fs::create_dir_all(dir).map_err(|e| hytled::Error::io(dir, e))?;
             }
-            let npc = mesh.shape.nodes_per_cell();
-            let offsets: Vec<usize> = (1..=mesh.num_cells()).map(|e| e * npc).collect();
-            let types = vec![mesh.shape.vtk_type(); mesh.num_cells()];
-            let piece = hytled::io::vtu::Piece {
-                points: &mesh.nodes,
-                connectivity: &mesh.cells,
-                offsets: &offsets,
-                types: &types,
-                point_data: vec![],
-                cell_data: vec![],
-            };
-            hytled::io::vtu::write_vtu(&path, &piece, VtuFormat::Appended)?;
+            hytled::io::vtu::write_mesh(&path, &mesh, vec![], vec![], VtuFormat::Appended)?;
             println!(
                 "{}: {} nodes, {} elements",
                 path.display(),

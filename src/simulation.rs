@@ -9,7 +9,7 @@ use nalgebra::Vector3;
 use crate::bc::Boundary;
 use crate::fe::{self, ElementKind};
 use crate::geometry::{quality, shapes, ElementShape, Mesh};
-use crate::io::vtu::{self, DataArray, Piece, VtuFormat};
+use crate::io::vtu::{self, DataArray, VtuFormat};
 use crate::material::{Material, NeoHookean};
 use crate::probe::Probe;
 use crate::report::{Comparison, Energy, MeshInfo, ProbeResult, Summary, WallSeconds};
@@ -333,44 +333,35 @@ pub fn write_outputs(
     std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
     let name = scene.name.clone().unwrap_or_else(|| "run".into());
     let mesh = &prep.mesh;
-    let npc = mesh.shape.nodes_per_cell();
-    let offsets: Vec<usize> = (1..=mesh.num_cells()).map(|e| e * npc).collect();
-    let types = vec![mesh.shape.vtk_type(); mesh.num_cells()];
     let mut series = Vec::new();
     for (k, (t, u)) in out.frames.iter().enumerate() {
         let model = &mut prep.model;
         let (sig, vm, jac) = model.forces.stress_fields(&model.points, &model.slots, u);
         let disp: Vec<f64> = u.iter().flat_map(|v| [v.x, v.y, v.z]).collect();
         let file = format!("{name}_{k:04}.vtu");
-        let piece = Piece {
-            points: &mesh.nodes,
-            connectivity: &mesh.cells,
-            offsets: &offsets,
-            types: &types,
-            point_data: vec![DataArray {
-                name: "displacement",
-                components: 3,
-                values: &disp,
-            }],
-            cell_data: vec![
-                DataArray {
-                    name: "cauchy_stress",
-                    components: 9,
-                    values: &sig,
-                },
-                DataArray {
-                    name: "von_mises",
-                    components: 1,
-                    values: &vm,
-                },
-                DataArray {
-                    name: "J",
-                    components: 1,
-                    values: &jac,
-                },
-            ],
-        };
-        vtu::write_vtu(&dir.join(&file), &piece, format)?;
+        let point_data = vec![DataArray {
+            name: "displacement",
+            components: 3,
+            values: &disp,
+        }];
+        let cell_data = vec![
+            DataArray {
+                name: "cauchy_stress",
+                components: 9,
+                values: &sig,
+            },
+            DataArray {
+                name: "von_mises",
+                components: 1,
+                values: &vm,
+            },
+            DataArray {
+                name: "J",
+                components: 1,
+                values: &jac,
+            },
+        ];
+        vtu::write_mesh(&dir.join(&file), mesh, point_data, cell_data, format)?;
         series.push((*t, file));
     }
     vtu::write_pvd(&dir.join(format!("{name}.pvd")), &series)?;
