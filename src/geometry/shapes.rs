@@ -111,6 +111,20 @@ pub fn cylinder_tet(
     Ok(extrude_tet(&q, &z))
 }
 
+/// Checks that box corners are finite with min < max on every axis (m).
+pub(crate) fn check_box(min: Vector3<f64>, max: Vector3<f64>) -> Result<()> {
+    for a in 0..3 {
+        if !(min[a].is_finite() && max[a].is_finite() && min[a] < max[a]) {
+            return Err(Error::Input(format!(
+                "box corners min = [{}, {}, {}] m and max = [{}, {}, {}] m must be finite with \
+                 min < max on every axis",
+                min.x, min.y, min.z, max.x, max.y, max.z
+            )));
+        }
+    }
+    Ok(())
+}
+
 /// Cross-section and layer heights of the box.
 fn box_section(
     min: Vector3<f64>,
@@ -122,15 +136,7 @@ fn box_section(
             "box mesh divisions {div:?} must all be at least 1"
         )));
     }
-    for a in 0..3 {
-        if !(min[a].is_finite() && max[a].is_finite() && min[a] < max[a]) {
-            return Err(Error::Input(format!(
-                "box corners min = [{}, {}, {}] m and max = [{}, {}, {}] m must be finite with \
-                 min < max on every axis",
-                min.x, min.y, min.z, max.x, max.y, max.z
-            )));
-        }
-    }
+    check_box(min, max)?;
     let xs = linspace(min.x, max.x, div[0]);
     let ys = linspace(min.y, max.y, div[1]);
     let nx = div[0] + 1;

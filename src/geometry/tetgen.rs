@@ -38,15 +38,7 @@ pub fn tetgen_box(
     max_volume: Option<f64>,
     radius_edge_ratio: Option<f64>,
 ) -> Result<Mesh> {
-    for a in 0..3 {
-        if !(min[a].is_finite() && max[a].is_finite() && min[a] < max[a]) {
-            return Err(Error::Input(format!(
-                "box corners min = [{}, {}, {}] m and max = [{}, {}, {}] m must be finite with \
-                 min < max on every axis",
-                min.x, min.y, min.z, max.x, max.y, max.z
-            )));
-        }
-    }
+    super::shapes::check_box(min, max)?;
     let mut points = Vec::with_capacity(8);
     for &z in &[min.z, max.z] {
         points.push(Vector3::new(min.x, min.y, z));
