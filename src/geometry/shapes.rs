@@ -380,8 +380,8 @@ mod tests {
     };
     use std::f64::consts::PI;
 
-    /// Element volumes (m^3): tets exactly, hexes by 2x2x2 Gauss quadrature of det J (exact
-    /// for the extruded hexes here, whose det J is bilinear).
+    /// Element volumes (m^3): tets exactly, hexes by the element's own 2x2x2 Gauss volume
+    /// (exact for trilinear hexes); an inverted hex yields its non-positive volume.
     fn volumes(mesh: &Mesh) -> Vec<f64> {
         (0..mesh.num_cells())
             .map(|e| {
@@ -390,35 +390,8 @@ mod tests {
                 match mesh.shape {
                     ElementShape::Tet4 => tet_signed_volume(&x(0), &x(1), &x(2), &x(3)),
                     ElementShape::Hex8 => {
-                        const S: [[f64; 3]; 8] = [
-                            [-1., -1., -1.],
-                            [1., -1., -1.],
-                            [1., 1., -1.],
-                            [-1., 1., -1.],
-                            [-1., -1., 1.],
-                            [1., -1., 1.],
-                            [1., 1., 1.],
-                            [-1., 1., 1.],
-                        ];
-                        let g = 1.0 / 3.0f64.sqrt();
-                        let mut v = 0.0;
-                        for &a in &[-g, g] {
-                            for &b in &[-g, g] {
-                                for &cc in &[-g, g] {
-                                    let mut jac = nalgebra::Matrix3::<f64>::zeros();
-                                    for (k, s) in S.iter().enumerate() {
-                                        let dn = Vector3::new(
-                                            s[0] * (1. + s[1] * b) * (1. + s[2] * cc),
-                                            s[1] * (1. + s[0] * a) * (1. + s[2] * cc),
-                                            s[2] * (1. + s[0] * a) * (1. + s[1] * b),
-                                        ) / 8.0;
-                                        jac += x(k) * dn.transpose();
-                                    }
-                                    v += jac.determinant();
-                                }
-                            }
-                        }
-                        v
+                        let xs: [Vector3<f64>; 8] = std::array::from_fn(x);
+                        crate::fe::hex8::Hex8Reference::new(&xs).map_or_else(|v| v, |h| h.volume)
                     }
                 }
             })
