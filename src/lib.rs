@@ -16,6 +16,7 @@ pub use error::{Error, Result};
 pub mod bc;
 pub mod fe;
 pub mod material;
+pub mod meshless;
 pub mod probe;
 pub mod quadrature;
 pub mod report;

@@ -57,6 +57,25 @@ pub struct MeshInfo {
     pub volume: f64,
 }
 
+/// Support sizes of the meshless integration points: nodes per point.
+#[derive(Debug, Clone, Serialize)]
+pub struct SupportNodes {
+    pub mean: f64,
+    pub min: usize,
+    pub max: usize,
+}
+
+/// How the meshless discretization was made.
+#[derive(Debug, Clone, Serialize)]
+pub struct MeshlessInfo {
+    pub cloud: String,
+    pub integration: String,
+    pub basis: String,
+    pub support_rule: String,
+    /// Exact volume of the scene's shape, m^3 (compare with `mesh.volume`, the sum of weights).
+    pub exact_volume: f64,
+}
+
 /// Everything a run reports. Units: SI (m, kg, s, N, Pa, J).
 #[derive(Debug, Clone, Serialize)]
 pub struct Summary {
@@ -80,6 +99,19 @@ pub struct Summary {
     pub energy: Energy,
     pub reference: BTreeMap<String, Comparison>,
     pub mesh: MeshInfo,
+    /// Meshless runs: nodes per support (mean/min/max).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub support_nodes: Option<SupportNodes>,
+    /// Meshless runs: nodes removed because fewer than two integration points reach them.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub removed_nodes: Option<usize>,
+    /// Meshless runs: ebciem, sebciem or correction.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub bc_method: Option<String>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub meshless: Option<MeshlessInfo>,
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub warnings: Vec<String>,
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub relaxation: Vec<RelaxationRecord>,
 }
@@ -101,6 +133,28 @@ impl Summary {
             "points           {} (elements {})",
             self.integration_points, self.mesh.elements
         );
+        if let (Some(sn), Some(m)) = (&self.support_nodes, &self.meshless) {
+            let _ = writeln!(s, "cloud            {}", m.cloud);
+            let _ = writeln!(
+                s,
+                "integration      {}; weights {:.6e} m^3 vs exact volume {:.6e} m^3 ({:+.3} %)",
+                m.integration,
+                self.mesh.volume,
+                m.exact_volume,
+                100.0 * (self.mesh.volume / m.exact_volume - 1.0)
+            );
+            let _ = writeln!(
+                s,
+                "shape functions  {} basis, {} support: {:.1} nodes per point (min {}, max {}); {} node(s) removed; boundary conditions by {}",
+                m.basis,
+                m.support_rule,
+                sn.mean,
+                sn.min,
+                sn.max,
+                self.removed_nodes.unwrap_or(0),
+                self.bc_method.as_deref().unwrap_or("-")
+            );
+        }
         if let Some(a) = self.mesh.min_dihedral_deg {
             let _ = writeln!(
                 s,

@@ -35,6 +35,9 @@ pub struct Scene {
     pub references: BTreeMap<String, ReferenceSpec>,
     #[serde(default)]
     pub output: OutputSpec,
+    /// Directory of the scene file: relative input paths are resolved against it.
+    #[serde(skip)]
+    pub base_dir: PathBuf,
 }
 
 /// Built-in shapes. Lengths in m.
@@ -54,6 +57,82 @@ pub enum Method {
     /// TLED finite elements.
     #[default]
     Fe,
+    /// MTLED meshless: node cloud, integration points, MLS / MMLS shape functions.
+    Meshless,
+}
+
+/// Where meshless nodes come from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum CloudKind {
+    /// The vertices of the tet mesh the scene's sizing makes (structured or TetGen).
+    #[default]
+    Mesh,
+    /// A regular lattice of spacing `size` with a random jitter of `jitter` x the spacing.
+    Lattice,
+    /// Quasi-random (Halton) fill with a minimum spacing of `min_spacing` x `size`.
+    Halton,
+    /// Nodes read from `cloud_file` (CSV or whitespace XYZ, m).
+    File,
+}
+
+/// Where meshless integration points come from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum IntegrationKind {
+    /// Background tetrahedra (the mesh whose vertices are the nodes, or a Delaunay
+    /// tetrahedralization of the cloud) with `tet_rule` points each.
+    #[default]
+    Tets,
+    /// A regular background grid, one point per cell, `point_ratio` points per node (Horton 2010).
+    Grid,
+}
+
+/// Support-domain rule of the meshless shape functions.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum SupportKind {
+    /// Nodes whose influence sphere (dilatation x mean neighbour distance) covers the point.
+    #[default]
+    Radius,
+    /// The `support_nodes` nearest nodes, weight radius `alpha` x the farthest (Horton 2010).
+    Nearest,
+}
+
+/// MLS polynomial basis as written in scenes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum Basis {
+    /// Linear MLS, m = 4.
+    #[default]
+    Linear,
+    /// Modified MLS with quadratic basis, m = 10.
+    Quadratic,
+}
+
+/// How essential boundary conditions act on meshless nodes (thesis chapter 4).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum BcMethod {
+    /// Exact imposition with the distributed boundary force interpolated linearly over the
+    /// triangulated boundary (thesis sect. 4.3).
+    #[default]
+    Ebciem,
+    /// Exact imposition with the boundary force lumped at the nodes (thesis sect. 4.3.1).
+    Sebciem,
+    /// Prescribe the nodal parameters (inexact: MLS is not interpolating).
+    Correction,
+}
+
+impl BcMethod {
+    /// Name as written in scenes and summaries.
+    pub fn name(self) -> &'static str {
+        match self {
+            BcMethod::Ebciem => "ebciem",
+            BcMethod::Sebciem => "sebciem",
+            BcMethod::Correction => "correction",
+        }
+    }
 }
 
 /// Element formulation names as written in scenes.
@@ -114,6 +193,76 @@ pub struct Discretization {
     /// TetGen radius-edge ratio bound (quality), when `mesher = "tetgen"`.
     #[serde(default)]
     pub radius_edge_ratio: Option<f64>,
+    /// Meshless: node source.
+    #[serde(default)]
+    pub cloud: CloudKind,
+    /// Meshless: node file for `cloud = "file"` (relative to the scene file), m.
+    #[serde(default)]
+    pub cloud_file: Option<PathBuf>,
+    /// Meshless lattice: random offset per component, as a fraction of the spacing, [0, 0.5).
+    #[serde(default)]
+    pub jitter: f64,
+    /// Meshless Halton fill: minimum node spacing as a fraction of `size` (default 0.85, which
+    /// fills to about the density of the lattice of spacing `size`).
+    #[serde(default = "default_min_spacing")]
+    pub min_spacing: f64,
+    /// Seed of the random and quasi-random clouds.
+    #[serde(default = "default_seed")]
+    pub seed: u64,
+    /// Meshless: integration points on background tets or a regular grid.
+    #[serde(default)]
+    pub integration: IntegrationKind,
+    /// Points per background tet: 1, 4 (default) or 5.
+    #[serde(default = "default_tet_rule")]
+    pub tet_rule: usize,
+    /// Grid integration: integration points per node (default 2, Horton 2010 sect. 3.2).
+    #[serde(default = "default_point_ratio")]
+    pub point_ratio: f64,
+    #[serde(default)]
+    pub support: SupportKind,
+    /// Radius rule: influence radius / mean neighbour distance (default 1.6 linear, 2.0 quadratic).
+    #[serde(default)]
+    pub dilatation: Option<f64>,
+    /// Nearest rule: nodes per support (default 8 linear, 16 quadratic).
+    #[serde(default)]
+    pub support_nodes: Option<usize>,
+    /// Nearest rule: weight radius / farthest support distance (default 10, Horton 2010).
+    #[serde(default = "default_alpha")]
+    pub alpha: f64,
+    /// MLS basis: linear (m = 4) or quadratic (Modified MLS, m = 10).
+    #[serde(default)]
+    pub basis: Basis,
+    /// MMLS weight of the second-order coefficients in support-scaled coordinates (default 1e-7).
+    #[serde(default = "default_mu")]
+    pub mu: f64,
+    /// Smallest accepted reciprocal condition number of a moment matrix (default 1e-10).
+    #[serde(default = "default_min_rcond")]
+    pub min_rcond: f64,
+    /// Essential boundary conditions on meshless nodes.
+    #[serde(default)]
+    pub bc_method: BcMethod,
+}
+
+fn default_min_spacing() -> f64 {
+    0.85
+}
+fn default_seed() -> u64 {
+    1
+}
+fn default_tet_rule() -> usize {
+    4
+}
+fn default_point_ratio() -> f64 {
+    2.0
+}
+fn default_alpha() -> f64 {
+    10.0
+}
+fn default_mu() -> f64 {
+    1e-7
+}
+fn default_min_rcond() -> f64 {
+    1e-10
 }
 
 fn default_hourglass() -> f64 {
@@ -130,6 +279,22 @@ impl Default for Discretization {
             mesher: Mesher::Structured,
             hourglass: default_hourglass(),
             radius_edge_ratio: None,
+            cloud: CloudKind::Mesh,
+            cloud_file: None,
+            jitter: 0.0,
+            min_spacing: default_min_spacing(),
+            seed: default_seed(),
+            integration: IntegrationKind::Tets,
+            tet_rule: default_tet_rule(),
+            point_ratio: default_point_ratio(),
+            support: SupportKind::Radius,
+            dilatation: None,
+            support_nodes: None,
+            alpha: default_alpha(),
+            basis: Basis::Linear,
+            mu: default_mu(),
+            min_rcond: default_min_rcond(),
+            bc_method: BcMethod::Ebciem,
         }
     }
 }
@@ -335,6 +500,7 @@ pub fn parse(text: &str, path: &Path, overrides: &[String]) -> Result<Scene> {
                 ))
             })?;
     }
+    scene.base_dir = path.parent().map(PathBuf::from).unwrap_or_default();
     if scene.name.is_none() {
         scene.name = path.file_stem().map(|s| s.to_string_lossy().into_owned());
     }
@@ -452,8 +618,44 @@ fn validate(s: &Scene) -> std::result::Result<(), String> {
             ));
         }
     }
-    if d.size.is_none() && d.divisions.is_none() {
+    if ![1, 4, 5].contains(&d.tet_rule) {
+        return Err(format!(
+            "discretization.tet_rule = {}: the tetrahedron rules have 1, 4 or 5 points",
+            d.tet_rule
+        ));
+    }
+    let file_cloud = d.method == Method::Meshless && d.cloud == CloudKind::File;
+    if d.size.is_none() && d.divisions.is_none() && !file_cloud {
         return Err("discretization: give `size` (target element length, m) or `divisions`".into());
+    }
+    if !(d.jitter >= 0.0 && d.jitter < 0.5) {
+        return Err(format!(
+            "discretization.jitter = {}: must lie in [0, 0.5) (fraction of the node spacing)",
+            d.jitter
+        ));
+    }
+    if !(d.point_ratio > 0.0) {
+        return Err(format!(
+            "discretization.point_ratio = {}: must be positive (integration points per node)",
+            d.point_ratio
+        ));
+    }
+    if !(d.mu >= 0.0) || !(d.min_rcond > 0.0 && d.min_rcond < 1.0) {
+        return Err(format!(
+            "discretization: mu ({}) must be >= 0 and min_rcond ({}) in (0, 1)",
+            d.mu, d.min_rcond
+        ));
+    }
+    if d.cloud == CloudKind::File && d.cloud_file.is_none() {
+        return Err(
+            "discretization.cloud = 'file' needs cloud_file = \"path/to/nodes.csv\"".into(),
+        );
+    }
+    if !(d.min_spacing > 0.0) {
+        return Err(format!(
+            "discretization.min_spacing = {}: must be positive (fraction of size)",
+            d.min_spacing
+        ));
     }
     if !(d.hourglass >= 0.0) {
         return Err(format!(

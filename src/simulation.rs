@@ -11,9 +11,13 @@ use crate::fe::{self, ElementKind};
 use crate::geometry::{quality, shapes, ElementShape, Mesh};
 use crate::io::vtu::{self, DataArray, VtuFormat};
 use crate::material::{Material, NeoHookean};
+use crate::meshless::discretize::{self, MeshlessBuild};
+use crate::meshless::essential::MeshlessCorrector;
 use crate::probe::Probe;
-use crate::report::{Comparison, Energy, MeshInfo, ProbeResult, Summary, WallSeconds};
-use crate::scene::{Component, Geometry, Mesher, Scene};
+use crate::report::{
+    Comparison, Energy, MeshInfo, MeshlessInfo, ProbeResult, Summary, SupportNodes, WallSeconds,
+};
+use crate::scene::{BcMethod, Component, Geometry, Mesher, Method, Scene};
 use crate::solver::{self, Mode, Model, RunOutput, Settings};
 use crate::{Error, Result};
 
@@ -153,7 +157,14 @@ pub fn boundaries(scene: &Scene, nodes: &[Vector3<f64>]) -> Result<Vec<Boundary>
 
 /// A scene turned into a model, ready to run.
 pub struct Prepared {
+    /// FE mesh, or the meshless background tets (VTU geometry).
     pub mesh: Mesh,
+    /// The meshless discretization, for meshless scenes.
+    pub meshless: Option<MeshlessBuild>,
+    /// How essential conditions act on meshless nodes (None for FE).
+    pub bc_method: Option<BcMethod>,
+    /// Things the user should know that do not stop the run.
+    pub warnings: Vec<String>,
     pub model: Model<NeoHookean>,
     pub probes: Vec<Probe>,
     pub kind: ElementKind,
@@ -163,6 +174,9 @@ pub struct Prepared {
 
 /// Meshes the scene, builds the quadrature points, masses, constraints and probes.
 pub fn prepare(scene: &Scene) -> Result<Prepared> {
+    if scene.discretization.method == Method::Meshless {
+        return prepare_meshless(scene);
+    }
     let t0 = Instant::now();
     let mesh = build_mesh(scene)?;
     let mat = material(scene);
@@ -184,10 +198,97 @@ pub fn prepare(scene: &Scene) -> Result<Prepared> {
     let model = Model::new(mesh.nodes.clone(), points, mat, bnd)?;
     Ok(Prepared {
         mesh,
+        meshless: None,
+        bc_method: None,
+        warnings: Vec::new(),
         model,
         probes,
         kind,
         min_dihedral,
+        preprocess_seconds: t0.elapsed().as_secs_f64(),
+    })
+}
+
+/// Meshless branch of [`prepare`]: cloud, integration points, supports and shape functions,
+/// masses, boundaries (EBCIEM / SEBCIEM correction or prescribed nodal parameters) and probes
+/// interpolated with the shape functions.
+fn prepare_meshless(scene: &Scene) -> Result<Prepared> {
+    let t0 = Instant::now();
+    let mat = material(scene);
+    let method = scene.discretization.bc_method;
+    // Nodes that must survive the removal of poorly supported nodes: boundary nodes and the
+    // nodes nearest to each probe.
+    let protected = |nodes: &[Vector3<f64>]| -> Result<Vec<usize>> {
+        let mut v = Vec::new();
+        for b in boundaries(scene, nodes)? {
+            v.extend(b.nodes);
+        }
+        for p in scene.probes.values() {
+            let x = Vector3::from(p.position);
+            if let Some((i, _)) = nodes
+                .iter()
+                .enumerate()
+                .map(|(i, n)| (i, (n - x).norm_squared()))
+                .min_by(|a, b| a.1.total_cmp(&b.1))
+            {
+                v.push(i);
+            }
+        }
+        v.sort_unstable();
+        v.dedup();
+        Ok(v)
+    };
+    let build = discretize::build(scene, &protected)?;
+    let mut warnings = build.warnings.clone();
+    let bnd = boundaries(scene, &build.nodes)?;
+    let dom = discretize::domain(scene);
+    let h = discretize::spacing(scene).unwrap_or(0.0);
+    let probes = scene
+        .probes
+        .iter()
+        .map(|(name, p)| {
+            let x = Vector3::from(p.position);
+            if !dom.contains(&x, 0.05 * h.max(1e-12)) {
+                return Err(Error::Input(format!(
+                    "probe '{name}' at {:?} m lies outside the body; move it inside",
+                    p.position
+                )));
+            }
+            let s = build.shape_values(&x, &|| format!("probe '{name}'"))?;
+            Ok(Probe {
+                name: name.clone(),
+                position: x,
+                nodes: s.ids,
+                weights: s.phi,
+                element: usize::MAX,
+            })
+        })
+        .collect::<Result<Vec<_>>>()?;
+    let mut model = Model::new(build.nodes.clone(), build.points.clone(), mat, bnd.clone())?;
+    let corrected: Vec<bool> = bnd
+        .iter()
+        .map(|b| method != BcMethod::Correction && b.components.iter().any(|c| c.is_some()))
+        .collect();
+    if corrected.iter().any(|&c| c) {
+        let (corr, report) = MeshlessCorrector::new(&build, &bnd, &model.mass, method)?;
+        if report.lumped_nodes > 0 {
+            warnings.push(format!(
+                "EBCIEM: {} constrained node(s) lie on no boundary triangle whose vertices are all constrained; \
+                 their boundary force is lumped at the node (SEBCIEM)",
+                report.lumped_nodes
+            ));
+        }
+        model.set_corrector(Box::new(corr), corrected)?;
+    }
+    Ok(Prepared {
+        mesh: build.background.clone(),
+        meshless: Some(build),
+        bc_method: Some(method),
+        warnings,
+        model,
+        probes,
+        kind: ElementKind::Tet4,
+        min_dihedral: None,
         preprocess_seconds: t0.elapsed().as_secs_f64(),
     })
 }
@@ -208,6 +309,7 @@ pub fn settings(scene: &Scene, progress: bool) -> Settings {
         history_rows: scene.output.history_rows,
         frames: scene.output.frames,
         progress,
+        initial_velocity: None,
     }
 }
 
@@ -278,8 +380,18 @@ pub fn summarize(scene: &Scene, prep: &Prepared, out: &RunOutput, total_seconds:
     Summary {
         scene: scene.name.clone().unwrap_or_default(),
         units: "SI: m, kg, s, N, Pa, J",
-        method: "fe".into(),
-        element: prep.kind.name().into(),
+        method: if prep.meshless.is_some() {
+            "meshless".into()
+        } else {
+            "fe".into()
+        },
+        element: match &prep.meshless {
+            Some(_) => match scene.discretization.basis {
+                crate::scene::Basis::Linear => "mls".into(),
+                crate::scene::Basis::Quadratic => "mmls".into(),
+            },
+            None => prep.kind.name().into(),
+        },
         mode: match scene.solver.mode {
             Mode::Dynamic => "dynamic".into(),
             Mode::Relaxation => "relaxation".into(),
@@ -316,8 +428,101 @@ pub fn summarize(scene: &Scene, prep: &Prepared, out: &RunOutput, total_seconds:
             critical_point: out.critical_point,
             volume: model.points.total_weight(),
         },
+        support_nodes: prep.meshless.as_ref().map(|m| {
+            let (mean, min, max) = m.support_statistics();
+            SupportNodes { mean, min, max }
+        }),
+        removed_nodes: prep.meshless.as_ref().map(|m| m.removed_nodes),
+        bc_method: prep.bc_method.map(|b| b.name().to_string()),
+        meshless: prep.meshless.as_ref().map(|m| MeshlessInfo {
+            cloud: m.cloud.clone(),
+            integration: m.integration.clone(),
+            basis: match scene.discretization.basis {
+                crate::scene::Basis::Linear => "linear MLS".into(),
+                crate::scene::Basis::Quadratic => {
+                    format!("quadratic MMLS (mu = {:e})", scene.discretization.mu)
+                }
+            },
+            support_rule: m.support.describe(),
+            exact_volume: m.exact_volume,
+        }),
+        warnings: prep.warnings.clone(),
         relaxation: out.relaxation.clone(),
     }
+}
+
+/// One meshless VTU frame: the background vertices as points with the interpolated
+/// displacement, and the background tets as cells carrying the mean stress, von Mises stress
+/// and J of their integration points (one vertex cell per point when there are no tets).
+fn write_meshless_frame(
+    path: &Path,
+    m: &MeshlessBuild,
+    disp: &[f64],
+    (sig, vm, jac): (&[f64], &[f64], &[f64]),
+    format: VtuFormat,
+) -> Result<()> {
+    let ncell = m.background.num_cells();
+    if ncell == 0 {
+        let n = m.background.nodes.len();
+        let conn: Vec<usize> = (0..n).collect();
+        let offsets: Vec<usize> = (1..=n).collect();
+        let types = vec![1u8; n];
+        let piece = vtu::Piece {
+            points: &m.background.nodes,
+            connectivity: &conn,
+            offsets: &offsets,
+            types: &types,
+            point_data: vec![DataArray {
+                name: "displacement",
+                components: 3,
+                values: disp,
+            }],
+            cell_data: Vec::new(),
+        };
+        return vtu::write_vtu(path, &piece, format);
+    }
+    let mut count = vec![0usize; ncell];
+    let (mut s9, mut v1, mut j1) = (vec![0.0; 9 * ncell], vec![0.0; ncell], vec![0.0; ncell]);
+    for (p, &e) in m.owner.iter().enumerate() {
+        if e >= ncell {
+            continue;
+        }
+        count[e] += 1;
+        for c in 0..9 {
+            s9[9 * e + c] += sig[9 * p + c];
+        }
+        v1[e] += vm[p];
+        j1[e] += jac[p];
+    }
+    for e in 0..ncell {
+        let w = 1.0 / count[e].max(1) as f64;
+        s9[9 * e..9 * e + 9].iter_mut().for_each(|x| *x *= w);
+        v1[e] *= w;
+        j1[e] *= w;
+    }
+    let cell_data = vec![
+        DataArray {
+            name: "cauchy_stress",
+            components: 9,
+            values: &s9,
+        },
+        DataArray {
+            name: "von_mises",
+            components: 1,
+            values: &v1,
+        },
+        DataArray {
+            name: "J",
+            components: 1,
+            values: &j1,
+        },
+    ];
+    let point_data = vec![DataArray {
+        name: "displacement",
+        components: 3,
+        values: disp,
+    }];
+    vtu::write_mesh(path, &m.background, point_data, cell_data, format)
 }
 
 /// Writes one VTU per frame (displacement; Cauchy stress, von Mises stress and J per element),
@@ -332,36 +537,69 @@ pub fn write_outputs(
 ) -> Result<()> {
     std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
     let name = scene.name.clone().unwrap_or_else(|| "run".into());
-    let mesh = &prep.mesh;
+    // Meshless: displacement interpolated with the shape functions at the VTU points (nodal
+    // parameters are not displacements); per-tet averages of the integration-point fields.
+    let interp: Option<Vec<(Vec<usize>, Vec<f64>)>> = match &prep.meshless {
+        Some(m) => Some(
+            m.background
+                .nodes
+                .iter()
+                .enumerate()
+                .map(|(v, x)| {
+                    m.shape_values(x, &|| format!("output point {v}"))
+                        .map(|s| (s.ids, s.phi))
+                })
+                .collect::<Result<Vec<_>>>()?,
+        ),
+        None => None,
+    };
     let mut series = Vec::new();
     for (k, (t, u)) in out.frames.iter().enumerate() {
         let model = &mut prep.model;
         let (sig, vm, jac) = model.forces.stress_fields(&model.points, &model.slots, u);
-        let disp: Vec<f64> = u.iter().flat_map(|v| [v.x, v.y, v.z]).collect();
         let file = format!("{name}_{k:04}.vtu");
-        let point_data = vec![DataArray {
-            name: "displacement",
-            components: 3,
-            values: &disp,
-        }];
-        let cell_data = vec![
-            DataArray {
-                name: "cauchy_stress",
-                components: 9,
-                values: &sig,
-            },
-            DataArray {
-                name: "von_mises",
-                components: 1,
-                values: &vm,
-            },
-            DataArray {
-                name: "J",
-                components: 1,
-                values: &jac,
-            },
-        ];
-        vtu::write_mesh(&dir.join(&file), mesh, point_data, cell_data, format)?;
+        let path = dir.join(&file);
+        match (&interp, &prep.meshless) {
+            (Some(interp), Some(m)) => {
+                let disp: Vec<f64> = interp
+                    .iter()
+                    .flat_map(|(ids, phi)| {
+                        let d = ids
+                            .iter()
+                            .zip(phi)
+                            .fold(Vector3::zeros(), |a: Vector3<f64>, (&i, &p)| a + u[i] * p);
+                        [d.x, d.y, d.z]
+                    })
+                    .collect();
+                write_meshless_frame(&path, m, &disp, (&sig, &vm, &jac), format)?;
+            }
+            _ => {
+                let disp: Vec<f64> = u.iter().flat_map(|v| [v.x, v.y, v.z]).collect();
+                let point_data = vec![DataArray {
+                    name: "displacement",
+                    components: 3,
+                    values: &disp,
+                }];
+                let cell_data = vec![
+                    DataArray {
+                        name: "cauchy_stress",
+                        components: 9,
+                        values: &sig,
+                    },
+                    DataArray {
+                        name: "von_mises",
+                        components: 1,
+                        values: &vm,
+                    },
+                    DataArray {
+                        name: "J",
+                        components: 1,
+                        values: &jac,
+                    },
+                ];
+                vtu::write_mesh(&path, &prep.mesh, point_data, cell_data, format)?;
+            }
+        }
         series.push((*t, file));
     }
     vtu::write_pvd(&dir.join(format!("{name}.pvd")), &series)?;

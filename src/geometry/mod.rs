@@ -1,5 +1,6 @@
 //! Shapes, their structured and TetGen meshes, and node selections.
 
+pub mod domain;
 pub mod mesh;
 pub mod quality;
 pub mod select;

@@ -239,6 +239,69 @@ fn run_tetgen(
     })
 }
 
+/// Delaunay tetrahedralization of a point cloud (TetGen, no added points): the convex hull
+/// of `points` (m) split into tetrahedra with positive volume, as node-index quadruples.
+/// Tetrahedra flatter than 1e-10 x the mean volume (cospherical lattice points) are dropped;
+/// they carry no volume. For a convex domain whose surface carries nodes this is a tet mesh
+/// of the domain.
+pub fn delaunay(points: &[Vector3<f64>]) -> Result<Vec<[usize; 4]>> {
+    let fail = |msg: &str| {
+        Error::Input(format!(
+            "TetGen failed to tetrahedralize the node cloud: {msg}"
+        ))
+    };
+    if points.len() < 4 {
+        return Err(fail(&format!(
+            "{} points; at least 4 are needed",
+            points.len()
+        )));
+    }
+    let _guard = TETGEN_LOCK.lock().unwrap_or_else(|e| e.into_inner());
+    let mut tg = Tetgen::new(points.len(), None, None, None).map_err(fail)?;
+    for (i, p) in points.iter().enumerate() {
+        tg.set_point(i, 0, p.x, p.y, p.z).map_err(fail)?;
+    }
+    tg.generate_delaunay(false).map_err(fail)?;
+    if tg.out_npoint() != points.len() || tg.out_cell_npoint() < 4 {
+        return Err(fail(&format!(
+            "it returned {} points for {} (duplicate nodes?)",
+            tg.out_npoint(),
+            points.len()
+        )));
+    }
+    let mut tets = Vec::with_capacity(tg.out_ncell());
+    let mut vols = Vec::with_capacity(tg.out_ncell());
+    for e in 0..tg.out_ncell() {
+        let mut c = [0usize; 4];
+        for (m, cm) in c.iter_mut().enumerate() {
+            *cm = tg.out_cell_point(e, m);
+        }
+        if c.iter().any(|&i| i >= points.len()) {
+            return Err(fail(&format!(
+                "tetrahedron {e} refers to a point out of range"
+            )));
+        }
+        let mut v = tet_signed_volume(&points[c[0]], &points[c[1]], &points[c[2]], &points[c[3]]);
+        if v < 0.0 {
+            c.swap(2, 3);
+            v = -v;
+        }
+        tets.push(c);
+        vols.push(v);
+    }
+    let mean = vols.iter().sum::<f64>() / vols.len().max(1) as f64;
+    let keep: Vec<[usize; 4]> = tets
+        .into_iter()
+        .zip(vols)
+        .filter(|(_, v)| *v > 1e-10 * mean)
+        .map(|(t, _)| t)
+        .collect();
+    if keep.is_empty() {
+        return Err(fail("all points are coplanar"));
+    }
+    Ok(keep)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -14,6 +14,22 @@ use crate::Result;
 pub use forces::Forces;
 pub use integrate::{run, Mode, RunOutput, Settings};
 
+/// Essential conditions imposed by correcting the explicit predictor each step (meshless
+/// EBCIEM / SEBCIEM, thesis eq. 4.21-4.24), for boundaries whose shape functions are not
+/// interpolating.
+pub trait Corrector: Send {
+    /// Corrects the predicted displacements `u` (nodal parameters of all nodes, m) so that
+    /// the interpolated field takes the prescribed values at load fraction `tau` (0..1, each
+    /// boundary's curve applied to it). `alpha` is the force coefficient of the update
+    /// u = alpha M^-1 F + ..., s^2 (central differences: dt^2 / (1 + c dt / 2)).
+    fn correct(&mut self, u: &mut [Vector3<f64>], tau: f64, alpha: f64);
+    /// Force (N) that model boundary `b` applied to the body in the last correction.
+    fn reaction(&self, b: usize) -> Vector3<f64>;
+    /// Work (J) of the last correction's constraint forces over the increment
+    /// (u_next - u_prev) / 2 (central difference, as for directly prescribed DOFs).
+    fn work(&self, u_next: &[Vector3<f64>], u_prev: &[Vector3<f64>]) -> f64;
+}
+
 /// Everything the time loop needs: reference nodes, quadrature points, lumped masses,
 /// constraints and the force evaluator.
 pub struct Model<M: Material> {
@@ -26,6 +42,10 @@ pub struct Model<M: Material> {
     pub boundaries: Vec<Boundary>,
     pub constraints: Constraints,
     pub forces: Forces<M>,
+    /// Imposes the boundaries marked in `corrected` (meshless EBCIEM / SEBCIEM).
+    pub corrector: Option<Box<dyn Corrector>>,
+    /// Per boundary: imposed by `corrector` instead of directly on nodes.
+    pub corrected: Vec<bool>,
 }
 
 impl<M: Material> Model<M> {
@@ -60,6 +80,7 @@ impl<M: Material> Model<M> {
         }
         let constraints = Constraints::new(&boundaries, n)?;
         let forces = Forces::new(material, &points, &slots, n);
+        let corrected = vec![false; boundaries.len()];
         Ok(Model {
             nodes,
             points,
@@ -68,18 +89,49 @@ impl<M: Material> Model<M> {
             boundaries,
             constraints,
             forces,
+            corrector: None,
+            corrected,
         })
+    }
+
+    /// Hands the boundaries marked in `corrected` to `corrector`: they leave the directly
+    /// prescribed DOFs, and their reactions come from the constraint forces.
+    pub fn set_corrector(
+        &mut self,
+        corrector: Box<dyn Corrector>,
+        corrected: Vec<bool>,
+    ) -> Result<()> {
+        let direct: Vec<Boundary> = self
+            .boundaries
+            .iter()
+            .zip(&corrected)
+            .map(|(b, &c)| {
+                let mut b = b.clone();
+                if c {
+                    b.nodes.clear();
+                }
+                b
+            })
+            .collect();
+        self.constraints = Constraints::new(&direct, self.nodes.len())?;
+        self.corrector = Some(corrector);
+        self.corrected = corrected;
+        Ok(())
     }
 
     /// Sum of internal nodal forces over each boundary's nodes, N: the force each boundary
     /// applies to the body (negative along the axis in compression, as in REFERENCE.md).
+    /// Boundaries imposed by a corrector report its constraint force instead.
     pub fn reactions(&self, f_int: &[Vector3<f64>]) -> Vec<Vector3<f64>> {
         self.boundaries
             .iter()
-            .map(|b| {
-                b.nodes
+            .enumerate()
+            .map(|(k, b)| match (&self.corrector, self.corrected.get(k)) {
+                (Some(c), Some(true)) => c.reaction(k),
+                _ => b
+                    .nodes
                     .iter()
-                    .fold(Vector3::zeros(), |acc, &i| acc + f_int[i])
+                    .fold(Vector3::zeros(), |acc, &i| acc + f_int[i]),
             })
             .collect()
     }

@@ -3,6 +3,8 @@
 
 use serde::{Deserialize, Serialize};
 
+pub mod ebciem;
+
 use crate::{Error, Result};
 
 /// Time history of a prescribed displacement, as a fraction of its final value.

@@ -1,0 +1,322 @@
+//! A scene's meshless discretization: nodes, background integration, supports, shape
+//! functions, and removal of nodes that too few supports reach (Horton 2010 sect. 2.5).
+
+use nalgebra::Vector3;
+
+use super::integration::{self, TetRule};
+use super::mls::{self, MlsSettings};
+use super::points::{build_points, shape_at, support_counts, support_statistics};
+use super::support::{Support, SupportRule};
+use super::{cloud, points::ShapeAt};
+use crate::geometry::domain::Domain;
+use crate::geometry::{ElementShape, Mesh};
+use crate::quadrature::QuadraturePoints;
+use crate::scene::{self, CloudKind, ElementName, Geometry, IntegrationKind, Scene, SupportKind};
+use crate::{Error, Result};
+
+/// The built meshless discretization of a scene.
+pub struct MeshlessBuild {
+    /// Field nodes, m (after removing nodes reached by fewer than two supports).
+    pub nodes: Vec<Vector3<f64>>,
+    /// Background tetrahedra over `background.nodes` (no cells for grid integration of a
+    /// cloud without tets): the geometry written to VTU and triangulating the boundary.
+    pub background: Mesh,
+    /// For each background vertex, its field node (usize::MAX when removed).
+    pub background_node: Vec<usize>,
+    pub points: QuadraturePoints,
+    /// Integration point positions, m.
+    pub positions: Vec<Vector3<f64>>,
+    /// Background tet of each integration point (usize::MAX for grid points).
+    pub owner: Vec<usize>,
+    pub support: Support,
+    pub mls: MlsSettings,
+    pub removed_nodes: usize,
+    /// Exact volume of the scene's shape, m^3.
+    pub exact_volume: f64,
+    /// How the nodes and points were made, for reports.
+    pub cloud: String,
+    pub integration: String,
+    pub warnings: Vec<String>,
+}
+
+impl MeshlessBuild {
+    /// Shape functions (values only) at `x` (m).
+    pub fn shape_values(&self, x: &Vector3<f64>, what: &dyn Fn() -> String) -> Result<ShapeAt> {
+        shape_at(&self.support, &self.mls, x, false, what)
+    }
+
+    /// (mean, min, max) support nodes per integration point.
+    pub fn support_statistics(&self) -> (f64, usize, usize) {
+        support_statistics(&self.points)
+    }
+}
+
+/// The scene's shape as a meshless domain.
+pub fn domain(scene: &Scene) -> Domain {
+    match &scene.geometry {
+        Geometry::Box { min, max } => Domain::Box {
+            min: Vector3::from(*min),
+            max: Vector3::from(*max),
+        },
+        Geometry::Cylinder { radius, height } => Domain::Cylinder {
+            radius: *radius,
+            height: *height,
+        },
+    }
+}
+
+/// Node spacing (m) the scene's sizing asks for: `size`, or the smallest division length.
+pub fn spacing(scene: &Scene) -> Result<f64> {
+    let d = &scene.discretization;
+    if let Some(h) = d.size {
+        return Ok(h);
+    }
+    let div = d.divisions.ok_or_else(|| {
+        Error::Input("discretization: give `size` (node spacing, m) or `divisions`".into())
+    })?;
+    Ok(match &scene.geometry {
+        Geometry::Box { min, max } => (0..3)
+            .map(|k| (max[k] - min[k]) / div[k].max(1) as f64)
+            .fold(f64::INFINITY, f64::min),
+        Geometry::Cylinder { radius, height } => {
+            (radius / div[0].max(1) as f64 * 2.0).min(height / div[2].max(1) as f64)
+        }
+    })
+}
+
+fn mls_settings(scene: &Scene) -> MlsSettings {
+    let d = &scene.discretization;
+    MlsSettings {
+        basis: match d.basis {
+            scene::Basis::Linear => mls::Basis::Linear,
+            scene::Basis::Quadratic => mls::Basis::Quadratic,
+        },
+        mu: d.mu,
+        min_rcond: d.min_rcond,
+    }
+}
+
+fn support_rule(scene: &Scene) -> SupportRule {
+    let d = &scene.discretization;
+    let quadratic = d.basis == scene::Basis::Quadratic;
+    match d.support {
+        SupportKind::Radius => SupportRule::Radius {
+            dilatation: d.dilatation.unwrap_or(if quadratic { 2.0 } else { 1.6 }),
+        },
+        SupportKind::Nearest => SupportRule::Nearest {
+            n: d.support_nodes.unwrap_or(if quadratic { 16 } else { 8 }),
+            alpha: d.alpha,
+        },
+    }
+}
+
+/// Nodes (and background tets when the nodes come from a tet mesh or Delaunay) of the scene.
+fn nodes_and_tets(scene: &Scene, domain: &Domain) -> Result<(Mesh, String)> {
+    let d = &scene.discretization;
+    let tets_wanted = d.integration == IntegrationKind::Tets;
+    let (nodes, name) = match d.cloud {
+        CloudKind::Mesh => {
+            let mut s = scene.clone();
+            if s.discretization.element == ElementName::Hex8 {
+                s.discretization.element = ElementName::Tet4;
+            }
+            let mesh = crate::simulation::build_mesh(&s)?;
+            let (nodes, map) = cloud::mesh_vertices(&mesh);
+            let cells: Vec<usize> = mesh.cells.iter().map(|&i| map[i]).collect();
+            let name = format!(
+                "vertices of a {} tet mesh",
+                if d.mesher == scene::Mesher::Tetgen {
+                    "TetGen"
+                } else {
+                    "structured"
+                }
+            );
+            let bg = Mesh {
+                nodes,
+                shape: ElementShape::Tet4,
+                cells: if tets_wanted { cells } else { Vec::new() },
+            };
+            return Ok((bg, name));
+        }
+        CloudKind::Lattice => {
+            let h = spacing(scene)?;
+            (
+                cloud::jittered_lattice(domain, h, d.jitter, d.seed)?,
+                format!(
+                    "lattice h = {h:.4e} m, jitter {}, seed {}",
+                    d.jitter, d.seed
+                ),
+            )
+        }
+        CloudKind::Halton => {
+            let h = spacing(scene)?;
+            // Fill to saturation (random sequential packing at 0.85 h is about as dense as the
+            // lattice of spacing h); the cap only bounds the work.
+            let count = 3 * cloud::jittered_lattice(domain, h, 0.0, 0)?.len();
+            (
+                cloud::halton_fill(domain, count, d.min_spacing * h, d.seed)?,
+                format!(
+                    "Halton fill, min spacing {:.4e} m, seed {}",
+                    d.min_spacing * h,
+                    d.seed
+                ),
+            )
+        }
+        CloudKind::File => {
+            let rel = d.cloud_file.clone().unwrap_or_default();
+            let path = if rel.is_absolute() {
+                rel
+            } else {
+                scene.base_dir.join(rel)
+            };
+            let nodes = cloud::read_cloud(&path)?;
+            (nodes, format!("file {}", path.display()))
+        }
+    };
+    let cells = if tets_wanted {
+        delaunay(&nodes)?
+    } else {
+        Vec::new()
+    };
+    Ok((
+        Mesh {
+            nodes,
+            shape: ElementShape::Tet4,
+            cells,
+        },
+        name,
+    ))
+}
+
+#[cfg(feature = "tetgen")]
+fn delaunay(nodes: &[Vector3<f64>]) -> Result<Vec<usize>> {
+    Ok(crate::geometry::tetgen::delaunay(nodes)?
+        .into_iter()
+        .flatten()
+        .collect())
+}
+
+#[cfg(not(feature = "tetgen"))]
+fn delaunay(_nodes: &[Vector3<f64>]) -> Result<Vec<usize>> {
+    Err(Error::Input(
+        "integration = 'tets' on a generated or file cloud needs a Delaunay tetrahedralization (feature `tetgen`); \
+         use integration = 'grid' or cloud = 'mesh'"
+            .into(),
+    ))
+}
+
+/// Builds the meshless discretization. `protected(nodes)` returns the nodes that carry a
+/// boundary condition or a probe: removing one of those is an error.
+pub fn build(
+    scene: &Scene,
+    protected: &dyn Fn(&[Vector3<f64>]) -> Result<Vec<usize>>,
+) -> Result<MeshlessBuild> {
+    let d = &scene.discretization;
+    let dom = domain(scene);
+    let (background, cloud_name) = nodes_and_tets(scene, &dom)?;
+    let mls = mls_settings(scene);
+    let rule = support_rule(scene);
+
+    let (positions, weights, owner, integration_name) = match d.integration {
+        IntegrationKind::Tets => {
+            let rule_t = TetRule::from_points(d.tet_rule).ok_or_else(|| {
+                Error::Input(format!(
+                    "discretization.tet_rule = {}: use 1, 4 or 5",
+                    d.tet_rule
+                ))
+            })?;
+            let (p, w, o) = integration::tet_points(&background, rule_t)?;
+            let name = format!(
+                "{} background tets x {} points",
+                background.num_cells(),
+                d.tet_rule
+            );
+            (p, w, o, name)
+        }
+        IntegrationKind::Grid => {
+            let (p, w) = integration::grid_points(&dom, background.nodes.len(), d.point_ratio)?;
+            let o = vec![usize::MAX; p.len()];
+            let name = format!("regular grid, {} points per node", d.point_ratio);
+            (p, w, o, name)
+        }
+    };
+    if positions.is_empty() {
+        return Err(Error::Input("the meshless discretization has no integration points; refine the grid (point_ratio) or check the cloud".into()));
+    }
+
+    // Field nodes: the background vertices, less those reached by fewer than two supports.
+    let mut keep: Vec<usize> = (0..background.nodes.len()).collect();
+    let mut removed_total = 0usize;
+    let mut warnings = Vec::new();
+    let tets: Vec<[usize; 4]> = background
+        .cells
+        .chunks_exact(4)
+        .map(|c| [c[0], c[1], c[2], c[3]])
+        .collect();
+    let full = Support::new(
+        background.nodes.clone(),
+        rule,
+        (!tets.is_empty()).then_some(tets.as_slice()),
+    )?;
+    for _round in 0..4 {
+        let nodes: Vec<Vector3<f64>> = keep.iter().map(|&i| background.nodes[i]).collect();
+        let support = full.subset(&keep)?;
+        let points = build_points(&support, &mls, &positions, &weights)?;
+        let counts = support_counts(&points, nodes.len());
+        let low: Vec<usize> = (0..nodes.len()).filter(|&i| counts[i] < 2).collect();
+        if low.is_empty() {
+            if removed_total > 0 {
+                warnings.push(format!(
+                    "removed {removed_total} meshless node(s) that fewer than two integration points reach (Horton 2010 sect. 2.5); \
+                     add integration points (tet_rule, point_ratio) or enlarge the supports to keep them"
+                ));
+            }
+            let background_node = {
+                let mut m = vec![usize::MAX; background.nodes.len()];
+                for (new, &old) in keep.iter().enumerate() {
+                    m[old] = new;
+                }
+                m
+            };
+            return Ok(MeshlessBuild {
+                nodes,
+                background,
+                background_node,
+                points,
+                positions,
+                owner,
+                support,
+                mls,
+                removed_nodes: removed_total,
+                exact_volume: dom.volume(),
+                cloud: cloud_name,
+                integration: integration_name,
+                warnings,
+            });
+        }
+        let guarded = protected(&nodes)?;
+        if let Some(&g) = guarded.iter().find(|g| low.binary_search(g).is_ok()) {
+            return Err(Error::Input(format!(
+                "meshless node {} at {:?} m carries a boundary condition or a probe but only {} integration point(s) reach it, \
+                 so it would have to be removed; add integration points (tet_rule, point_ratio) or enlarge the supports \
+                 (dilatation, support_nodes)",
+                keep[g],
+                nodes[g].as_slice(),
+                counts[g]
+            )));
+        }
+        removed_total += low.len();
+        let drop: std::collections::BTreeSet<usize> = low.into_iter().collect();
+        keep = keep
+            .into_iter()
+            .enumerate()
+            .filter(|(i, _)| !drop.contains(i))
+            .map(|(_, k)| k)
+            .collect();
+    }
+    Err(Error::Input(
+        "removing meshless nodes that fewer than two integration points reach did not settle after 4 rounds; \
+         the cloud is much coarser than the integration (or the reverse): add integration points or enlarge the supports"
+            .into(),
+    ))
+}

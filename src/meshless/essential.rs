@@ -1,0 +1,214 @@
+//! Essential boundary conditions on meshless nodes through the shared integrator: the
+//! EBCIEM / SEBCIEM correction (thesis chapter 4) wrapped as a [`Corrector`].
+
+use nalgebra::Vector3;
+
+use super::discretize::MeshlessBuild;
+use crate::bc::ebciem::{ebciem_columns, ComponentCorrection, SparseVec};
+use crate::bc::{Boundary, LoadCurve};
+use crate::geometry::quality;
+use crate::scene::BcMethod;
+use crate::solver::Corrector;
+use crate::Result;
+
+/// One component's correction with its prescribed values.
+struct Component {
+    corr: ComponentCorrection,
+    amplitude: Vec<f64>,
+    curve: Vec<LoadCurve>,
+    /// Columns (indices into the constrained nodes) of each model boundary.
+    columns: Vec<Vec<usize>>,
+    target: Vec<f64>,
+}
+
+/// EBCIEM / SEBCIEM for every constrained component of the meshless boundaries.
+pub struct MeshlessCorrector {
+    comps: Vec<Component>,
+    alpha: f64,
+    num_boundaries: usize,
+    /// Constraint force of the last correction on every node, N (for the work).
+    nodal: Vec<Vector3<f64>>,
+}
+
+/// What building the corrector found worth a warning.
+pub struct CorrectorReport {
+    /// Constrained nodes on no boundary triangle, imposed with lumped (SEBCIEM) columns.
+    pub lumped_nodes: usize,
+}
+
+impl MeshlessCorrector {
+    /// Builds the per-component corrections for `boundaries` (all imposed by correction) with
+    /// `method` (EBCIEM or SEBCIEM) and factors each system once.
+    pub fn new(
+        build: &MeshlessBuild,
+        boundaries: &[Boundary],
+        mass: &[f64],
+        method: BcMethod,
+    ) -> Result<(Self, CorrectorReport)> {
+        let n = build.nodes.len();
+        // Boundary triangles of the background tets, in field-node ids (all vertices kept).
+        let tris: Vec<[usize; 3]> =
+            if method == BcMethod::Ebciem && build.background.num_cells() > 0 {
+                quality::boundary_faces(&build.background)
+                    .map_err(|e| crate::Error::Input(format!("background tets: {e}")))?
+                    .into_iter()
+                    .filter_map(|f| {
+                        let t = [
+                            build.background_node[f[0]],
+                            build.background_node[f[1]],
+                            build.background_node[f[2]],
+                        ];
+                        t.iter().all(|&i| i < n).then_some(t)
+                    })
+                    .collect()
+            } else {
+                Vec::new()
+            };
+        let shape = |x: &Vector3<f64>| -> Result<SparseVec> {
+            let s = build.shape_values(x, &|| "essential-boundary point".to_string())?;
+            Ok(s.ids
+                .iter()
+                .zip(&s.phi)
+                .map(|(&i, &p)| (i as u32, p))
+                .collect())
+        };
+        let mut comps = Vec::new();
+        let mut lumped_nodes = 0;
+        for c in 0..3 {
+            // Constrained nodes of this component, first boundary wins (conflicts were checked
+            // by the direct constraints of the same boundaries).
+            let mut owner = vec![usize::MAX; n];
+            let mut nodes = Vec::new();
+            for (b, bd) in boundaries.iter().enumerate() {
+                if bd.components[c].is_none() {
+                    continue;
+                }
+                for &i in &bd.nodes {
+                    if owner[i] == usize::MAX {
+                        owner[i] = b;
+                        nodes.push(i);
+                    }
+                }
+            }
+            if nodes.is_empty() {
+                continue;
+            }
+            nodes.sort_unstable();
+            let phi_rows: Vec<SparseVec> = nodes
+                .iter()
+                .map(|&i| shape(&build.nodes[i]))
+                .collect::<Result<_>>()?;
+            let v_cols = if method == BcMethod::Ebciem {
+                let on: Vec<bool> = (0..n).map(|i| owner[i] != usize::MAX).collect();
+                let ctris: Vec<[usize; 3]> = tris
+                    .iter()
+                    .filter(|t| t.iter().all(|&i| on[i]))
+                    .cloned()
+                    .collect();
+                let mut in_tri = vec![false; n];
+                for t in &ctris {
+                    for &i in t {
+                        in_tri[i] = true;
+                    }
+                }
+                let tri_nodes: Vec<usize> = nodes.iter().cloned().filter(|&i| in_tri[i]).collect();
+                let cols = if tri_nodes.is_empty() {
+                    Vec::new()
+                } else {
+                    ebciem_columns(&tri_nodes, &build.nodes, &ctris, shape)?
+                };
+                let mut it = cols.into_iter();
+                nodes
+                    .iter()
+                    .zip(&phi_rows)
+                    .map(|(&i, row)| {
+                        if in_tri[i] {
+                            it.next().unwrap_or_default()
+                        } else {
+                            lumped_nodes += 1;
+                            row.clone()
+                        }
+                    })
+                    .collect()
+            } else {
+                phi_rows.clone()
+            };
+            let amplitude: Vec<f64> = nodes
+                .iter()
+                .map(|&i| boundaries[owner[i]].components[c].unwrap_or(0.0))
+                .collect();
+            let curve: Vec<LoadCurve> = nodes.iter().map(|&i| boundaries[owner[i]].curve).collect();
+            let mut columns = vec![Vec::new(); boundaries.len()];
+            for (k, &i) in nodes.iter().enumerate() {
+                columns[owner[i]].push(k);
+            }
+            let ne = nodes.len();
+            let corr = ComponentCorrection::new(c, nodes, phi_rows, v_cols, mass)?;
+            comps.push(Component {
+                corr,
+                amplitude,
+                curve,
+                columns,
+                target: vec![0.0; ne],
+            });
+        }
+        Ok((
+            MeshlessCorrector {
+                comps,
+                alpha: 1.0,
+                num_boundaries: boundaries.len(),
+                nodal: vec![Vector3::zeros(); n],
+            },
+            CorrectorReport { lumped_nodes },
+        ))
+    }
+
+    /// Largest |interpolated - prescribed| over the constrained nodes at load fraction `tau`, m.
+    pub fn max_error(&self, u: &[Vector3<f64>], tau: f64) -> f64 {
+        let mut worst = 0.0f64;
+        let mut vals = Vec::new();
+        for c in &self.comps {
+            c.corr.interpolate(u, &mut vals);
+            for (k, v) in vals.iter().enumerate() {
+                let t = c.amplitude[k] * c.curve[k].value(tau);
+                worst = worst.max((v - t).abs());
+            }
+        }
+        worst
+    }
+}
+
+impl Corrector for MeshlessCorrector {
+    fn correct(&mut self, u: &mut [Vector3<f64>], tau: f64, alpha: f64) {
+        self.alpha = alpha;
+        for v in self.nodal.iter_mut() {
+            *v = Vector3::zeros();
+        }
+        for c in self.comps.iter_mut() {
+            for (k, t) in c.target.iter_mut().enumerate() {
+                *t = c.amplitude[k] * c.curve[k].value(tau);
+            }
+            c.corr.correct(u, &c.target);
+            c.corr.add_nodal_forces(&mut self.nodal, alpha);
+        }
+    }
+
+    fn reaction(&self, b: usize) -> Vector3<f64> {
+        let mut r = Vector3::zeros();
+        if b >= self.num_boundaries {
+            return r;
+        }
+        for c in &self.comps {
+            r[c.corr.component()] += c.corr.constraint_force(&c.columns[b], self.alpha);
+        }
+        r
+    }
+
+    fn work(&self, u_next: &[Vector3<f64>], u_prev: &[Vector3<f64>]) -> f64 {
+        self.nodal
+            .iter()
+            .zip(u_next.iter().zip(u_prev))
+            .map(|(f, (a, b))| f.dot(&(a - b)) * 0.5)
+            .sum()
+    }
+}

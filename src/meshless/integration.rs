@@ -1,0 +1,431 @@
+//! Integration points of the MTLED weak form: positions (m) and weights (m^3). MTLED
+//! integrates over a background structure that need not conform to the node cloud (Horton et
+//! al. 2010, "A meshless Total Lagrangian explicit dynamics algorithm for surgical simulation",
+//! Int. J. Numer. Meth. Biomed. Engng 26, sect. 2.2 and 3.2): either the cells of a
+//! tetrahedral mesh with a Gauss-type rule per cell, or a regular grid of cubic cells over the
+//! bounding box with one point per cell.
+
+use nalgebra::Vector3;
+
+use crate::geometry::domain::Domain;
+use crate::geometry::quality::tet_signed_volume;
+use crate::geometry::{ElementShape, Mesh};
+use crate::{Error, Result};
+
+/// Largest background grid [`grid_points`] builds; more means a unit error, not a request.
+const MAX_GRID_POINTS: f64 = 20_000_000.0;
+
+/// Integration rule per tetrahedron of a background mesh (Horton et al. 2010 sect. 3.2 use
+/// one or four points per tet). Written in scene files as "1", "4" or "5".
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize, Default)]
+pub enum TetRule {
+    /// Centroid, weight V: exact for linear functions.
+    #[serde(rename = "1")]
+    One,
+    /// Degree-2 rule of Hammer, Marlowe and Stroud (1956): four points at barycentric
+    /// (a, b, b, b) and permutations, a = 0.5854101966249685, b = 0.1381966011250105, weights
+    /// V/4. The default: exact for quadratics with positive weights.
+    #[default]
+    #[serde(rename = "4")]
+    Four,
+    /// Degree-3 rule of Keast (1986, "Moderate-degree tetrahedral quadrature formulas", CMAME
+    /// 55): centroid with weight -4/5 V and four points at barycentric (1/2, 1/6, 1/6, 1/6)
+    /// and permutations with weight 9/20 V. Exact for cubics, but the negative centroid weight
+    /// makes lumped quantities built from point weights (masses) unreliable.
+    #[serde(rename = "5")]
+    Five,
+}
+
+impl TetRule {
+    /// The rule with `n` points per tet (1, 4 or 5), None otherwise.
+    pub fn from_points(n: usize) -> Option<Self> {
+        match n {
+            1 => Some(TetRule::One),
+            4 => Some(TetRule::Four),
+            5 => Some(TetRule::Five),
+            _ => None,
+        }
+    }
+
+    /// Points per tet.
+    pub fn points(self) -> usize {
+        match self {
+            TetRule::One => 1,
+            TetRule::Four => 4,
+            TetRule::Five => 5,
+        }
+    }
+
+    /// Barycentric coordinates and weight fractions (of the tet volume) of the rule.
+    fn table(self) -> &'static [([f64; 4], f64)] {
+        const A: f64 = 0.585_410_196_624_968_5;
+        const B: f64 = 0.138_196_601_125_010_5;
+        const Q: f64 = 0.25;
+        const H: f64 = 0.5;
+        const S: f64 = 1.0 / 6.0;
+        match self {
+            TetRule::One => &[([Q, Q, Q, Q], 1.0)],
+            TetRule::Four => &[
+                ([A, B, B, B], 0.25),
+                ([B, A, B, B], 0.25),
+                ([B, B, A, B], 0.25),
+                ([B, B, B, A], 0.25),
+            ],
+            TetRule::Five => &[
+                ([Q, Q, Q, Q], -0.8),
+                ([H, S, S, S], 0.45),
+                ([S, H, S, S], 0.45),
+                ([S, S, H, S], 0.45),
+                ([S, S, S, H], 0.45),
+            ],
+        }
+    }
+}
+
+/// Integration points of a tetrahedral background mesh (Horton et al. 2010 sect. 2.2/3.2):
+/// `rule` points per tet (1: centroid; 4: the degree-2 rule with a = 0.5854101966249685,
+/// b = 0.1381966011250105, weights V/4; 5: the degree-3 Keast rule, centroid weight -4/5 V and
+/// four points at (1/2, 1/6, 1/6, 1/6) barycentric with weight 9/20 V). Weights sum to the mesh
+/// volume exactly (up to rounding). Returns (positions in m, weights in m^3, owning tet index
+/// per point); the points of tet e are consecutive, in the order of the rule.
+///
+/// Errors when the mesh is not a Tet4 mesh, a cell refers to a missing node, or a tet has
+/// non-positive volume ([`Error::InvalidElement`] naming the tet).
+#[allow(clippy::type_complexity)] // the tuple is the documented API
+pub fn tet_points(mesh: &Mesh, rule: TetRule) -> Result<(Vec<Vector3<f64>>, Vec<f64>, Vec<usize>)> {
+    if mesh.shape != ElementShape::Tet4 {
+        return Err(Error::Input(format!(
+            "tetrahedral integration points need a Tet4 background mesh, got a {:?} mesh",
+            mesh.shape
+        )));
+    }
+    if !mesh.cells.len().is_multiple_of(4) {
+        return Err(Error::Input(format!(
+            "tet mesh connectivity has {} entries, not a multiple of 4",
+            mesh.cells.len()
+        )));
+    }
+    let n = mesh.num_cells() * rule.points();
+    let mut pos = Vec::with_capacity(n);
+    let mut w = Vec::with_capacity(n);
+    let mut owner = Vec::with_capacity(n);
+    for e in 0..mesh.num_cells() {
+        let mut x = [Vector3::zeros(); 4];
+        for (xi, &i) in x.iter_mut().zip(mesh.cell(e)) {
+            *xi = *mesh.nodes.get(i).ok_or_else(|| {
+                Error::Input(format!(
+                    "tet {e} refers to node {i}, but the mesh has {} nodes",
+                    mesh.nodes.len()
+                ))
+            })?;
+        }
+        let volume = tet_signed_volume(&x[0], &x[1], &x[2], &x[3]);
+        if !(volume > 0.0) {
+            return Err(Error::InvalidElement { element: e, volume });
+        }
+        for (bary, frac) in rule.table() {
+            pos.push(x[0] * bary[0] + x[1] * bary[1] + x[2] * bary[2] + x[3] * bary[3]);
+            w.push(frac * volume);
+            owner.push(e);
+        }
+    }
+    Ok((pos, w, owner))
+}
+
+/// Regular background grid that does not conform to the geometry (Horton et al. 2010 sect.
+/// 2.2/3.2): cubic cells of edge a = (V / (ratio * nodes))^(1/3) over the domain's bounding box
+/// (cell counts round(L/a) per axis, at least 1, cells then slightly non-cubic so they tile the
+/// box exactly), one point per cell at its centre with weight = cell volume (m^3), kept if the
+/// centre is inside the domain (on the surface counts as inside). `ratio` is the wanted
+/// integration-point : node ratio (Horton et al. recommend about 2). About ratio x nodes points
+/// come back; for a curved domain the total weight only approximates the volume (cells cut by
+/// the surface count fully or not at all), converging as the grid refines.
+///
+/// Errors when the domain is invalid, `nodes` is 0, `ratio` is not positive and finite, or the
+/// grid would have more than 20 million cells.
+pub fn grid_points(
+    domain: &Domain,
+    nodes: usize,
+    ratio: f64,
+) -> Result<(Vec<Vector3<f64>>, Vec<f64>)> {
+    domain.validate()?;
+    if nodes == 0 {
+        return Err(Error::Input(
+            "a background integration grid needs at least one node".into(),
+        ));
+    }
+    if !(ratio.is_finite() && ratio > 0.0) {
+        return Err(Error::Input(format!(
+            "integration point to node ratio {ratio} must be positive and finite (typically 2)"
+        )));
+    }
+    let a = (domain.volume() / (ratio * nodes as f64)).cbrt();
+    let (lo, hi) = domain.bounds();
+    let len = hi - lo;
+    let counts = len.map(|l| (l / a).round().max(1.0));
+    let cells = counts.product();
+    if !(cells <= MAX_GRID_POINTS) {
+        return Err(Error::Input(format!(
+            "integration grid of {nodes} nodes x ratio {ratio} needs {cells:.3e} cells, more \
+             than the limit of {MAX_GRID_POINTS:.0e}; lower the ratio or the node count"
+        )));
+    }
+    let n = counts.map(|c| c as usize);
+    let d = len.component_div(&counts);
+    let weight = d.product();
+    let mut pos = Vec::new();
+    for k in 0..n.z {
+        for j in 0..n.y {
+            for i in 0..n.x {
+                // Centres from the cell index (not accumulated) so rounding does not drift.
+                let c = lo
+                    + Vector3::new(
+                        len.x * ((i as f64 + 0.5) / counts.x),
+                        len.y * ((j as f64 + 0.5) / counts.y),
+                        len.z * ((k as f64 + 0.5) / counts.z),
+                    );
+                if domain.contains(&c, 0.0) {
+                    pos.push(c);
+                }
+            }
+        }
+    }
+    let w = vec![weight; pos.len()];
+    Ok((pos, w))
+}
+
+/// Integrates f over the points: sum of w f(x) (weights in m^3 give integrals over volume).
+/// Used by tests and reports.
+pub fn integrate(
+    points: &[Vector3<f64>],
+    weights: &[f64],
+    f: impl Fn(&Vector3<f64>) -> f64,
+) -> f64 {
+    points.iter().zip(weights).map(|(p, w)| w * f(p)).sum()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::shapes::{box_tet, cylinder_tet};
+
+    fn mesh_volume(mesh: &Mesh) -> f64 {
+        (0..mesh.num_cells())
+            .map(|e| {
+                let c = mesh.cell(e);
+                let x = |i: usize| &mesh.nodes[c[i]];
+                tet_signed_volume(x(0), x(1), x(2), x(3))
+            })
+            .sum()
+    }
+
+    const RULES: [TetRule; 3] = [TetRule::One, TetRule::Four, TetRule::Five];
+
+    #[test]
+    fn rule_counts_and_serde_names() {
+        for r in RULES {
+            assert_eq!(TetRule::from_points(r.points()), Some(r));
+            let s = serde_json::to_string(&r).unwrap();
+            assert_eq!(s, format!("\"{}\"", r.points()));
+            assert_eq!(serde_json::from_str::<TetRule>(&s).unwrap(), r);
+        }
+        assert_eq!(TetRule::from_points(2), None);
+        assert_eq!(TetRule::default(), TetRule::Four);
+    }
+
+    #[test]
+    fn weights_sum_to_mesh_volume() {
+        let meshes = [
+            box_tet(Vector3::zeros(), Vector3::new(0.1, 0.05, 0.02), [5, 4, 3]).unwrap(),
+            cylinder_tet(0.05, 0.1, 4, 2, 5).unwrap(),
+        ];
+        for mesh in &meshes {
+            let v = mesh_volume(mesh);
+            for r in RULES {
+                let (p, w, owner) = tet_points(mesh, r).unwrap();
+                assert_eq!(p.len(), mesh.num_cells() * r.points());
+                assert_eq!(owner.len(), p.len());
+                assert_eq!(owner[r.points()], 1);
+                let total: f64 = w.iter().sum();
+                let rel = (total - v).abs() / v;
+                println!(
+                    "tet rule {r:?}: {} points, weights {total:.15e} m^3, mesh {v:.15e} m^3, \
+                     rel err {rel:.2e}",
+                    p.len()
+                );
+                assert!(rel < 1e-12);
+            }
+        }
+    }
+
+    /// Integral over the unit cube of x^a y^b z^c.
+    fn monomial(a: i32, b: i32, c: i32) -> f64 {
+        1.0 / ((a + 1) * (b + 1) * (c + 1)) as f64
+    }
+
+    #[test]
+    fn rules_integrate_polynomials_exactly() {
+        let mesh = box_tet(Vector3::zeros(), Vector3::new(1.0, 1.0, 1.0), [3, 2, 2]).unwrap();
+        let linear = |p: &Vector3<f64>| 1.0 + 2.0 * p.x - p.y + 3.0 * p.z;
+        let linear_exact = 1.0 + 2.0 * 0.5 - 0.5 + 3.0 * 0.5;
+        let quadratic = |p: &Vector3<f64>| {
+            p.x * p.x + p.x * p.y + 2.0 * p.y * p.z - 3.0 * p.z * p.z + p.z + 1.0
+        };
+        let quadratic_exact = monomial(2, 0, 0) + monomial(1, 1, 0) + 2.0 * monomial(0, 1, 1)
+            - 3.0 * monomial(0, 0, 2)
+            + monomial(0, 0, 1)
+            + 1.0;
+        let cubic = |p: &Vector3<f64>| {
+            p.x.powi(3) + p.x * p.y * p.z - 2.0 * p.y * p.y * p.z + p.z.powi(3) + p.x * p.y + 1.0
+        };
+        let cubic_exact = monomial(3, 0, 0) + monomial(1, 1, 1) - 2.0 * monomial(0, 2, 1)
+            + monomial(0, 0, 3)
+            + monomial(1, 1, 0)
+            + 1.0;
+        let err = |r: TetRule, f: &dyn Fn(&Vector3<f64>) -> f64, exact: f64| {
+            let (p, w, _) = tet_points(&mesh, r).unwrap();
+            (integrate(&p, &w, f) - exact).abs() / exact.abs()
+        };
+        let e1 = err(TetRule::One, &linear, linear_exact);
+        let e4 = err(TetRule::Four, &quadratic, quadratic_exact);
+        let e5 = err(TetRule::Five, &cubic, cubic_exact);
+        println!(
+            "unit box mesh rel errors: 1-pt linear {e1:.2e}, 4-pt quadratic {e4:.2e}, 5-pt \
+             cubic {e5:.2e}"
+        );
+        assert!(e1 < 1e-12 && e4 < 1e-12 && e5 < 1e-12);
+    }
+
+    /// On the reference tet, where the integral of x^a y^b z^c is a! b! c! / (a+b+c+3)!, each
+    /// rule is exact to its degree and not one degree further (on the symmetric box mesh the
+    /// per-tet errors of odd monomials can cancel, so that check is made here).
+    #[test]
+    fn rules_reach_their_degree_on_one_tet() {
+        let mesh = Mesh {
+            nodes: vec![
+                Vector3::zeros(),
+                Vector3::new(1.0, 0.0, 0.0),
+                Vector3::new(0.0, 1.0, 0.0),
+                Vector3::new(0.0, 0.0, 1.0),
+            ],
+            shape: ElementShape::Tet4,
+            cells: vec![0, 1, 2, 3],
+        };
+        let fact = |n: i32| (1..=n).product::<i32>() as f64;
+        let exact = |a: i32, b: i32, c: i32| fact(a) * fact(b) * fact(c) / fact(a + b + c + 3);
+        let err = |r: TetRule, a: i32, b: i32, c: i32| {
+            let (p, w, _) = tet_points(&mesh, r).unwrap();
+            let f = |x: &Vector3<f64>| x.x.powi(a) * x.y.powi(b) * x.z.powi(c);
+            (integrate(&p, &w, f) - exact(a, b, c)).abs() / exact(a, b, c)
+        };
+        for (r, degree) in [(TetRule::One, 1), (TetRule::Four, 2), (TetRule::Five, 3)] {
+            let mut worst_exact: f64 = 0.0;
+            let mut best_next = f64::INFINITY;
+            for a in 0..=degree + 1 {
+                for b in 0..=degree + 1 - a {
+                    for c in 0..=degree + 1 - a - b {
+                        let e = err(r, a, b, c);
+                        if a + b + c <= degree {
+                            worst_exact = worst_exact.max(e);
+                        } else if a + b + c == degree + 1 && b == 0 && c == 0 {
+                            best_next = best_next.min(e);
+                        }
+                    }
+                }
+            }
+            println!(
+                "reference tet {r:?}: worst rel err up to degree {degree} {worst_exact:.2e}, \
+                 rel err of x^{} {best_next:.2e}",
+                degree + 1
+            );
+            assert!(worst_exact < 1e-12);
+            assert!(best_next > 1e-3);
+        }
+    }
+
+    #[test]
+    fn tet_points_refuse_bad_meshes() {
+        let mut mesh = box_tet(Vector3::zeros(), Vector3::new(1.0, 1.0, 1.0), [1, 1, 1]).unwrap();
+        mesh.cells.swap(4, 5); // invert tet 1
+        match tet_points(&mesh, TetRule::Four) {
+            Err(Error::InvalidElement { element, volume }) => {
+                assert_eq!(element, 1);
+                assert!(volume < 0.0);
+            }
+            other => panic!("expected InvalidElement, got {other:?}"),
+        }
+        mesh.cells[0] = 999;
+        assert!(tet_points(&mesh, TetRule::One).is_err());
+        let hex = crate::geometry::shapes::box_hex(
+            Vector3::zeros(),
+            Vector3::new(1.0, 1.0, 1.0),
+            [1, 1, 1],
+        )
+        .unwrap();
+        assert!(tet_points(&hex, TetRule::One).is_err());
+    }
+
+    #[test]
+    fn grid_on_box_is_exact() {
+        let d = Domain::Box {
+            min: Vector3::new(-0.01, 0.0, 0.02),
+            max: Vector3::new(0.09, 0.05, 0.04),
+        };
+        let nodes = 1000;
+        for ratio in [1.0, 2.0, 4.0] {
+            let (p, w) = grid_points(&d, nodes, ratio).unwrap();
+            assert!(p.iter().all(|x| d.contains(x, 0.0)));
+            let total: f64 = w.iter().sum();
+            let rel = (total - d.volume()).abs() / d.volume();
+            let count_ratio = p.len() as f64 / (ratio * nodes as f64);
+            println!(
+                "box grid ratio {ratio}: {} points ({count_ratio:.3} x ratio x nodes), \
+                 volume rel err {rel:.2e}",
+                p.len()
+            );
+            assert!(rel < 1e-12);
+            assert!((0.7..1.4).contains(&count_ratio));
+        }
+    }
+
+    #[test]
+    fn grid_on_cylinder_converges() {
+        let (r, h) = (0.05, 0.1);
+        let d = Domain::Cylinder {
+            radius: r,
+            height: h,
+        };
+        let exact = std::f64::consts::PI * r * r * h;
+        let nodes = 1000;
+        let mut errors = Vec::new();
+        for ratio in [2.0, 16.0, 128.0, 1024.0] {
+            let (p, w) = grid_points(&d, nodes, ratio).unwrap();
+            assert!(p.iter().all(|x| d.contains(x, 0.0)));
+            let total: f64 = w.iter().sum();
+            let rel = (total - exact).abs() / exact;
+            let count_ratio = p.len() as f64 / (ratio * nodes as f64);
+            println!(
+                "cylinder grid ratio {ratio}: {} points ({count_ratio:.3} x ratio x nodes), \
+                 volume rel err {rel:.3e}",
+                p.len()
+            );
+            assert!((0.8..1.25).contains(&count_ratio));
+            errors.push(rel);
+        }
+        assert!(errors[0] < 0.05);
+        assert!(errors[3] < errors[0] && errors[3] < 0.005, "{errors:?}");
+    }
+
+    #[test]
+    fn grid_refuses_bad_input() {
+        let d = Domain::Cylinder {
+            radius: 0.05,
+            height: 0.1,
+        };
+        assert!(grid_points(&d, 0, 2.0).is_err());
+        assert!(grid_points(&d, 100, 0.0).is_err());
+        assert!(grid_points(&d, 100, f64::NAN).is_err());
+        let e = grid_points(&d, 10_000_000, 10.0).unwrap_err().to_string();
+        assert!(e.contains("limit"), "{e}");
+    }
+}

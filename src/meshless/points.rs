@@ -1,0 +1,166 @@
+//! Quadrature points of the meshless discretization and shape-function evaluation with support growth.
+
+use nalgebra::Vector3;
+use rayon::prelude::*;
+
+use super::mls::{self, MlsError, MlsSettings};
+use super::support::Support;
+use crate::quadrature::{PointKind, QuadraturePoints};
+use crate::{Error, Result};
+
+/// Support growth factors tried, in order, when a moment matrix is too ill-conditioned.
+const GROWTH: [f64; 5] = [1.0, 1.25, 1.5, 1.75, 2.0];
+
+/// Shape functions at one point: support node ids (ascending), phi and dphi/dX (1/m).
+#[derive(Debug, Clone, Default)]
+pub struct ShapeAt {
+    pub ids: Vec<usize>,
+    pub phi: Vec<f64>,
+    pub dphi: Vec<Vector3<f64>>,
+}
+
+/// Scratch reused across evaluations so the preprocessing loop allocates little.
+#[derive(Default)]
+struct Scratch {
+    ids: Vec<usize>,
+    radii: Vec<f64>,
+    pos: Vec<Vector3<f64>>,
+}
+
+/// Evaluates the shape functions (and with `derivatives`, dphi/dX) at `x` (m). An
+/// ill-conditioned moment matrix grows the support up to 2x before it becomes an error that
+/// names `what`, the position and the support.
+pub fn shape_at(
+    support: &Support,
+    s: &MlsSettings,
+    x: &Vector3<f64>,
+    derivatives: bool,
+    what: &dyn Fn() -> String,
+) -> Result<ShapeAt> {
+    let mut out = ShapeAt::default();
+    let mut sc = Scratch::default();
+    shape_into(support, s, x, derivatives, &mut sc, &mut out, what)?;
+    Ok(out)
+}
+
+fn shape_into(
+    support: &Support,
+    s: &MlsSettings,
+    x: &Vector3<f64>,
+    derivatives: bool,
+    sc: &mut Scratch,
+    out: &mut ShapeAt,
+    what: &dyn Fn() -> String,
+) -> Result<()> {
+    let mut last: Option<MlsError> = None;
+    for &g in &GROWTH {
+        support.find(x, g, &mut sc.ids, &mut sc.radii);
+        sc.pos.clear();
+        sc.pos.extend(sc.ids.iter().map(|&i| support.nodes[i]));
+        let r = if derivatives {
+            mls::shape_functions(x, &sc.pos, &sc.radii, s, &mut out.phi, &mut out.dphi)
+        } else {
+            out.dphi.clear();
+            mls::shape_values(x, &sc.pos, &sc.radii, s, &mut out.phi)
+        };
+        match r {
+            Ok(()) => {
+                out.ids.clear();
+                out.ids.extend_from_slice(&sc.ids);
+                return Ok(());
+            }
+            Err(e) => last = Some(e),
+        }
+    }
+    let shown: Vec<String> = sc.ids.iter().take(40).map(|i| i.to_string()).collect();
+    Err(Error::Input(format!(
+        "{} at ({:.6e}, {:.6e}, {:.6e}) m: {} with its support of {} nodes [{}{}] even after growing the support to 2x. \
+         The nodes around this point are too few or (nearly) coplanar: refine the cloud there, raise \
+         discretization.dilatation / support_nodes, or use basis = 'quadratic' (MMLS)",
+        what(),
+        x.x,
+        x.y,
+        x.z,
+        last.map(|e| e.to_string()).unwrap_or_default(),
+        sc.ids.len(),
+        shown.join(", "),
+        if sc.ids.len() > 40 { ", ..." } else { "" }
+    )))
+}
+
+/// Quadrature points of the meshless discretization: for every integration point (positions
+/// m, weights m^3) its support and dphi/dX. Built in parallel in fixed chunks and concatenated
+/// in point order, so the result does not depend on the number of threads.
+pub fn build_points(
+    support: &Support,
+    s: &MlsSettings,
+    positions: &[Vector3<f64>],
+    weights: &[f64],
+) -> Result<QuadraturePoints> {
+    const CHUNK: usize = 512;
+    let chunks: Vec<Result<(Vec<usize>, Vec<u32>, Vec<Vector3<f64>>)>> = positions
+        .par_chunks(CHUNK)
+        .enumerate()
+        .map(|(c, xs)| {
+            let mut sc = Scratch::default();
+            let mut sh = ShapeAt::default();
+            let mut counts = Vec::with_capacity(xs.len());
+            let mut ids = Vec::new();
+            let mut dphi = Vec::new();
+            for (k, x) in xs.iter().enumerate() {
+                let p = c * CHUNK + k;
+                shape_into(support, s, x, true, &mut sc, &mut sh, &|| {
+                    format!("integration point {p}")
+                })?;
+                counts.push(sh.ids.len());
+                ids.extend(sh.ids.iter().map(|&i| i as u32));
+                dphi.extend_from_slice(&sh.dphi);
+            }
+            Ok((counts, ids, dphi))
+        })
+        .collect();
+    let slots: usize = chunks
+        .iter()
+        .map(|c| c.as_ref().map_or(0, |c| c.1.len()))
+        .sum();
+    let mut qp = QuadraturePoints::with_capacity(positions.len(), slots);
+    let mut p = 0;
+    for chunk in chunks {
+        let (counts, ids, dphi) = chunk?;
+        let mut at = 0;
+        for n in counts {
+            qp.nodes.extend_from_slice(&ids[at..at + n]);
+            qp.dphi.extend_from_slice(&dphi[at..at + n]);
+            qp.weights.push(weights[p]);
+            qp.kinds.push(PointKind::Standard);
+            qp.offsets.push(qp.nodes.len());
+            at += n;
+            p += 1;
+        }
+    }
+    Ok(qp)
+}
+
+/// Number of integration points whose support contains each node.
+pub fn support_counts(qp: &QuadraturePoints, num_nodes: usize) -> Vec<usize> {
+    let mut c = vec![0usize; num_nodes];
+    for &n in &qp.nodes {
+        c[n as usize] += 1;
+    }
+    c
+}
+
+/// (mean, min, max) number of support nodes per integration point.
+pub fn support_statistics(qp: &QuadraturePoints) -> (f64, usize, usize) {
+    let sizes = (0..qp.len()).map(|p| qp.slots(p).len());
+    let (mut min, mut max, mut sum) = (usize::MAX, 0usize, 0usize);
+    for n in sizes {
+        min = min.min(n);
+        max = max.max(n);
+        sum += n;
+    }
+    if qp.is_empty() {
+        return (0.0, 0, 0);
+    }
+    (sum as f64 / qp.len() as f64, min, max)
+}

@@ -1,0 +1,286 @@
+//! Support domains: which nodes contribute to the shape functions at a point, and with what
+//! weight radius (Horton et al. 2010 sect. 2.3 and 3.1; thesis sect. 2.5 and 4.4.3).
+//!
+//! Neighbour search uses a k-d tree (kiddo). Two rules:
+//! * `Nearest { n, alpha }`: the n nodes nearest to the point; every node gets the same weight
+//!   radius r = alpha x the distance to the farthest of them (Horton 2010 eq. 8: alpha = 10 and
+//!   n = 8 for a linear basis, so the n nodes weigh almost the same).
+//! * `Radius { dilatation }`: each node I has an influence radius r_I = dilatation x the mean
+//!   distance to its neighbours (the nodes it shares a background tetrahedron with, or its 8
+//!   nearest nodes when there are no tetrahedra); a point's support is every node whose sphere
+//!   covers it (thesis sect. 4.4.3, D = 2; the coupled-cylinder paper uses 1.6).
+
+use std::num::NonZero;
+
+use kiddo::{ImmutableKdTree, SquaredEuclidean};
+use nalgebra::Vector3;
+
+use crate::{Error, Result};
+
+/// How a point's support is chosen.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum SupportRule {
+    /// The `n` nearest nodes, weight radius `alpha` x the largest of their distances.
+    Nearest { n: usize, alpha: f64 },
+    /// Nodes whose influence sphere (radius `dilatation` x mean neighbour distance) covers the point.
+    Radius { dilatation: f64 },
+}
+
+/// Nodes in a k-d tree with, for the radius rule, their influence radii (m).
+pub struct Support {
+    pub nodes: Vec<Vector3<f64>>,
+    pub rule: SupportRule,
+    /// Influence radius of each node (radius rule), m; empty for the nearest rule.
+    pub radii: Vec<f64>,
+    max_radius: f64,
+    tree: ImmutableKdTree<f64, 3>,
+}
+
+impl Support {
+    /// Builds the search structure. `tets` (node-index quadruples) give each node its
+    /// neighbours for the radius rule; without them the 8 nearest nodes are used.
+    pub fn new(
+        nodes: Vec<Vector3<f64>>,
+        rule: SupportRule,
+        tets: Option<&[[usize; 4]]>,
+    ) -> Result<Self> {
+        if nodes.len() < 4 {
+            return Err(Error::Input(format!(
+                "the meshless cloud has {} nodes; at least 4 (not coplanar) are needed",
+                nodes.len()
+            )));
+        }
+        if let Some(i) = nodes.iter().position(|p| !p.iter().all(|v| v.is_finite())) {
+            return Err(Error::Input(format!(
+                "meshless node {i} has a non-finite coordinate {:?}",
+                nodes[i].as_slice()
+            )));
+        }
+        let pts: Vec<[f64; 3]> = nodes.iter().map(|p| [p.x, p.y, p.z]).collect();
+        let tree = ImmutableKdTree::new_from_slice(&pts)
+            .map_err(|e| Error::Input(format!("cannot build the neighbour search tree: {e:?}")))?;
+        match rule {
+            SupportRule::Nearest { n, alpha } => {
+                if n < 4 || !(alpha >= 1.0) {
+                    return Err(Error::Input(format!(
+                        "support: nearest rule needs support_nodes >= 4 and alpha >= 1 (got {n} and {alpha})"
+                    )));
+                }
+            }
+            SupportRule::Radius { dilatation } => {
+                if !(dilatation > 0.5 && dilatation < 20.0) {
+                    return Err(Error::Input(format!(
+                        "support: dilatation must lie in (0.5, 20) (got {dilatation}); 1.6 to 2.0 is usual"
+                    )));
+                }
+            }
+        }
+        let mut s = Support {
+            nodes,
+            rule,
+            radii: Vec::new(),
+            max_radius: 0.0,
+            tree,
+        };
+        if let SupportRule::Radius { dilatation } = rule {
+            let mean = match tets {
+                Some(t) => mean_tet_neighbour_distance(&s.nodes, t),
+                None => vec![None; s.nodes.len()],
+            };
+            let radii: Vec<f64> = (0..s.nodes.len())
+                .map(|i| dilatation * mean[i].unwrap_or_else(|| s.mean_nearest_distance(i, 8)))
+                .collect();
+            s.max_radius = radii.iter().cloned().fold(0.0, f64::max);
+            s.radii = radii;
+        }
+        Ok(s)
+    }
+
+    /// The rule in words, for reports.
+    pub fn describe(&self) -> String {
+        match self.rule {
+            SupportRule::Nearest { n, alpha } => format!("nearest {n} nodes, alpha = {alpha}"),
+            SupportRule::Radius { dilatation } => {
+                format!("influence radius, dilatation = {dilatation}")
+            }
+        }
+    }
+
+    /// The same rule on the nodes `keep` (ascending ids into `self.nodes`), each keeping its
+    /// influence radius: used after removing nodes that too few supports reach.
+    pub fn subset(&self, keep: &[usize]) -> Result<Self> {
+        let nodes: Vec<Vector3<f64>> = keep.iter().map(|&i| self.nodes[i]).collect();
+        let mut s = Support::new(nodes, SupportRule::Nearest { n: 4, alpha: 1.0 }, None)?;
+        s.rule = self.rule;
+        if !self.radii.is_empty() {
+            s.radii = keep.iter().map(|&i| self.radii[i]).collect();
+            s.max_radius = s.radii.iter().cloned().fold(0.0, f64::max);
+        }
+        Ok(s)
+    }
+
+    fn mean_nearest_distance(&self, i: usize, k: usize) -> f64 {
+        let p = self.nodes[i];
+        let k = k.min(self.nodes.len() - 1);
+        let res = self
+            .tree
+            .query(&[p.x, p.y, p.z])
+            .nearest_n::<SquaredEuclidean<f64>>(
+                NonZero::new(k + 1).unwrap_or(NonZero::<usize>::MIN),
+            )
+            .execute();
+        let d: Vec<f64> = res
+            .iter()
+            .filter(|r| r.item as usize != i)
+            .map(|r| r.distance.sqrt())
+            .collect();
+        d.iter().sum::<f64>() / d.len().max(1) as f64
+    }
+
+    /// Support of point `x` (m): node ids in increasing order and the weight radius of each (m).
+    /// `grow` >= 1 enlarges the support (more nearest nodes, or larger radii) when the
+    /// moment matrix of the plain support is ill-conditioned.
+    pub fn find(&self, x: &Vector3<f64>, grow: f64, ids: &mut Vec<usize>, radii: &mut Vec<f64>) {
+        ids.clear();
+        radii.clear();
+        let q = [x.x, x.y, x.z];
+        match self.rule {
+            SupportRule::Nearest { n, alpha } => {
+                let n = ((n as f64 * grow).round() as usize).clamp(1, self.nodes.len());
+                let res = self
+                    .tree
+                    .query(&q)
+                    .nearest_n::<SquaredEuclidean<f64>>(
+                        NonZero::new(n).unwrap_or(NonZero::<usize>::MIN),
+                    )
+                    .execute();
+                let dmax = res.iter().map(|r| r.distance).fold(0.0, f64::max).sqrt();
+                let r = (alpha * dmax).max(f64::MIN_POSITIVE);
+                ids.extend(res.iter().map(|r| r.item as usize));
+                ids.sort_unstable();
+                radii.resize(ids.len(), r);
+            }
+            SupportRule::Radius { .. } => {
+                let reach = self.max_radius * grow;
+                let res = self
+                    .tree
+                    .query(&q)
+                    .within::<SquaredEuclidean<f64>>(reach * reach)
+                    .unsorted()
+                    .execute();
+                for r in res {
+                    let i = r.item as usize;
+                    let ri = self.radii[i] * grow;
+                    if r.distance < ri * ri {
+                        ids.push(i);
+                    }
+                }
+                ids.sort_unstable();
+                radii.extend(ids.iter().map(|&i| self.radii[i] * grow));
+            }
+        }
+    }
+}
+
+/// Mean distance from each node to the nodes it shares a tetrahedron with (None for nodes in no tet).
+fn mean_tet_neighbour_distance(nodes: &[Vector3<f64>], tets: &[[usize; 4]]) -> Vec<Option<f64>> {
+    let mut nbr: Vec<Vec<u32>> = vec![Vec::new(); nodes.len()];
+    for t in tets {
+        for &a in t {
+            for &b in t {
+                if a != b && a < nodes.len() && b < nodes.len() {
+                    nbr[a].push(b as u32);
+                }
+            }
+        }
+    }
+    nbr.into_iter()
+        .enumerate()
+        .map(|(i, mut v)| {
+            v.sort_unstable();
+            v.dedup();
+            if v.is_empty() {
+                return None;
+            }
+            let s: f64 = v
+                .iter()
+                .map(|&j| (nodes[j as usize] - nodes[i]).norm())
+                .sum();
+            Some(s / v.len() as f64)
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn lattice(n: usize, h: f64) -> Vec<Vector3<f64>> {
+        let mut v = Vec::new();
+        for i in 0..n {
+            for j in 0..n {
+                for k in 0..n {
+                    v.push(Vector3::new(i as f64, j as f64, k as f64) * h);
+                }
+            }
+        }
+        v
+    }
+
+    #[test]
+    fn nearest_rule_matches_brute_force() {
+        let nodes = lattice(5, 0.1);
+        let s = Support::new(
+            nodes.clone(),
+            SupportRule::Nearest { n: 8, alpha: 10.0 },
+            None,
+        )
+        .unwrap();
+        let x = Vector3::new(0.123, 0.211, 0.307);
+        let (mut ids, mut r) = (Vec::new(), Vec::new());
+        s.find(&x, 1.0, &mut ids, &mut r);
+        let mut d: Vec<(f64, usize)> = nodes
+            .iter()
+            .enumerate()
+            .map(|(i, p)| ((p - x).norm(), i))
+            .collect();
+        d.sort_by(|a, b| a.0.total_cmp(&b.0));
+        let mut want: Vec<usize> = d[..8].iter().map(|t| t.1).collect();
+        want.sort_unstable();
+        assert_eq!(ids, want);
+        assert!((r[0] - 10.0 * d[7].0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn radius_rule_covers_point_with_each_nodes_own_sphere() {
+        let nodes = lattice(6, 0.1);
+        let s = Support::new(nodes.clone(), SupportRule::Radius { dilatation: 1.6 }, None).unwrap();
+        // Interior lattice node: 6 neighbours at h and 2 at sqrt(2) h among its 8 nearest.
+        let i = 1 + 6 * (2 + 6 * 2);
+        let mean = (6.0 * 0.1 + 2.0 * 0.1 * 2f64.sqrt()) / 8.0;
+        assert!(
+            (s.radii[i] - 1.6 * mean).abs() < 1e-12,
+            "{} vs {}",
+            s.radii[i],
+            1.6 * mean
+        );
+        let x = Vector3::new(0.25, 0.25, 0.25);
+        let (mut ids, mut r) = (Vec::new(), Vec::new());
+        s.find(&x, 1.0, &mut ids, &mut r);
+        let want: Vec<usize> = (0..nodes.len())
+            .filter(|&j| (nodes[j] - x).norm() < s.radii[j])
+            .collect();
+        assert_eq!(ids, want);
+        assert!(ids.len() >= 8);
+    }
+
+    #[test]
+    fn too_few_nodes_is_an_error() {
+        let e = Support::new(
+            lattice(1, 1.0),
+            SupportRule::Radius { dilatation: 2.0 },
+            None,
+        );
+        assert!(e.is_err());
+    }
+}

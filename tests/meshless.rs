@@ -1,0 +1,332 @@
+//! MTLED meshless discretization through the whole pipeline: patch test, exact imposition of
+//! essential conditions (EBCIEM / SEBCIEM vs the correction baseline), the exact cube, energy
+//! and angular momentum, node removal and bad inputs.
+
+mod common;
+use common::*;
+
+use hytled::scene::Scene;
+use hytled::simulation::{prepare, settings, Prepared};
+use hytled::solver::{self, forces::deformation_gradient};
+use nalgebra::{Matrix3, Vector3};
+
+fn scene(case: &str, overrides: &[&str]) -> Scene {
+    let o: Vec<String> = overrides.iter().map(|s| s.to_string()).collect();
+    hytled::scene::load(&path(case), &o).unwrap_or_else(|e| panic!("{case}: {e}"))
+}
+
+fn prepared(case: &str, overrides: &[&str]) -> Prepared {
+    prepare(&scene(case, overrides)).unwrap_or_else(|e| panic!("{case} {overrides:?}: {e}"))
+}
+
+/// Interpolated displacement sum_j phi_j(x) u_j at `x` (m).
+fn interpolate(prep: &Prepared, x: &Vector3<f64>, u: &[Vector3<f64>]) -> Vector3<f64> {
+    let m = prep.meshless.as_ref().expect("meshless run");
+    let s = m
+        .shape_values(x, &|| "test point".into())
+        .expect("shape functions");
+    s.ids
+        .iter()
+        .zip(&s.phi)
+        .fold(Vector3::zeros(), |a, (&i, &p)| a + u[i] * p)
+}
+
+#[test]
+fn affine_displacement_gives_uniform_deformation_gradient_at_every_point() {
+    let a = Matrix3::new(0.11, -0.03, 0.02, 0.05, -0.08, 0.01, -0.04, 0.06, 0.09);
+    let b = Vector3::new(0.001, -0.002, 0.003);
+    for o in [
+        &["discretization.cloud=mesh"][..],
+        &[
+            "discretization.cloud=lattice",
+            "discretization.jitter=0.3",
+            "discretization.basis=quadratic",
+        ][..],
+        &[
+            "discretization.cloud=halton",
+            "discretization.integration=grid",
+            "discretization.support=nearest",
+            "discretization.support_nodes=10",
+        ][..],
+    ] {
+        let mut ov = vec![
+            "discretization.method=meshless",
+            "discretization.size=0.025",
+        ];
+        ov.extend_from_slice(o);
+        let prep = prepared("cases/cube-compression.toml", &ov);
+        let m = &prep.model;
+        let u: Vec<Vector3<f64>> = m.nodes.iter().map(|x| a * x + b).collect();
+        let want = Matrix3::identity() + a;
+        let mut worst = 0.0f64;
+        for p in 0..m.points.len() {
+            let f = deformation_gradient(&m.points, p, &u);
+            worst = worst.max((f - want).amax());
+        }
+        assert!(
+            worst < 1e-9,
+            "{o:?}: largest F error {worst:e} over {} points",
+            m.points.len()
+        );
+    }
+}
+
+#[test]
+fn integration_weights_sum_to_the_background_volume() {
+    let prep = prepared(
+        "cases/cylinder-compression.toml",
+        &[
+            "discretization.method=meshless",
+            "discretization.divisions=[4,2,8]",
+        ],
+    );
+    let w = prep.model.points.total_weight();
+    let tets: f64 = (0..prep.mesh.num_cells())
+        .map(|e| {
+            let c = prep.mesh.cell(e);
+            let p = |i: usize| prep.mesh.nodes[c[i]];
+            hytled::geometry::quality::tet_signed_volume(&p(0), &p(1), &p(2), &p(3))
+        })
+        .sum();
+    assert!(
+        (w - tets).abs() < 1e-12 * tets,
+        "weights {w} vs tets {tets}"
+    );
+}
+
+/// Runs a scene and returns the prepared model with the final displacement.
+fn run(prep: &mut Prepared, sc: &Scene) -> solver::RunOutput {
+    solver::run(&mut prep.model, &settings(sc, false)).unwrap_or_else(|e| panic!("{e}"))
+}
+
+#[test]
+fn ebciem_and_sebciem_impose_prescribed_values_and_correction_does_not() {
+    // A short dynamic loading of a coarse bonded cylinder: the field near the bonded faces is
+    // far from linear, so prescribing nodal parameters misses the values between... at the nodes.
+    let mut errors = Vec::new();
+    for method in ["ebciem", "sebciem", "correction"] {
+        let bc = format!("discretization.bc_method={method}");
+        let ov = [
+            "discretization.method=meshless",
+            "discretization.divisions=[4,2,8]",
+            "solver.duration=0.5",
+            bc.as_str(),
+        ];
+        let sc = scene("cases/cylinder-compression.toml", &ov);
+        let mut prep = prepare(&sc).unwrap();
+        let out = run(&mut prep, &sc);
+        let mut worst = 0.0f64;
+        for b in &prep.model.boundaries {
+            for &i in &b.nodes {
+                let x = prep.model.nodes[i];
+                let u = interpolate(&prep, &x, &out.u);
+                for k in 0..3 {
+                    if let Some(v) = b.components[k] {
+                        // The smooth curve has reached 1 at t = T = duration.
+                        worst = worst.max((u[k] - v).abs());
+                    }
+                }
+            }
+        }
+        errors.push((method, worst));
+    }
+    println!("imposition error |u(x_k) - u_bar| (m): {errors:?}");
+    assert!(errors[0].1 < 1e-10, "EBCIEM error {:e} m", errors[0].1);
+    assert!(errors[1].1 < 1e-10, "SEBCIEM error {:e} m", errors[1].1);
+    assert!(errors[2].1 > 1e-6, "correction error {:e} m", errors[2].1);
+}
+
+#[test]
+fn cube_meshless_ebciem_relaxation_matches_exact_solution() {
+    let sc = scene(
+        "cases/cube-compression.toml",
+        &["discretization.method=meshless", "discretization.size=0.02"],
+    );
+    let mut prep = prepare(&sc).unwrap();
+    let out = run(&mut prep, &sc);
+    assert!(out.converged);
+    let top = prep.model.reactions(&out.f_int)[prep
+        .model
+        .boundaries
+        .iter()
+        .position(|b| b.name == "top")
+        .unwrap()];
+    let err_f = (top.z - -7.63269).abs() / 7.63269;
+    // Exact field: u = ((a - 1) x, (a - 1) y, -0.2 z) (REFERENCE.md, cube).
+    let a = 1.11574668;
+    let mut sum = 0.0;
+    for x in &prep.model.nodes {
+        let exact = Vector3::new((a - 1.0) * x.x, (a - 1.0) * x.y, -0.2 * x.z);
+        sum += (interpolate(&prep, x, &out.u) - exact).norm();
+    }
+    let mean = sum / prep.model.nodes.len() as f64;
+    println!(
+        "cube meshless: F_z = {} N (error {:.4} %), mean nodal error {:.3e} mm",
+        top.z,
+        100.0 * err_f,
+        1e3 * mean
+    );
+    assert!(err_f < 0.02, "reaction error {err_f}");
+    assert!(mean < 0.05e-3, "mean nodal error {mean} m");
+}
+
+#[test]
+fn meshless_summary_reports_supports_and_bc_method() {
+    let s = run_case(
+        "cases/cube-compression.toml",
+        &[
+            "discretization.method=meshless",
+            "discretization.size=0.025",
+            "discretization.bc_method=sebciem",
+        ],
+    );
+    assert_eq!(s.method, "meshless");
+    assert_eq!(s.bc_method.as_deref(), Some("sebciem"));
+    let sn = s.support_nodes.as_ref().unwrap();
+    assert!(sn.min >= 4 && sn.mean >= sn.min as f64 && sn.max as f64 >= sn.mean);
+    assert_eq!(s.removed_nodes, Some(0));
+    let v = serde_json::to_value(&s).unwrap();
+    assert!(
+        v["support_nodes"]["mean"].is_number()
+            && v["removed_nodes"].is_number()
+            && v["bc_method"].is_string()
+    );
+    // Top and bottom reactions balance at steady state.
+    let (t, b) = (s.reactions["top"][2], s.reactions["bottom"][2]);
+    assert!((t + b).abs() < 1e-3 * t.abs(), "top {t} bottom {b}");
+}
+
+#[test]
+fn dynamic_meshless_compression_balances_energy() {
+    let s = run_case(
+        "cases/cylinder-compression.toml",
+        &[
+            "discretization.method=meshless",
+            "discretization.divisions=[4,2,8]",
+            "discretization.tet_rule=1",
+        ],
+    );
+    let e = s.energy.balance_error.unwrap();
+    println!("energy balance error {:.4} %", 100.0 * e);
+    assert!(e < 0.02, "energy balance error {e}");
+}
+
+#[test]
+fn free_spinning_meshless_body_conserves_angular_momentum() {
+    // A coarse cylinder spun about its axis at 1 Hz, no boundary conditions, 20 s.
+    let text = r#"
+[geometry]
+shape = "cylinder"
+radius = 0.05
+height = 0.1
+[discretization]
+method = "meshless"
+divisions = [2, 1, 4]
+tet_rule = 1
+[material]
+youngs_modulus = 3000.0
+poisson_ratio = 0.49
+density = 1000.0
+[solver]
+mode = "dynamic"
+duration = 20.0
+[output]
+history_rows = 10
+"#;
+    let sc = hytled::scene::parse(text, std::path::Path::new("spin.toml"), &[]).unwrap();
+    let mut prep = prepare(&sc).unwrap();
+    let w = Vector3::new(0.0, 0.0, 2.0 * std::f64::consts::PI);
+    let v0: Vec<Vector3<f64>> = prep.model.nodes.iter().map(|x| w.cross(x)).collect();
+    let mut st = settings(&sc, false);
+    st.initial_velocity = Some(v0.clone());
+    let m = prep.model.mass.clone();
+    let l0: Vector3<f64> = prep
+        .model
+        .nodes
+        .iter()
+        .zip(&v0)
+        .zip(&m)
+        .map(|((x, v), &mi)| x.cross(v) * mi)
+        .sum();
+    let out = solver::run(&mut prep.model, &st).unwrap();
+    let l1: Vector3<f64> = (0..m.len())
+        .map(|i| {
+            let x = prep.model.nodes[i] + out.u[i];
+            let v = (out.u[i] - out.u_prev[i]) / out.dt;
+            x.cross(&v) * m[i]
+        })
+        .sum();
+    let err = (l1 - l0).norm() / l0.norm();
+    println!(
+        "angular momentum {l0:?} -> {l1:?}, relative change {err:e}, {} steps",
+        out.steps
+    );
+    assert!(err < 0.01, "angular momentum changed by {err}");
+}
+
+#[test]
+fn poorly_supported_nodes_are_removed_with_a_warning() {
+    let dir = std::env::temp_dir().join(format!("hytled-cloud-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let mut text = String::from("x,y,z\n");
+    for i in 0..5 {
+        for j in 0..5 {
+            for k in 0..5 {
+                text += &format!(
+                    "{},{},{}\n",
+                    0.025 * i as f64,
+                    0.025 * j as f64,
+                    0.025 * k as f64
+                );
+            }
+        }
+    }
+    // A stray node outside the body: no integration point has it among its nearest nodes.
+    text += "0.3,0.3,0.3\n";
+    let file = dir.join("cloud.csv");
+    std::fs::write(&file, text).unwrap();
+    let f = format!("discretization.cloud_file={}", file.display());
+    let s = run_case(
+        "cases/cube-compression.toml",
+        &[
+            "discretization.method=meshless",
+            "discretization.cloud=file",
+            f.as_str(),
+            "discretization.integration=grid",
+            "discretization.support=nearest",
+            "discretization.bc_method=sebciem",
+        ],
+    );
+    assert_eq!(s.removed_nodes, Some(1));
+    assert!(
+        s.warnings
+            .iter()
+            .any(|w| w.contains("removed 1 meshless node")),
+        "{:?}",
+        s.warnings
+    );
+    assert_eq!(s.nodes, 125);
+}
+
+#[test]
+fn bad_clouds_are_clear_errors() {
+    let dir = std::env::temp_dir().join(format!("hytled-badcloud-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let bad = dir.join("bad.xyz");
+    std::fs::write(&bad, "0 0 0\n0.1 0 0\n0 0.1 oops\n").unwrap();
+    let empty = dir.join("empty.xyz");
+    std::fs::write(&empty, "# nothing here\n\n").unwrap();
+    for (file, want) in [(&bad, "line 3"), (&empty, "empty")] {
+        let f = format!("discretization.cloud_file={}", file.display());
+        let sc = scene(
+            "cases/cube-compression.toml",
+            &[
+                "discretization.method=meshless",
+                "discretization.cloud=file",
+                f.as_str(),
+            ],
+        );
+        let err = prepare(&sc).err().expect("must fail").to_string();
+        assert!(err.to_lowercase().contains(want), "{err}");
+    }
+}
