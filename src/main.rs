@@ -111,6 +111,9 @@ fn execute(cmd: Command) -> hytled::Result<()> {
                 },
             };
             let summary = simulation::run_scene(&sc, &opts)?;
+            for w in &summary.warnings {
+                eprintln!("warning: {w}");
+            }
             if json {
                 println!(
                     "{}",
@@ -129,18 +132,37 @@ fn execute(cmd: Command) -> hytled::Result<()> {
             let prep = simulation::prepare(&sc)?;
             let c = hytled::material::Material::wave_speed(&prep.model.forces.material);
             let (dt, p) = hytled::solver::timestep::critical_time_step(&prep.model.points, c);
+            for w in &prep.warnings {
+                eprintln!("warning: {w}");
+            }
             println!("{}: valid", scene.display());
             println!(
-                "  nodes {}, elements {}, integration points {}",
-                prep.mesh.nodes.len(),
+                "  nodes {}, elements {}, integration points {} (total weight {:.6e} m^3)",
+                prep.model.nodes.len(),
                 prep.mesh.num_cells(),
-                prep.model.points.len()
+                prep.model.points.len(),
+                prep.model.points.total_weight()
             );
+            if let Some(m) = &prep.meshless {
+                let (mean, min, max) = m.support_statistics();
+                println!(
+                    "  meshless: {}; {}; support {mean:.1} nodes per point (min {min}, max {max}); {} node(s) removed; exact volume {:.6e} m^3",
+                    m.cloud, m.integration, m.removed_nodes, m.exact_volume
+                );
+            }
             for b in &prep.model.boundaries {
                 println!("  boundary {:<12} {} nodes", b.name, b.nodes.len());
             }
             for pr in &prep.probes {
-                println!("  probe {:<15} in element {}", pr.name, pr.element);
+                if pr.element == usize::MAX {
+                    println!(
+                        "  probe {:<15} interpolated from {} nodes",
+                        pr.name,
+                        pr.nodes.len()
+                    );
+                } else {
+                    println!("  probe {:<15} in element {}", pr.name, pr.element);
+                }
             }
             if let Some((a, e)) = prep.min_dihedral {
                 println!("  min dihedral angle {a:.2} deg (element {e})");

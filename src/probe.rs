@@ -1,5 +1,5 @@
 //! Probes: displacement at arbitrary material points, interpolated with the shape functions of
-//! the element that contains the point (FE).
+//! the element that contains the point (FE) or with the meshless shape functions there.
 
 use nalgebra::Vector3;
 
@@ -15,7 +15,7 @@ pub struct Probe {
     pub position: Vector3<f64>,
     pub nodes: Vec<usize>,
     pub weights: Vec<f64>,
-    /// Element used for the interpolation.
+    /// Element used for the interpolation (usize::MAX for meshless shape functions).
     pub element: usize,
 }
 

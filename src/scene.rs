@@ -114,9 +114,14 @@ pub enum Basis {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
 #[serde(rename_all = "lowercase")]
 pub enum BcMethod {
+    /// EBCIEM with the radius support rule, SEBCIEM with the nearest-node rule: the nearest
+    /// rule's shape functions jump where the set of nearest nodes changes, which makes the
+    /// EBCIEM boundary integrals inconsistent with the nodal rows (cylinder runs diverged
+    /// within 50 steps), while SEBCIEM only evaluates at the nodes.
+    #[default]
+    Auto,
     /// Exact imposition with the distributed boundary force interpolated linearly over the
     /// triangulated boundary (thesis sect. 4.3).
-    #[default]
     Ebciem,
     /// Exact imposition with the boundary force lumped at the nodes (thesis sect. 4.3.1).
     Sebciem,
@@ -125,9 +130,19 @@ pub enum BcMethod {
 }
 
 impl BcMethod {
+    /// The method `Auto` stands for under the given support rule.
+    pub fn resolve(self, support: SupportKind) -> BcMethod {
+        match (self, support) {
+            (BcMethod::Auto, SupportKind::Radius) => BcMethod::Ebciem,
+            (BcMethod::Auto, SupportKind::Nearest) => BcMethod::Sebciem,
+            (m, _) => m,
+        }
+    }
+
     /// Name as written in scenes and summaries.
     pub fn name(self) -> &'static str {
         match self {
+            BcMethod::Auto => "auto",
             BcMethod::Ebciem => "ebciem",
             BcMethod::Sebciem => "sebciem",
             BcMethod::Correction => "correction",
@@ -294,7 +309,7 @@ impl Default for Discretization {
             basis: Basis::Linear,
             mu: default_mu(),
             min_rcond: default_min_rcond(),
-            bc_method: BcMethod::Ebciem,
+            bc_method: BcMethod::Auto,
         }
     }
 }

@@ -215,7 +215,10 @@ pub fn prepare(scene: &Scene) -> Result<Prepared> {
 fn prepare_meshless(scene: &Scene) -> Result<Prepared> {
     let t0 = Instant::now();
     let mat = material(scene);
-    let method = scene.discretization.bc_method;
+    let method = scene
+        .discretization
+        .bc_method
+        .resolve(scene.discretization.support);
     // Nodes that must survive the removal of poorly supported nodes: boundary nodes and the
     // nodes nearest to each probe.
     let protected = |nodes: &[Vector3<f64>]| -> Result<Vec<usize>> {
@@ -240,6 +243,15 @@ fn prepare_meshless(scene: &Scene) -> Result<Prepared> {
     };
     let build = discretize::build(scene, &protected)?;
     let mut warnings = build.warnings.clone();
+    if method == BcMethod::Ebciem
+        && scene.discretization.support == crate::scene::SupportKind::Nearest
+    {
+        warnings.push(
+            "bc_method = 'ebciem' with support = 'nearest': the nearest-node shape functions jump where the \
+             support changes, and EBCIEM runs of this kind diverged in our tests; prefer 'sebciem' (the default, 'auto')"
+                .into(),
+        );
+    }
     let bnd = boundaries(scene, &build.nodes)?;
     let dom = discretize::domain(scene);
     let h = discretize::spacing(scene).unwrap_or(0.0);

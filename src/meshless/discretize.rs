@@ -113,7 +113,9 @@ fn support_rule(scene: &Scene) -> SupportRule {
 /// Nodes (and background tets when the nodes come from a tet mesh or Delaunay) of the scene.
 fn nodes_and_tets(scene: &Scene, domain: &Domain) -> Result<(Mesh, String)> {
     let d = &scene.discretization;
-    let tets_wanted = d.integration == IntegrationKind::Tets;
+    // Tets integrate, and their boundary faces carry the EBCIEM boundary integrals.
+    let tets_wanted = d.integration == IntegrationKind::Tets
+        || d.bc_method.resolve(d.support) == scene::BcMethod::Ebciem;
     let (nodes, name) = match d.cloud {
         CloudKind::Mesh => {
             let mut s = scene.clone();
@@ -134,7 +136,7 @@ fn nodes_and_tets(scene: &Scene, domain: &Domain) -> Result<(Mesh, String)> {
             let bg = Mesh {
                 nodes,
                 shape: ElementShape::Tet4,
-                cells: if tets_wanted { cells } else { Vec::new() },
+                cells,
             };
             return Ok((bg, name));
         }

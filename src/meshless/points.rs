@@ -164,3 +164,31 @@ pub fn support_statistics(qp: &QuadraturePoints) -> (f64, usize, usize) {
     }
     (sum as f64 / qp.len() as f64, min, max)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::meshless::support::SupportRule;
+
+    #[test]
+    fn coplanar_support_is_an_error_naming_point_position_and_support() {
+        // All nodes in the plane z = 0: a linear basis cannot be determined, at any growth.
+        let mut nodes = Vec::new();
+        for i in 0..6 {
+            for j in 0..6 {
+                nodes.push(Vector3::new(i as f64 * 0.01, j as f64 * 0.01, 0.0));
+            }
+        }
+        let sup = Support::new(nodes, SupportRule::Radius { dilatation: 1.6 }, None).unwrap();
+        let x = Vector3::new(0.021, 0.022, 0.0);
+        let err = shape_at(&sup, &MlsSettings::default(), &x, true, &|| {
+            "integration point 7".into()
+        })
+        .unwrap_err()
+        .to_string();
+        assert!(err.contains("integration point 7"), "{err}");
+        assert!(err.contains("2.1"), "position missing: {err}");
+        assert!(err.contains("support of"), "{err}");
+        assert!(err.contains("coplanar"), "{err}");
+    }
+}
