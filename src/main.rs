@@ -25,6 +25,16 @@ enum VtuArg {
     Appended,
 }
 
+impl From<VtuArg> for VtuFormat {
+    fn from(v: VtuArg) -> Self {
+        match v {
+            VtuArg::Ascii => VtuFormat::Ascii,
+            VtuArg::Binary => VtuFormat::Binary,
+            VtuArg::Appended => VtuFormat::Appended,
+        }
+    }
+}
+
 #[derive(Subcommand)]
 enum Command {
     /// Run a scene and print a summary (or JSON).
@@ -67,6 +77,9 @@ enum Command {
         /// Output file (.vtu).
         #[arg(long)]
         out: Option<PathBuf>,
+        /// VTU encoding.
+        #[arg(long, value_enum, default_value = "appended")]
+        vtu_format: VtuArg,
     },
 }
 
@@ -104,11 +117,7 @@ fn execute(cmd: Command) -> hytled::Result<()> {
             let opts = RunOptions {
                 out: out.clone(),
                 progress: !json && std::io::stderr().is_terminal(),
-                vtu_format: match vtu_format {
-                    VtuArg::Ascii => VtuFormat::Ascii,
-                    VtuArg::Binary => VtuFormat::Binary,
-                    VtuArg::Appended => VtuFormat::Appended,
-                },
+                vtu_format: vtu_format.into(),
             };
             let summary = simulation::run_scene(&sc, &opts)?;
             for w in &summary.warnings {
@@ -185,7 +194,12 @@ fn execute(cmd: Command) -> hytled::Result<()> {
             print!("{}", hytled::report::markdown_table(&vals));
             Ok(())
         }
-        Command::Mesh { scene, set, out } => {
+        Command::Mesh {
+            scene,
+            set,
+            out,
+            vtu_format,
+        } => {
             let sc = hytled::scene::load(&scene, &set)?;
             let mesh = simulation::build_mesh(&sc)?;
             let path = out.unwrap_or_else(|| {
@@ -198,7 +212,7 @@ fn execute(cmd: Command) -> hytled::Result<()> {
             if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
                 std::fs::create_dir_all(dir).map_err(|e| hytled::Error::io(dir, e))?;
             }
-            hytled::io::vtu::write_mesh(&path, &mesh, vec![], vec![], VtuFormat::Appended)?;
+            hytled::io::vtu::write_mesh(&path, &mesh, vec![], vec![], vtu_format.into())?;
             println!(
                 "{}: {} nodes, {} elements",
                 path.display(),

@@ -435,3 +435,85 @@ fn ebciem_with_nearest_supports_is_warned_about() {
         prep.warnings
     );
 }
+
+#[test]
+fn meshless_vtu_frames_carry_interpolated_displacement_and_read_back() {
+    let dir = std::env::temp_dir().join(format!("hytled-meshless-vtu-{}", std::process::id()));
+    let sc = scene(
+        "cases/cube-compression.toml",
+        &[
+            "discretization.method=meshless",
+            "discretization.size=0.025",
+        ],
+    );
+    let opts = hytled::simulation::RunOptions {
+        out: Some(dir.clone()),
+        progress: false,
+        vtu_format: hytled::io::vtu::VtuFormat::Ascii,
+    };
+    let s = hytled::simulation::run_scene(&sc, &opts).unwrap();
+    let vtk =
+        vtkio::Vtk::import(dir.join("cube-compression_0001.vtu")).expect("vtkio reads the frame");
+    let vtkio::model::DataSet::UnstructuredGrid { pieces, .. } = vtk.data else {
+        panic!("not an unstructured grid");
+    };
+    let piece = pieces[0].load_piece_data(None).unwrap();
+    assert_eq!(piece.num_points(), s.nodes);
+    assert_eq!(piece.data.point.len(), 1);
+    assert_eq!(piece.data.cell.len(), 3);
+    // The top corner's interpolated displacement in the last frame is the probe's.
+    let vtkio::model::Attribute::DataArray(arr) = &piece.data.point[0] else {
+        panic!("no displacement array")
+    };
+    let vals: Vec<f64> = arr.data.clone().cast_into().unwrap();
+    let corner = (0..s.nodes)
+        .find(|&i| {
+            let p = &piece.points;
+            let c: Vec<f64> = p.clone().cast_into().unwrap();
+            (c[3 * i] - 0.1).abs() < 1e-12
+                && (c[3 * i + 1] - 0.1).abs() < 1e-12
+                && (c[3 * i + 2] - 0.1).abs() < 1e-12
+        })
+        .expect("corner vertex");
+    let probe = s.probes["corner"].displacement;
+    for k in 0..3 {
+        assert!(
+            (vals[3 * corner + k] - probe[k]).abs() < 1e-12,
+            "{} vs {}",
+            vals[3 * corner + k],
+            probe[k]
+        );
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn mesh_file_vertices_serve_as_a_node_cloud() {
+    // A VTU written by `hytled mesh --vtu-format ascii`, read back as a cloud (vtkio).
+    let dir = std::env::temp_dir().join(format!("hytled-vtu-cloud-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let file = dir.join("box.vtu");
+    let status = std::process::Command::new(env!("CARGO_BIN_EXE_hytled"))
+        .args([
+            "mesh",
+            path("cases/cube-compression.toml").to_str().unwrap(),
+            "--set",
+            "discretization.size=0.025",
+        ])
+        .args(["--vtu-format", "ascii", "--out", file.to_str().unwrap()])
+        .status()
+        .unwrap();
+    assert!(status.success());
+    let f = format!("discretization.cloud_file={}", file.display());
+    let prep = prepared(
+        "cases/cube-compression.toml",
+        &[
+            "discretization.method=meshless",
+            "discretization.cloud=file",
+            f.as_str(),
+            "discretization.size=0.025",
+        ],
+    );
+    assert_eq!(prep.model.nodes.len(), 125);
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -207,12 +207,12 @@ fn delaunay(_nodes: &[Vector3<f64>]) -> Result<Vec<usize>> {
     ))
 }
 
+/// Given the field nodes, the ones that carry a boundary condition or a probe.
+pub type ProtectedNodes<'a> = dyn Fn(&[Vector3<f64>]) -> Result<Vec<usize>> + 'a;
+
 /// Builds the meshless discretization. `protected(nodes)` returns the nodes that carry a
 /// boundary condition or a probe: removing one of those is an error.
-pub fn build(
-    scene: &Scene,
-    protected: &dyn Fn(&[Vector3<f64>]) -> Result<Vec<usize>>,
-) -> Result<MeshlessBuild> {
+pub fn build(scene: &Scene, protected: &ProtectedNodes) -> Result<MeshlessBuild> {
     let d = &scene.discretization;
     let dom = domain(scene);
     let (background, cloud_name) = nodes_and_tets(scene, &dom)?;

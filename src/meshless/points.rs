@@ -98,7 +98,9 @@ pub fn build_points(
     weights: &[f64],
 ) -> Result<QuadraturePoints> {
     const CHUNK: usize = 512;
-    let chunks: Vec<Result<(Vec<usize>, Vec<u32>, Vec<Vector3<f64>>)>> = positions
+    // Per chunk: support sizes, node ids, dphi.
+    type Chunk = (Vec<usize>, Vec<u32>, Vec<Vector3<f64>>);
+    let chunks: Vec<Result<Chunk>> = positions
         .par_chunks(CHUNK)
         .enumerate()
         .map(|(c, xs)| {
