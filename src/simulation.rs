@@ -428,8 +428,11 @@ pub fn summarize(scene: &Scene, prep: &Prepared, out: &RunOutput, total_seconds:
             external_work: w,
             strain_energy: out.strain_energy,
             kinetic: out.kinetic_energy,
+            // Initial kinetic energy (initial velocities) is energy put in, like the work.
             balance_error: (scene.solver.mode == Mode::Dynamic).then(|| {
-                (w - out.strain_energy - out.kinetic_energy).abs() / w.abs().max(f64::MIN_POSITIVE)
+                let input = w + out.initial_kinetic;
+                (input - out.strain_energy - out.kinetic_energy).abs()
+                    / input.abs().max(f64::MIN_POSITIVE)
             }),
         },
         reference,

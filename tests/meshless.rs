@@ -517,3 +517,73 @@ fn mesh_file_vertices_serve_as_a_node_cloud() {
     assert_eq!(prep.model.nodes.len(), 125);
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+#[test]
+fn meshless_results_are_identical_for_any_thread_count() {
+    let sc = scene(
+        "cases/cylinder-compression.toml",
+        &[
+            "discretization.method=meshless",
+            "discretization.divisions=[4,2,8]",
+            "solver.duration=0.2",
+        ],
+    );
+    let run_with = |threads: usize| {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap();
+        pool.install(|| {
+            let mut prep = prepare(&sc).unwrap();
+            let out = solver::run(&mut prep.model, &settings(&sc, false)).unwrap();
+            (out.u, prep.model.reactions(&out.f_int))
+        })
+    };
+    let (u1, r1) = run_with(1);
+    let (u2, r2) = run_with(2);
+    assert!(
+        u1.iter().zip(&u2).all(|(a, b)| a == b),
+        "displacements differ"
+    );
+    assert_eq!(r1, r2);
+}
+
+#[test]
+fn removing_a_node_that_carries_a_boundary_condition_is_an_error() {
+    let dir = std::env::temp_dir().join(format!("hytled-bccloud-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let mut text = String::new();
+    for i in 0..5 {
+        for j in 0..5 {
+            for k in 0..5 {
+                text += &format!(
+                    "{} {} {}\n",
+                    0.025 * i as f64,
+                    0.025 * j as f64,
+                    0.025 * k as f64
+                );
+            }
+        }
+    }
+    // Outside the body but on the plane z = 0, so the bottom boundary selects it.
+    text += "0.3 0.3 0.0\n";
+    let file = dir.join("cloud.xyz");
+    std::fs::write(&file, text).unwrap();
+    let f = format!("discretization.cloud_file={}", file.display());
+    let sc = scene(
+        "cases/cube-compression.toml",
+        &[
+            "discretization.method=meshless",
+            "discretization.cloud=file",
+            f.as_str(),
+            "discretization.integration=grid",
+            "discretization.support=nearest",
+        ],
+    );
+    let err = prepare(&sc).err().expect("must fail").to_string();
+    assert!(
+        err.contains("carries a boundary condition") && err.contains("125"),
+        "{err}"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
