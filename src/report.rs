@@ -248,8 +248,8 @@ impl Summary {
 pub fn markdown_table(summaries: &[serde_json::Value]) -> String {
     use std::fmt::Write;
     let mut s = String::from(
-        "| scene | element | mode | nodes | elements | reaction (N) | reference (N) | error | probe error | dt (s) | steps | solve (s) |\n\
-         |---|---|---|---|---|---|---|---|---|---|---|---|\n",
+        "| scene | method | element | mode | nodes | elements | points | reaction (N) | reference (N) | error | probe error | dt (s) | steps | solve (s) |\n\
+         |---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
     );
     for v in summaries {
         let refs = v["reference"].as_object();
@@ -274,12 +274,14 @@ pub fn markdown_table(summaries: &[serde_json::Value]) -> String {
             .unwrap_or_else(|| "-".into());
         let _ = writeln!(
             s,
-            "| {} | {} | {} | {} | {} | {:.4} | {:.4} | {:.2} % | {} | {:.3e} | {} | {:.2} |",
+            "| {} | {} | {} | {} | {} | {} | {} | {:.4} | {:.4} | {:.2} % | {} | {:.3e} | {} | {:.2} |",
             v["scene"].as_str().unwrap_or("?"),
+            v["method"].as_str().unwrap_or("?"),
             v["element"].as_str().unwrap_or("?"),
             v["mode"].as_str().unwrap_or("?"),
             v["nodes"],
             v["mesh"]["elements"],
+            v["integration_points"],
             computed,
             value,
             100.0 * err,
