@@ -2,3 +2,8 @@
 
 pub mod csv;
 pub mod vtu;
+pub mod model;
+pub mod inp;
+pub mod msh;
+pub mod vtk;
+pub mod plot;
