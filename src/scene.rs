@@ -40,14 +40,150 @@ pub struct Scene {
     pub base_dir: PathBuf,
 }
 
-/// Built-in shapes. Lengths in m.
+/// The body: a built-in shape, or a mesh file. Lengths in m.
+///
+/// Written `[geometry] shape = "box"` with `min`, `max`; `shape = "cylinder"` with `radius`,
+/// `height`; or `mesh = "meshes/part.inp"` (any of .inp, .msh, .vtk, .vtu, by extension or
+/// `format`) with `units` (the factor that turns the file's lengths into m, e.g. 0.001 for mm).
 #[derive(Debug, Clone, Serialize, Deserialize)]
-#[serde(tag = "shape", rename_all = "lowercase", deny_unknown_fields)]
+#[serde(try_from = "GeometryToml", into = "GeometryToml")]
 pub enum Geometry {
     /// Axis-aligned box [min, max].
     Box { min: [f64; 3], max: [f64; 3] },
     /// Circular cylinder along z, base at z = 0, centred on x = y = 0.
     Cylinder { radius: f64, height: f64 },
+    /// A mesh file (relative paths are resolved against the scene file's directory).
+    Mesh {
+        file: PathBuf,
+        format: Option<MeshFormat>,
+        /// File length unit in m (1 for m, 0.001 for mm).
+        units: f64,
+    },
+}
+
+/// Mesh file formats.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum MeshFormat {
+    /// ABAQUS input file.
+    Inp,
+    /// Gmsh 2.2 or 4.1.
+    Msh,
+    /// VTK legacy.
+    Vtk,
+    /// VTK XML unstructured grid.
+    Vtu,
+}
+
+impl MeshFormat {
+    /// From a file extension (case-insensitive).
+    pub fn from_path(path: &Path) -> Option<Self> {
+        let e = path.extension()?.to_string_lossy().to_lowercase();
+        match e.as_str() {
+            "inp" => Some(MeshFormat::Inp),
+            "msh" => Some(MeshFormat::Msh),
+            "vtk" => Some(MeshFormat::Vtk),
+            "vtu" => Some(MeshFormat::Vtu),
+            _ => None,
+        }
+    }
+}
+
+/// `[geometry]` as written.
+#[derive(Debug, Clone, Serialize, Deserialize, Default)]
+#[serde(deny_unknown_fields)]
+struct GeometryToml {
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    shape: Option<String>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    min: Option<[f64; 3]>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    max: Option<[f64; 3]>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    radius: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    height: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    mesh: Option<PathBuf>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    format: Option<MeshFormat>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    units: Option<f64>,
+}
+
+impl TryFrom<GeometryToml> for Geometry {
+    type Error = String;
+    fn try_from(g: GeometryToml) -> std::result::Result<Self, String> {
+        let only = |allowed: &[&str]| -> std::result::Result<(), String> {
+            let given = [
+                ("min", g.min.is_some()),
+                ("max", g.max.is_some()),
+                ("radius", g.radius.is_some()),
+                ("height", g.height.is_some()),
+                ("format", g.format.is_some()),
+                ("units", g.units.is_some()),
+            ];
+            match given.iter().find(|(k, set)| *set && !allowed.contains(k)) {
+                Some((k, _)) => Err(format!(
+                    "geometry: `{k}` does not apply here (allowed: {})",
+                    allowed.join(", ")
+                )),
+                None => Ok(()),
+            }
+        };
+        match (g.mesh.clone(), g.shape.as_deref()) {
+            (Some(file), None) | (Some(file), Some("mesh")) => {
+                only(&["format", "units"])?;
+                Ok(Geometry::Mesh { file, format: g.format, units: g.units.unwrap_or(1.0) })
+            }
+            (None, Some("box")) => {
+                only(&["min", "max"])?;
+                match (g.min, g.max) {
+                    (Some(min), Some(max)) => Ok(Geometry::Box { min, max }),
+                    _ => Err("geometry: a box needs `min` and `max` (m)".into()),
+                }
+            }
+            (None, Some("cylinder")) => {
+                only(&["radius", "height"])?;
+                match (g.radius, g.height) {
+                    (Some(radius), Some(height)) => Ok(Geometry::Cylinder { radius, height }),
+                    _ => Err("geometry: a cylinder needs `radius` and `height` (m)".into()),
+                }
+            }
+            (Some(_), Some(s)) => Err(format!("geometry: give either `mesh = \"file\"` or `shape = \"{s}\"`, not both")),
+            (None, Some(s)) => Err(format!("geometry: unknown shape '{s}'; use \"box\", \"cylinder\" or `mesh = \"file.inp|.msh|.vtk|.vtu\"`")),
+            (None, None) => Err("geometry: give `shape = \"box\" | \"cylinder\"` or `mesh = \"file\"`".into()),
+        }
+    }
+}
+
+impl From<Geometry> for GeometryToml {
+    fn from(g: Geometry) -> Self {
+        match g {
+            Geometry::Box { min, max } => GeometryToml {
+                shape: Some("box".into()),
+                min: Some(min),
+                max: Some(max),
+                ..Default::default()
+            },
+            Geometry::Cylinder { radius, height } => GeometryToml {
+                shape: Some("cylinder".into()),
+                radius: Some(radius),
+                height: Some(height),
+                ..Default::default()
+            },
+            Geometry::Mesh {
+                file,
+                format,
+                units,
+            } => GeometryToml {
+                mesh: Some(file),
+                format,
+                units: Some(units),
+                ..Default::default()
+            },
+        }
+    }
 }
 
 /// Discretization method.
@@ -617,6 +753,21 @@ fn validate(s: &Scene) -> std::result::Result<(), String> {
                 return Err(format!("geometry: cylinder radius ({radius}) and height ({height}) must be positive (m)"));
             }
         }
+        Geometry::Mesh {
+            file,
+            format,
+            units,
+        } => {
+            if !(*units > 0.0 && units.is_finite()) {
+                return Err(format!("geometry.units = {units}: must be a positive factor to metres (0.001 for a mesh in mm)"));
+            }
+            if format.is_none() && MeshFormat::from_path(file).is_none() {
+                return Err(format!(
+                    "geometry.mesh = '{}': unknown extension; use .inp, .msh, .vtk or .vtu, or set geometry.format",
+                    file.display()
+                ));
+            }
+        }
     }
     let d = &s.discretization;
     if let Some(h) = d.size {
@@ -640,7 +791,8 @@ fn validate(s: &Scene) -> std::result::Result<(), String> {
         ));
     }
     let file_cloud = d.method == Method::Meshless && d.cloud == CloudKind::File;
-    if d.size.is_none() && d.divisions.is_none() && !file_cloud {
+    let mesh_geometry = matches!(s.geometry, Geometry::Mesh { .. });
+    if d.size.is_none() && d.divisions.is_none() && !file_cloud && !mesh_geometry {
         return Err("discretization: give `size` (target element length, m) or `divisions`".into());
     }
     if !(d.jitter >= 0.0 && d.jitter < 0.5) {

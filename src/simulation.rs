@@ -9,6 +9,7 @@ use nalgebra::Vector3;
 use crate::bc::Boundary;
 use crate::fe::{self, ElementKind};
 use crate::geometry::{quality, shapes, ElementShape, Mesh};
+use crate::io::model::MeshInput;
 use crate::io::vtu::{self, DataArray, VtuFormat};
 use crate::material::{Material, NeoHookean};
 use crate::meshless::discretize::{self, MeshlessBuild};
@@ -53,6 +54,9 @@ pub fn build_mesh(scene: &Scene) -> Result<Mesh> {
     let d = &scene.discretization;
     let kind: ElementKind = d.element.into();
     let shape = kind.shape();
+    if let Geometry::Mesh { .. } = &scene.geometry {
+        return Ok(load_mesh(scene)?.mesh);
+    }
     if d.mesher == Mesher::Tetgen {
         if shape != ElementShape::Tet4 {
             return Err(Error::Input("discretization.mesher = 'tetgen' makes tetrahedra: use element = 'tet4' or 'tet4-anp'".into()));
@@ -87,6 +91,7 @@ pub fn build_mesh(scene: &Scene) -> Result<Mesh> {
                 ElementShape::Tet4 => shapes::cylinder_tet(*radius, *height, ni, nr, nz),
             }
         }
+        Geometry::Mesh { .. } => Ok(load_mesh(scene)?.mesh),
     }
 }
 
@@ -116,6 +121,9 @@ fn tetgen_mesh(scene: &Scene) -> Result<Mesh> {
             let n_circ = count(2.0 * std::f64::consts::PI * radius, h, 8);
             tetgen::tetgen_cylinder(*radius, *height, n_circ, max_volume, d.radius_edge_ratio)
         }
+        Geometry::Mesh { .. } => Err(Error::Input(
+            "discretization.mesher = 'tetgen' meshes built-in shapes; a mesh file is used as it is (remove mesher)".into(),
+        )),
     }
 }
 
@@ -124,11 +132,115 @@ fn tetgen_mesh(_scene: &Scene) -> Result<Mesh> {
     Err(Error::Input("this hytled was built without the `tetgen` feature; use mesher = 'structured' or rebuild with default features".into()))
 }
 
+/// The scene's mesh file, read and scaled to m, checked against the element the scene asks for.
+/// None for built-in shapes.
+pub fn load_mesh_input(scene: &Scene) -> Result<Option<MeshInput>> {
+    let Geometry::Mesh {
+        file,
+        format,
+        units,
+    } = &scene.geometry
+    else {
+        return Ok(None);
+    };
+    let path = if file.is_absolute() {
+        file.clone()
+    } else {
+        scene.base_dir.join(file)
+    };
+    let m = crate::io::mesh_file::read_mesh(&path, *format, *units)?;
+    let kind: ElementKind = scene.discretization.element.into();
+    let meshless = scene.discretization.method == Method::Meshless;
+    if !meshless && m.mesh.shape != kind.shape() {
+        return Err(Error::Input(format!(
+            "{}: the mesh has {} cells but discretization.element = '{}'; use {}",
+            path.display(),
+            if m.mesh.shape == ElementShape::Hex8 {
+                "hexahedral"
+            } else {
+                "tetrahedral"
+            },
+            kind.name(),
+            if m.mesh.shape == ElementShape::Hex8 {
+                "element = 'hex8'"
+            } else {
+                "element = 'tet4-anp' (or 'tet4')"
+            }
+        )));
+    }
+    Ok(Some(m))
+}
+
+fn load_mesh(scene: &Scene) -> Result<MeshInput> {
+    load_mesh_input(scene)?.ok_or_else(|| Error::Input("the scene has no mesh file".into()))
+}
+
+/// Warnings a mesh file deserves: duplicate nodes (coincident within 1e-9 x the bounding-box
+/// diagonal) and nodes no cell uses.
+pub fn mesh_checks(mesh: &Mesh) -> Vec<String> {
+    let mut w = Vec::new();
+    let (lo, hi) = mesh.bounding_box();
+    let tol = 1e-9 * (hi - lo).norm();
+    let mut keys: Vec<([i64; 3], usize)> = mesh
+        .nodes
+        .iter()
+        .enumerate()
+        .map(|(i, p)| {
+            (
+                [
+                    (p.x / tol.max(f64::MIN_POSITIVE)).round() as i64,
+                    (p.y / tol.max(f64::MIN_POSITIVE)).round() as i64,
+                    (p.z / tol.max(f64::MIN_POSITIVE)).round() as i64,
+                ],
+                i,
+            )
+        })
+        .collect();
+    keys.sort_unstable();
+    let dups = keys.windows(2).filter(|k| k[0].0 == k[1].0).count();
+    if dups > 0 {
+        let first = keys
+            .windows(2)
+            .find(|k| k[0].0 == k[1].0)
+            .map(|k| (k[0].1, k[1].1))
+            .unwrap_or((0, 0));
+        w.push(format!(
+            "{dups} duplicate node(s) (e.g. nodes {} and {} coincide); the mesh is not connected there: merge them in the mesher",
+            first.0, first.1
+        ));
+    }
+    let mut used = vec![false; mesh.nodes.len()];
+    for &c in &mesh.cells {
+        if let Some(u) = used.get_mut(c) {
+            *u = true;
+        }
+    }
+    let unused = used.iter().filter(|u| !**u).count();
+    if unused > 0 {
+        w.push(format!("{unused} node(s) belong to no cell; they get no mass (remove them, or they are an error)"));
+    }
+    w
+}
+
 /// The scene's boundaries with their selected nodes.
-pub fn boundaries(scene: &Scene, nodes: &[Vector3<f64>]) -> Result<Vec<Boundary>> {
+pub fn boundaries(
+    scene: &Scene,
+    nodes: &[Vector3<f64>],
+    input: Option<&MeshInput>,
+) -> Result<Vec<Boundary>> {
+    let lookup = |name: &str| -> std::result::Result<Vec<Vector3<f64>>, String> {
+        let m = input.ok_or("no mesh file")?;
+        Ok(m.set_nodes(name)?
+            .into_iter()
+            .map(|i| m.mesh.nodes[i])
+            .collect())
+    };
+    let sets: Option<&crate::geometry::select::SetLookup> = input.map(|_| &lookup as _);
     let mut out = Vec::new();
     for (name, b) in &scene.boundaries {
-        let sel = b.select.select(nodes, &format!("boundary '{name}'"))?;
+        let sel = b
+            .select
+            .select_with(nodes, &format!("boundary '{name}'"), sets)?;
         let mut comps = [None; 3];
         for c in &b.fix {
             match c {
@@ -178,17 +290,30 @@ pub fn prepare(scene: &Scene) -> Result<Prepared> {
         return prepare_meshless(scene);
     }
     let t0 = Instant::now();
-    let mesh = build_mesh(scene)?;
+    let input = load_mesh_input(scene)?;
+    let mut warnings = Vec::new();
+    let mesh = match &input {
+        Some(m) => {
+            warnings.extend(m.warnings.iter().cloned());
+            warnings.extend(mesh_checks(&m.mesh));
+            m.mesh.clone()
+        }
+        None => build_mesh(scene)?,
+    };
     let mat = material(scene);
     let kind: ElementKind = scene.discretization.element.into();
     let (lambda, mu) = mat.lame();
-    let points = fe::element_points(
-        &mesh,
-        kind,
-        scene.discretization.hourglass,
-        lambda + 2.0 * mu,
-    )?;
-    let bnd = boundaries(scene, &mesh.nodes)?;
+    let points = fe::element_points(&mesh, kind, scene.discretization.hourglass, lambda + 2.0 * mu)
+        .map_err(|e| match (&e, &input) {
+            (Error::InvalidElement { element, volume }, Some(m)) => Error::Input(format!(
+                "element {} (id {} in the mesh file) has non-positive volume {volume:.6e} m^3 (inverted or degenerate); \
+                 check its node order and coordinates",
+                element,
+                m.element_ids.get(*element).copied().unwrap_or(0)
+            )),
+            _ => e,
+        })?;
+    let bnd = boundaries(scene, &mesh.nodes, input.as_ref())?;
     let probes = scene
         .probes
         .iter()
@@ -200,7 +325,7 @@ pub fn prepare(scene: &Scene) -> Result<Prepared> {
         mesh,
         meshless: None,
         bc_method: None,
-        warnings: Vec::new(),
+        warnings,
         model,
         probes,
         kind,
@@ -214,6 +339,7 @@ pub fn prepare(scene: &Scene) -> Result<Prepared> {
 /// interpolated with the shape functions.
 fn prepare_meshless(scene: &Scene) -> Result<Prepared> {
     let t0 = Instant::now();
+    let input = load_mesh_input(scene)?;
     let mat = material(scene);
     let method = scene
         .discretization
@@ -223,7 +349,7 @@ fn prepare_meshless(scene: &Scene) -> Result<Prepared> {
     // nodes nearest to each probe.
     let protected = |nodes: &[Vector3<f64>]| -> Result<Vec<usize>> {
         let mut v = Vec::new();
-        for b in boundaries(scene, nodes)? {
+        for b in boundaries(scene, nodes, input.as_ref())? {
             v.extend(b.nodes);
         }
         for p in scene.probes.values() {
@@ -252,7 +378,7 @@ fn prepare_meshless(scene: &Scene) -> Result<Prepared> {
                 .into(),
         );
     }
-    let bnd = boundaries(scene, &build.nodes)?;
+    let bnd = boundaries(scene, &build.nodes, input.as_ref())?;
     let dom = discretize::domain(scene);
     let h = discretize::spacing(scene).unwrap_or(0.0);
     let probes = scene
@@ -260,7 +386,10 @@ fn prepare_meshless(scene: &Scene) -> Result<Prepared> {
         .iter()
         .map(|(name, p)| {
             let x = Vector3::from(p.position);
-            if !dom.contains(&x, 0.05 * h.max(1e-12)) {
+            if dom
+                .as_ref()
+                .is_some_and(|d| !d.contains(&x, 0.05 * h.max(1e-12)))
+            {
                 return Err(Error::Input(format!(
                     "probe '{name}' at {:?} m lies outside the body; move it inside",
                     p.position
@@ -540,6 +669,70 @@ fn write_meshless_frame(
     vtu::write_mesh(path, &m.background, point_data, cell_data, format)
 }
 
+/// `reaction.svg` (every constrained component of every boundary against time) and
+/// `energy.svg` (external work, strain and kinetic energy against time).
+fn write_history_plots(
+    dir: &Path,
+    boundaries: &[crate::bc::Boundary],
+    out: &RunOutput,
+) -> Result<()> {
+    use crate::io::plot::{line_plot, Series};
+    let names: Vec<String> = boundaries
+        .iter()
+        .flat_map(|b| {
+            (0..3)
+                .filter(|&k| b.components[k].is_some())
+                .map(move |k| format!("{} {}", b.name, ["x", "y", "z"][k]))
+        })
+        .collect();
+    let mut series = Vec::new();
+    let mut at = 0;
+    for (bi, b) in boundaries.iter().enumerate() {
+        for k in (0..3).filter(|&k| b.components[k].is_some()) {
+            series.push(Series {
+                name: &names[at],
+                points: out
+                    .history
+                    .iter()
+                    .filter_map(|h| Some((h.time, h.reactions.get(bi)?[k])))
+                    .collect(),
+            });
+            at += 1;
+        }
+    }
+    line_plot(
+        &dir.join("reaction.svg"),
+        "Reaction forces",
+        "time (s)",
+        "force (N)",
+        &series,
+    )?;
+    let e = |f: fn(&crate::solver::integrate::HistoryRow) -> f64| -> Vec<(f64, f64)> {
+        out.history.iter().map(|h| (h.time, f(h))).collect()
+    };
+    let energies = [
+        Series {
+            name: "external work",
+            points: e(|h| h.external_work),
+        },
+        Series {
+            name: "strain energy",
+            points: e(|h| h.strain_energy),
+        },
+        Series {
+            name: "kinetic energy",
+            points: e(|h| h.kinetic_energy),
+        },
+    ];
+    line_plot(
+        &dir.join("energy.svg"),
+        "Energies",
+        "time (s)",
+        "energy (J)",
+        &energies,
+    )
+}
+
 /// Writes one VTU per frame (displacement; Cauchy stress, von Mises stress and J per element),
 /// a `.pvd` series, `history.csv`, `relaxation.csv` (relaxation runs) and `summary.json`.
 pub fn write_outputs(
@@ -637,6 +830,7 @@ pub fn write_outputs(
         })
         .collect();
     crate::io::csv::write_csv(&dir.join("history.csv"), &header, &rows)?;
+    write_history_plots(dir, &prep.model.boundaries, out)?;
     if !out.relaxation.is_empty() {
         let header: Vec<String> = [
             "step",

@@ -21,6 +21,9 @@ impl Axis {
     }
 }
 
+/// Positions (m) of the nodes of a named set, or an error listing the available names.
+pub type SetLookup<'a> = dyn Fn(&str) -> std::result::Result<Vec<Vector3<f64>>, String> + 'a;
+
 /// Which nodes a boundary acts on. Coordinates in metres.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase", deny_unknown_fields)]
@@ -44,15 +47,37 @@ impl Selection {
     /// Indices of the selected nodes, ascending. An empty selection is an error that says how
     /// far the nearest node was, so the user can fix the coordinate or tolerance.
     pub fn select(&self, nodes: &[Vector3<f64>], what: &str) -> Result<Vec<usize>> {
+        self.select_with(nodes, what, None)
+    }
+
+    /// As [`Selection::select`], with the named sets of a mesh file: `sets(name)` gives the
+    /// positions of a set's nodes (or the list of available names as the error), and the
+    /// selected nodes are those at exactly those positions (so sets survive renumbering, node
+    /// removal and meshless clouds made from the mesh vertices).
+    pub fn select_with(
+        &self,
+        nodes: &[Vector3<f64>],
+        what: &str,
+        sets: Option<&SetLookup>,
+    ) -> Result<Vec<usize>> {
         let (lo, hi) = bounds(nodes);
         let diag = (hi - lo).norm();
         let picked: Vec<usize> = match self {
-            Selection::Plane { axis, value, tolerance } => {
+            Selection::Plane {
+                axis,
+                value,
+                tolerance,
+            } => {
                 let tol = tolerance.unwrap_or(1e-6 * diag);
                 let k = axis.index();
-                let sel: Vec<usize> = (0..nodes.len()).filter(|&i| (nodes[i][k] - value).abs() <= tol).collect();
+                let sel: Vec<usize> = (0..nodes.len())
+                    .filter(|&i| (nodes[i][k] - value).abs() <= tol)
+                    .collect();
                 if sel.is_empty() {
-                    let nearest = nodes.iter().map(|p| (p[k] - value).abs()).fold(f64::INFINITY, f64::min);
+                    let nearest = nodes
+                        .iter()
+                        .map(|p| (p[k] - value).abs())
+                        .fold(f64::INFINITY, f64::min);
                     return Err(Error::Input(format!(
                         "{what}: plane {axis:?} = {value} m selects no node (tolerance {tol:.3e} m; nearest node is {nearest:.6e} m away; \
                          the model spans {:?}..{:?})",
@@ -66,13 +91,31 @@ impl Selection {
                 .collect(),
             Selection::Sphere { center, radius } => {
                 let c = Vector3::from(*center);
-                (0..nodes.len()).filter(|&i| (nodes[i] - c).norm() <= *radius).collect()
+                (0..nodes.len())
+                    .filter(|&i| (nodes[i] - c).norm() <= *radius)
+                    .collect()
             }
             Selection::Set(name) => {
-                return Err(Error::Input(format!(
-                    "{what}: named set '{name}' is not available: built-in shapes define no node sets; \
-                     select with plane, box or sphere"
-                )))
+                let Some(lookup) = sets else {
+                    return Err(Error::Input(format!(
+                        "{what}: named set '{name}' is not available: built-in shapes define no node sets; \
+                         select with plane, box or sphere, or read the body from a mesh file (geometry.mesh)"
+                    )));
+                };
+                let pos = lookup(name).map_err(|m| Error::Input(format!("{what}: {m}")))?;
+                let keys: std::collections::HashSet<[u64; 3]> = pos
+                    .iter()
+                    .map(|p| [p.x.to_bits(), p.y.to_bits(), p.z.to_bits()])
+                    .collect();
+                (0..nodes.len())
+                    .filter(|&i| {
+                        keys.contains(&[
+                            nodes[i].x.to_bits(),
+                            nodes[i].y.to_bits(),
+                            nodes[i].z.to_bits(),
+                        ])
+                    })
+                    .collect()
             }
         };
         if picked.is_empty() {

@@ -1,9 +1,10 @@
 //! Readers and writers: VTU/PVD for ParaView, CSV time histories.
 
 pub mod csv;
-pub mod vtu;
-pub mod model;
 pub mod inp;
+pub mod mesh_file;
+pub mod model;
 pub mod msh;
-pub mod vtk;
 pub mod plot;
+pub mod vtk;
+pub mod vtu;

@@ -51,18 +51,27 @@ impl MeshlessBuild {
     }
 }
 
-/// The scene's shape as a meshless domain.
-pub fn domain(scene: &Scene) -> Domain {
+/// The scene's shape as a meshless domain (None for a mesh file, whose shape is its cells).
+pub fn domain(scene: &Scene) -> Option<Domain> {
     match &scene.geometry {
-        Geometry::Box { min, max } => Domain::Box {
+        Geometry::Box { min, max } => Some(Domain::Box {
             min: Vector3::from(*min),
             max: Vector3::from(*max),
-        },
-        Geometry::Cylinder { radius, height } => Domain::Cylinder {
+        }),
+        Geometry::Cylinder { radius, height } => Some(Domain::Cylinder {
             radius: *radius,
             height: *height,
-        },
+        }),
+        Geometry::Mesh { .. } => None,
     }
+}
+
+fn need_domain(scene: &Scene, what: &str) -> Result<Domain> {
+    domain(scene).ok_or_else(|| {
+        Error::Input(format!(
+            "{what} needs a built-in shape (box or cylinder); with geometry.mesh use cloud = 'mesh' or 'file' and integration = 'tets'"
+        ))
+    })
 }
 
 /// Node spacing (m) the scene's sizing asks for: `size`, or the smallest division length.
@@ -80,6 +89,12 @@ pub fn spacing(scene: &Scene) -> Result<f64> {
             .fold(f64::INFINITY, f64::min),
         Geometry::Cylinder { radius, height } => {
             (radius / div[0].max(1) as f64 * 2.0).min(height / div[2].max(1) as f64)
+        }
+        Geometry::Mesh { .. } => {
+            return Err(Error::Input(
+                "a node spacing from `divisions` needs a built-in shape; give discretization.size"
+                    .into(),
+            ))
         }
     })
 }
@@ -111,7 +126,7 @@ fn support_rule(scene: &Scene) -> SupportRule {
 }
 
 /// Nodes (and background tets when the nodes come from a tet mesh or Delaunay) of the scene.
-fn nodes_and_tets(scene: &Scene, domain: &Domain) -> Result<(Mesh, String)> {
+fn nodes_and_tets(scene: &Scene) -> Result<(Mesh, String)> {
     let d = &scene.discretization;
     // Tets integrate, and their boundary faces carry the EBCIEM boundary integrals.
     let tets_wanted = d.integration == IntegrationKind::Tets
@@ -122,7 +137,7 @@ fn nodes_and_tets(scene: &Scene, domain: &Domain) -> Result<(Mesh, String)> {
             if s.discretization.element == ElementName::Hex8 {
                 s.discretization.element = ElementName::Tet4;
             }
-            let mesh = crate::simulation::build_mesh(&s)?;
+            let mesh = hex_to_tets(crate::simulation::build_mesh(&s)?);
             let (nodes, map) = cloud::mesh_vertices(&mesh);
             let cells: Vec<usize> = mesh.cells.iter().map(|&i| map[i]).collect();
             let name = format!(
@@ -143,7 +158,12 @@ fn nodes_and_tets(scene: &Scene, domain: &Domain) -> Result<(Mesh, String)> {
         CloudKind::Lattice => {
             let h = spacing(scene)?;
             (
-                cloud::jittered_lattice(domain, h, d.jitter, d.seed)?,
+                cloud::jittered_lattice(
+                    &need_domain(scene, "cloud = 'lattice'")?,
+                    h,
+                    d.jitter,
+                    d.seed,
+                )?,
                 format!(
                     "lattice h = {h:.4e} m, jitter {}, seed {}",
                     d.jitter, d.seed
@@ -152,6 +172,7 @@ fn nodes_and_tets(scene: &Scene, domain: &Domain) -> Result<(Mesh, String)> {
         }
         CloudKind::Halton => {
             let h = spacing(scene)?;
+            let domain = &need_domain(scene, "cloud = 'halton'")?;
             // Fill to saturation (random sequential packing at 0.85 h is about as dense as the
             // lattice of spacing h); the cap only bounds the work.
             let count = 3 * cloud::jittered_lattice(domain, h, 0.0, 0)?.len();
@@ -190,6 +211,39 @@ fn nodes_and_tets(scene: &Scene, domain: &Domain) -> Result<(Mesh, String)> {
     ))
 }
 
+/// Hexahedra split into six tets around the 0-6 diagonal (they tile each hex exactly, which is
+/// all integration and the boundary triangles need; tets of neighbouring hexes need not match).
+fn hex_to_tets(mesh: Mesh) -> Mesh {
+    if mesh.shape == ElementShape::Tet4 {
+        return mesh;
+    }
+    const SPLIT: [[usize; 4]; 6] = [
+        [0, 1, 2, 6],
+        [0, 2, 3, 6],
+        [0, 3, 7, 6],
+        [0, 7, 4, 6],
+        [0, 4, 5, 6],
+        [0, 5, 1, 6],
+    ];
+    let mut cells = Vec::with_capacity(mesh.num_cells() * 24);
+    for e in 0..mesh.num_cells() {
+        let c = mesh.cell(e);
+        for t in SPLIT {
+            let mut q = t.map(|a| c[a]);
+            let p = |i: usize| mesh.nodes[q[i]];
+            if crate::geometry::quality::tet_signed_volume(&p(0), &p(1), &p(2), &p(3)) < 0.0 {
+                q.swap(2, 3);
+            }
+            cells.extend(q);
+        }
+    }
+    Mesh {
+        nodes: mesh.nodes,
+        shape: ElementShape::Tet4,
+        cells,
+    }
+}
+
 #[cfg(feature = "tetgen")]
 fn delaunay(nodes: &[Vector3<f64>]) -> Result<Vec<usize>> {
     Ok(crate::geometry::tetgen::delaunay(nodes)?
@@ -214,8 +268,7 @@ pub type ProtectedNodes<'a> = dyn Fn(&[Vector3<f64>]) -> Result<Vec<usize>> + 'a
 /// boundary condition or a probe: removing one of those is an error.
 pub fn build(scene: &Scene, protected: &ProtectedNodes) -> Result<MeshlessBuild> {
     let d = &scene.discretization;
-    let dom = domain(scene);
-    let (background, cloud_name) = nodes_and_tets(scene, &dom)?;
+    let (background, cloud_name) = nodes_and_tets(scene)?;
     let mls = mls_settings(scene);
     let rule = support_rule(scene);
 
@@ -236,6 +289,7 @@ pub fn build(scene: &Scene, protected: &ProtectedNodes) -> Result<MeshlessBuild>
             (p, w, o, name)
         }
         IntegrationKind::Grid => {
+            let dom = need_domain(scene, "integration = 'grid'")?;
             let (p, w) = integration::grid_points(&dom, background.nodes.len(), d.point_ratio)?;
             let o = vec![usize::MAX; p.len()];
             let name = format!("regular grid, {} points per node", d.point_ratio);
@@ -290,7 +344,7 @@ pub fn build(scene: &Scene, protected: &ProtectedNodes) -> Result<MeshlessBuild>
                 support,
                 mls,
                 removed_nodes: removed_total,
-                exact_volume: dom.volume(),
+                exact_volume: domain(scene).map_or(f64::NAN, |d| d.volume()),
                 cloud: cloud_name,
                 integration: integration_name,
                 warnings,

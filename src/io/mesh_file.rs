@@ -1,0 +1,90 @@
+//! Reading any supported mesh file by format, with the scene's unit factor and the checks a
+//! mesh needs before it is used.
+
+use std::path::Path;
+
+use super::model::MeshInput;
+use crate::scene::MeshFormat;
+use crate::{Error, Result};
+
+/// Reads `path` in `format` (default: from the extension) and scales its coordinates by
+/// `units` (file length unit in m).
+pub fn read_mesh(path: &Path, format: Option<MeshFormat>, units: f64) -> Result<MeshInput> {
+    let format = format
+        .or_else(|| MeshFormat::from_path(path))
+        .ok_or_else(|| {
+            Error::Input(format!(
+                "{}: unknown mesh format; use .inp, .msh, .vtk or .vtu, or set geometry.format",
+                path.display()
+            ))
+        })?;
+    let mut m = read_raw(path, format)?;
+    drop_unused_nodes(&mut m);
+    if units != 1.0 {
+        for p in m.mesh.nodes.iter_mut() {
+            *p *= units;
+        }
+    }
+    Ok(m)
+}
+
+fn read_raw(path: &Path, format: MeshFormat) -> Result<MeshInput> {
+    let _ = format;
+    Err(Error::Input(format!(
+        "{}: mesh readers are not built yet",
+        path.display()
+    )))
+}
+
+/// Removes nodes no volume cell uses (mesh generators keep geometry points and surface-only
+/// nodes), renumbering cells and sets, with a warning that counts them.
+fn drop_unused_nodes(m: &mut MeshInput) {
+    let n = m.mesh.nodes.len();
+    let mut used = vec![false; n];
+    for &c in &m.mesh.cells {
+        if c < n {
+            used[c] = true;
+        }
+    }
+    let unused = used.iter().filter(|u| !**u).count();
+    if unused == 0 {
+        return;
+    }
+    let mut map = vec![usize::MAX; n];
+    let mut k = 0;
+    for i in 0..n {
+        if used[i] {
+            map[i] = k;
+            k += 1;
+        }
+    }
+    let keep = |v: &[usize]| -> Vec<usize> {
+        v.iter()
+            .filter_map(|&i| map.get(i).copied().filter(|&j| j != usize::MAX))
+            .collect()
+    };
+    m.mesh.nodes = (0..n)
+        .filter(|&i| used[i])
+        .map(|i| m.mesh.nodes[i])
+        .collect();
+    m.node_ids = (0..n.min(m.node_ids.len()))
+        .filter(|&i| used[i])
+        .map(|i| m.node_ids[i])
+        .collect();
+    m.mesh.cells = m.mesh.cells.iter().map(|&c| map[c]).collect();
+    for v in m.node_sets.values_mut() {
+        *v = keep(v);
+    }
+    for faces in m.face_sets.values_mut() {
+        faces.retain(|f| {
+            f.iter()
+                .all(|&i| map.get(i).is_some_and(|&j| j != usize::MAX))
+        });
+        for f in faces.iter_mut() {
+            *f = keep(f);
+        }
+    }
+    m.warnings.push(format!(
+        "{unused} node(s) belong to no volume cell and were dropped"
+    ));
+}
