@@ -88,3 +88,47 @@ fn drop_unused_nodes(m: &mut MeshInput) {
         "{unused} node(s) belong to no volume cell and were dropped"
     ));
 }
+
+/// Writes a mesh with its node and element sets as VTU: each node set becomes a point array
+/// (1 on its nodes, 0 elsewhere) and each element set a cell array, named after the set, which
+/// the VTK reader turns back into sets of the same name. Face sets are not written (a VTU piece
+/// here holds the volume cells only).
+pub fn write_mesh_vtu(path: &Path, m: &MeshInput, format: super::vtu::VtuFormat) -> Result<()> {
+    let n = m.mesh.nodes.len();
+    let ne = m.mesh.num_cells();
+    let node_arrays: Vec<(String, Vec<f64>)> = m
+        .node_sets
+        .iter()
+        .map(|(name, v)| {
+            let mut a = vec![0.0; n];
+            for &i in v {
+                if let Some(x) = a.get_mut(i) {
+                    *x = 1.0;
+                }
+            }
+            (name.clone(), a)
+        })
+        .collect();
+    let cell_arrays: Vec<(String, Vec<f64>)> = m
+        .element_sets
+        .iter()
+        .map(|(name, v)| {
+            let mut a = vec![0.0; ne];
+            for &i in v {
+                if let Some(x) = a.get_mut(i) {
+                    *x = 1.0;
+                }
+            }
+            (name.clone(), a)
+        })
+        .collect();
+    let pd = node_arrays
+        .iter()
+        .map(|(name, a)| super::vtu::DataArray { name, components: 1, values: a })
+        .collect();
+    let cd = cell_arrays
+        .iter()
+        .map(|(name, a)| super::vtu::DataArray { name, components: 1, values: a })
+        .collect();
+    super::vtu::write_mesh(path, &m.mesh, pd, cd, format)
+}
