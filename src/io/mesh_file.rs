@@ -29,11 +29,14 @@ pub fn read_mesh(path: &Path, format: Option<MeshFormat>, units: f64) -> Result<
 }
 
 fn read_raw(path: &Path, format: MeshFormat) -> Result<MeshInput> {
-    let _ = format;
-    Err(Error::Input(format!(
-        "{}: mesh readers are not built yet",
-        path.display()
-    )))
+    match format {
+        MeshFormat::Inp => super::inp::read_inp(path),
+        MeshFormat::Msh => super::msh::read_msh(path),
+        MeshFormat::Vtk | MeshFormat::Vtu => Err(Error::Input(format!(
+            "{}: the VTK reader is not built yet",
+            path.display()
+        ))),
+    }
 }
 
 /// Removes nodes no volume cell uses (mesh generators keep geometry points and surface-only
