@@ -69,6 +69,16 @@ enum Command {
         #[arg(required = true)]
         summaries: Vec<PathBuf>,
     },
+    /// Convert a mesh file (.inp, .msh, .vtk, .vtu) with its named sets to .vtu or .inp.
+    Convert {
+        /// Input mesh.
+        input: PathBuf,
+        /// Output mesh (.vtu or .inp).
+        output: PathBuf,
+        /// VTU encoding (ascii and binary read back with VTK readers and hytled).
+        #[arg(long, value_enum, default_value = "binary")]
+        vtu_format: VtuArg,
+    },
     /// Mesh a scene's geometry and write it as VTU (default meshes/NAME-ELEMENT.vtu).
     Mesh {
         scene: PathBuf,
@@ -179,6 +189,28 @@ fn execute(cmd: Command) -> hytled::Result<()> {
             println!(
                 "  critical time step {dt:.4e} s (point {p}); dt = {:.4e} s",
                 dt * sc.solver.dt_factor
+            );
+            Ok(())
+        }
+        Command::Convert {
+            input,
+            output,
+            vtu_format,
+        } => {
+            let m = hytled::io::mesh_file::read_mesh(&input, None, 1.0)?;
+            for w in &m.warnings {
+                eprintln!("warning: {w}");
+            }
+            hytled::io::mesh_file::write_mesh_file(&output, &m, vtu_format.into())?;
+            println!(
+                "{} -> {}: {} nodes, {} cells, {} node sets, {} element sets, {} face sets",
+                input.display(),
+                output.display(),
+                m.mesh.nodes.len(),
+                m.mesh.num_cells(),
+                m.node_sets.len(),
+                m.element_sets.len(),
+                m.face_sets.len()
             );
             Ok(())
         }

@@ -51,3 +51,49 @@ fn mesh_geometry_errors_are_clear() {
     let e = hytled::simulation::prepare(&sc).err().unwrap().to_string();
     assert!(e.contains("lid") && e.contains("available"), "{e}");
 }
+
+/// A Gmsh-made tet cylinder whose physical groups "bottom" and "top" select the boundaries:
+/// the same reaction as selecting the same nodes by planes.
+#[test]
+fn gmsh_physical_groups_select_boundaries() {
+    let g = "geometry={ mesh = \"../tests/data/msh/cyl_v41.msh\" }";
+    let base = [g, "discretization.element=tet4-anp", "solver.mode=relaxation"];
+    let planes = run_case("cases/cylinder-compression.toml", &base);
+    let mut with_sets = base.to_vec();
+    with_sets.extend(["boundaries.bottom.select={ set = \"bottom\" }", "boundaries.top.select={ set = \"top\" }"]);
+    let sets = run_case("cases/cylinder-compression.toml", &with_sets);
+    let (a, b) = (planes.reactions["top"][2], sets.reactions["top"][2]);
+    println!("Gmsh cylinder ({} nodes): planes {a} N, sets {b} N", sets.nodes);
+    assert_eq!(a, b);
+    assert!(a < 0.0);
+}
+
+/// `hytled convert` .msh -> .inp -> .vtu keeps nodes, cells and sets.
+#[test]
+fn convert_round_trip_keeps_nodes_cells_and_sets() {
+    use hytled::io::mesh_file::{read_mesh, write_mesh_file};
+    use hytled::io::vtu::VtuFormat;
+    let dir = std::env::temp_dir().join(format!("hytled-convert-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let src = read_mesh(&path("tests/data/msh/cyl_v41.msh"), None, 1.0).unwrap();
+    let inp = dir.join("c.inp");
+    write_mesh_file(&inp, &src, VtuFormat::Ascii).unwrap();
+    let a = read_mesh(&inp, None, 1.0).unwrap();
+    let vtu = dir.join("c.vtu");
+    write_mesh_file(&vtu, &a, VtuFormat::Binary).unwrap();
+    let b = read_mesh(&vtu, None, 1.0).unwrap();
+    for m in [&a, &b] {
+        assert_eq!(m.mesh.nodes, src.mesh.nodes);
+        assert_eq!(m.mesh.cells, src.mesh.cells);
+        for (name, v) in &src.node_sets {
+            assert_eq!(m.node_sets.get(name), Some(v), "node set {name}");
+        }
+        for (name, v) in &src.element_sets {
+            assert_eq!(m.element_sets.get(name), Some(v), "element set {name}");
+        }
+    }
+    for (name, f) in &src.face_sets {
+        assert_eq!(a.face_sets.get(name).map(|x| x.len()), Some(f.len()), "face set {name}");
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}

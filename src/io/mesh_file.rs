@@ -135,3 +135,16 @@ pub fn write_mesh_vtu(path: &Path, m: &MeshInput, format: super::vtu::VtuFormat)
         .collect();
     super::vtu::write_mesh(path, &m.mesh, pd, cd, format)
 }
+
+/// Writes a mesh with its sets in the format of `path`'s extension: `.vtu` (sets as arrays, see
+/// [`write_mesh_vtu`]) or `.inp` (ABAQUS, sets as *NSET / *ELSET, face sets as surface elements).
+pub fn write_mesh_file(path: &Path, m: &MeshInput, vtu_format: super::vtu::VtuFormat) -> Result<()> {
+    match MeshFormat::from_path(path) {
+        Some(MeshFormat::Vtu) => write_mesh_vtu(path, m, vtu_format),
+        Some(MeshFormat::Inp) => super::inp::write_inp(path, m),
+        _ => Err(Error::Input(format!(
+            "{}: hytled convert writes .vtu and .inp; choose one of those extensions",
+            path.display()
+        ))),
+    }
+}
