@@ -1,0 +1,75 @@
+//! Random byte mutations of real sample files fed to every reader: errors are fine, panics are
+//! not (proptest; 48 cases per reader to keep the suite fast, PROPTEST_CASES raises it).
+
+use std::path::{Path, PathBuf};
+
+use proptest::prelude::*;
+
+fn data(rel: &str) -> Vec<u8> {
+    let p = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join(rel);
+    std::fs::read(&p).unwrap_or_else(|e| panic!("{}: {e}", p.display()))
+}
+
+/// Applies mutations: (position fraction, kind, byte).
+fn mutate(mut b: Vec<u8>, edits: &[(f64, u8, u8)]) -> Vec<u8> {
+    for &(f, kind, byte) in edits {
+        if b.is_empty() {
+            break;
+        }
+        let i = ((f * b.len() as f64) as usize).min(b.len() - 1);
+        match kind % 5 {
+            0 => b[i] = byte,
+            1 => b.truncate(i),
+            2 => b.insert(i, byte),
+            3 => {
+                b.remove(i);
+            }
+            _ => {
+                // Duplicate a chunk (repeated lines and sections).
+                let end = (i + 64).min(b.len());
+                let chunk = b[i..end].to_vec();
+                b.splice(i..i, chunk);
+            }
+        }
+    }
+    b
+}
+
+fn edits() -> impl Strategy<Value = Vec<(f64, u8, u8)>> {
+    prop::collection::vec((0.0..1.0f64, any::<u8>(), any::<u8>()), 1..8)
+}
+
+fn config() -> ProptestConfig {
+    ProptestConfig {
+        cases: std::env::var("PROPTEST_CASES").ok().and_then(|v| v.parse().ok()).unwrap_or(48),
+        failure_persistence: None,
+        ..ProptestConfig::default()
+    }
+}
+
+proptest! {
+    #![proptest_config(config())]
+
+    #[test]
+    fn inp_reader_never_panics(e in edits()) {
+        for f in ["meshes/cylinder-428-hex8.inp", "tests/data/inp/gmsh_cube_tet4.inp", "tests/data/inp/abaqus_cae_block_hex8.inp"] {
+            let b = mutate(data(f), &e);
+            let _ = hytled::io::inp::parse_inp(&String::from_utf8_lossy(&b), Path::new("fuzz.inp"));
+        }
+    }
+
+    #[test]
+    fn msh_reader_never_panics(e in edits()) {
+        for f in ["tests/data/msh/cyl_v22.msh", "tests/data/msh/cyl_v41.msh", "tests/data/msh/cyl_v41_bin.msh"] {
+            let b = mutate(data(f), &e);
+            let _ = hytled::io::msh::parse_msh(&b, Path::new("fuzz.msh"));
+        }
+    }
+
+    #[test]
+    fn cloud_reader_never_panics(e in edits()) {
+        let text = "x,y,z,set\n0,0,0,1\n0.1,0,0,1\n0,0.1,0,2\n0,0,0.1,2\n0.05,0.05,0.05,3\n";
+        let b = mutate(text.as_bytes().to_vec(), &e);
+        let _ = hytled::meshless::cloud::parse_cloud(&String::from_utf8_lossy(&b), Path::new("fuzz.csv"));
+    }
+}
