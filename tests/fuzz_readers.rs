@@ -41,7 +41,10 @@ fn edits() -> impl Strategy<Value = Vec<(f64, u8, u8)>> {
 
 fn config() -> ProptestConfig {
     ProptestConfig {
-        cases: std::env::var("PROPTEST_CASES").ok().and_then(|v| v.parse().ok()).unwrap_or(48),
+        cases: std::env::var("PROPTEST_CASES")
+            .ok()
+            .and_then(|v| v.parse().ok())
+            .unwrap_or(48),
         failure_persistence: None,
         ..ProptestConfig::default()
     }
@@ -71,5 +74,17 @@ proptest! {
         let text = "x,y,z,set\n0,0,0,1\n0.1,0,0,1\n0,0.1,0,2\n0,0,0.1,2\n0.05,0.05,0.05,3\n";
         let b = mutate(text.as_bytes().to_vec(), &e);
         let _ = hytled::meshless::cloud::parse_cloud(&String::from_utf8_lossy(&b), Path::new("fuzz.csv"));
+    }
+}
+
+proptest! {
+    #![proptest_config(config())]
+
+    #[test]
+    fn vtk_reader_never_panics(e in edits()) {
+        for (f, name) in [("tests/data/vtk/cyl.vtu", "fuzz.vtu"), ("tests/data/vtk/cyl.vtk", "fuzz.vtk"), ("tests/data/vtk/box_hex_b64.vtu", "fuzz.vtu")] {
+            let b = mutate(data(f), &e);
+            let _ = hytled::io::vtk::parse_vtk(&b, Path::new(name));
+        }
     }
 }

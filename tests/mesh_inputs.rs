@@ -10,9 +10,16 @@ fn cylinder_from_inp_and_msh_matches_the_built_in_mesh() {
     let base = ["discretization.divisions=[4,2,8]", "solver.mode=relaxation"];
     let builtin = run_case("cases/cylinder-compression.toml", &base);
     let f0 = builtin.reactions["top"][2];
-    for file in ["cylinder-428-hex8.inp", "cylinder-428-hex8-v22.msh", "cylinder-428-hex8-v41.msh"] {
+    for file in [
+        "cylinder-428-hex8.inp",
+        "cylinder-428-hex8-v22.msh",
+        "cylinder-428-hex8-v41.msh",
+    ] {
         let g = format!("geometry={{ mesh = \"../meshes/{file}\" }}");
-        let s = run_case("cases/cylinder-compression.toml", &[base[0], base[1], g.as_str()]);
+        let s = run_case(
+            "cases/cylinder-compression.toml",
+            &[base[0], base[1], g.as_str()],
+        );
         let f = s.reactions["top"][2];
         println!("{file}: F_z = {f} N (built-in {f0} N)");
         assert_eq!(s.nodes, builtin.nodes);
@@ -27,7 +34,10 @@ fn mesh_geometry_errors_are_clear() {
         let sc = hytled::scene::load(&path("cases/cylinder-compression.toml"), &o(g));
         match sc {
             Err(e) => e.to_string(),
-            Ok(sc) => hytled::simulation::prepare(&sc).err().expect("must fail").to_string(),
+            Ok(sc) => hytled::simulation::prepare(&sc)
+                .err()
+                .expect("must fail")
+                .to_string(),
         }
     };
     assert!(err("{ mesh = \"../meshes/nothing.inp\" }").contains("nothing.inp"));
@@ -37,7 +47,10 @@ fn mesh_geometry_errors_are_clear() {
     // A hexahedral mesh with a tetrahedral element asked for.
     let sc = hytled::scene::load(
         &path("cases/cylinder-compression.toml"),
-        &["geometry={ mesh = \"../meshes/cylinder-428-hex8.inp\" }".into(), "discretization.element=tet4-anp".into()],
+        &[
+            "geometry={ mesh = \"../meshes/cylinder-428-hex8.inp\" }".into(),
+            "discretization.element=tet4-anp".into(),
+        ],
     )
     .unwrap();
     let e = hytled::simulation::prepare(&sc).err().unwrap().to_string();
@@ -45,7 +58,10 @@ fn mesh_geometry_errors_are_clear() {
     // A set name that does not exist lists the available ones.
     let sc = hytled::scene::load(
         &path("cases/cylinder-compression.toml"),
-        &["geometry={ mesh = \"../meshes/cylinder-428-hex8.inp\" }".into(), "boundaries.top.select={ set = \"lid\" }".into()],
+        &[
+            "geometry={ mesh = \"../meshes/cylinder-428-hex8.inp\" }".into(),
+            "boundaries.top.select={ set = \"lid\" }".into(),
+        ],
     )
     .unwrap();
     let e = hytled::simulation::prepare(&sc).err().unwrap().to_string();
@@ -57,13 +73,23 @@ fn mesh_geometry_errors_are_clear() {
 #[test]
 fn gmsh_physical_groups_select_boundaries() {
     let g = "geometry={ mesh = \"../tests/data/msh/cyl_v41.msh\" }";
-    let base = [g, "discretization.element=tet4-anp", "solver.mode=relaxation"];
+    let base = [
+        g,
+        "discretization.element=tet4-anp",
+        "solver.mode=relaxation",
+    ];
     let planes = run_case("cases/cylinder-compression.toml", &base);
     let mut with_sets = base.to_vec();
-    with_sets.extend(["boundaries.bottom.select={ set = \"bottom\" }", "boundaries.top.select={ set = \"top\" }"]);
+    with_sets.extend([
+        "boundaries.bottom.select={ set = \"bottom\" }",
+        "boundaries.top.select={ set = \"top\" }",
+    ]);
     let sets = run_case("cases/cylinder-compression.toml", &with_sets);
     let (a, b) = (planes.reactions["top"][2], sets.reactions["top"][2]);
-    println!("Gmsh cylinder ({} nodes): planes {a} N, sets {b} N", sets.nodes);
+    println!(
+        "Gmsh cylinder ({} nodes): planes {a} N, sets {b} N",
+        sets.nodes
+    );
     assert_eq!(a, b);
     assert!(a < 0.0);
 }
@@ -93,7 +119,41 @@ fn convert_round_trip_keeps_nodes_cells_and_sets() {
         }
     }
     for (name, f) in &src.face_sets {
-        assert_eq!(a.face_sets.get(name).map(|x| x.len()), Some(f.len()), "face set {name}");
+        assert_eq!(
+            a.face_sets.get(name).map(|x| x.len()),
+            Some(f.len()),
+            "face set {name}"
+        );
     }
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// Meshless on a Gmsh mesh: its vertices are the nodes, its tets the integration cells, and its
+/// physical groups select the constrained nodes (41 on each face).
+#[test]
+fn meshless_on_a_gmsh_mesh_with_physical_groups() {
+    let sc = hytled::scene::load(
+        &path("cases/cylinder-compression.toml"),
+        &[
+            "geometry={ mesh = \"../tests/data/msh/cyl_v41.msh\" }".into(),
+            "discretization.method=meshless".into(),
+            "discretization.tet_rule=1".into(),
+            "boundaries.bottom.select={ set = \"bottom\" }".into(),
+            "boundaries.top.select={ set = \"top\" }".into(),
+            "solver.mode=relaxation".into(),
+        ],
+    )
+    .unwrap();
+    let prep = hytled::simulation::prepare(&sc).unwrap();
+    assert_eq!(prep.model.nodes.len(), 196);
+    for b in &prep.model.boundaries {
+        assert_eq!(b.nodes.len(), 41, "{}", b.name);
+    }
+    let s = hytled::simulation::run_scene(&sc, &Default::default()).unwrap();
+    let f = s.reactions["top"][2];
+    println!(
+        "meshless Gmsh cylinder: F_z = {f} N, error {:.2} %",
+        100.0 * rel_err(&s, "force")
+    );
+    assert!(s.converged && f < 0.0 && (s.reactions["bottom"][2] + f).abs() < 1e-3 * f.abs());
 }

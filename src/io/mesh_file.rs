@@ -32,10 +32,7 @@ fn read_raw(path: &Path, format: MeshFormat) -> Result<MeshInput> {
     match format {
         MeshFormat::Inp => super::inp::read_inp(path),
         MeshFormat::Msh => super::msh::read_msh(path),
-        MeshFormat::Vtk | MeshFormat::Vtu => Err(Error::Input(format!(
-            "{}: the VTK reader is not built yet",
-            path.display()
-        ))),
+        MeshFormat::Vtk | MeshFormat::Vtu => super::vtk::read_vtk(path),
     }
 }
 
@@ -127,18 +124,30 @@ pub fn write_mesh_vtu(path: &Path, m: &MeshInput, format: super::vtu::VtuFormat)
         .collect();
     let pd = node_arrays
         .iter()
-        .map(|(name, a)| super::vtu::DataArray { name, components: 1, values: a })
+        .map(|(name, a)| super::vtu::DataArray {
+            name,
+            components: 1,
+            values: a,
+        })
         .collect();
     let cd = cell_arrays
         .iter()
-        .map(|(name, a)| super::vtu::DataArray { name, components: 1, values: a })
+        .map(|(name, a)| super::vtu::DataArray {
+            name,
+            components: 1,
+            values: a,
+        })
         .collect();
     super::vtu::write_mesh(path, &m.mesh, pd, cd, format)
 }
 
 /// Writes a mesh with its sets in the format of `path`'s extension: `.vtu` (sets as arrays, see
 /// [`write_mesh_vtu`]) or `.inp` (ABAQUS, sets as *NSET / *ELSET, face sets as surface elements).
-pub fn write_mesh_file(path: &Path, m: &MeshInput, vtu_format: super::vtu::VtuFormat) -> Result<()> {
+pub fn write_mesh_file(
+    path: &Path,
+    m: &MeshInput,
+    vtu_format: super::vtu::VtuFormat,
+) -> Result<()> {
     match MeshFormat::from_path(path) {
         Some(MeshFormat::Vtu) => write_mesh_vtu(path, m, vtu_format),
         Some(MeshFormat::Inp) => super::inp::write_inp(path, m),

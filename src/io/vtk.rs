@@ -1,1 +1,1260 @@
-//! (in progress)
+//! VTK unstructured-grid reader: legacy `.vtk` (ASCII or binary, file versions up to 4.2) and
+//! XML `.vtu` (ASCII, base64 binary, compressed), parsed by the `vtkio` crate.
+//!
+//! What is read:
+//! - **Volume cells**: `VTK_TETRA` (10) become [`ElementShape::Tet4`], `VTK_HEXAHEDRON` (12)
+//!   [`ElementShape::Hex8`], connectivity as written (VTK's node order is hytled's). A file with
+//!   both is an error, as is one with neither.
+//! - **Boundary faces**: `VTK_TRIANGLE` (5) and `VTK_QUAD` (9) go to the face set `vtk_faces`
+//!   (node-index lists in the file's order).
+//! - `VTK_VERTEX`, `VTK_POLY_VERTEX`, `VTK_LINE` and `VTK_POLY_LINE` (1-4) are ignored; any other
+//!   cell type is an error naming the type and the cell's index.
+//! - **Pieces**: all pieces of the file are concatenated; point and cell indices are offset by
+//!   the points and cells of the pieces before.
+//!
+//! **Sets from data arrays.** A point- or cell-data array with one component whose values are
+//! integers (an integer array, or a float array whose values are all whole numbers) becomes
+//! sets, one per distinct nonzero value `v` of array `A`:
+//! - point data: node set `A=v` (the points with value `v`);
+//! - cell data: element set `A=v` (the volume cells with value `v`) and face set `A=v` (the
+//!   triangles/quads with value `v`); values on ignored cells (vertices, lines) are dropped.
+//!
+//! An array with a single distinct nonzero value is also exposed under its own name `A` (a
+//! 0/1 mask array `fixed` gives the set `fixed`). Zero means "not in a set". Arrays with more
+//! than [`MAX_SET_VALUES`] distinct nonzero values (ids such as `vtkOriginalPointIds`) are data,
+//! not sets, and are skipped with a warning. A set name can be both a node set (point array)
+//! and an element set (cell array); [`MeshInput::set_nodes`] then takes the node set. Meshes
+//! written by meshio from Gmsh files carry the integer cell array `gmsh:physical`, so their
+//! physical groups come back as `gmsh:physical=<tag>`.
+//!
+//! Node ids ([`MeshInput::node_ids`]) are the 0-based point indices over all pieces; element
+//! ids are the 0-based indices of the volume cells among all cells of the file (the cell ids
+//! ParaView shows for a single piece). Coordinates are returned as written; the scene applies
+//! its units factor afterwards.
+//!
+//! Limits of `vtkio`: legacy files of version 5.x (cells as OFFSETS/CONNECTIVITY) and XML
+//! files with raw appended binary data are not read; the errors say how to re-export (legacy
+//! 4.2, or VTU with ASCII or base64 encoding). No input makes the reader panic: legacy
+//! headers are checked against the file size before parsing and the parse runs under
+//! `catch_unwind`.
+
+use std::collections::{BTreeMap, BTreeSet};
+use std::panic::{catch_unwind, AssertUnwindSafe};
+use std::path::Path;
+
+use nalgebra::Vector3;
+use vtkio::model::{Attribute, CellType, DataSet, IOBuffer, Piece, VertexNumbers};
+
+use super::model::MeshInput;
+use crate::geometry::{ElementShape, Mesh};
+use crate::{Error, Result};
+
+/// Integer arrays with more distinct nonzero values than this are not turned into sets.
+pub const MAX_SET_VALUES: usize = 256;
+
+/// Name of the face set holding every triangle and quad cell of the file.
+pub const FACE_SET: &str = "vtk_faces";
+
+/// Reads a VTK legacy (`.vtk`) or XML unstructured-grid (`.vtu`) file; see the module
+/// documentation for what becomes cells, faces and sets. Coordinates are as written in the
+/// file (no unit conversion). Files with another extension are recognised by their content.
+pub fn read_vtk(path: &Path) -> Result<MeshInput> {
+    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    parse_vtk(&bytes, path)
+}
+
+/// [`read_vtk`] on the bytes of a file already in memory; `path` only names the file in
+/// messages and chooses legacy (`.vtk`) or XML (`.vtu`) by its extension.
+pub fn parse_vtk(bytes: &[u8], path: &Path) -> Result<MeshInput> {
+    let ext = path
+        .extension()
+        .map(|e| e.to_string_lossy().to_ascii_lowercase())
+        .unwrap_or_default();
+    let legacy = match ext.as_str() {
+        "vtk" => true,
+        "vtu" => false,
+        _ => {
+            let start = bytes
+                .iter()
+                .position(|b| !b.is_ascii_whitespace())
+                .map_or(&[][..], |i| &bytes[i..]);
+            if start.starts_with(b"#") {
+                true
+            } else if start.starts_with(b"<") {
+                false
+            } else {
+                return Err(fail(
+                    path,
+                    "neither a legacy VTK file (first line '# vtk DataFile Version ...') nor an \
+                     XML VTK file",
+                ));
+            }
+        }
+    };
+    let vtk = if legacy {
+        import_legacy(bytes, path)?
+    } else {
+        import_xml(bytes, path)?
+    };
+    convert(vtk, path)
+}
+
+fn fail(path: &Path, m: impl std::fmt::Display) -> Error {
+    Error::Input(format!("{}: {m}", path.display()))
+}
+
+/// A line shortened for messages.
+fn clip(s: &str) -> String {
+    const MAX: usize = 60;
+    if s.chars().count() <= MAX {
+        s.to_string()
+    } else {
+        let mut t: String = s.chars().take(MAX).collect();
+        t.push_str("...");
+        t
+    }
+}
+
+fn import_legacy(bytes: &[u8], path: &Path) -> Result<vtkio::Vtk> {
+    let first_end = bytes
+        .iter()
+        .position(|&b| b == b'\n')
+        .unwrap_or(bytes.len());
+    let first = String::from_utf8_lossy(&bytes[..first_end]);
+    let first = first.trim();
+    let lower = first.to_ascii_lowercase();
+    let Some(version) = lower
+        .strip_prefix('#')
+        .map(str::trim_start)
+        .and_then(|s| s.strip_prefix("vtk"))
+        .map(str::trim_start)
+        .and_then(|s| s.strip_prefix("datafile"))
+        .map(str::trim_start)
+        .and_then(|s| s.strip_prefix("version"))
+        .map(str::trim)
+    else {
+        if bytes.is_empty() {
+            return Err(fail(path, "the file is empty: not a VTK file"));
+        }
+        return Err(fail(
+            path,
+            format!(
+                "line 1: expected '# vtk DataFile Version x.y', found '{}': not a legacy VTK file",
+                clip(first)
+            ),
+        ));
+    };
+    let major: Option<u32> = version.split('.').next().and_then(|m| m.parse().ok());
+    match major {
+        Some(m) if m >= 5 => {
+            return Err(fail(
+                path,
+                format!(
+                    "legacy VTK file version {version} (cells as OFFSETS/CONNECTIVITY) is not \
+                     supported; write legacy version 4.2 (meshio: fmt_version=\"4.2\"; VTK: \
+                     writer.SetFileVersion(42)) or an XML .vtu file"
+                ),
+            ))
+        }
+        Some(_) => {}
+        None => {
+            return Err(fail(
+                path,
+                format!("line 1: unreadable legacy VTK version '{}'", clip(version)),
+            ))
+        }
+    }
+    check_legacy_counts(bytes, path)?;
+    let parsed = catch_unwind(AssertUnwindSafe(|| vtkio::Vtk::parse_legacy_be(bytes)));
+    match parsed {
+        Ok(Ok(v)) => Ok(v),
+        Ok(Err(e)) => Err(fail(
+            path,
+            format!(
+                "cannot parse the legacy VTK file ({e}); check that the counts in the POINTS, \
+                 CELLS, CELL_TYPES, POINT_DATA and CELL_DATA headers match the data that follows \
+                 and that the file is complete"
+            ),
+        )),
+        Err(_) => Err(fail(
+            path,
+            "cannot parse the legacy VTK file: the parser (vtkio) failed on malformed data; the \
+             file is corrupt or truncated",
+        )),
+    }
+}
+
+/// Checks the counts on the keyword lines of a legacy file against the file size before vtkio
+/// parses it: vtkio reserves memory for the announced count first, so a corrupt count could
+/// otherwise exhaust memory.
+fn check_legacy_counts(bytes: &[u8], path: &Path) -> Result<()> {
+    let len = bytes.len() as u128 + 16;
+    let mut attr_count: u128 = 0;
+    for (i, line) in bytes.split(|&b| b == b'\n').enumerate() {
+        if i < 2 || line.len() > 200 || !line.first().is_some_and(u8::is_ascii_alphabetic) {
+            continue;
+        }
+        let Ok(text) = std::str::from_utf8(line) else {
+            continue;
+        };
+        let t: Vec<&str> = text.split_whitespace().collect();
+        let int = |k: usize| -> Option<u128> { t.get(k).and_then(|s| s.parse::<u128>().ok()) };
+        let kw = t[0].to_ascii_uppercase();
+        let need: Option<u128> = match kw.as_str() {
+            "POINTS" => int(1).map(|n| n.saturating_mul(3)),
+            "CELLS" | "POLYGONS" | "LINES" | "VERTICES" | "TRIANGLE_STRIPS" => {
+                match (int(1), int(2)) {
+                    (Some(a), Some(b)) => Some(a.max(b)),
+                    (a, b) => a.or(b),
+                }
+            }
+            "CELL_TYPES" | "X_COORDINATES" | "Y_COORDINATES" | "Z_COORDINATES" => int(1),
+            "POINT_DATA" | "CELL_DATA" => {
+                attr_count = int(1).unwrap_or(0);
+                int(1)
+            }
+            "SCALARS" => Some(int(3).unwrap_or(1).saturating_mul(attr_count)),
+            "COLOR_SCALARS" | "TEXTURE_COORDINATES" => int(2).map(|c| c.saturating_mul(attr_count)),
+            "VECTORS" | "NORMALS" => Some(attr_count.saturating_mul(3)),
+            "TENSORS" => Some(attr_count.saturating_mul(9)),
+            "LOOKUP_TABLE" => int(2).map(|n| n.saturating_mul(4)),
+            "FIELD" => int(2),
+            _ => {
+                // A FIELD array line: name numComponents numTuples dataType.
+                if t.len() == 4 {
+                    match (int(1), int(2)) {
+                        (Some(a), Some(b)) => Some(a.saturating_mul(b)),
+                        _ => None,
+                    }
+                } else {
+                    None
+                }
+            }
+        };
+        let bits = t.iter().any(|s| s.eq_ignore_ascii_case("bit"));
+        let limit = if bits { len.saturating_mul(8) } else { len };
+        if let Some(n) = need {
+            if n > limit {
+                return Err(fail(
+                    path,
+                    format!(
+                        "line {}: '{}' announces {n} values, more than the file ({} bytes) holds: \
+                         wrong count or corrupt file",
+                        i + 1,
+                        clip(text.trim()),
+                        bytes.len()
+                    ),
+                ));
+            }
+        }
+    }
+    Ok(())
+}
+
+fn import_xml(bytes: &[u8], path: &Path) -> Result<vtkio::Vtk> {
+    if bytes.iter().all(u8::is_ascii_whitespace) {
+        return Err(fail(path, "the file is empty: not a VTK file"));
+    }
+    let fixed = fix_cell_types(bytes, path)?;
+    let input: &[u8] = fixed.as_deref().unwrap_or(bytes);
+    let parsed = catch_unwind(AssertUnwindSafe(|| vtkio::Vtk::parse_xml(input)));
+    match parsed {
+        Ok(Ok(v)) => Ok(v),
+        Ok(Err(e)) => {
+            let m = e.to_string();
+            let raw_appended = find(bytes, b"<AppendedData").is_some_and(|i| {
+                let tag = &bytes[i..];
+                let end = tag.iter().position(|&b| b == b'>').unwrap_or(tag.len());
+                find(&tag[..end], b"raw").is_some()
+            });
+            if m.contains("AppendedData") || raw_appended {
+                Err(fail(
+                    path,
+                    format!(
+                        "cannot read the XML VTK file ({m}); raw appended binary data cannot be \
+                         read (the parser, vtkio, fails when the data holds a '<' byte): write \
+                         the file with ASCII or base64 encoding (ParaView: Data Mode 'Ascii', or \
+                         'Appended' with 'Encode Appended Data' on; meshio: \
+                         write(..., binary=False))"
+                    ),
+                ))
+            } else {
+                Err(fail(path, format!("cannot read the XML VTK file: {m}")))
+            }
+        }
+        Err(_) => Err(fail(
+            path,
+            "cannot read the XML VTK file: the parser (vtkio) failed on malformed data; the \
+             file is corrupt or truncated",
+        )),
+    }
+}
+
+fn find(hay: &[u8], needle: &[u8]) -> Option<usize> {
+    if needle.is_empty() || hay.len() < needle.len() {
+        return None;
+    }
+    hay.windows(needle.len()).position(|w| w == needle)
+}
+
+/// The value of attribute `name` in the tag text `tag` (`name="value"`), with its range.
+fn attribute<'a>(tag: &'a [u8], name: &[u8]) -> Option<(&'a [u8], usize, usize)> {
+    let mut from = 0;
+    while let Some(rel) = find(&tag[from..], name) {
+        let at = from + rel;
+        let before_ok = at > 0 && tag[at - 1].is_ascii_whitespace();
+        let mut i = at + name.len();
+        while i < tag.len() && tag[i].is_ascii_whitespace() {
+            i += 1;
+        }
+        if before_ok && i < tag.len() && tag[i] == b'=' {
+            i += 1;
+            while i < tag.len() && tag[i].is_ascii_whitespace() {
+                i += 1;
+            }
+            if i < tag.len() && (tag[i] == b'"' || tag[i] == b'\'') {
+                let q = tag[i];
+                let s = i + 1;
+                let e = tag[s..].iter().position(|&b| b == q).map(|p| s + p)?;
+                return Some((&tag[s..e], s, e));
+            }
+        }
+        from = at + 1;
+    }
+    None
+}
+
+/// vtkio reads the `types` array of `<Cells>` only as UInt8; meshio writes it as Int64. An
+/// ASCII `types` array of another integer type is retyped UInt8 (its values are small); a
+/// binary one cannot be, and is an error saying how to re-export. Returns the corrected bytes
+/// when something was changed.
+fn fix_cell_types(bytes: &[u8], path: &Path) -> Result<Option<Vec<u8>>> {
+    let mut edits: Vec<(usize, usize)> = Vec::new();
+    let mut from = 0;
+    while let Some(rel) = find(&bytes[from..], b"<Cells") {
+        let cells = from + rel;
+        let end = find(&bytes[cells..], b"</Cells>").map_or(bytes.len(), |e| cells + e);
+        let mut i = cells;
+        while let Some(r) = find(&bytes[i..end], b"<DataArray") {
+            let t0 = i + r;
+            let t1 = bytes[t0..end]
+                .iter()
+                .position(|&b| b == b'>')
+                .map_or(end, |p| t0 + p);
+            let tag = &bytes[t0..t1];
+            if attribute(tag, b"Name").is_some_and(|(v, _, _)| v == b"types") {
+                if let Some((ty, s, e)) = attribute(tag, b"type") {
+                    if ty != b"UInt8" {
+                        let ascii = attribute(tag, b"format")
+                            .is_some_and(|(f, _, _)| f.eq_ignore_ascii_case(b"ascii"));
+                        let integer = [
+                            &b"Int8"[..],
+                            b"Int16",
+                            b"UInt16",
+                            b"Int32",
+                            b"UInt32",
+                            b"Int64",
+                            b"UInt64",
+                        ]
+                        .contains(&ty);
+                        if !ascii || !integer {
+                            return Err(fail(
+                                path,
+                                format!(
+                                    "the cell types array is {} in {} encoding, which the \
+                                     reader (vtkio) cannot read (it needs UInt8; meshio writes \
+                                     Int64): write the file with ASCII encoding (meshio: \
+                                     write(..., binary=False)), as legacy .vtk (meshio: \
+                                     fmt_version=\"4.2\"), or from ParaView",
+                                    String::from_utf8_lossy(ty),
+                                    String::from_utf8_lossy(
+                                        attribute(tag, b"format").map_or(&b"?"[..], |f| f.0)
+                                    )
+                                ),
+                            ));
+                        }
+                        edits.push((t0 + s, t0 + e));
+                    }
+                }
+            }
+            i = t1.max(t0 + 1);
+        }
+        from = end.max(cells + 1);
+    }
+    if edits.is_empty() {
+        return Ok(None);
+    }
+    let mut out = Vec::with_capacity(bytes.len());
+    let mut last = 0;
+    for (s, e) in edits {
+        out.extend_from_slice(&bytes[last..s]);
+        out.extend_from_slice(b"UInt8");
+        last = e;
+    }
+    out.extend_from_slice(&bytes[last..]);
+    Ok(Some(out))
+}
+
+/// What a VTK cell is to this reader.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Role {
+    Volume(ElementShape),
+    Face,
+    Ignored,
+}
+
+fn role(ct: CellType) -> Option<(Role, Option<usize>)> {
+    Some(match ct {
+        CellType::Tetra => (Role::Volume(ElementShape::Tet4), Some(4)),
+        CellType::Hexahedron => (Role::Volume(ElementShape::Hex8), Some(8)),
+        CellType::Triangle => (Role::Face, Some(3)),
+        CellType::Quad => (Role::Face, Some(4)),
+        CellType::Vertex => (Role::Ignored, Some(1)),
+        CellType::Line => (Role::Ignored, Some(2)),
+        CellType::PolyVertex | CellType::PolyLine => (Role::Ignored, None),
+        _ => return None,
+    })
+}
+
+fn vtk_name(ct: CellType) -> &'static str {
+    match ct {
+        CellType::Tetra => "VTK_TETRA",
+        CellType::Hexahedron => "VTK_HEXAHEDRON",
+        CellType::Triangle => "VTK_TRIANGLE",
+        CellType::Quad => "VTK_QUAD",
+        CellType::Vertex => "VTK_VERTEX",
+        CellType::Line => "VTK_LINE",
+        CellType::PolyVertex => "VTK_POLY_VERTEX",
+        CellType::PolyLine => "VTK_POLY_LINE",
+        CellType::TriangleStrip => "VTK_TRIANGLE_STRIP",
+        CellType::Polygon => "VTK_POLYGON",
+        CellType::Pixel => "VTK_PIXEL",
+        CellType::Voxel => "VTK_VOXEL",
+        CellType::Wedge => "VTK_WEDGE",
+        CellType::Pyramid => "VTK_PYRAMID",
+        CellType::QuadraticTetra => "VTK_QUADRATIC_TETRA",
+        CellType::QuadraticHexahedron => "VTK_QUADRATIC_HEXAHEDRON",
+        CellType::QuadraticTriangle => "VTK_QUADRATIC_TRIANGLE",
+        CellType::QuadraticQuad => "VTK_QUADRATIC_QUAD",
+        CellType::QuadraticEdge => "VTK_QUADRATIC_EDGE",
+        CellType::QuadraticWedge => "VTK_QUADRATIC_WEDGE",
+        CellType::QuadraticPyramid => "VTK_QUADRATIC_PYRAMID",
+        CellType::TriquadraticHexahedron => "VTK_TRIQUADRATIC_HEXAHEDRON",
+        _ => "",
+    }
+}
+
+/// Cell `i`'s point ranges into a flat connectivity.
+struct CellLists {
+    conn: Vec<u64>,
+    ranges: Vec<(usize, usize)>,
+}
+
+fn cell_lists(cells: VertexNumbers, piece: &str, path: &Path) -> Result<CellLists> {
+    match cells {
+        VertexNumbers::Legacy {
+            num_cells,
+            vertices,
+        } => {
+            let conn: Vec<u64> = vertices.into_iter().map(u64::from).collect();
+            let mut ranges = Vec::with_capacity((num_cells as usize).min(conn.len()));
+            let mut pos = 0usize;
+            for i in 0..num_cells as usize {
+                let n = *conn.get(pos).ok_or_else(|| {
+                    fail(
+                        path,
+                        format!(
+                            "CELLS{piece}: the list ends at cell {i} of the {num_cells} announced"
+                        ),
+                    )
+                })? as usize;
+                let end = pos
+                    .checked_add(1 + n)
+                    .filter(|&e| e <= conn.len())
+                    .ok_or_else(|| {
+                        fail(
+                            path,
+                            format!(
+                                "CELLS{piece}: cell {i} has {n} points, past the end of the list"
+                            ),
+                        )
+                    })?;
+                ranges.push((pos + 1, end));
+                pos = end;
+            }
+            if pos != conn.len() {
+                return Err(fail(
+                    path,
+                    format!(
+                        "CELLS{piece}: the header's size {} does not match the {num_cells} cells \
+                         listed ({pos} numbers)",
+                        conn.len()
+                    ),
+                ));
+            }
+            Ok(CellLists { conn, ranges })
+        }
+        VertexNumbers::XML {
+            connectivity,
+            offsets,
+        } => {
+            let mut ranges = Vec::with_capacity(offsets.len());
+            let mut prev = 0usize;
+            for (i, &o) in offsets.iter().enumerate() {
+                let o = usize::try_from(o).unwrap_or(usize::MAX);
+                if o < prev || o > connectivity.len() {
+                    return Err(fail(
+                        path,
+                        format!(
+                            "Cells{piece}: offset {o} of cell {i} is outside the connectivity \
+                             ({} entries) or decreasing",
+                            connectivity.len()
+                        ),
+                    ));
+                }
+                ranges.push((prev, o));
+                prev = o;
+            }
+            Ok(CellLists {
+                conn: connectivity,
+                ranges,
+            })
+        }
+    }
+}
+
+/// One-component values as integers, or None when the array is not an integer array.
+fn integer_values(buf: IOBuffer) -> Option<Vec<i64>> {
+    fn floats<T: Into<f64> + Copy>(v: Vec<T>) -> Option<Vec<i64>> {
+        v.into_iter()
+            .map(|x| {
+                let f: f64 = x.into();
+                (f.is_finite() && f.fract() == 0.0 && f.abs() < 9.0e15).then_some(f as i64)
+            })
+            .collect()
+    }
+    match buf {
+        IOBuffer::Bit(_) => None,
+        IOBuffer::U8(v) => Some(v.into_iter().map(i64::from).collect()),
+        IOBuffer::I8(v) => Some(v.into_iter().map(i64::from).collect()),
+        IOBuffer::U16(v) => Some(v.into_iter().map(i64::from).collect()),
+        IOBuffer::I16(v) => Some(v.into_iter().map(i64::from).collect()),
+        IOBuffer::U32(v) => Some(v.into_iter().map(i64::from).collect()),
+        IOBuffer::I32(v) => Some(v.into_iter().map(i64::from).collect()),
+        IOBuffer::U64(v) => v.into_iter().map(|x| i64::try_from(x).ok()).collect(),
+        IOBuffer::I64(v) => Some(v),
+        IOBuffer::F32(v) => floats(v),
+        IOBuffer::F64(v) => floats(v),
+    }
+}
+
+/// One-component arrays of a piece's attributes: (name, values) for integer ones, names of the
+/// others.
+fn arrays(attrs: Vec<Attribute>) -> (Vec<(String, Vec<i64>)>, Vec<String>) {
+    let mut ints = Vec::new();
+    let mut others = Vec::new();
+    let mut take = |name: String, comps: usize, data: IOBuffer| {
+        if comps != 1 {
+            others.push(name);
+            return;
+        }
+        match integer_values(data) {
+            Some(v) => ints.push((name, v)),
+            None => others.push(name),
+        }
+    };
+    for a in attrs {
+        match a {
+            Attribute::DataArray(d) => {
+                let comps = d.num_comp();
+                take(d.name, comps, d.data);
+            }
+            Attribute::Field { data_array, .. } => {
+                for f in data_array {
+                    let comps = f.num_comp();
+                    take(f.name, comps, f.data);
+                }
+            }
+        }
+    }
+    (ints, others)
+}
+
+/// Values of one array by set value: node indices (point data) or volume cells and faces
+/// (cell data).
+#[derive(Default)]
+struct ValueSets {
+    nodes: BTreeMap<i64, Vec<usize>>,
+    cells: BTreeMap<i64, Vec<usize>>,
+    faces: BTreeMap<i64, Vec<Vec<usize>>>,
+}
+
+impl ValueSets {
+    fn values(&self) -> BTreeSet<i64> {
+        self.nodes
+            .keys()
+            .chain(self.cells.keys())
+            .chain(self.faces.keys())
+            .copied()
+            .collect()
+    }
+}
+
+fn convert(vtk: vtkio::Vtk, path: &Path) -> Result<MeshInput> {
+    let pieces = match vtk.data {
+        DataSet::UnstructuredGrid { pieces, .. } => pieces,
+        other => {
+            let kind = match other {
+                DataSet::ImageData { .. } => "image data (structured points)",
+                DataSet::StructuredGrid { .. } => "a structured grid",
+                DataSet::RectilinearGrid { .. } => "a rectilinear grid",
+                DataSet::PolyData { .. } => "poly data (surfaces)",
+                DataSet::Field { .. } => "field data",
+                DataSet::UnstructuredGrid { .. } => "an unstructured grid",
+            };
+            return Err(fail(
+                path,
+                format!(
+                    "the file holds {kind}, not an unstructured grid; hytled reads volume meshes \
+                     from VTK unstructured grids (DATASET UNSTRUCTURED_GRID, or .vtu)"
+                ),
+            ));
+        }
+    };
+    if pieces.is_empty() {
+        return Err(fail(path, "the unstructured grid has no pieces"));
+    }
+    let multi = pieces.len() > 1;
+
+    let mut nodes: Vec<Vector3<f64>> = Vec::new();
+    let mut cells: Vec<usize> = Vec::new();
+    let mut element_ids: Vec<u64> = Vec::new();
+    let mut faces: Vec<Vec<usize>> = Vec::new();
+    let mut shape: Option<(ElementShape, usize)> = None;
+    let mut point_sets: BTreeMap<String, ValueSets> = BTreeMap::new();
+    let mut cell_sets: BTreeMap<String, ValueSets> = BTreeMap::new();
+    // Arrays that are not one-component integer arrays in some piece.
+    let mut not_sets: BTreeSet<String> = BTreeSet::new();
+    let mut warnings = Vec::new();
+    let mut cell_offset = 0usize;
+
+    for (pi, piece) in pieces.into_iter().enumerate() {
+        let at = if multi {
+            format!(" (piece {})", pi + 1)
+        } else {
+            String::new()
+        };
+        if let Piece::Source(src, _) = &piece {
+            return Err(fail(
+                path,
+                format!(
+                    "piece{at} is stored in another file ('{}'); parallel files (.pvtu) are not \
+                     read: merge the pieces into one .vtu",
+                    clip(src)
+                ),
+            ));
+        }
+        let data = catch_unwind(AssertUnwindSafe(|| piece.into_loaded_piece_data(None)))
+            .map_err(|_| fail(path, format!("piece{at} is malformed")))?
+            .map_err(|e| fail(path, format!("piece{at}: {e}")))?;
+
+        // Points.
+        let coords: Vec<f64> = data
+            .points
+            .cast_into()
+            .ok_or_else(|| fail(path, format!("the points{at} are not numbers")))?;
+        if !coords.len().is_multiple_of(3) {
+            return Err(fail(
+                path,
+                format!(
+                    "{} point coordinates{at}, not a multiple of 3",
+                    coords.len()
+                ),
+            ));
+        }
+        let node_offset = nodes.len();
+        let n_points = coords.len() / 3;
+        for (i, c) in coords.chunks_exact(3).enumerate() {
+            let p = Vector3::new(c[0], c[1], c[2]);
+            if !p.iter().all(|x| x.is_finite()) {
+                return Err(fail(
+                    path,
+                    format!("point {}{at} has a non-finite coordinate", node_offset + i),
+                ));
+            }
+            nodes.push(p);
+        }
+
+        // Cells.
+        let lists = cell_lists(data.cells.cell_verts, &at, path)?;
+        let types = data.cells.types;
+        if types.len() != lists.ranges.len() {
+            return Err(fail(
+                path,
+                format!(
+                    "{} cells but {} cell types{at}",
+                    lists.ranges.len(),
+                    types.len()
+                ),
+            ));
+        }
+        // What each cell of the piece became: volume cell or face index.
+        let mut became: Vec<Option<(Role, usize)>> = Vec::with_capacity(types.len());
+        for (i, (&ct, &(s, e))) in types.iter().zip(&lists.ranges).enumerate() {
+            let gi = cell_offset + i;
+            let (r, n) = role(ct).ok_or_else(|| {
+                let name = vtk_name(ct);
+                let name = if name.is_empty() {
+                    format!("{ct:?}")
+                } else {
+                    name.to_string()
+                };
+                fail(
+                    path,
+                    format!(
+                        "unsupported VTK cell type {} ({name}) at cell {gi}{at}; hytled reads \
+                         VTK_TETRA (10) or VTK_HEXAHEDRON (12) volume cells, with VTK_TRIANGLE \
+                         (5) or VTK_QUAD (9) boundary faces: convert the mesh to linear \
+                         tetrahedra or hexahedra",
+                        ct as u8
+                    ),
+                )
+            })?;
+            let verts = &lists.conn[s..e];
+            if let Some(n) = n {
+                if verts.len() != n {
+                    return Err(fail(
+                        path,
+                        format!(
+                            "cell {gi}{at} is a {} with {} points; it needs {n}",
+                            vtk_name(ct),
+                            verts.len()
+                        ),
+                    ));
+                }
+            }
+            if r == Role::Ignored {
+                became.push(None);
+                continue;
+            }
+            let idx = verts
+                .iter()
+                .map(|&v| {
+                    usize::try_from(v)
+                        .ok()
+                        .filter(|&v| v < n_points)
+                        .map(|v| v + node_offset)
+                        .ok_or_else(|| {
+                            fail(
+                                path,
+                                format!(
+                                    "cell {gi}{at} references point {v}, but the piece has \
+                                     {n_points} points"
+                                ),
+                            )
+                        })
+                })
+                .collect::<Result<Vec<usize>>>()?;
+            match r {
+                Role::Volume(sh) => {
+                    match shape {
+                        None => shape = Some((sh, gi)),
+                        Some((s0, g0)) if s0 != sh => {
+                            return Err(fail(
+                                path,
+                                format!(
+                                    "mixed VTK_TETRA and VTK_HEXAHEDRON cells (cell {g0} is a {}, \
+                                     cell {gi}{at} a {}) are not supported; use one element shape",
+                                    if s0 == ElementShape::Tet4 {
+                                        "VTK_TETRA"
+                                    } else {
+                                        "VTK_HEXAHEDRON"
+                                    },
+                                    vtk_name(ct)
+                                ),
+                            ))
+                        }
+                        _ => {}
+                    }
+                    became.push(Some((r, element_ids.len())));
+                    cells.extend_from_slice(&idx);
+                    element_ids.push(gi as u64);
+                }
+                Role::Face => {
+                    became.push(Some((r, faces.len())));
+                    faces.push(idx);
+                }
+                Role::Ignored => unreachable!(),
+            }
+        }
+
+        // Data arrays.
+        let (pints, pothers) = arrays(data.data.point);
+        not_sets.extend(pothers.into_iter().map(|n| format!("point:{n}")));
+        for (name, vals) in pints {
+            if vals.len() != n_points {
+                warnings.push(format!(
+                    "point array '{name}'{at} has {} values for {n_points} points; not used as \
+                     sets",
+                    vals.len()
+                ));
+                not_sets.insert(format!("point:{name}"));
+                continue;
+            }
+            let vs = point_sets.entry(name).or_default();
+            for (i, v) in vals.into_iter().enumerate() {
+                if v != 0 {
+                    vs.nodes.entry(v).or_default().push(node_offset + i);
+                }
+            }
+        }
+        let (cints, cothers) = arrays(data.data.cell);
+        not_sets.extend(cothers.into_iter().map(|n| format!("cell:{n}")));
+        for (name, vals) in cints {
+            if vals.len() != became.len() {
+                warnings.push(format!(
+                    "cell array '{name}'{at} has {} values for {} cells; not used as sets",
+                    vals.len(),
+                    became.len()
+                ));
+                not_sets.insert(format!("cell:{name}"));
+                continue;
+            }
+            let vs = cell_sets.entry(name).or_default();
+            for (b, v) in became.iter().zip(vals) {
+                match (b, v) {
+                    (_, 0) | (None, _) => {}
+                    (Some((Role::Volume(_), c)), v) => vs.cells.entry(v).or_default().push(*c),
+                    (Some((_, f)), v) => vs.faces.entry(v).or_default().push(faces[*f].clone()),
+                }
+            }
+        }
+        cell_offset += became.len();
+    }
+
+    let Some((shape, _)) = shape else {
+        return Err(fail(
+            path,
+            "no volume cells: the file has no VTK_TETRA (10) or VTK_HEXAHEDRON (12) cells",
+        ));
+    };
+
+    let mut node_sets: BTreeMap<String, Vec<usize>> = BTreeMap::new();
+    let mut element_sets: BTreeMap<String, Vec<usize>> = BTreeMap::new();
+    let mut face_sets: BTreeMap<String, Vec<Vec<usize>>> = BTreeMap::new();
+    for (kind, sets) in [("point", point_sets), ("cell", cell_sets)] {
+        for (name, vs) in sets {
+            if not_sets.contains(&format!("{kind}:{name}")) {
+                continue;
+            }
+            let values = vs.values();
+            if values.len() > MAX_SET_VALUES {
+                warnings.push(format!(
+                    "{kind} array '{name}' has {} distinct values; it is treated as data, not \
+                     as sets (at most {MAX_SET_VALUES})",
+                    values.len()
+                ));
+                continue;
+            }
+            let alias = values.len() == 1;
+            for (v, mut idx) in vs.nodes {
+                idx.sort_unstable();
+                idx.dedup();
+                if alias {
+                    node_sets.insert(name.clone(), idx.clone());
+                }
+                node_sets.insert(format!("{name}={v}"), idx);
+            }
+            for (v, idx) in vs.cells {
+                if alias {
+                    element_sets.insert(name.clone(), idx.clone());
+                }
+                element_sets.insert(format!("{name}={v}"), idx);
+            }
+            for (v, f) in vs.faces {
+                if alias {
+                    face_sets.insert(name.clone(), f.clone());
+                }
+                face_sets.insert(format!("{name}={v}"), f);
+            }
+        }
+    }
+    if !faces.is_empty() {
+        face_sets.insert(FACE_SET.to_string(), faces);
+    }
+
+    let node_ids = (0..nodes.len() as u64).collect();
+    Ok(MeshInput {
+        mesh: Mesh {
+            nodes,
+            shape,
+            cells,
+        },
+        node_ids,
+        element_ids,
+        node_sets,
+        element_sets,
+        face_sets,
+        warnings,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::quality::tet_signed_volume;
+    use crate::io::msh::read_msh;
+    use std::path::PathBuf;
+
+    fn data(dir: &str, name: &str) -> PathBuf {
+        PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+            .join("tests/data")
+            .join(dir)
+            .join(name)
+    }
+
+    fn read(name: &str) -> MeshInput {
+        read_vtk(&data("vtk", name)).unwrap_or_else(|e| panic!("{name}: {e}"))
+    }
+
+    fn expected() -> serde_json::Value {
+        let text = std::fs::read_to_string(data("vtk", "expected.json")).unwrap();
+        serde_json::from_str(&text).unwrap()
+    }
+
+    fn err(bytes: &[u8], name: &str) -> String {
+        match parse_vtk(bytes, Path::new(name)) {
+            Ok(_) => panic!("expected an error"),
+            Err(e) => {
+                eprintln!("{e}");
+                e.to_string()
+            }
+        }
+    }
+
+    fn max_abs_diff(a: &MeshInput, b: &MeshInput) -> f64 {
+        assert_eq!(a.mesh.nodes.len(), b.mesh.nodes.len());
+        a.mesh
+            .nodes
+            .iter()
+            .zip(&b.mesh.nodes)
+            .map(|(p, q)| (p - q).amax())
+            .fold(0.0, f64::max)
+    }
+
+    #[test]
+    fn cylinder_vtu_and_vtk_match_the_msh() {
+        let exp = expected();
+        let msh = read_msh(&data("msh", "cyl_v41.msh")).unwrap();
+        let vtu = read("cyl.vtu");
+        let vtk = read("cyl.vtk");
+        for m in [&vtu, &vtk] {
+            assert_eq!(
+                m.mesh.nodes.len() as u64,
+                exp["cyl"]["points"].as_u64().unwrap()
+            );
+            assert_eq!(m.mesh.shape, ElementShape::Tet4);
+            assert_eq!(
+                m.mesh.num_cells() as u64,
+                exp["cyl"]["cells"]["tetra"].as_u64().unwrap()
+            );
+            assert_eq!(
+                m.face_sets[FACE_SET].len() as u64,
+                exp["cyl"]["cells"]["triangle"].as_u64().unwrap()
+            );
+            assert_eq!(m.mesh.cells, msh.mesh.cells);
+            // Physical groups through gmsh:physical: 1 bottom, 2 top, 3 lateral, 4 volume.
+            for (tag, name) in [(1, "bottom"), (2, "top"), (3, "lateral")] {
+                let set = format!("gmsh:physical={tag}");
+                assert_eq!(m.face_sets[&set], msh.face_sets[name], "{set}");
+                assert!(!m.element_sets.contains_key(&set));
+            }
+            assert_eq!(
+                m.element_sets["gmsh:physical=4"],
+                msh.element_sets["volume"]
+            );
+            // Several values: no alias set named after the array.
+            assert!(!m.element_sets.contains_key("gmsh:physical"));
+            for e in 0..m.mesh.num_cells() {
+                let c = m.mesh.cell(e);
+                let p = |k: usize| &m.mesh.nodes[c[k]];
+                assert!(tet_signed_volume(p(0), p(1), p(2), p(3)) > 0.0);
+            }
+            // Element ids: positions among all cells (the 330 triangles come first).
+            assert_eq!(m.element_ids[0], 330);
+        }
+        // Legacy 4.2 from meshio keeps full precision; the VTU ASCII writer 12 digits.
+        assert_eq!(max_abs_diff(&vtk, &msh), 0.0);
+        let d = max_abs_diff(&vtu, &msh);
+        assert!(d < 1e-13, "vtu vs msh: {d}");
+        eprintln!("cylinder: VTU ASCII vs MSH coordinates differ by at most {d:.2e} m");
+        assert_eq!(vtu.mesh.cells, vtk.mesh.cells);
+        assert_eq!(vtu.set_names(), vtk.set_names());
+    }
+
+    #[test]
+    fn hex_box_base64_vtu_and_binary_vtk_match_the_msh() {
+        let exp = expected();
+        let msh = read_msh(&data("msh", "box_hex_v41.msh")).unwrap();
+        for name in ["box_hex_b64.vtu", "box_hex_bin.vtk"] {
+            let m = read(name);
+            assert_eq!(m.mesh.shape, ElementShape::Hex8, "{name}");
+            assert_eq!(
+                m.mesh.num_cells() as u64,
+                exp["box_hex"]["cells"]["hexahedron"].as_u64().unwrap()
+            );
+            assert_eq!(
+                m.mesh.nodes.len() as u64,
+                exp["box_hex"]["points"].as_u64().unwrap()
+            );
+            // Binary doubles from meshio's exact parse of the ASCII msh: bit for bit.
+            assert_eq!(max_abs_diff(&m, &msh), 0.0, "{name}");
+            assert_eq!(m.mesh.cells, msh.mesh.cells, "{name}");
+            assert_eq!(
+                m.face_sets[FACE_SET].len() as u64,
+                exp["box_hex"]["cells"]["quad"].as_u64().unwrap()
+            );
+            // gmsh:physical 1 on the faces, 2 on the hexahedra.
+            assert_eq!(
+                m.face_sets["gmsh:physical=1"], msh.face_sets["fixed"],
+                "{name}"
+            );
+            assert_eq!(
+                m.element_sets["gmsh:physical=2"], msh.element_sets["tissue"],
+                "{name}"
+            );
+        }
+    }
+
+    #[test]
+    fn meshio_binary_vtu_is_refused_with_a_hint() {
+        let e = err(
+            &std::fs::read(data("vtk", "box_hex_meshio_b64.vtu")).unwrap(),
+            "m.vtu",
+        );
+        assert!(e.contains("Int64") && e.contains("binary=False"), "{e}");
+    }
+
+    /// Two pieces of one tetrahedron each, a point mask and a float cell array.
+    const TWO_PIECES: &str = r#"<?xml version="1.0"?>
+<VTKFile type="UnstructuredGrid" version="0.1" byte_order="LittleEndian">
+<UnstructuredGrid>
+<Piece NumberOfPoints="4" NumberOfCells="2">
+<PointData>
+<DataArray type="Int32" Name="fixed" format="ascii">1 1 0 0</DataArray>
+<DataArray type="Float64" Name="temp" format="ascii">0.5 1 2 3</DataArray>
+</PointData>
+<CellData>
+<DataArray type="Float64" Name="region" format="ascii">3 7</DataArray>
+</CellData>
+<Points>
+<DataArray type="Float64" NumberOfComponents="3" format="ascii">0 0 0 1 0 0 0 1 0 0 0 1</DataArray>
+</Points>
+<Cells>
+<DataArray type="Int64" Name="connectivity" format="ascii">0 1 2 3 0 2 1</DataArray>
+<DataArray type="Int64" Name="offsets" format="ascii">4 7</DataArray>
+<DataArray type="UInt8" Name="types" format="ascii">10 5</DataArray>
+</Cells>
+</Piece>
+<Piece NumberOfPoints="4" NumberOfCells="1">
+<PointData>
+<DataArray type="Int32" Name="fixed" format="ascii">0 0 1 0</DataArray>
+<DataArray type="Float64" Name="temp" format="ascii">0 0 0 0</DataArray>
+</PointData>
+<CellData>
+<DataArray type="Float64" Name="region" format="ascii">3</DataArray>
+</CellData>
+<Points>
+<DataArray type="Float64" NumberOfComponents="3" format="ascii">2 0 0 3 0 0 2 1 0 2 0 1</DataArray>
+</Points>
+<Cells>
+<DataArray type="Int64" Name="connectivity" format="ascii">0 1 2 3</DataArray>
+<DataArray type="Int64" Name="offsets" format="ascii">4</DataArray>
+<DataArray type="UInt8" Name="types" format="ascii">10</DataArray>
+</Cells>
+</Piece>
+</UnstructuredGrid>
+</VTKFile>
+"#;
+
+    #[test]
+    fn pieces_concatenate_and_arrays_become_sets() {
+        let m = parse_vtk(TWO_PIECES.as_bytes(), Path::new("two.vtu")).unwrap();
+        assert_eq!(m.mesh.nodes.len(), 8);
+        assert_eq!(m.mesh.cells, vec![0, 1, 2, 3, 4, 5, 6, 7]);
+        assert_eq!(m.element_ids, vec![0, 2]);
+        assert_eq!(m.node_ids, (0..8).collect::<Vec<u64>>());
+        assert_eq!(m.node_sets["fixed=1"], vec![0, 1, 6]);
+        assert_eq!(m.node_sets["fixed"], vec![0, 1, 6]);
+        // A float array with a non-integer value is data.
+        assert!(!m.node_sets.keys().any(|k| k.starts_with("temp")));
+        assert_eq!(m.element_sets["region=3"], vec![0, 1]);
+        assert_eq!(m.face_sets["region=7"], vec![vec![0, 2, 1]]);
+        assert!(!m.element_sets.contains_key("region"));
+        assert_eq!(m.face_sets[FACE_SET], vec![vec![0, 2, 1]]);
+        assert_eq!(m.set_nodes("fixed").unwrap(), vec![0, 1, 6]);
+    }
+
+    #[test]
+    fn malformed_files_give_clear_errors() {
+        let vtu = std::fs::read_to_string(data("vtk", "cyl.vtu")).unwrap();
+        let vtk = std::fs::read_to_string(data("vtk", "cyl.vtk")).unwrap();
+
+        // Unsupported cell type, named with its index.
+        let bad = TWO_PIECES.replace(">10 5</DataArray>", ">13 5</DataArray>");
+        let e = err(bad.as_bytes(), "w.vtu");
+        assert!(
+            e.contains("unsupported VTK cell type 13 (VTK_WEDGE) at cell 0 (piece 1)"),
+            "{e}"
+        );
+        // Mixed shapes.
+        let bad = TWO_PIECES
+            .replace(">0 1 2 3</DataArray>\n<DataArray type=\"Int64\" Name=\"offsets\" format=\"ascii\">4</DataArray>\n<DataArray type=\"UInt8\" Name=\"types\" format=\"ascii\">10<",
+                ">0 1 2 3 0 1 2 3</DataArray>\n<DataArray type=\"Int64\" Name=\"offsets\" format=\"ascii\">8</DataArray>\n<DataArray type=\"UInt8\" Name=\"types\" format=\"ascii\">12<");
+        assert_ne!(bad, TWO_PIECES);
+        let e = err(bad.as_bytes(), "mixed.vtu");
+        assert!(e.contains("mixed VTK_TETRA and VTK_HEXAHEDRON"), "{e}");
+        // A cell referencing a missing point.
+        let bad = TWO_PIECES.replace(">0 1 2 3 0 2 1<", ">0 1 2 9 0 2 1<");
+        let e = err(bad.as_bytes(), "p.vtu");
+        assert!(e.contains("cell 0 (piece 1) references point 9"), "{e}");
+        // Legacy 5.1 (OFFSETS/CONNECTIVITY).
+        let e = err(
+            vtk.replacen("Version 4.2", "Version 5.1", 1).as_bytes(),
+            "v5.vtk",
+        );
+        assert!(e.contains("version 5.1") && e.contains("4.2"), "{e}");
+        // Truncated legacy file.
+        let e = err(&vtk.as_bytes()[..vtk.len() / 2], "t.vtk");
+        assert!(e.contains("cannot parse the legacy VTK file"), "{e}");
+        // An absurd count is refused before parsing.
+        let e = err(
+            vtk.replacen("POINTS 196 double", "POINTS 99999999999 double", 1)
+                .as_bytes(),
+            "big.vtk",
+        );
+        assert!(e.contains("line 5") && e.contains("99999999999"), "{e}");
+        // Truncated XML.
+        let e = err(&vtu.as_bytes()[..vtu.len() / 2], "t.vtu");
+        assert!(e.contains("cannot read the XML VTK file"), "{e}");
+        // Not an unstructured grid.
+        let poly = "# vtk DataFile Version 2.0\ntri\nASCII\nDATASET POLYDATA\nPOINTS 3 float\n\
+                    0 0 0 1 0 0 0 1 0\nPOLYGONS 1 4\n3 0 1 2\n";
+        let e = err(poly.as_bytes(), "poly.vtk");
+        assert!(
+            e.contains("poly data") && e.contains("not an unstructured grid"),
+            "{e}"
+        );
+        // No volume cells.
+        let e = err(
+            TWO_PIECES
+                .replace(">10 5<", ">5 5<")
+                .replace(">0 1 2 3 0 2 1<", ">0 1 2 0 2 1<")
+                .replace(">4 7<", ">3 6<")
+                .replace(">10</DataArray>", ">5</DataArray>")
+                .replace(">0 1 2 3</DataArray>", ">0 1 2</DataArray>")
+                .replace(
+                    ">4</DataArray>\n<DataArray type=\"UInt8\"",
+                    ">3</DataArray>\n<DataArray type=\"UInt8\"",
+                )
+                .as_bytes(),
+            "faces.vtu",
+        );
+        assert!(e.contains("no volume cells"), "{e}");
+        // Empty and foreign content.
+        assert!(err(b"", "e.vtu").contains("empty"));
+        assert!(err(b"", "e.vtk").contains("empty"));
+        assert!(err(b"hello", "x.mesh").contains("neither"));
+    }
+
+    #[test]
+    fn raw_appended_data_error_suggests_ascii_or_base64() {
+        // Raw appended Float64 data holding a '<' byte (0x3c).
+        let mut f: Vec<u8> = br#"<?xml version="1.0"?>
+<VTKFile type="UnstructuredGrid" version="1.0" byte_order="LittleEndian" header_type="UInt64">
+<UnstructuredGrid>
+<Piece NumberOfPoints="4" NumberOfCells="1">
+<Points>
+<DataArray type="Float64" NumberOfComponents="3" format="appended" offset="0"/>
+</Points>
+<Cells>
+<DataArray type="Int64" Name="connectivity" format="appended" offset="104"/>
+<DataArray type="Int64" Name="offsets" format="appended" offset="144"/>
+<DataArray type="UInt8" Name="types" format="appended" offset="160"/>
+</Cells>
+</Piece>
+</UnstructuredGrid>
+<AppendedData encoding="raw">
+_"#
+        .to_vec();
+        let push = |f: &mut Vec<u8>, bytes: &[u8]| {
+            f.extend_from_slice(&(bytes.len() as u64).to_le_bytes());
+            f.extend_from_slice(bytes);
+        };
+        let pts: Vec<u8> = [
+            0.0f64,
+            0.,
+            0.,
+            1.,
+            0.,
+            0.,
+            0.,
+            1.,
+            0.,
+            0.,
+            0.,
+            f64::from_bits(0x3FF000000000003C),
+        ]
+        .iter()
+        .flat_map(|x| x.to_le_bytes())
+        .collect();
+        assert!(pts.contains(&b'<'));
+        push(&mut f, &pts);
+        push(
+            &mut f,
+            &[0i64, 1, 2, 3]
+                .iter()
+                .flat_map(|x| x.to_le_bytes())
+                .collect::<Vec<u8>>(),
+        );
+        push(&mut f, &4i64.to_le_bytes());
+        push(&mut f, &[10u8]);
+        f.extend_from_slice(b"\n</AppendedData>\n</VTKFile>\n");
+        let e = err(&f, "raw.vtu");
+        assert!(e.contains("ASCII or base64"), "{e}");
+    }
+
+    #[test]
+    fn garbage_never_panics() {
+        let files: Vec<(Vec<u8>, &str)> =
+            ["cyl.vtu", "cyl.vtk", "box_hex_b64.vtu", "box_hex_bin.vtk"]
+                .iter()
+                .map(|n| (std::fs::read(data("vtk", n)).unwrap(), *n))
+                .collect();
+        let iters: usize = std::env::var("HYTLED_FUZZ_ITERS")
+            .ok()
+            .and_then(|v| v.parse().ok())
+            .unwrap_or(30);
+        let mut s: u64 = 0x2545f4914f6cdd1d;
+        let mut next = move || {
+            s ^= s << 13;
+            s ^= s >> 7;
+            s ^= s << 17;
+            s
+        };
+        for (f, name) in &files {
+            for _ in 0..iters {
+                let mut b = f.clone();
+                for _ in 0..(1 + next() % 4) {
+                    let i = (next() as usize) % b.len();
+                    match next() % 3 {
+                        0 => b[i] = next() as u8,
+                        1 => b.truncate(i.max(1)),
+                        _ => b.insert(i, b"0123456789 \n<>\"=-.e"[(next() % 19) as usize]),
+                    }
+                }
+                let _ = parse_vtk(&b, Path::new(name));
+            }
+        }
+    }
+}

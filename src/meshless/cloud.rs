@@ -597,94 +597,12 @@ fn fill_patch<const D: usize>(
 /// Horton et al. (2010) sect. 3.1: any cloud with nodes spread through the solid will do, so
 /// clouds from other tools (image-based, hand-made) are read as they are.
 pub fn read_cloud(path: &Path) -> Result<Vec<Vector3<f64>>> {
-    let ext = path
-        .extension()
-        .map(|e| e.to_string_lossy().to_lowercase())
-        .unwrap_or_default();
-    if ext == "vtu" || ext == "vtk" {
-        return read_mesh_points(path);
+    if crate::scene::MeshFormat::from_path(path).is_some() {
+        // The vertices of a mesh file (.inp, .msh, .vtk, .vtu), unused nodes dropped.
+        return Ok(crate::io::mesh_file::read_mesh(path, None, 1.0)?.mesh.nodes);
     }
     let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
     parse_cloud(&text, path)
-}
-
-/// The points of a VTK legacy (`.vtk`) or XML unstructured-grid (`.vtu`, ASCII or base64) file
-/// as a node cloud, m: every point of every piece (unused points included, as in the file).
-fn read_mesh_points(path: &Path) -> Result<Vec<Vector3<f64>>> {
-    use vtkio::model::DataSet;
-    let fail = |m: String| {
-        Error::Input(format!(
-            "{}: cannot read the mesh points: {m}",
-            path.display()
-        ))
-    };
-    let vtk = vtkio::Vtk::import(path).map_err(|e| {
-        let m = e.to_string();
-        if m.contains("AppendedData") {
-            fail(format!(
-                "{m}\n  raw appended binary VTU cannot be read yet; write the file with ASCII or base64 \
-                 binary encoding (e.g. `hytled mesh --vtu-format ascii`)"
-            ))
-        } else {
-            fail(m)
-        }
-    })?;
-    let pieces = match vtk.data {
-        DataSet::UnstructuredGrid { pieces, .. } => pieces,
-        DataSet::PolyData { pieces, .. } => {
-            let mut out = Vec::new();
-            for p in pieces {
-                let d = p
-                    .into_loaded_piece_data(None)
-                    .map_err(|e| fail(e.to_string()))?;
-                out.extend(points_of(d.points, &fail)?);
-            }
-            return nonempty(out, path);
-        }
-        _ => {
-            return Err(fail(
-                "only unstructured grids and poly data are read".into(),
-            ))
-        }
-    };
-    let mut out = Vec::new();
-    for p in pieces {
-        let d = p
-            .into_loaded_piece_data(None)
-            .map_err(|e| fail(e.to_string()))?;
-        out.extend(points_of(d.points, &fail)?);
-    }
-    nonempty(out, path)
-}
-
-fn points_of(buf: vtkio::IOBuffer, fail: &dyn Fn(String) -> Error) -> Result<Vec<Vector3<f64>>> {
-    let v: Vec<f64> = buf
-        .cast_into()
-        .ok_or_else(|| fail("the points are not numbers".into()))?;
-    if v.len() % 3 != 0 {
-        return Err(fail(format!(
-            "{} point coordinates, not a multiple of 3",
-            v.len()
-        )));
-    }
-    let pts: Vec<Vector3<f64>> = v
-        .chunks_exact(3)
-        .map(|c| Vector3::new(c[0], c[1], c[2]))
-        .collect();
-    if let Some(i) = pts.iter().position(|p| !p.iter().all(|x| x.is_finite())) {
-        return Err(fail(format!("point {i} has a non-finite coordinate")));
-    }
-    Ok(pts)
-}
-
-fn nonempty(v: Vec<Vector3<f64>>, path: &Path) -> Result<Vec<Vector3<f64>>> {
-    if v.is_empty() {
-        return Err(Error::Input(format!(
-            "{}: the mesh has no points; the cloud is empty",
-            path.display()
-        )));
-    }
-    Ok(v)
 }
 
 /// What [`read_cloud`] uses: parses the text of a cloud file; `source` only names the file in
