@@ -222,6 +222,31 @@ pub fn mesh_checks(mesh: &Mesh) -> Vec<String> {
     w
 }
 
+/// The node sets of a cloud file's label column, as a cell-less mesh input for set selection.
+fn cloud_sets(scene: &Scene) -> Result<Option<MeshInput>> {
+    let d = &scene.discretization;
+    let Some(rel) = d.cloud_file.as_ref().filter(|_| d.cloud == crate::scene::CloudKind::File) else {
+        return Ok(None);
+    };
+    let path = if rel.is_absolute() { rel.clone() } else { scene.base_dir.join(rel) };
+    if crate::scene::MeshFormat::from_path(&path).is_some() {
+        let m = crate::io::mesh_file::read_mesh(&path, None, 1.0)?;
+        return Ok(Some(m));
+    }
+    let text = std::fs::read_to_string(&path).map_err(|e| Error::io(&path, e))?;
+    let (nodes, node_sets) = crate::meshless::cloud::parse_cloud_sets(&text, &path)?;
+    let n = nodes.len() as u64;
+    Ok(Some(MeshInput {
+        mesh: Mesh { nodes, shape: ElementShape::Tet4, cells: Vec::new() },
+        node_ids: (1..=n).collect(),
+        element_ids: Vec::new(),
+        node_sets,
+        element_sets: Default::default(),
+        face_sets: Default::default(),
+        warnings: Vec::new(),
+    }))
+}
+
 /// The scene's boundaries with their selected nodes.
 pub fn boundaries(
     scene: &Scene,
@@ -339,7 +364,10 @@ pub fn prepare(scene: &Scene) -> Result<Prepared> {
 /// interpolated with the shape functions.
 fn prepare_meshless(scene: &Scene) -> Result<Prepared> {
     let t0 = Instant::now();
-    let input = load_mesh_input(scene)?;
+    let input = match load_mesh_input(scene)? {
+        Some(m) => Some(m),
+        None => cloud_sets(scene)?,
+    };
     let mat = material(scene);
     let method = scene
         .discretization

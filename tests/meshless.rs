@@ -587,3 +587,34 @@ fn removing_a_node_that_carries_a_boundary_condition_is_an_error() {
     );
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+#[test]
+fn cloud_label_column_gives_sets_for_boundaries() {
+    let dir = std::env::temp_dir().join(format!("hytled-labels-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let mut text = String::from("x,y,z,label\n");
+    for i in 0..5 {
+        for j in 0..5 {
+            for k in 0..5 {
+                let label = if k == 0 { 1 } else if k == 4 { 2 } else { 0 };
+                text += &format!("{},{},{},{label}\n", 0.025 * i as f64, 0.025 * j as f64, 0.025 * k as f64);
+            }
+        }
+    }
+    let file = dir.join("labelled.csv");
+    std::fs::write(&file, text).unwrap();
+    let f = format!("discretization.cloud_file={}", file.display());
+    let base = vec![
+        "discretization.method=meshless",
+        "discretization.cloud=file",
+        f.as_str(),
+        "discretization.tet_rule=1",
+    ];
+    let planes = run_case("cases/cube-compression.toml", &base);
+    let mut with_sets = base.clone();
+    with_sets.extend(["boundaries.bottom.select={ set = \"1\" }", "boundaries.top.select={ set = \"2\" }"]);
+    let sets = run_case("cases/cube-compression.toml", &with_sets);
+    assert_eq!(planes.reactions["top"], sets.reactions["top"]);
+    assert!(rel_err(&sets, "top_force") < 0.02);
+    let _ = std::fs::remove_dir_all(&dir);
+}

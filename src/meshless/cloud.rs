@@ -610,6 +610,17 @@ pub fn read_cloud(path: &Path) -> Result<Vec<Vector3<f64>>> {
 /// (ids, labels). The first data line is taken as a header when none of its first three fields
 /// is a number.
 pub fn parse_cloud(text: &str, source: &Path) -> Result<Vec<Vector3<f64>>> {
+    Ok(parse_cloud_sets(text, source)?.0)
+}
+
+/// As [`parse_cloud`], plus the optional fourth column: an integer set label per node. Nodes
+/// with label k form the node set named "k" (usable as `select = { set = "k" }`); a fourth
+/// column that is not an integer is ignored, like any later column.
+pub fn parse_cloud_sets(
+    text: &str,
+    source: &Path,
+) -> Result<(Vec<Vector3<f64>>, std::collections::BTreeMap<String, Vec<usize>>)> {
+    let mut sets: std::collections::BTreeMap<String, Vec<usize>> = Default::default();
     let name = source.display();
     let text = text.strip_prefix('\u{feff}').unwrap_or(text);
     let mut nodes = Vec::new();
@@ -658,6 +669,9 @@ pub fn parse_cloud(text: &str, source: &Path) -> Result<Vec<Vector3<f64>>> {
                 )));
             }
         }
+        if let Some(label) = fields.get(3).and_then(|f| f.parse::<i64>().ok()) {
+            sets.entry(label.to_string()).or_default().push(nodes.len());
+        }
         nodes.push(Vector3::new(x[0], x[1], x[2]));
     }
     if nodes.is_empty() {
@@ -665,7 +679,7 @@ pub fn parse_cloud(text: &str, source: &Path) -> Result<Vec<Vector3<f64>>> {
             "{name}: no nodes found; a node cloud needs one line 'x y z' (m) per node"
         )));
     }
-    Ok(nodes)
+    Ok((nodes, sets))
 }
 
 /// Mesh vertices that at least one cell uses (the default cloud: the vertices of a tet mesh).
