@@ -58,6 +58,8 @@ pub enum Geometry {
         format: Option<MeshFormat>,
         /// File length unit in m (1 for m, 0.001 for mm).
         units: f64,
+        /// Merge coincident nodes (within 1e-9 x the bounding-box diagonal) on load.
+        merge_duplicates: bool,
     },
 }
 
@@ -109,6 +111,8 @@ struct GeometryToml {
     format: Option<MeshFormat>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     units: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    merge_duplicates: Option<bool>,
 }
 
 impl TryFrom<GeometryToml> for Geometry {
@@ -122,6 +126,7 @@ impl TryFrom<GeometryToml> for Geometry {
                 ("height", g.height.is_some()),
                 ("format", g.format.is_some()),
                 ("units", g.units.is_some()),
+                ("merge_duplicates", g.merge_duplicates.is_some()),
             ];
             match given.iter().find(|(k, set)| *set && !allowed.contains(k)) {
                 Some((k, _)) => Err(format!(
@@ -133,8 +138,13 @@ impl TryFrom<GeometryToml> for Geometry {
         };
         match (g.mesh.clone(), g.shape.as_deref()) {
             (Some(file), None) | (Some(file), Some("mesh")) => {
-                only(&["format", "units"])?;
-                Ok(Geometry::Mesh { file, format: g.format, units: g.units.unwrap_or(1.0) })
+                only(&["format", "units", "merge_duplicates"])?;
+                Ok(Geometry::Mesh {
+                    file,
+                    format: g.format,
+                    units: g.units.unwrap_or(1.0),
+                    merge_duplicates: g.merge_duplicates.unwrap_or(false),
+                })
             }
             (None, Some("box")) => {
                 only(&["min", "max"])?;
@@ -176,10 +186,12 @@ impl From<Geometry> for GeometryToml {
                 file,
                 format,
                 units,
+                merge_duplicates,
             } => GeometryToml {
                 mesh: Some(file),
                 format,
                 units: Some(units),
+                merge_duplicates: Some(merge_duplicates),
                 ..Default::default()
             },
         }
@@ -757,6 +769,7 @@ fn validate(s: &Scene) -> std::result::Result<(), String> {
             file,
             format,
             units,
+            ..
         } => {
             if !(*units > 0.0 && units.is_finite()) {
                 return Err(format!("geometry.units = {units}: must be a positive factor to metres (0.001 for a mesh in mm)"));

@@ -139,6 +139,7 @@ pub fn load_mesh_input(scene: &Scene) -> Result<Option<MeshInput>> {
         file,
         format,
         units,
+        merge_duplicates,
     } = &scene.geometry
     else {
         return Ok(None);
@@ -148,7 +149,15 @@ pub fn load_mesh_input(scene: &Scene) -> Result<Option<MeshInput>> {
     } else {
         scene.base_dir.join(file)
     };
-    let m = crate::io::mesh_file::read_mesh(&path, *format, *units)?;
+    let mut m = crate::io::mesh_file::read_mesh(&path, *format, *units)?;
+    if *merge_duplicates {
+        let k = crate::io::mesh_file::merge_duplicate_nodes(&mut m);
+        if k > 0 {
+            m.warnings.push(format!(
+                "merged {k} duplicate node(s) (geometry.merge_duplicates)"
+            ));
+        }
+    }
     let kind: ElementKind = scene.discretization.element.into();
     let meshless = scene.discretization.method == Method::Meshless;
     if !meshless && m.mesh.shape != kind.shape() {
@@ -225,10 +234,18 @@ pub fn mesh_checks(mesh: &Mesh) -> Vec<String> {
 /// The node sets of a cloud file's label column, as a cell-less mesh input for set selection.
 fn cloud_sets(scene: &Scene) -> Result<Option<MeshInput>> {
     let d = &scene.discretization;
-    let Some(rel) = d.cloud_file.as_ref().filter(|_| d.cloud == crate::scene::CloudKind::File) else {
+    let Some(rel) = d
+        .cloud_file
+        .as_ref()
+        .filter(|_| d.cloud == crate::scene::CloudKind::File)
+    else {
         return Ok(None);
     };
-    let path = if rel.is_absolute() { rel.clone() } else { scene.base_dir.join(rel) };
+    let path = if rel.is_absolute() {
+        rel.clone()
+    } else {
+        scene.base_dir.join(rel)
+    };
     if crate::scene::MeshFormat::from_path(&path).is_some() {
         let m = crate::io::mesh_file::read_mesh(&path, None, 1.0)?;
         return Ok(Some(m));
@@ -237,7 +254,11 @@ fn cloud_sets(scene: &Scene) -> Result<Option<MeshInput>> {
     let (nodes, node_sets) = crate::meshless::cloud::parse_cloud_sets(&text, &path)?;
     let n = nodes.len() as u64;
     Ok(Some(MeshInput {
-        mesh: Mesh { nodes, shape: ElementShape::Tet4, cells: Vec::new() },
+        mesh: Mesh {
+            nodes,
+            shape: ElementShape::Tet4,
+            cells: Vec::new(),
+        },
         node_ids: (1..=n).collect(),
         element_ids: Vec::new(),
         node_sets,

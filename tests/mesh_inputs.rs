@@ -157,3 +157,37 @@ fn meshless_on_a_gmsh_mesh_with_physical_groups() {
     );
     assert!(s.converged && f < 0.0 && (s.reactions["bottom"][2] + f).abs() < 1e-3 * f.abs());
 }
+
+#[test]
+fn duplicate_nodes_are_reported_and_merged_on_request() {
+    let dir = std::env::temp_dir().join(format!("hytled-dups-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    // Two tets sharing a face whose nodes are written twice (a disconnected mesh).
+    let inp = "*NODE\n1, 0, 0, 0\n2, 0.1, 0, 0\n3, 0, 0.1, 0\n4, 0, 0, 0.1\n5, 0.1, 0, 0\n6, 0, 0.1, 0\n7, 0, 0, 0.1\n8, 0.1, 0.1, 0.1\n\
+*ELEMENT, TYPE=C3D4\n1, 1, 2, 3, 4\n2, 5, 6, 7, 8\n";
+    let file = dir.join("dups.inp");
+    std::fs::write(&file, inp).unwrap();
+    let text = format!(
+        "[geometry]\nmesh = \"{}\"\n[discretization]\nelement = \"tet4\"\n[material]\nyoungs_modulus = 3000.0\npoisson_ratio = 0.3\ndensity = 1000.0\n",
+        file.display()
+    );
+    let prep = |extra: &[String]| {
+        let sc = hytled::scene::parse(&text, &dir.join("s.toml"), extra).unwrap();
+        hytled::simulation::prepare(&sc).unwrap()
+    };
+    let a = prep(&[]);
+    assert!(
+        a.warnings.iter().any(|w| w.contains("3 duplicate node")),
+        "{:?}",
+        a.warnings
+    );
+    assert_eq!(a.model.nodes.len(), 8);
+    let b = prep(&["geometry.merge_duplicates=true".into()]);
+    assert!(
+        b.warnings.iter().any(|w| w.contains("merged 3 duplicate")),
+        "{:?}",
+        b.warnings
+    );
+    assert_eq!(b.model.nodes.len(), 5);
+    let _ = std::fs::remove_dir_all(&dir);
+}

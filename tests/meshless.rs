@@ -457,6 +457,14 @@ fn meshless_vtu_frames_carry_interpolated_displacement_and_read_back() {
     let vtkio::model::DataSet::UnstructuredGrid { pieces, .. } = vtk.data else {
         panic!("not an unstructured grid");
     };
+    // The SVG plots written next to history.csv.
+    for (f, want) in [("reaction.svg", "top z"), ("energy.svg", "strain energy")] {
+        let svg = std::fs::read_to_string(dir.join(f)).unwrap();
+        assert!(
+            svg.starts_with("<svg") && svg.contains(want) && svg.contains("polyline"),
+            "{f}"
+        );
+    }
     let piece = pieces[0].load_piece_data(None).unwrap();
     assert_eq!(piece.num_points(), s.nodes);
     assert_eq!(piece.data.point.len(), 1);
@@ -596,8 +604,19 @@ fn cloud_label_column_gives_sets_for_boundaries() {
     for i in 0..5 {
         for j in 0..5 {
             for k in 0..5 {
-                let label = if k == 0 { 1 } else if k == 4 { 2 } else { 0 };
-                text += &format!("{},{},{},{label}\n", 0.025 * i as f64, 0.025 * j as f64, 0.025 * k as f64);
+                let label = if k == 0 {
+                    1
+                } else if k == 4 {
+                    2
+                } else {
+                    0
+                };
+                text += &format!(
+                    "{},{},{},{label}\n",
+                    0.025 * i as f64,
+                    0.025 * j as f64,
+                    0.025 * k as f64
+                );
             }
         }
     }
@@ -612,7 +631,10 @@ fn cloud_label_column_gives_sets_for_boundaries() {
     ];
     let planes = run_case("cases/cube-compression.toml", &base);
     let mut with_sets = base.clone();
-    with_sets.extend(["boundaries.bottom.select={ set = \"1\" }", "boundaries.top.select={ set = \"2\" }"]);
+    with_sets.extend([
+        "boundaries.bottom.select={ set = \"1\" }",
+        "boundaries.top.select={ set = \"2\" }",
+    ]);
     let sets = run_case("cases/cube-compression.toml", &with_sets);
     assert_eq!(planes.reactions["top"], sets.reactions["top"]);
     assert!(rel_err(&sets, "top_force") < 0.02);

@@ -157,3 +157,103 @@ pub fn write_mesh_file(
         ))),
     }
 }
+
+/// Merges nodes closer than 1e-9 x the bounding-box diagonal into the first of them (by index),
+/// renumbering cells and sets; returns how many were merged.
+pub fn merge_duplicate_nodes(m: &mut MeshInput) -> usize {
+    let n = m.mesh.nodes.len();
+    if n == 0 {
+        return 0;
+    }
+    let (lo, hi) = m.mesh.bounding_box();
+    let tol = (1e-9 * (hi - lo).norm()).max(f64::MIN_POSITIVE);
+    let key = |p: &nalgebra::Vector3<f64>| {
+        [
+            (p.x / tol).round() as i64,
+            (p.y / tol).round() as i64,
+            (p.z / tol).round() as i64,
+        ]
+    };
+    let mut first: std::collections::HashMap<[i64; 3], usize> = Default::default();
+    let mut map = vec![0usize; n];
+    let mut keep = Vec::with_capacity(n);
+    for i in 0..n {
+        let k = key(&m.mesh.nodes[i]);
+        match first.get(&k) {
+            Some(&j) => map[i] = map[j],
+            None => {
+                first.insert(k, i);
+                map[i] = keep.len();
+                keep.push(i);
+            }
+        }
+    }
+    let merged = n - keep.len();
+    if merged == 0 {
+        return 0;
+    }
+    m.mesh.nodes = keep.iter().map(|&i| m.mesh.nodes[i]).collect();
+    m.node_ids = keep
+        .iter()
+        .filter_map(|&i| m.node_ids.get(i).copied())
+        .collect();
+    for c in m.mesh.cells.iter_mut() {
+        *c = map[*c];
+    }
+    let remap = |v: &mut Vec<usize>| {
+        for x in v.iter_mut() {
+            *x = map[*x];
+        }
+    };
+    for v in m.node_sets.values_mut() {
+        remap(v);
+        v.sort_unstable();
+        v.dedup();
+    }
+    for faces in m.face_sets.values_mut() {
+        for f in faces.iter_mut() {
+            remap(f);
+        }
+    }
+    merged
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::{ElementShape, Mesh};
+    use nalgebra::Vector3;
+
+    #[test]
+    fn duplicate_nodes_merge_and_renumber_cells_and_sets() {
+        // Two tets sharing a face, written with the shared nodes duplicated.
+        let p = [
+            Vector3::new(0.0, 0.0, 0.0),
+            Vector3::new(1.0, 0.0, 0.0),
+            Vector3::new(0.0, 1.0, 0.0),
+            Vector3::new(0.0, 0.0, 1.0),
+            Vector3::new(1.0, 0.0, 0.0),
+            Vector3::new(0.0, 1.0, 0.0),
+            Vector3::new(0.0, 0.0, 1.0),
+            Vector3::new(1.0, 1.0, 1.0),
+        ];
+        let mut m = MeshInput {
+            mesh: Mesh {
+                nodes: p.to_vec(),
+                shape: ElementShape::Tet4,
+                cells: vec![0, 1, 2, 3, 4, 6, 5, 7],
+            },
+            node_ids: (1..=8).collect(),
+            element_ids: vec![1, 2],
+            node_sets: [("s".to_string(), vec![4, 7])].into_iter().collect(),
+            element_sets: Default::default(),
+            face_sets: Default::default(),
+            warnings: Vec::new(),
+        };
+        assert_eq!(merge_duplicate_nodes(&mut m), 3);
+        assert_eq!(m.mesh.nodes.len(), 5);
+        assert_eq!(m.mesh.cells, vec![0, 1, 2, 3, 1, 3, 2, 4]);
+        assert_eq!(m.node_sets["s"], vec![1, 4]);
+        assert_eq!(m.node_ids, vec![1, 2, 3, 4, 8]);
+    }
+}

@@ -619,7 +619,10 @@ pub fn parse_cloud(text: &str, source: &Path) -> Result<Vec<Vector3<f64>>> {
 pub fn parse_cloud_sets(
     text: &str,
     source: &Path,
-) -> Result<(Vec<Vector3<f64>>, std::collections::BTreeMap<String, Vec<usize>>)> {
+) -> Result<(
+    Vec<Vector3<f64>>,
+    std::collections::BTreeMap<String, Vec<usize>>,
+)> {
     let mut sets: std::collections::BTreeMap<String, Vec<usize>> = Default::default();
     let name = source.display();
     let text = text.strip_prefix('\u{feff}').unwrap_or(text);
