@@ -587,12 +587,17 @@ impl Default for SolverSpec {
     }
 }
 
-/// `[probes.NAME]`: a material point whose displacement is reported.
+/// `[probes.NAME]`: a material point whose displacement is reported, or (`select`) the mean
+/// displacement of a selection of nodes (e.g. `select = { set = "tip" }`).
 #[derive(Debug, Clone, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct ProbeSpec {
     /// Reference position, m.
-    pub position: [f64; 3],
+    #[serde(default)]
+    pub position: Option<[f64; 3]>,
+    /// Nodes whose displacements are averaged.
+    #[serde(default)]
+    pub select: Option<Selection>,
 }
 
 /// `[references.NAME]`: a published or exact value to compare with.
@@ -902,6 +907,13 @@ fn validate(s: &Scene) -> std::result::Result<(), String> {
             "solver.damping = {}: must be >= 0 (1/s)",
             sv.damping
         ));
+    }
+    for (name, p) in &s.probes {
+        if p.position.is_some() == p.select.is_some() {
+            return Err(format!(
+                "probes.{name}: give either `position = [x, y, z]` (m) or `select = {{ ... }}`"
+            ));
+        }
     }
     for (name, r) in &s.references {
         let parts: Vec<&str> = r.quantity.split('.').collect();

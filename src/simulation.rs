@@ -268,6 +268,39 @@ fn cloud_sets(scene: &Scene) -> Result<Option<MeshInput>> {
     }))
 }
 
+/// Nodes of a selection, with the mesh file's sets available.
+fn select_nodes(
+    sel: &crate::geometry::select::Selection,
+    nodes: &[Vector3<f64>],
+    what: &str,
+    input: Option<&MeshInput>,
+) -> Result<Vec<usize>> {
+    let lookup = |name: &str| -> std::result::Result<Vec<Vector3<f64>>, String> {
+        let m = input.ok_or("no mesh file")?;
+        Ok(m.set_nodes(name)?
+            .into_iter()
+            .map(|i| m.mesh.nodes[i])
+            .collect())
+    };
+    let sets: Option<&crate::geometry::select::SetLookup> = input.map(|_| &lookup as _);
+    sel.select_with(nodes, what, sets)
+}
+
+/// A probe that averages nodal values with the given (node, weight) pairs; its position is the
+/// weighted centroid of the nodes.
+fn set_probe(name: &str, nodes: &[Vector3<f64>], w: Vec<(usize, f64)>) -> Probe {
+    let position = w
+        .iter()
+        .fold(Vector3::zeros(), |a, &(i, x)| a + nodes[i] * x);
+    Probe {
+        name: name.into(),
+        position,
+        nodes: w.iter().map(|p| p.0).collect(),
+        weights: w.iter().map(|p| p.1).collect(),
+        element: usize::MAX,
+    }
+}
+
 /// The scene's boundaries with their selected nodes.
 pub fn boundaries(
     scene: &Scene,
@@ -363,7 +396,22 @@ pub fn prepare(scene: &Scene) -> Result<Prepared> {
     let probes = scene
         .probes
         .iter()
-        .map(|(name, p)| Probe::locate(name, Vector3::from(p.position), &mesh))
+        .map(|(name, p)| match (&p.select, p.position) {
+            (Some(sel), _) => {
+                let ids =
+                    select_nodes(sel, &mesh.nodes, &format!("probe '{name}'"), input.as_ref())?;
+                let w = 1.0 / ids.len() as f64;
+                Ok(set_probe(
+                    name,
+                    &mesh.nodes,
+                    ids.iter().map(|&i| (i, w)).collect(),
+                ))
+            }
+            (None, Some(x)) => Probe::locate(name, Vector3::from(x), &mesh),
+            (None, None) => Err(Error::Input(format!(
+                "probe '{name}' has neither position nor select"
+            ))),
+        })
         .collect::<Result<Vec<_>>>()?;
     let min_dihedral = quality::min_dihedral_angle(&mesh);
     let model = Model::new(mesh.nodes.clone(), points, mat, bnd)?;
@@ -401,8 +449,17 @@ fn prepare_meshless(scene: &Scene) -> Result<Prepared> {
         for b in boundaries(scene, nodes, input.as_ref())? {
             v.extend(b.nodes);
         }
-        for p in scene.probes.values() {
-            let x = Vector3::from(p.position);
+        for (name, p) in &scene.probes {
+            if let Some(sel) = &p.select {
+                v.extend(select_nodes(
+                    sel,
+                    nodes,
+                    &format!("probe '{name}'"),
+                    input.as_ref(),
+                )?);
+                continue;
+            }
+            let x = Vector3::from(p.position.unwrap_or_default());
             if let Some((i, _)) = nodes
                 .iter()
                 .enumerate()
@@ -434,14 +491,37 @@ fn prepare_meshless(scene: &Scene) -> Result<Prepared> {
         .probes
         .iter()
         .map(|(name, p)| {
-            let x = Vector3::from(p.position);
+            if let Some(sel) = &p.select {
+                // Mean of the interpolated displacements at the selected nodes.
+                let ids = select_nodes(
+                    sel,
+                    &build.nodes,
+                    &format!("probe '{name}'"),
+                    input.as_ref(),
+                )?;
+                let mut acc: BTreeMap<usize, f64> = BTreeMap::new();
+                for &i in &ids {
+                    let s = build.shape_values(&build.nodes[i], &|| format!("probe '{name}'"))?;
+                    for (&j, &w) in s.ids.iter().zip(&s.phi) {
+                        *acc.entry(j).or_default() += w / ids.len() as f64;
+                    }
+                }
+                let mut pr = set_probe(name, &build.nodes, acc.into_iter().collect());
+                let c = ids
+                    .iter()
+                    .fold(Vector3::zeros(), |a, &i| a + build.nodes[i])
+                    / ids.len() as f64;
+                pr.position = c;
+                return Ok(pr);
+            }
+            let position = p.position.unwrap_or_default();
+            let x = Vector3::from(position);
             if dom
                 .as_ref()
                 .is_some_and(|d| !d.contains(&x, 0.05 * h.max(1e-12)))
             {
                 return Err(Error::Input(format!(
-                    "probe '{name}' at {:?} m lies outside the body; move it inside",
-                    p.position
+                    "probe '{name}' at {position:?} m lies outside the body; move it inside"
                 )));
             }
             let s = build.shape_values(&x, &|| format!("probe '{name}'"))?;

@@ -84,7 +84,14 @@ fn gmsh_physical_groups_select_boundaries() {
         "boundaries.bottom.select={ set = \"bottom\" }",
         "boundaries.top.select={ set = \"top\" }",
     ]);
+    with_sets.push("probes.lid={ select = { set = \"top\" } }");
     let sets = run_case("cases/cylinder-compression.toml", &with_sets);
+    // A probe over a set averages its nodes: the driven lid moved 0.02 m down.
+    let lid = sets.probes["lid"].displacement;
+    assert!(
+        (lid[2] + 0.02).abs() < 1e-12 && (sets.probes["lid"].position[2] - 0.1).abs() < 1e-12,
+        "{lid:?}"
+    );
     let (a, b) = (planes.reactions["top"][2], sets.reactions["top"][2]);
     println!(
         "Gmsh cylinder ({} nodes): planes {a} N, sets {b} N",
