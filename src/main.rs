@@ -54,7 +54,7 @@ enum Command {
         #[arg(long)]
         threads: Option<usize>,
         /// VTU encoding.
-        #[arg(long, value_enum, default_value = "appended")]
+        #[arg(long, value_enum, default_value = "binary")]
         vtu_format: VtuArg,
     },
     /// Validate a scene (schema, selections, mesh, probes) without running it.
@@ -88,7 +88,7 @@ enum Command {
         #[arg(long)]
         out: Option<PathBuf>,
         /// VTU encoding.
-        #[arg(long, value_enum, default_value = "appended")]
+        #[arg(long, value_enum, default_value = "binary")]
         vtu_format: VtuArg,
     },
 }

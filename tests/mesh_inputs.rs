@@ -198,3 +198,32 @@ fn duplicate_nodes_are_reported_and_merged_on_request() {
     assert_eq!(b.model.nodes.len(), 5);
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// Files `hytled mesh` writes in the default encoding read back (vtkio) with the same nodes.
+#[test]
+fn default_vtu_output_reads_back() {
+    let dir = std::env::temp_dir().join(format!("hytled-default-vtu-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let file = dir.join("cyl.vtu");
+    let ok = std::process::Command::new(env!("CARGO_BIN_EXE_hytled"))
+        .args([
+            "mesh",
+            path("cases/cylinder-compression.toml").to_str().unwrap(),
+        ])
+        .args([
+            "--set",
+            "discretization.divisions=[4,2,8]",
+            "--out",
+            file.to_str().unwrap(),
+        ])
+        .status()
+        .unwrap()
+        .success();
+    assert!(ok);
+    let back = hytled::io::mesh_file::read_mesh(&file, None, 1.0).unwrap();
+    let inp =
+        hytled::io::mesh_file::read_mesh(&path("meshes/cylinder-428-hex8.inp"), None, 1.0).unwrap();
+    assert_eq!(back.mesh.nodes, inp.mesh.nodes);
+    assert_eq!(back.mesh.cells, inp.mesh.cells);
+    let _ = std::fs::remove_dir_all(&dir);
+}

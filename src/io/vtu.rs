@@ -3,8 +3,8 @@
 //!
 //! Files follow the VTK XML format version 1.0 with `header_type="UInt64"` and little-endian
 //! binary data. Points and data arrays are `Float64`, connectivity and offsets `Int64`, cell
-//! types `UInt8`. Three encodings are available (see [`VtuFormat`]); the default, raw appended
-//! binary, is the smallest and fastest to write and read.
+//! types `UInt8`. Three encodings are available (see [`VtuFormat`]); raw appended binary is the
+//! smallest and fastest; the default, inline base64, is the one every reader accepts.
 //!
 //! Every file is written to a hidden temporary file in the target directory and renamed into
 //! place once complete, so an interrupted run never leaves a truncated `.vtu` or `.pvd` behind.
@@ -57,10 +57,12 @@ pub struct Piece<'a> {
 pub enum VtuFormat {
     /// Human-readable text; numbers are written with the fewest digits that read back exactly.
     Ascii,
-    /// Inline base64 inside each `DataArray` (header and data encoded together).
-    Binary,
-    /// Raw little-endian binary in one `AppendedData` block at the end of the file.
+    /// Inline base64 inside each `DataArray` (header and data encoded together). The default:
+    /// ParaView, VTK and XML-strict readers (vtkio, hytled's own mesh reader) all read it.
     #[default]
+    Binary,
+    /// Raw little-endian binary in one `AppendedData` block at the end of the file: a quarter
+    /// smaller and faster, read by ParaView/VTK but not by strict XML parsers such as vtkio.
     Appended,
 }
 
