@@ -227,3 +227,16 @@ fn default_vtu_output_reads_back() {
     assert_eq!(back.mesh.cells, inp.mesh.cells);
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// Legacy VTK 5.1 (OFFSETS/CONNECTIVITY cells, what VTK 9 and ParaView write) reads like 4.2.
+#[test]
+fn legacy_vtk_5_1_reads_like_4_2() {
+    use hytled::io::mesh_file::read_mesh;
+    let a = read_mesh(&path("tests/data/vtk/cyl.vtk"), None, 1.0).unwrap();
+    let b = read_mesh(&path("tests/data/vtk/cyl_v51.vtk"), None, 1.0).unwrap();
+    assert_eq!(a.mesh.nodes, b.mesh.nodes);
+    assert_eq!(a.mesh.cells, b.mesh.cells);
+    assert_eq!(a.element_sets, b.element_sets);
+    assert_eq!(a.face_sets, b.face_sets);
+    assert_eq!(b.mesh.num_cells(), 617);
+}

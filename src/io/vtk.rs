@@ -32,9 +32,11 @@
 //! ParaView shows for a single piece). Coordinates are returned as written; the scene applies
 //! its units factor afterwards.
 //!
-//! Limits of `vtkio`: legacy files of version 5.x (cells as OFFSETS/CONNECTIVITY) and XML
-//! files with raw appended binary data are not read; the errors say how to re-export (legacy
-//! 4.2, or VTU with ASCII or base64 encoding). No input makes the reader panic: legacy
+//! Limits of `vtkio`: binary legacy files of version 5.x and XML files with raw appended binary
+//! data are not read; the errors say how to re-export (legacy 4.2, or VTU with ASCII or base64
+//! encoding). ASCII legacy 5.x files (VTK 9 / ParaView's default) are rewritten to the 4.2
+//! layout (OFFSETS/CONNECTIVITY cells to count-prefixed cells, vtktype* names to C names) and
+//! read. No input makes the reader panic: legacy
 //! headers are checked against the file size before parsing and the parse runs under
 //! `catch_unwind`.
 
@@ -145,6 +147,11 @@ fn import_legacy(bytes: &[u8], path: &Path) -> Result<vtkio::Vtk> {
         ));
     };
     let major: Option<u32> = version.split('.').next().and_then(|m| m.parse().ok());
+    if major == Some(5) && !lower_has_binary(bytes) {
+        // VTK 9 / ParaView default: rewrite the OFFSETS/CONNECTIVITY cells as version 4.2.
+        let text = legacy5_to_42(bytes, path)?;
+        return import_legacy(text.as_bytes(), path);
+    }
     match major {
         Some(m) if m >= 5 => {
             return Err(fail(
@@ -182,6 +189,128 @@ fn import_legacy(bytes: &[u8], path: &Path) -> Result<vtkio::Vtk> {
              file is corrupt or truncated",
         )),
     }
+}
+
+/// True when the legacy header (line 3) says BINARY.
+fn lower_has_binary(bytes: &[u8]) -> bool {
+    let head = String::from_utf8_lossy(&bytes[..bytes.len().min(4096)]).to_ascii_lowercase();
+    head.lines().nth(2).is_some_and(|l| l.trim() == "binary")
+}
+
+/// Rewrites an ASCII legacy file of version 5.x, whose CELLS section holds `OFFSETS` and
+/// `CONNECTIVITY` arrays, into the version 4.2 layout (one `count i0 i1 ...` line per cell),
+/// leaving every other section as it is.
+fn legacy5_to_42(bytes: &[u8], path: &Path) -> Result<String> {
+    let text = String::from_utf8_lossy(bytes);
+    let mut out = String::with_capacity(text.len());
+    let mut lines = text.lines().enumerate().peekable();
+    let mut first = true;
+    while let Some((ln, line)) = lines.next() {
+        if first {
+            out.push_str("# vtk DataFile Version 4.2\n");
+            first = false;
+            continue;
+        }
+        let mut words = line.split_whitespace();
+        let head = words.next();
+        if head.is_some_and(|w| w.eq_ignore_ascii_case("METADATA")) {
+            // Version 5 metadata (INFORMATION blocks) runs to the next blank line.
+            for (_, l) in lines.by_ref() {
+                if l.trim().is_empty() {
+                    break;
+                }
+            }
+            continue;
+        }
+        if !head.is_some_and(|w| w.eq_ignore_ascii_case("CELLS")) {
+            // Version 5 spells fixed-size types as vtktype*; version 4.2 uses C names.
+            let mapped: Vec<&str> = line
+                .split(' ')
+                .map(|w| match w {
+                    "vtktypeint64" => "long",
+                    "vtktypeuint64" => "unsigned_long",
+                    "vtktypeint32" => "int",
+                    "vtktypeuint32" => "unsigned_int",
+                    "vtktypeint16" => "short",
+                    "vtktypeuint16" => "unsigned_short",
+                    "vtktypeint8" => "char",
+                    "vtktypeuint8" => "unsigned_char",
+                    "vtktypefloat32" => "float",
+                    "vtktypefloat64" => "double",
+                    w => w,
+                })
+                .collect();
+            out.push_str(&mapped.join(" "));
+            out.push('\n');
+            continue;
+        }
+        let counts: Vec<usize> = words.filter_map(|w| w.parse().ok()).collect();
+        let [n_off, n_conn] = counts[..] else {
+            return Err(fail(
+                path,
+                format!("line {}: expected 'CELLS n_offsets n_connectivity'", ln + 1),
+            ));
+        };
+        // Read the two arrays: all numbers after their keyword lines.
+        let mut read_array = |name: &str, n: usize| -> Result<Vec<usize>> {
+            let (kl, kw) = lines.next().ok_or_else(|| {
+                fail(
+                    path,
+                    format!("line {}: the file ends before {name}", ln + 2),
+                )
+            })?;
+            if !kw.trim_start().to_ascii_uppercase().starts_with(name) {
+                return Err(fail(
+                    path,
+                    format!("line {}: expected {name}, found '{}'", kl + 1, clip(kw)),
+                ));
+            }
+            let mut v = Vec::with_capacity(n.min(bytes.len()));
+            while v.len() < n {
+                let (l, t) = lines.next().ok_or_else(|| {
+                    fail(
+                        path,
+                        format!("the file ends inside {name} ({} of {n} values)", v.len()),
+                    )
+                })?;
+                for w in t.split_whitespace() {
+                    v.push(w.parse().map_err(|_| {
+                        fail(
+                            path,
+                            format!("line {}: '{}' in {name} is not an index", l + 1, clip(w)),
+                        )
+                    })?);
+                }
+            }
+            if v.len() != n {
+                return Err(fail(
+                    path,
+                    format!("{name} has {} values, the CELLS line says {n}", v.len()),
+                ));
+            }
+            Ok(v)
+        };
+        let off = read_array("OFFSETS", n_off)?;
+        let conn = read_array("CONNECTIVITY", n_conn)?;
+        let ncell = n_off.saturating_sub(1);
+        out.push_str(&format!("CELLS {ncell} {}\n", ncell + n_conn));
+        for c in 0..ncell {
+            let (a, b) = (off[c], off[c + 1]);
+            if a > b || b > conn.len() {
+                return Err(fail(
+                    path,
+                    format!("OFFSETS entry {c} ({a}..{b}) is out of order or beyond CONNECTIVITY"),
+                ));
+            }
+            out.push_str(&(b - a).to_string());
+            for &i in &conn[a..b] {
+                out.push(' ');
+                out.push_str(&i.to_string());
+            }
+            out.push('\n');
+        }
+    }
+    Ok(out)
 }
 
 /// Checks the counts on the keyword lines of a legacy file against the file size before vtkio
@@ -1123,7 +1252,8 @@ mod tests {
             vtk.replacen("Version 4.2", "Version 5.1", 1).as_bytes(),
             "v5.vtk",
         );
-        assert!(e.contains("version 5.1") && e.contains("4.2"), "{e}");
+        // ASCII 5.x is rewritten to 4.2; this one lacks its OFFSETS array.
+        assert!(e.contains("OFFSETS") && e.contains("line 8"), "{e}");
         // Truncated legacy file.
         let e = err(&vtk.as_bytes()[..vtk.len() / 2], "t.vtk");
         assert!(e.contains("cannot parse the legacy VTK file"), "{e}");
