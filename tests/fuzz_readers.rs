@@ -82,7 +82,7 @@ proptest! {
 
     #[test]
     fn vtk_reader_never_panics(e in edits()) {
-        for (f, name) in [("tests/data/vtk/cyl.vtu", "fuzz.vtu"), ("tests/data/vtk/cyl.vtk", "fuzz.vtk"), ("tests/data/vtk/cyl_v51.vtk", "fuzz.vtk"), ("tests/data/vtk/box_hex_b64.vtu", "fuzz.vtu")] {
+        for (f, name) in [("tests/data/vtk/cyl.vtu", "fuzz.vtu"), ("tests/data/vtk/cyl.vtk", "fuzz.vtk"), ("tests/data/vtk/cyl_v51.vtk", "fuzz.vtk"), ("tests/data/vtk/box_hex_b64.vtu", "fuzz.vtu"), ("meshes/cylinder-coarse-tet4.vtu", "fuzz.vtu")] {
             let b = mutate(data(f), &e);
             let _ = hytled::io::vtk::parse_vtk(&b, Path::new(name));
         }

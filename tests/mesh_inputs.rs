@@ -240,3 +240,16 @@ fn legacy_vtk_5_1_reads_like_4_2() {
     assert_eq!(a.face_sets, b.face_sets);
     assert_eq!(b.mesh.num_cells(), 617);
 }
+
+/// Raw-appended VTU (hytled's earlier default; ParaView's default data mode) reads back.
+#[test]
+fn raw_appended_vtu_reads_back() {
+    use hytled::io::mesh_file::read_mesh;
+    let m = read_mesh(&path("meshes/cylinder-compression-hex8.vtu"), None, 1.0).unwrap();
+    let sc = hytled::scene::load(&path("cases/cylinder-compression.toml"), &[]).unwrap();
+    let builtin = hytled::simulation::build_mesh(&sc).unwrap();
+    assert_eq!(m.mesh.nodes, builtin.nodes);
+    assert_eq!(m.mesh.cells, builtin.cells);
+    let t = read_mesh(&path("meshes/cylinder-coarse-tet4.vtu"), None, 1.0).unwrap();
+    assert_eq!(t.mesh.num_cells(), 2304);
+}

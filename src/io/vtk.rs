@@ -32,9 +32,10 @@
 //! ParaView shows for a single piece). Coordinates are returned as written; the scene applies
 //! its units factor afterwards.
 //!
-//! Limits of `vtkio`: binary legacy files of version 5.x and XML files with raw appended binary
-//! data are not read; the errors say how to re-export (legacy 4.2, or VTU with ASCII or base64
-//! encoding). ASCII legacy 5.x files (VTK 9 / ParaView's default) are rewritten to the 4.2
+//! Limits of `vtkio` and how they are met: XML files with raw appended binary data (which vtkio
+//! cannot parse when the data holds a '<' byte) are rewritten with the arrays inline as base64
+//! before parsing (uncompressed files; compressed raw appended data is refused with a hint);
+//! binary legacy files of version 5.x are refused (the error says to re-export as ASCII or 4.2). ASCII legacy 5.x files (VTK 9 / ParaView's default) are rewritten to the 4.2
 //! layout (OFFSETS/CONNECTIVITY cells to count-prefixed cells, vtktype* names to C names) and
 //! read. No input makes the reader panic: legacy
 //! headers are checked against the file size before parsing and the parse runs under
@@ -384,6 +385,9 @@ fn import_xml(bytes: &[u8], path: &Path) -> Result<vtkio::Vtk> {
     if bytes.iter().all(u8::is_ascii_whitespace) {
         return Err(fail(path, "the file is empty: not a VTK file"));
     }
+    // Raw appended data (the '<' bytes in it break vtkio's XML parser) is moved inline as base64.
+    let inlined = appended_to_inline(bytes);
+    let bytes: &[u8] = inlined.as_deref().unwrap_or(bytes);
     let fixed = fix_cell_types(bytes, path)?;
     let input: &[u8] = fixed.as_deref().unwrap_or(bytes);
     let parsed = catch_unwind(AssertUnwindSafe(|| vtkio::Vtk::parse_xml(input)));
@@ -417,6 +421,128 @@ fn import_xml(bytes: &[u8], path: &Path) -> Result<vtkio::Vtk> {
              file is corrupt or truncated",
         )),
     }
+}
+
+/// Rewrites an uncompressed XML file with raw `AppendedData` so that every appended array sits
+/// inline as base64 (`format="binary"`), the form vtkio parses. None when the file has no raw
+/// appended data, is compressed, or does not have the expected layout (the caller then parses
+/// it as it is and reports vtkio's error).
+fn appended_to_inline(bytes: &[u8]) -> Option<Vec<u8>> {
+    let app = find(bytes, b"<AppendedData")?;
+    let tag_end = app + bytes[app..].iter().position(|&b| b == b'>')?;
+    let tag = &bytes[app..tag_end];
+    if find(tag, b"raw").is_none() {
+        return None;
+    }
+    let head = &bytes[..app];
+    let vtkfile = find(head, b"<VTKFile")?;
+    let vtk_tag_end = vtkfile + head[vtkfile..].iter().position(|&b| b == b'>')?;
+    let vtk_tag = &head[vtkfile..vtk_tag_end];
+    if find(vtk_tag, b"compressor").is_some() {
+        return None;
+    }
+    let hsize = if find(vtk_tag, b"UInt64").is_some() {
+        8
+    } else {
+        4
+    };
+    let data = tag_end + 1 + bytes[tag_end + 1..].iter().position(|&b| b == b'_')? + 1;
+    let block = |offset: usize| -> Option<&[u8]> {
+        let start = data.checked_add(offset)?;
+        let h = bytes.get(start..start + hsize)?;
+        let n = if hsize == 8 {
+            u64::from_le_bytes(h.try_into().ok()?) as usize
+        } else {
+            u32::from_le_bytes(h.try_into().ok()?) as usize
+        };
+        bytes.get(start..start.checked_add(hsize)?.checked_add(n)?)
+    };
+    let mut out = Vec::with_capacity(bytes.len() * 4 / 3 + 64);
+    let mut at = 0;
+    while let Some(rel) = find(&head[at..], b"<DataArray") {
+        let start = at + rel;
+        let end = start + head[start..].iter().position(|&b| b == b'>')?;
+        let dtag = std::str::from_utf8(&head[start..end]).ok()?;
+        out.extend_from_slice(&head[at..start]);
+        at = end + 1;
+        if !dtag.contains("\"appended\"") {
+            out.extend_from_slice(&head[start..=end]);
+            continue;
+        }
+        let self_closing = dtag.ends_with('/');
+        let off: usize = attr_value(dtag.trim_end_matches('/'), "offset")?
+            .parse()
+            .ok()?;
+        let mut kept = String::new();
+        for part in split_attrs(dtag.trim_end_matches('/')) {
+            let name = part.split('=').next().unwrap_or("").trim();
+            if name != "format" && name != "offset" {
+                kept.push_str(part);
+                kept.push(' ');
+            }
+        }
+        out.extend_from_slice(kept.trim_end().as_bytes());
+        out.extend_from_slice(b" format=\"binary\">");
+        out.extend_from_slice(base64(block(off)?).as_bytes());
+        out.extend_from_slice(b"</DataArray>");
+        if !self_closing {
+            // Skip the (empty) body and the closing tag of a non-self-closing appended array.
+            let close = find(&head[at..], b"</DataArray>")?;
+            at += close + b"</DataArray>".len();
+        }
+    }
+    out.extend_from_slice(&head[at..]);
+    out.extend_from_slice(b"</VTKFile>\n");
+    Some(out)
+}
+
+/// The value of attribute `name` in an XML start tag.
+fn attr_value<'a>(tag: &'a str, name: &str) -> Option<&'a str> {
+    split_attrs(tag).into_iter().find_map(|p| {
+        let (k, v) = p.split_once('=')?;
+        (k.trim() == name).then(|| v.trim().trim_matches('"'))
+    })
+}
+
+/// A start tag split into its name and `key="value"` parts (values may contain spaces).
+fn split_attrs(tag: &str) -> Vec<&str> {
+    let mut parts = Vec::new();
+    let (mut start, mut quoted) = (0, false);
+    for (i, c) in tag.char_indices() {
+        match c {
+            '"' => quoted = !quoted,
+            c if c.is_whitespace() && !quoted => {
+                if i > start {
+                    parts.push(&tag[start..i]);
+                }
+                start = i + 1;
+            }
+            _ => {}
+        }
+    }
+    if start < tag.len() {
+        parts.push(&tag[start..]);
+    }
+    parts
+}
+
+/// Standard base64 with padding.
+fn base64(b: &[u8]) -> String {
+    const T: &[u8; 64] = b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
+    let mut s = String::with_capacity(b.len().div_ceil(3) * 4);
+    for c in b.chunks(3) {
+        let v = (c[0] as u32) << 16
+            | (*c.get(1).unwrap_or(&0) as u32) << 8
+            | *c.get(2).unwrap_or(&0) as u32;
+        for k in 0..4 {
+            if k <= c.len() {
+                s.push(T[(v >> (18 - 6 * k) & 63) as usize] as char);
+            } else {
+                s.push('=');
+            }
+        }
+    }
+    s
 }
 
 fn find(hay: &[u8], needle: &[u8]) -> Option<usize> {
@@ -1298,8 +1424,9 @@ mod tests {
     }
 
     #[test]
-    fn raw_appended_data_error_suggests_ascii_or_base64() {
-        // Raw appended Float64 data holding a '<' byte (0x3c).
+    fn raw_appended_data_with_a_lt_byte_is_read() {
+        // Raw appended Float64 data holding a '<' byte (0x3c), which vtkio alone cannot parse:
+        // the reader moves the appended arrays inline as base64 first.
         let mut f: Vec<u8> = br#"<?xml version="1.0"?>
 <VTKFile type="UnstructuredGrid" version="1.0" byte_order="LittleEndian" header_type="UInt64">
 <UnstructuredGrid>
@@ -1350,8 +1477,12 @@ _"#
         push(&mut f, &4i64.to_le_bytes());
         push(&mut f, &[10u8]);
         f.extend_from_slice(b"\n</AppendedData>\n</VTKFile>\n");
-        let e = err(&f, "raw.vtu");
-        assert!(e.contains("ASCII or base64"), "{e}");
+        let m = parse_vtk(&f, Path::new("raw.vtu")).unwrap();
+        assert_eq!(m.mesh.num_cells(), 1);
+        assert_eq!(m.mesh.nodes[3].z.to_bits(), 0x3FF000000000003C);
+        // A truncated appended block is an error, not a panic.
+        let cut = &f[..f.len() - 40];
+        assert!(parse_vtk(cut, Path::new("raw.vtu")).is_err());
     }
 
     #[test]
