@@ -185,48 +185,17 @@ fn load_mesh(scene: &Scene) -> Result<MeshInput> {
 }
 
 /// Warnings a mesh file deserves: duplicate nodes (coincident within 1e-9 x the bounding-box
-/// diagonal) and nodes no cell uses.
+/// diagonal). Nodes no cell uses were already dropped on reading.
 pub fn mesh_checks(mesh: &Mesh) -> Vec<String> {
     let mut w = Vec::new();
-    let (lo, hi) = mesh.bounding_box();
-    let tol = 1e-9 * (hi - lo).norm();
-    let mut keys: Vec<([i64; 3], usize)> = mesh
-        .nodes
-        .iter()
-        .enumerate()
-        .map(|(i, p)| {
-            (
-                [
-                    (p.x / tol.max(f64::MIN_POSITIVE)).round() as i64,
-                    (p.y / tol.max(f64::MIN_POSITIVE)).round() as i64,
-                    (p.z / tol.max(f64::MIN_POSITIVE)).round() as i64,
-                ],
-                i,
-            )
-        })
-        .collect();
-    keys.sort_unstable();
-    let dups = keys.windows(2).filter(|k| k[0].0 == k[1].0).count();
-    if dups > 0 {
-        let first = keys
-            .windows(2)
-            .find(|k| k[0].0 == k[1].0)
-            .map(|k| (k[0].1, k[1].1))
-            .unwrap_or((0, 0));
+    let (map, keep) = crate::io::mesh_file::coincident_nodes(mesh);
+    let dups = mesh.nodes.len() - keep.len();
+    if let Some(i) = (0..map.len()).find(|&i| keep[map[i]] != i) {
         w.push(format!(
-            "{dups} duplicate node(s) (e.g. nodes {} and {} coincide); the mesh is not connected there: merge them in the mesher",
-            first.0, first.1
+            "{dups} duplicate node(s) (e.g. nodes {} and {i} coincide); the mesh is not connected there: \
+             merge them in the mesher or set geometry.merge_duplicates = true",
+            keep[map[i]]
         ));
-    }
-    let mut used = vec![false; mesh.nodes.len()];
-    for &c in &mesh.cells {
-        if let Some(u) = used.get_mut(c) {
-            *u = true;
-        }
-    }
-    let unused = used.iter().filter(|u| !**u).count();
-    if unused > 0 {
-        w.push(format!("{unused} node(s) belong to no cell; they get no mass (remove them, or they are an error)"));
     }
     w
 }
@@ -307,19 +276,9 @@ pub fn boundaries(
     nodes: &[Vector3<f64>],
     input: Option<&MeshInput>,
 ) -> Result<Vec<Boundary>> {
-    let lookup = |name: &str| -> std::result::Result<Vec<Vector3<f64>>, String> {
-        let m = input.ok_or("no mesh file")?;
-        Ok(m.set_nodes(name)?
-            .into_iter()
-            .map(|i| m.mesh.nodes[i])
-            .collect())
-    };
-    let sets: Option<&crate::geometry::select::SetLookup> = input.map(|_| &lookup as _);
     let mut out = Vec::new();
     for (name, b) in &scene.boundaries {
-        let sel = b
-            .select
-            .select_with(nodes, &format!("boundary '{name}'"), sets)?;
+        let sel = select_nodes(&b.select, nodes, &format!("boundary '{name}'"), input)?;
         let mut comps = [None; 3];
         for c in &b.fix {
             match c {

@@ -265,23 +265,33 @@ history_rows = 10
     assert!(err < 0.01, "angular momentum changed by {err}");
 }
 
+/// CSV of the 5 x 5 x 5 lattice of spacing 0.025 m filling the cube, with a label column when
+/// `label(k)` (k: the z layer) gives one.
+fn cube_lattice_csv(label: impl Fn(usize) -> Option<i32>) -> String {
+    let mut text = String::from(if label(0).is_some() {
+        "x,y,z,label\n"
+    } else {
+        "x,y,z\n"
+    });
+    for i in 0..5 {
+        for j in 0..5 {
+            for k in 0..5 {
+                let (x, y, z) = (0.025 * i as f64, 0.025 * j as f64, 0.025 * k as f64);
+                text += &match label(k) {
+                    Some(l) => format!("{x},{y},{z},{l}\n"),
+                    None => format!("{x},{y},{z}\n"),
+                };
+            }
+        }
+    }
+    text
+}
+
 #[test]
 fn poorly_supported_nodes_are_removed_with_a_warning() {
     let dir = std::env::temp_dir().join(format!("hytled-cloud-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
-    let mut text = String::from("x,y,z\n");
-    for i in 0..5 {
-        for j in 0..5 {
-            for k in 0..5 {
-                text += &format!(
-                    "{},{},{}\n",
-                    0.025 * i as f64,
-                    0.025 * j as f64,
-                    0.025 * k as f64
-                );
-            }
-        }
-    }
+    let mut text = cube_lattice_csv(|_| None);
     // A stray node outside the body: no integration point has it among its nearest nodes.
     text += "0.3,0.3,0.3\n";
     let file = dir.join("cloud.csv");
@@ -560,22 +570,10 @@ fn meshless_results_are_identical_for_any_thread_count() {
 fn removing_a_node_that_carries_a_boundary_condition_is_an_error() {
     let dir = std::env::temp_dir().join(format!("hytled-bccloud-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
-    let mut text = String::new();
-    for i in 0..5 {
-        for j in 0..5 {
-            for k in 0..5 {
-                text += &format!(
-                    "{} {} {}\n",
-                    0.025 * i as f64,
-                    0.025 * j as f64,
-                    0.025 * k as f64
-                );
-            }
-        }
-    }
+    let mut text = cube_lattice_csv(|_| None);
     // Outside the body but on the plane z = 0, so the bottom boundary selects it.
-    text += "0.3 0.3 0.0\n";
-    let file = dir.join("cloud.xyz");
+    text += "0.3,0.3,0.0\n";
+    let file = dir.join("cloud.csv");
     std::fs::write(&file, text).unwrap();
     let f = format!("discretization.cloud_file={}", file.display());
     let sc = scene(
@@ -600,26 +598,14 @@ fn removing_a_node_that_carries_a_boundary_condition_is_an_error() {
 fn cloud_label_column_gives_sets_for_boundaries() {
     let dir = std::env::temp_dir().join(format!("hytled-labels-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
-    let mut text = String::from("x,y,z,label\n");
-    for i in 0..5 {
-        for j in 0..5 {
-            for k in 0..5 {
-                let label = if k == 0 {
-                    1
-                } else if k == 4 {
-                    2
-                } else {
-                    0
-                };
-                text += &format!(
-                    "{},{},{},{label}\n",
-                    0.025 * i as f64,
-                    0.025 * j as f64,
-                    0.025 * k as f64
-                );
-            }
-        }
-    }
+    // Label 1 on the bottom layer, 2 on the top, 0 inside.
+    let text = cube_lattice_csv(|k| {
+        Some(match k {
+            0 => 1,
+            4 => 2,
+            _ => 0,
+        })
+    });
     let file = dir.join("labelled.csv");
     std::fs::write(&file, text).unwrap();
     let f = format!("discretization.cloud_file={}", file.display());

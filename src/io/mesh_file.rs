@@ -96,31 +96,25 @@ fn drop_unused_nodes(m: &mut MeshInput) {
 pub fn write_mesh_vtu(path: &Path, m: &MeshInput, format: super::vtu::VtuFormat) -> Result<()> {
     let n = m.mesh.nodes.len();
     let ne = m.mesh.num_cells();
+    // 1 on the set's members, 0 elsewhere.
+    let indicator = |len: usize, v: &[usize]| -> Vec<f64> {
+        let mut a = vec![0.0; len];
+        for &i in v {
+            if let Some(x) = a.get_mut(i) {
+                *x = 1.0;
+            }
+        }
+        a
+    };
     let node_arrays: Vec<(String, Vec<f64>)> = m
         .node_sets
         .iter()
-        .map(|(name, v)| {
-            let mut a = vec![0.0; n];
-            for &i in v {
-                if let Some(x) = a.get_mut(i) {
-                    *x = 1.0;
-                }
-            }
-            (name.clone(), a)
-        })
+        .map(|(name, v)| (name.clone(), indicator(n, v)))
         .collect();
     let cell_arrays: Vec<(String, Vec<f64>)> = m
         .element_sets
         .iter()
-        .map(|(name, v)| {
-            let mut a = vec![0.0; ne];
-            for &i in v {
-                if let Some(x) = a.get_mut(i) {
-                    *x = 1.0;
-                }
-            }
-            (name.clone(), a)
-        })
+        .map(|(name, v)| (name.clone(), indicator(ne, v)))
         .collect();
     let pd = node_arrays
         .iter()
@@ -158,14 +152,11 @@ pub fn write_mesh_file(
     }
 }
 
-/// Merges nodes closer than 1e-9 x the bounding-box diagonal into the first of them (by index),
-/// renumbering cells and sets; returns how many were merged.
-pub fn merge_duplicate_nodes(m: &mut MeshInput) -> usize {
-    let n = m.mesh.nodes.len();
-    if n == 0 {
-        return 0;
-    }
-    let (lo, hi) = m.mesh.bounding_box();
+/// Groups nodes that coincide within 1e-9 x the bounding-box diagonal: for every node, the new
+/// index of its group, and the first node (by index) of each group.
+pub fn coincident_nodes(mesh: &crate::geometry::Mesh) -> (Vec<usize>, Vec<usize>) {
+    let n = mesh.nodes.len();
+    let (lo, hi) = mesh.bounding_box();
     let tol = (1e-9 * (hi - lo).norm()).max(f64::MIN_POSITIVE);
     let key = |p: &nalgebra::Vector3<f64>| {
         [
@@ -178,16 +169,26 @@ pub fn merge_duplicate_nodes(m: &mut MeshInput) -> usize {
     let mut map = vec![0usize; n];
     let mut keep = Vec::with_capacity(n);
     for i in 0..n {
-        let k = key(&m.mesh.nodes[i]);
-        match first.get(&k) {
+        match first.get(&key(&mesh.nodes[i])) {
             Some(&j) => map[i] = map[j],
             None => {
-                first.insert(k, i);
+                first.insert(key(&mesh.nodes[i]), i);
                 map[i] = keep.len();
                 keep.push(i);
             }
         }
     }
+    (map, keep)
+}
+
+/// Merges nodes closer than 1e-9 x the bounding-box diagonal into the first of them (by index),
+/// renumbering cells and sets; returns how many were merged.
+pub fn merge_duplicate_nodes(m: &mut MeshInput) -> usize {
+    let n = m.mesh.nodes.len();
+    if n == 0 {
+        return 0;
+    }
+    let (map, keep) = coincident_nodes(&m.mesh);
     let merged = n - keep.len();
     if merged == 0 {
         return 0;

@@ -40,6 +40,7 @@ use std::path::Path;
 use nalgebra::Vector3;
 
 use super::model::MeshInput;
+use super::{clip, file_error as input_err};
 use crate::geometry::{ElementShape, Mesh};
 use crate::{Error, Result};
 
@@ -280,22 +281,6 @@ fn classify(t: i64, at: &str) -> std::result::Result<(Role, usize, u8), String> 
                  prisms or pyramids"
             ))
         }
-    }
-}
-
-fn input_err(path: &Path, m: impl std::fmt::Display) -> Error {
-    Error::Input(format!("{}: {m}", path.display()))
-}
-
-/// A line shortened for messages.
-fn clip(s: &str) -> String {
-    const MAX: usize = 60;
-    if s.chars().count() <= MAX {
-        s.to_string()
-    } else {
-        let mut t: String = s.chars().take(MAX).collect();
-        t.push_str("...");
-        t
     }
 }
 

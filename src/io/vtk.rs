@@ -49,6 +49,7 @@ use nalgebra::Vector3;
 use vtkio::model::{Attribute, CellType, DataSet, IOBuffer, Piece, VertexNumbers};
 
 use super::model::MeshInput;
+use super::{clip, file_error as fail};
 use crate::geometry::{ElementShape, Mesh};
 use crate::{Error, Result};
 
@@ -100,22 +101,6 @@ pub fn parse_vtk(bytes: &[u8], path: &Path) -> Result<MeshInput> {
         import_xml(bytes, path)?
     };
     convert(vtk, path)
-}
-
-fn fail(path: &Path, m: impl std::fmt::Display) -> Error {
-    Error::Input(format!("{}: {m}", path.display()))
-}
-
-/// A line shortened for messages.
-fn clip(s: &str) -> String {
-    const MAX: usize = 60;
-    if s.chars().count() <= MAX {
-        s.to_string()
-    } else {
-        let mut t: String = s.chars().take(MAX).collect();
-        t.push_str("...");
-        t
-    }
 }
 
 fn import_legacy(bytes: &[u8], path: &Path) -> Result<vtkio::Vtk> {
@@ -431,9 +416,7 @@ fn appended_to_inline(bytes: &[u8]) -> Option<Vec<u8>> {
     let app = find(bytes, b"<AppendedData")?;
     let tag_end = app + bytes[app..].iter().position(|&b| b == b'>')?;
     let tag = &bytes[app..tag_end];
-    if find(tag, b"raw").is_none() {
-        return None;
-    }
+    find(tag, b"raw")?;
     let head = &bytes[..app];
     let vtkfile = find(head, b"<VTKFile")?;
     let vtk_tag_end = vtkfile + head[vtkfile..].iter().position(|&b| b == b'>')?;

@@ -613,16 +613,13 @@ pub fn parse_cloud(text: &str, source: &Path) -> Result<Vec<Vector3<f64>>> {
     Ok(parse_cloud_sets(text, source)?.0)
 }
 
+/// Named node sets: node indices by set name.
+pub type NodeSets = std::collections::BTreeMap<String, Vec<usize>>;
+
 /// As [`parse_cloud`], plus the optional fourth column: an integer set label per node. Nodes
 /// with label k form the node set named "k" (usable as `select = { set = "k" }`); a fourth
 /// column that is not an integer is ignored, like any later column.
-pub fn parse_cloud_sets(
-    text: &str,
-    source: &Path,
-) -> Result<(
-    Vec<Vector3<f64>>,
-    std::collections::BTreeMap<String, Vec<usize>>,
-)> {
+pub fn parse_cloud_sets(text: &str, source: &Path) -> Result<(Vec<Vector3<f64>>, NodeSets)> {
     let mut sets: std::collections::BTreeMap<String, Vec<usize>> = Default::default();
     let name = source.display();
     let text = text.strip_prefix('\u{feff}').unwrap_or(text);
