@@ -13,6 +13,11 @@ pub enum PointKind {
     Hourglass(u32),
     /// Average-nodal-pressure tetrahedron: J replaced by the average of nodal averages.
     Anp,
+    /// Point of a fully integrated cell with mean dilatation (Nagtegaal et al. 1974; the
+    /// volumetric part of selectively reduced integration): J replaced by the weighted mean J
+    /// of the cell's points, `groups[g]`. Keeps fully integrated blended cells from locking
+    /// as nu -> 0.5.
+    MeanDilatation(u32),
 }
 
 /// Quadrature points in structure-of-arrays form. Point `p` owns the slots
@@ -29,6 +34,8 @@ pub struct QuadraturePoints {
     pub kinds: Vec<PointKind>,
     /// Hourglass matrices of one-point hexahedra, N/m.
     pub hourglass: Vec<SMatrix<f64, 8, 8>>,
+    /// Point ranges [first, end) of the mean-dilatation groups.
+    pub groups: Vec<[u32; 2]>,
 }
 
 impl QuadraturePoints {
@@ -43,6 +50,7 @@ impl QuadraturePoints {
             weights: Vec::with_capacity(points),
             kinds: Vec::with_capacity(points),
             hourglass: Vec::new(),
+            groups: Vec::new(),
         }
     }
 
@@ -83,6 +91,17 @@ impl QuadraturePoints {
         let idx = self.hourglass.len() as u32;
         self.hourglass.push(hg);
         self.push(nodes, dphi, w, PointKind::Hourglass(idx));
+    }
+
+    /// Appends the points of one cell as a mean-dilatation group: `points` = (node ids,
+    /// dphi/dX, weight) each.
+    pub fn push_group(&mut self, points: &[(Vec<usize>, Vec<Vector3<f64>>, f64)]) {
+        let g = self.groups.len() as u32;
+        let first = self.len() as u32;
+        for (ids, dphi, w) in points {
+            self.push(ids, dphi, *w, PointKind::MeanDilatation(g));
+        }
+        self.groups.push([first, self.len() as u32]);
     }
 
     /// Total weight (integrated volume), m^3.

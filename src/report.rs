@@ -76,6 +76,26 @@ pub struct MeshlessInfo {
     pub exact_volume: f64,
 }
 
+/// How the coupled FE + meshless discretization was made.
+#[derive(Debug, Clone, Serialize)]
+pub struct CoupledInfo {
+    pub fe_layers: usize,
+    /// Cells: pure FE (TLED kernels), transition (blended), meshless interior.
+    pub fe_cells: usize,
+    pub transition_cells: usize,
+    pub meshless_cells: usize,
+    /// Nodes: FE only (interpolating), interface (FE and MLS), meshless only.
+    pub fe_nodes: usize,
+    pub interface_nodes: usize,
+    pub meshless_nodes: usize,
+    /// Quadrature points per family.
+    pub fe_points: usize,
+    pub transition_points: usize,
+    pub meshless_points: usize,
+    pub basis: String,
+    pub support_rule: String,
+}
+
 /// Everything a run reports. Units: SI (m, kg, s, N, Pa, J).
 #[derive(Debug, Clone, Serialize)]
 pub struct Summary {
@@ -110,6 +130,8 @@ pub struct Summary {
     pub bc_method: Option<String>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub meshless: Option<MeshlessInfo>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub coupled: Option<CoupledInfo>,
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub warnings: Vec<String>,
     #[serde(skip_serializing_if = "Vec::is_empty")]

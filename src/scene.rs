@@ -43,7 +43,7 @@ pub struct Scene {
 /// The body: a built-in shape, or a mesh file. Lengths in m.
 ///
 /// Written `[geometry] shape = "box"` with `min`, `max`; `shape = "cylinder"` with `radius`,
-/// `height`; or `mesh = "meshes/part.inp"` (any of .inp, .msh, .vtk, .vtu, by extension or
+/// `height`; `shape = "half_ellipsoid"` with `semi_axes = [a, b, c]`; or `mesh = "meshes/part.inp"` (any of .inp, .msh, .vtk, .vtu, by extension or
 /// `format`) with `units` (the factor that turns the file's lengths into m, e.g. 0.001 for mm).
 #[derive(Debug, Clone, Serialize, Deserialize)]
 #[serde(try_from = "GeometryToml", into = "GeometryToml")]
@@ -52,6 +52,10 @@ pub enum Geometry {
     Box { min: [f64; 3], max: [f64; 3] },
     /// Circular cylinder along z, base at z = 0, centred on x = y = 0.
     Cylinder { radius: f64, height: f64 },
+    /// Half-ellipsoid x^2/a^2 + y^2/b^2 + z^2/c^2 <= 1, z >= 0, with `semi_axes` = [a, b, c]:
+    /// flat elliptical base (semi-axes a along x, b along y) on z = 0 centred on x = y = 0,
+    /// apex at (0, 0, c). Meshed by TetGen only (`mesher = "tetgen"`).
+    HalfEllipsoid { semi_axes: [f64; 3] },
     /// A mesh file (relative paths are resolved against the scene file's directory).
     Mesh {
         file: PathBuf,
@@ -106,6 +110,8 @@ struct GeometryToml {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     height: Option<f64>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
+    semi_axes: Option<[f64; 3]>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     mesh: Option<PathBuf>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     format: Option<MeshFormat>,
@@ -124,6 +130,7 @@ impl TryFrom<GeometryToml> for Geometry {
                 ("max", g.max.is_some()),
                 ("radius", g.radius.is_some()),
                 ("height", g.height.is_some()),
+                ("semi_axes", g.semi_axes.is_some()),
                 ("format", g.format.is_some()),
                 ("units", g.units.is_some()),
                 ("merge_duplicates", g.merge_duplicates.is_some()),
@@ -160,9 +167,16 @@ impl TryFrom<GeometryToml> for Geometry {
                     _ => Err("geometry: a cylinder needs `radius` and `height` (m)".into()),
                 }
             }
+            (None, Some("half_ellipsoid")) => {
+                only(&["semi_axes"])?;
+                match g.semi_axes {
+                    Some(semi_axes) => Ok(Geometry::HalfEllipsoid { semi_axes }),
+                    None => Err("geometry: a half_ellipsoid needs `semi_axes = [a, b, c]` (m; base semi-axes a along x, b along y, height c along z)".into()),
+                }
+            }
             (Some(_), Some(s)) => Err(format!("geometry: give either `mesh = \"file\"` or `shape = \"{s}\"`, not both")),
-            (None, Some(s)) => Err(format!("geometry: unknown shape '{s}'; use \"box\", \"cylinder\" or `mesh = \"file.inp|.msh|.vtk|.vtu\"`")),
-            (None, None) => Err("geometry: give `shape = \"box\" | \"cylinder\"` or `mesh = \"file\"`".into()),
+            (None, Some(s)) => Err(format!("geometry: unknown shape '{s}'; use \"box\", \"cylinder\", \"half_ellipsoid\" or `mesh = \"file.inp|.msh|.vtk|.vtu\"`")),
+            (None, None) => Err("geometry: give `shape = \"box\" | \"cylinder\" | \"half_ellipsoid\"` or `mesh = \"file\"`".into()),
         }
     }
 }
@@ -180,6 +194,11 @@ impl From<Geometry> for GeometryToml {
                 shape: Some("cylinder".into()),
                 radius: Some(radius),
                 height: Some(height),
+                ..Default::default()
+            },
+            Geometry::HalfEllipsoid { semi_axes } => GeometryToml {
+                shape: Some("half_ellipsoid".into()),
+                semi_axes: Some(semi_axes),
                 ..Default::default()
             },
             Geometry::Mesh {
@@ -207,6 +226,9 @@ pub enum Method {
     Fe,
     /// MTLED meshless: node cloud, integration points, MLS / MMLS shape functions.
     Meshless,
+    /// Finite elements on the boundary (`fe_layers` cell layers), meshless nodes inside, FE and
+    /// MLS shape functions blended by a ramp in the transition layer.
+    Coupled,
 }
 
 /// Where meshless nodes come from.
@@ -375,9 +397,11 @@ pub struct Discretization {
     /// Meshless: integration points on background tets or a regular grid.
     #[serde(default)]
     pub integration: IntegrationKind,
-    /// Points per background tet: 1, 4 (default) or 5.
-    #[serde(default = "default_tet_rule")]
-    pub tet_rule: usize,
+    /// Points per background tet: 1, 4 or 5 (default 4 meshless, 1 for the tets of a coupled
+    /// interior; a hexahedral coupled interior uses 2x2x2 Gauss points per cell instead).
+    /// Read it through [`Discretization::tet_rule`].
+    #[serde(default, rename = "tet_rule", skip_serializing_if = "Option::is_none")]
+    pub tet_rule_points: Option<usize>,
     /// Grid integration: integration points per node (default 2, Horton 2010 sect. 3.2).
     #[serde(default = "default_point_ratio")]
     pub point_ratio: f64,
@@ -404,6 +428,31 @@ pub struct Discretization {
     /// Essential boundary conditions on meshless nodes.
     #[serde(default)]
     pub bc_method: BcMethod,
+    /// Coupled: cell layers of finite elements from the boundary inwards (default 2).
+    #[serde(default = "default_fe_layers")]
+    pub fe_layers: usize,
+    /// Coupled: influence-radius factor of the interface nodes (radius rule; default 1.5).
+    /// Their supports must reach across the transition layer, where only one side has MLS
+    /// nodes; with 1.0 the exact cube is 0.1 % off, with 1.5 0.007 %.
+    #[serde(default = "default_interface_scale")]
+    pub interface_scale: f64,
+    /// Coupled: mean dilatation (the cell's weighted mean J) at the Gauss points of each
+    /// transition cell, so the fully integrated blended cells do not lock as nu -> 0.5
+    /// (default true; false = plain full integration).
+    #[serde(default = "default_true")]
+    pub mean_dilatation: bool,
+}
+
+fn default_true() -> bool {
+    true
+}
+
+fn default_interface_scale() -> f64 {
+    1.5
+}
+
+fn default_fe_layers() -> usize {
+    2
 }
 
 fn default_min_spacing() -> f64 {
@@ -412,8 +461,12 @@ fn default_min_spacing() -> f64 {
 fn default_seed() -> u64 {
     1
 }
-fn default_tet_rule() -> usize {
-    4
+impl Discretization {
+    /// Points per background tet: `tet_rule` as given, else 4 (meshless) or 1 (coupled).
+    pub fn tet_rule(&self) -> usize {
+        self.tet_rule_points
+            .unwrap_or(if self.method == Method::Coupled { 1 } else { 4 })
+    }
 }
 fn default_point_ratio() -> f64 {
     2.0
@@ -448,7 +501,9 @@ impl Default for Discretization {
             min_spacing: default_min_spacing(),
             seed: default_seed(),
             integration: IntegrationKind::Tets,
-            tet_rule: default_tet_rule(),
+            tet_rule_points: None,
+            interface_scale: default_interface_scale(),
+            mean_dilatation: true,
             point_ratio: default_point_ratio(),
             support: SupportKind::Radius,
             dilatation: None,
@@ -458,6 +513,7 @@ impl Default for Discretization {
             mu: default_mu(),
             min_rcond: default_min_rcond(),
             bc_method: BcMethod::Auto,
+            fe_layers: default_fe_layers(),
         }
     }
 }
@@ -770,6 +826,11 @@ fn validate(s: &Scene) -> std::result::Result<(), String> {
                 return Err(format!("geometry: cylinder radius ({radius}) and height ({height}) must be positive (m)"));
             }
         }
+        Geometry::HalfEllipsoid { semi_axes } => {
+            if !semi_axes.iter().all(|v| v.is_finite() && *v > 0.0) {
+                return Err(format!("geometry: half_ellipsoid semi_axes {semi_axes:?} must be positive and finite (m)"));
+            }
+        }
         Geometry::Mesh {
             file,
             format,
@@ -802,13 +863,19 @@ fn validate(s: &Scene) -> std::result::Result<(), String> {
             ));
         }
     }
-    if ![1, 4, 5].contains(&d.tet_rule) {
+    if ![1, 4, 5].contains(&d.tet_rule()) {
         return Err(format!(
             "discretization.tet_rule = {}: the tetrahedron rules have 1, 4 or 5 points",
-            d.tet_rule
+            d.tet_rule()
         ));
     }
-    let file_cloud = d.method == Method::Meshless && d.cloud == CloudKind::File;
+    if d.method == Method::Coupled && !(d.interface_scale >= 1.0 && d.interface_scale <= 4.0) {
+        return Err(format!(
+            "discretization.interface_scale = {}: use a factor in [1, 4] (default 1.5)",
+            d.interface_scale
+        ));
+    }
+    let file_cloud = d.method != Method::Fe && d.cloud == CloudKind::File;
     let mesh_geometry = matches!(s.geometry, Geometry::Mesh { .. });
     if d.size.is_none() && d.divisions.is_none() && !file_cloud && !mesh_geometry {
         return Err("discretization: give `size` (target element length, m) or `divisions`".into());

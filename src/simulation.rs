@@ -7,6 +7,7 @@ use std::time::Instant;
 use nalgebra::Vector3;
 
 use crate::bc::Boundary;
+use crate::coupling::{self, CoupledBuild, NodeRole};
 use crate::fe::{self, ElementKind};
 use crate::geometry::{quality, shapes, ElementShape, Mesh};
 use crate::io::model::MeshInput;
@@ -16,7 +17,8 @@ use crate::meshless::discretize::{self, MeshlessBuild};
 use crate::meshless::essential::MeshlessCorrector;
 use crate::probe::Probe;
 use crate::report::{
-    Comparison, Energy, MeshInfo, MeshlessInfo, ProbeResult, Summary, SupportNodes, WallSeconds,
+    Comparison, CoupledInfo, Energy, MeshInfo, MeshlessInfo, ProbeResult, Summary, SupportNodes,
+    WallSeconds,
 };
 use crate::scene::{BcMethod, Component, Geometry, Mesher, Method, Scene};
 use crate::solver::{self, Mode, Model, RunOutput, Settings};
@@ -91,6 +93,11 @@ pub fn build_mesh(scene: &Scene) -> Result<Mesh> {
                 ElementShape::Tet4 => shapes::cylinder_tet(*radius, *height, ni, nr, nz),
             }
         }
+        Geometry::HalfEllipsoid { .. } => Err(Error::Input(
+            "geometry.shape = 'half_ellipsoid' has no structured mesh: use mesher = 'tetgen' \
+             (discretization.mesher = \"tetgen\" with element = 'tet4-anp' or 'tet4')"
+                .into(),
+        )),
         Geometry::Mesh { .. } => Ok(load_mesh(scene)?.mesh),
     }
 }
@@ -105,9 +112,22 @@ fn unreachable_sizing<T>() -> Result<T> {
 fn tetgen_mesh(scene: &Scene) -> Result<Mesh> {
     use crate::geometry::tetgen;
     let d = &scene.discretization;
-    let h = d.size.ok_or_else(|| {
-        Error::Input("discretization.mesher = 'tetgen' needs `size` (target edge length, m)".into())
-    })?;
+    let h = match (d.size, d.divisions, &scene.geometry) {
+        (Some(h), _, _) => h,
+        // As the box: the bounding box [2a, 2b, c] divided by [nx, ny, nz].
+        (None, Some(div), Geometry::HalfEllipsoid { semi_axes: s }) => {
+            [2.0 * s[0], 2.0 * s[1], s[2]]
+                .iter()
+                .zip(div)
+                .map(|(len, n)| len / n.max(1) as f64)
+                .fold(f64::INFINITY, f64::min)
+        }
+        _ => {
+            return Err(Error::Input(
+                "discretization.mesher = 'tetgen' needs `size` (target edge length, m)".into(),
+            ))
+        }
+    };
     // Volume of a regular tetrahedron of edge h.
     let max_volume = Some(h.powi(3) / (6.0 * 2f64.sqrt()));
     match &scene.geometry {
@@ -120,6 +140,9 @@ fn tetgen_mesh(scene: &Scene) -> Result<Mesh> {
         Geometry::Cylinder { radius, height } => {
             let n_circ = count(2.0 * std::f64::consts::PI * radius, h, 8);
             tetgen::tetgen_cylinder(*radius, *height, n_circ, max_volume, d.radius_edge_ratio)
+        }
+        Geometry::HalfEllipsoid { semi_axes } => {
+            tetgen::tetgen_half_ellipsoid(*semi_axes, h, max_volume, d.radius_edge_ratio)
         }
         Geometry::Mesh { .. } => Err(Error::Input(
             "discretization.mesher = 'tetgen' meshes built-in shapes; a mesh file is used as it is (remove mesher)".into(),
@@ -311,6 +334,8 @@ pub struct Prepared {
     pub mesh: Mesh,
     /// The meshless discretization, for meshless scenes.
     pub meshless: Option<MeshlessBuild>,
+    /// The coupled FE + meshless discretization, for coupled scenes.
+    pub coupled: Option<CoupledBuild>,
     /// How essential conditions act on meshless nodes (None for FE).
     pub bc_method: Option<BcMethod>,
     /// Things the user should know that do not stop the run.
@@ -322,35 +347,53 @@ pub struct Prepared {
     pub preprocess_seconds: f64,
 }
 
+/// The body's mesh: the mesh file's (its reader's warnings and the duplicate-node check go to
+/// `warnings`) or the built-in shape's.
+fn body_mesh(scene: &Scene, input: Option<&MeshInput>, warnings: &mut Vec<String>) -> Result<Mesh> {
+    match input {
+        Some(m) => {
+            warnings.extend(m.warnings.iter().cloned());
+            warnings.extend(mesh_checks(&m.mesh));
+            Ok(m.mesh.clone())
+        }
+        None => build_mesh(scene),
+    }
+}
+
+/// An inverted-element error with the element's id in the mesh file.
+fn name_file_element(e: Error, input: Option<&MeshInput>) -> Error {
+    match (&e, input) {
+        (Error::InvalidElement { element, volume }, Some(m)) => Error::Input(format!(
+            "element {} (id {} in the mesh file) has non-positive volume {volume:.6e} m^3 (inverted or degenerate); \
+             check its node order and coordinates",
+            element,
+            m.element_ids.get(*element).copied().unwrap_or(0)
+        )),
+        _ => e,
+    }
+}
+
 /// Meshes the scene, builds the quadrature points, masses, constraints and probes.
 pub fn prepare(scene: &Scene) -> Result<Prepared> {
-    if scene.discretization.method == Method::Meshless {
-        return prepare_meshless(scene);
+    match scene.discretization.method {
+        Method::Meshless => return prepare_meshless(scene),
+        Method::Coupled => return prepare_coupled(scene),
+        Method::Fe => {}
     }
     let t0 = Instant::now();
     let input = load_mesh_input(scene)?;
     let mut warnings = Vec::new();
-    let mesh = match &input {
-        Some(m) => {
-            warnings.extend(m.warnings.iter().cloned());
-            warnings.extend(mesh_checks(&m.mesh));
-            m.mesh.clone()
-        }
-        None => build_mesh(scene)?,
-    };
+    let mesh = body_mesh(scene, input.as_ref(), &mut warnings)?;
     let mat = material(scene);
     let kind: ElementKind = scene.discretization.element.into();
     let (lambda, mu) = mat.lame();
-    let points = fe::element_points(&mesh, kind, scene.discretization.hourglass, lambda + 2.0 * mu)
-        .map_err(|e| match (&e, &input) {
-            (Error::InvalidElement { element, volume }, Some(m)) => Error::Input(format!(
-                "element {} (id {} in the mesh file) has non-positive volume {volume:.6e} m^3 (inverted or degenerate); \
-                 check its node order and coordinates",
-                element,
-                m.element_ids.get(*element).copied().unwrap_or(0)
-            )),
-            _ => e,
-        })?;
+    let points = fe::element_points(
+        &mesh,
+        kind,
+        scene.discretization.hourglass,
+        lambda + 2.0 * mu,
+    )
+    .map_err(|e| name_file_element(e, input.as_ref()))?;
     let bnd = boundaries(scene, &mesh.nodes, input.as_ref())?;
     let probes = scene
         .probes
@@ -377,6 +420,7 @@ pub fn prepare(scene: &Scene) -> Result<Prepared> {
     Ok(Prepared {
         mesh,
         meshless: None,
+        coupled: None,
         bc_method: None,
         warnings,
         model,
@@ -512,12 +556,206 @@ fn prepare_meshless(scene: &Scene) -> Result<Prepared> {
     Ok(Prepared {
         mesh: build.background.clone(),
         meshless: Some(build),
+        coupled: None,
         bc_method: Some(method),
         warnings,
         model,
         probes,
         kind: ElementKind::Tet4,
         min_dihedral: None,
+        preprocess_seconds: t0.elapsed().as_secs_f64(),
+    })
+}
+
+/// Coupled branch of [`prepare`]: the scene's mesh (built-in or file) split into an FE layer
+/// of `fe_layers` cells on the boundary and a meshless interior, blended in the transition
+/// cells. Conditions on FE nodes are imposed directly.
+fn prepare_coupled(scene: &Scene) -> Result<Prepared> {
+    let t0 = Instant::now();
+    let input = load_mesh_input(scene)?;
+    let mut warnings = Vec::new();
+    let mesh = body_mesh(scene, input.as_ref(), &mut warnings)?;
+    let mat = material(scene);
+    let kind: ElementKind = scene.discretization.element.into();
+    let (lambda, mu) = mat.lame();
+    let d = &scene.discretization;
+    let settings = coupling::CoupledSettings {
+        fe_layers: d.fe_layers,
+        element: kind,
+        hourglass: d.hourglass,
+        lambda_plus_2mu: lambda + 2.0 * mu,
+        mls: discretize::mls_settings(scene),
+        rule: discretize::support_rule(scene),
+        interface_scale: d.interface_scale,
+        mean_dilatation: d.mean_dilatation,
+        tet_rule: crate::meshless::integration::TetRule::from_points(d.tet_rule()).ok_or_else(
+            || {
+                Error::Input(format!(
+                    "discretization.tet_rule = {}: use 1, 4 or 5",
+                    d.tet_rule()
+                ))
+            },
+        )?,
+    };
+    let min_dihedral = quality::min_dihedral_angle(&mesh);
+    let mixed = input.is_some() && d.cloud == crate::scene::CloudKind::File;
+    let built = if mixed {
+        let rel = d.cloud_file.clone().unwrap_or_default();
+        let path = if rel.is_absolute() {
+            rel
+        } else {
+            scene.base_dir.join(rel)
+        };
+        let cloud = crate::meshless::cloud::read_cloud(&path)?;
+        let tets = |p: &[Vector3<f64>]| -> Result<Vec<[usize; 4]>> {
+            Ok(discretize::delaunay(p)?
+                .chunks_exact(4)
+                .map(|c| [c[0], c[1], c[2], c[3]])
+                .collect())
+        };
+        coupling::mixed::build(mesh, &cloud, &settings, &tets).map(|(b, _)| b)
+    } else {
+        coupling::build(mesh, &settings)
+    };
+    let build = built.map_err(|e| name_file_element(e, input.as_ref()))?;
+    warnings.extend(build.warnings.iter().cloned());
+    let bnd = boundaries(scene, &build.nodes, input.as_ref())?;
+    // Boundaries that reach interface or meshless nodes (no Kronecker delta there) are
+    // imposed by EBCIEM / SEBCIEM correction, the alternate path; the rest directly.
+    let corrected: Vec<bool> = bnd
+        .iter()
+        .map(|b| {
+            b.components.iter().any(|c| c.is_some())
+                && b.nodes
+                    .iter()
+                    .any(|&i| build.regions.node[i] != NodeRole::Fe)
+        })
+        .collect();
+    let bc_method = corrected
+        .iter()
+        .any(|&c| c)
+        .then(|| d.bc_method.resolve(d.support));
+    if bc_method == Some(BcMethod::Correction) {
+        return Err(Error::Input(
+            "bc_method = 'correction' cannot impose conditions on the meshless nodes of a coupled scene; \
+             use 'ebciem' or 'sebciem' (or select FE-layer nodes only)"
+                .into(),
+        ));
+    }
+    let vertex = build.vertex_weights()?;
+    let probes = scene
+        .probes
+        .iter()
+        .map(|(name, p)| match (&p.select, p.position) {
+            (Some(sel), _) => {
+                let ids = select_nodes(
+                    sel,
+                    &build.nodes,
+                    &format!("probe '{name}'"),
+                    input.as_ref(),
+                )?;
+                let mut acc: BTreeMap<usize, f64> = BTreeMap::new();
+                for &i in &ids {
+                    for &(j, w) in &vertex[i] {
+                        *acc.entry(j).or_default() += w / ids.len() as f64;
+                    }
+                }
+                let mut pr = set_probe(name, &build.nodes, acc.into_iter().collect());
+                pr.position = ids
+                    .iter()
+                    .fold(Vector3::zeros(), |a, &i| a + build.nodes[i])
+                    / ids.len() as f64;
+                Ok(pr)
+            }
+            (None, Some(x)) => {
+                let x = Vector3::from(x);
+                let w = build.shape_values(name, &x)?;
+                Ok(Probe {
+                    name: name.clone(),
+                    position: x,
+                    nodes: w.iter().map(|p| p.0).collect(),
+                    weights: w.iter().map(|p| p.1).collect(),
+                    element: usize::MAX,
+                })
+            }
+            (None, None) => Err(Error::Input(format!(
+                "probe '{name}' has neither position nor select"
+            ))),
+        })
+        .collect::<Result<Vec<_>>>()?;
+    let mut model = Model::new(build.nodes.clone(), build.points.clone(), mat, bnd.clone())?;
+    if let Some(method) = bc_method {
+        let tris: Vec<[usize; 3]> = if method == BcMethod::Ebciem {
+            let mut faces = quality::boundary_faces(&build.fe_mesh)
+                .map_err(|e| Error::Input(format!("coupled FE layer: {e}")))?;
+            faces.extend(
+                quality::boundary_faces(&build.interior)
+                    .map_err(|e| Error::Input(format!("coupled interior: {e}")))?,
+            );
+            // Faces on both sides of the interface are inside the body.
+            let mut seen: BTreeMap<Vec<usize>, usize> = BTreeMap::new();
+            for f in &faces {
+                let mut k = f.clone();
+                k.sort_unstable();
+                *seen.entry(k).or_default() += 1;
+            }
+            faces
+                .into_iter()
+                .filter(|f| {
+                    let mut k = f.clone();
+                    k.sort_unstable();
+                    seen[&k] == 1
+                })
+                .flat_map(|f| {
+                    if f.len() == 4 {
+                        vec![[f[0], f[1], f[2]], [f[0], f[2], f[3]]]
+                    } else {
+                        vec![[f[0], f[1], f[2]]]
+                    }
+                })
+                .collect()
+        } else {
+            Vec::new()
+        };
+        let shape = |x: &Vector3<f64>| -> Result<crate::bc::ebciem::SparseVec> {
+            Ok(build
+                .shape_values("essential-boundary point", x)?
+                .into_iter()
+                .map(|(i, p)| (i as u32, p))
+                .collect())
+        };
+        let (corr, report) =
+            MeshlessCorrector::from_parts(&build.nodes, &tris, &shape, &bnd, &model.mass, method)?;
+        if report.lumped_nodes > 0 {
+            warnings.push(format!(
+                "{}: {} constrained meshless node(s) lie on no boundary triangle whose vertices are all constrained; \
+                 their boundary force is lumped at the node (SEBCIEM)",
+                method.name(),
+                report.lumped_nodes
+            ));
+        }
+        let names: Vec<&str> = bnd
+            .iter()
+            .zip(&corrected)
+            .filter(|(_, &c)| c)
+            .map(|(b, _)| b.name.as_str())
+            .collect();
+        warnings.push(format!(
+            "boundaries {names:?} act on meshless nodes of the coupled discretization; imposed by {} (alternate path)",
+            method.name()
+        ));
+        model.set_corrector(Box::new(corr), corrected)?;
+    }
+    Ok(Prepared {
+        mesh: build.fe_mesh.clone(),
+        meshless: None,
+        coupled: Some(build),
+        bc_method,
+        warnings,
+        model,
+        probes,
+        kind,
+        min_dihedral,
         preprocess_seconds: t0.elapsed().as_secs_f64(),
     })
 }
@@ -611,15 +849,15 @@ pub fn summarize(scene: &Scene, prep: &Prepared, out: &RunOutput, total_seconds:
         units: "SI: m, kg, s, N, Pa, J",
         method: if prep.meshless.is_some() {
             "meshless".into()
+        } else if prep.coupled.is_some() {
+            "coupled".into()
         } else {
             "fe".into()
         },
-        element: match &prep.meshless {
-            Some(_) => match scene.discretization.basis {
-                crate::scene::Basis::Linear => "mls".into(),
-                crate::scene::Basis::Quadratic => "mmls".into(),
-            },
-            None => prep.kind.name().into(),
+        element: match (&prep.meshless, &prep.coupled) {
+            (Some(_), _) => basis_name(scene).into(),
+            (None, Some(_)) => format!("{}+{}", prep.kind.name(), basis_name(scene)),
+            (None, None) => prep.kind.name().into(),
         },
         mode: match scene.solver.mode {
             Mode::Dynamic => "dynamic".into(),
@@ -660,26 +898,56 @@ pub fn summarize(scene: &Scene, prep: &Prepared, out: &RunOutput, total_seconds:
             critical_point: out.critical_point,
             volume: model.points.total_weight(),
         },
-        support_nodes: prep.meshless.as_ref().map(|m| {
-            let (mean, min, max) = m.support_statistics();
-            SupportNodes { mean, min, max }
-        }),
+        support_nodes: prep
+            .meshless
+            .as_ref()
+            .map(|m| m.support_statistics())
+            .or_else(|| prep.coupled.as_ref().map(|c| c.support_statistics()))
+            .map(|(mean, min, max)| SupportNodes { mean, min, max }),
         removed_nodes: prep.meshless.as_ref().map(|m| m.removed_nodes),
         bc_method: prep.bc_method.map(|b| b.name().to_string()),
         meshless: prep.meshless.as_ref().map(|m| MeshlessInfo {
             cloud: m.cloud.clone(),
             integration: m.integration.clone(),
-            basis: match scene.discretization.basis {
-                crate::scene::Basis::Linear => "linear MLS".into(),
-                crate::scene::Basis::Quadratic => {
-                    format!("quadratic MMLS (mu = {:e})", scene.discretization.mu)
-                }
-            },
+            basis: basis_long(scene),
             support_rule: m.support.describe(),
             exact_volume: m.exact_volume,
         }),
+        coupled: prep.coupled.as_ref().map(|c| {
+            use crate::coupling::{CellRole, NodeRole};
+            CoupledInfo {
+                fe_layers: scene.discretization.fe_layers,
+                fe_cells: c.regions.cells(CellRole::Fe),
+                transition_cells: c.regions.cells(CellRole::Transition),
+                meshless_cells: c.interior.num_cells(),
+                fe_nodes: c.regions.nodes(NodeRole::Fe),
+                interface_nodes: c.regions.nodes(NodeRole::Interface),
+                meshless_nodes: c.regions.nodes(NodeRole::Meshless),
+                fe_points: c.fe_points,
+                transition_points: c.transition_points,
+                meshless_points: c.meshless_points,
+                basis: basis_long(scene),
+                support_rule: c.support.describe(),
+            }
+        }),
         warnings: prep.warnings.clone(),
         relaxation: out.relaxation.clone(),
+    }
+}
+
+fn basis_name(scene: &Scene) -> &'static str {
+    match scene.discretization.basis {
+        crate::scene::Basis::Linear => "mls",
+        crate::scene::Basis::Quadratic => "mmls",
+    }
+}
+
+fn basis_long(scene: &Scene) -> String {
+    match scene.discretization.basis {
+        crate::scene::Basis::Linear => "linear MLS".into(),
+        crate::scene::Basis::Quadratic => {
+            format!("quadratic MMLS (mu = {:e})", scene.discretization.mu)
+        }
     }
 }
 
@@ -688,19 +956,21 @@ pub fn summarize(scene: &Scene, prep: &Prepared, out: &RunOutput, total_seconds:
 /// and J of their integration points (one vertex cell per point when there are no tets).
 fn write_meshless_frame(
     path: &Path,
-    m: &MeshlessBuild,
+    points: &[Vector3<f64>],
+    (conn, offsets, types): (&[usize], &[usize], &[u8]),
+    owner: &[usize],
     disp: &[f64],
     (sig, vm, jac): (&[f64], &[f64], &[f64]),
     format: VtuFormat,
 ) -> Result<()> {
-    let ncell = m.background.num_cells();
+    let ncell = types.len();
     if ncell == 0 {
-        let n = m.background.nodes.len();
+        let n = points.len();
         let conn: Vec<usize> = (0..n).collect();
         let offsets: Vec<usize> = (1..=n).collect();
         let types = vec![1u8; n];
         let piece = vtu::Piece {
-            points: &m.background.nodes,
+            points,
             connectivity: &conn,
             offsets: &offsets,
             types: &types,
@@ -715,7 +985,7 @@ fn write_meshless_frame(
     }
     let mut count = vec![0usize; ncell];
     let (mut s9, mut v1, mut j1) = (vec![0.0; 9 * ncell], vec![0.0; ncell], vec![0.0; ncell]);
-    for (p, &e) in m.owner.iter().enumerate() {
+    for (p, &e) in owner.iter().enumerate() {
         if e >= ncell {
             continue;
         }
@@ -754,7 +1024,15 @@ fn write_meshless_frame(
         components: 3,
         values: disp,
     }];
-    vtu::write_mesh(path, &m.background, point_data, cell_data, format)
+    let piece = vtu::Piece {
+        points,
+        connectivity: conn,
+        offsets,
+        types,
+        point_data,
+        cell_data,
+    };
+    vtu::write_vtu(path, &piece, format)
 }
 
 /// `reaction.svg` (every constrained component of every boundary against time) and
@@ -835,8 +1113,14 @@ pub fn write_outputs(
     let name = scene.name.clone().unwrap_or_else(|| "run".into());
     // Meshless: displacement interpolated with the shape functions at the VTU points (nodal
     // parameters are not displacements); per-tet averages of the integration-point fields.
-    let interp: Option<Vec<(Vec<usize>, Vec<f64>)>> = match &prep.meshless {
-        Some(m) => Some(
+    let interp: Option<Vec<(Vec<usize>, Vec<f64>)>> = match (&prep.meshless, &prep.coupled) {
+        (None, Some(c)) => Some(
+            c.vertex_weights()?
+                .into_iter()
+                .map(|w| w.into_iter().unzip())
+                .collect(),
+        ),
+        (Some(m), _) => Some(
             m.background
                 .nodes
                 .iter()
@@ -847,7 +1131,7 @@ pub fn write_outputs(
                 })
                 .collect::<Result<Vec<_>>>()?,
         ),
-        None => None,
+        (None, None) => None,
     };
     let mut series = Vec::new();
     for (k, (t, u)) in out.frames.iter().enumerate() {
@@ -855,8 +1139,26 @@ pub fn write_outputs(
         let (sig, vm, jac) = model.forces.stress_fields(&model.points, &model.slots, u);
         let file = format!("{name}_{k:04}.vtu");
         let path = dir.join(&file);
-        match (&interp, &prep.meshless) {
-            (Some(interp), Some(m)) => {
+        let cells: Option<(&[Vector3<f64>], (Vec<usize>, Vec<usize>, Vec<u8>), &[usize])> =
+            match (&prep.meshless, &prep.coupled) {
+                (Some(m), _) => {
+                    let b = &m.background;
+                    let npc = b.shape.nodes_per_cell();
+                    Some((
+                        &b.nodes,
+                        (
+                            b.cells.clone(),
+                            (1..=b.num_cells()).map(|e| e * npc).collect(),
+                            vec![b.shape.vtk_type(); b.num_cells()],
+                        ),
+                        &m.owner,
+                    ))
+                }
+                (None, Some(c)) => Some((&c.nodes, c.vtu_cells(), &c.owner)),
+                (None, None) => None,
+            };
+        match (&interp, cells) {
+            (Some(interp), Some((points, (conn, offsets, types), owner))) => {
                 let disp: Vec<f64> = interp
                     .iter()
                     .flat_map(|(ids, phi)| {
@@ -867,7 +1169,15 @@ pub fn write_outputs(
                         [d.x, d.y, d.z]
                     })
                     .collect();
-                write_meshless_frame(&path, m, &disp, (&sig, &vm, &jac), format)?;
+                write_meshless_frame(
+                    &path,
+                    points,
+                    (&conn, &offsets, &types),
+                    owner,
+                    &disp,
+                    (&sig, &vm, &jac),
+                    format,
+                )?;
             }
             _ => {
                 let disp: Vec<f64> = u.iter().flat_map(|v| [v.x, v.y, v.z]).collect();

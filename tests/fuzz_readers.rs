@@ -55,7 +55,7 @@ proptest! {
 
     #[test]
     fn inp_reader_never_panics(e in edits()) {
-        for f in ["meshes/cylinder-428-hex8.inp", "tests/data/inp/gmsh_cube_tet4.inp", "tests/data/inp/abaqus_cae_block_hex8.inp"] {
+        for f in ["meshes/cylinder-428-hex8.inp", "tests/data/inp/gmsh_cube_tet4.inp", "tests/data/inp/abaqus_cae_block_hex8.inp", "tests/data/inp/abaqus_cae_two_instances.inp"] {
             let b = mutate(data(f), &e);
             let _ = hytled::io::inp::parse_inp(&String::from_utf8_lossy(&b), Path::new("fuzz.inp"));
         }
@@ -82,7 +82,7 @@ proptest! {
 
     #[test]
     fn vtk_reader_never_panics(e in edits()) {
-        for (f, name) in [("tests/data/vtk/cyl.vtu", "fuzz.vtu"), ("tests/data/vtk/cyl.vtk", "fuzz.vtk"), ("tests/data/vtk/cyl_v51.vtk", "fuzz.vtk"), ("tests/data/vtk/box_hex_b64.vtu", "fuzz.vtu"), ("meshes/cylinder-coarse-tet4.vtu", "fuzz.vtu")] {
+        for (f, name) in [("tests/data/vtk/cyl.vtu", "fuzz.vtu"), ("tests/data/vtk/cyl.vtk", "fuzz.vtk"), ("tests/data/vtk/cyl_v51.vtk", "fuzz.vtk"), ("tests/data/vtk/box_hex_b64.vtu", "fuzz.vtu"), ("meshes/cylinder-coarse-tet4.vtu", "fuzz.vtu"), ("tests/data/vtk/box_hex_v51_bin.vtk", "fuzz.vtk"), ("tests/data/vtk/cyl_v51_bin.vtk", "fuzz.vtk"), ("tests/data/vtk/cyl_zlib.vtu", "fuzz.vtu"), ("tests/data/vtk/box_hex_zlib_u64.vtu", "fuzz.vtu"), ("tests/data/vtk/box_hex_meshio_b64.vtu", "fuzz.vtu")] {
             let b = mutate(data(f), &e);
             let _ = hytled::io::vtk::parse_vtk(&b, Path::new(name));
         }

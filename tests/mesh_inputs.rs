@@ -253,3 +253,30 @@ fn raw_appended_vtu_reads_back() {
     let t = read_mesh(&path("meshes/cylinder-coarse-tet4.vtu"), None, 1.0).unwrap();
     assert_eq!(t.mesh.num_cells(), 2304);
 }
+
+/// meshio's binary outputs: legacy VTK 5.1 BINARY and zlib-compressed VTU (UInt32 and UInt64
+/// headers) read as the ASCII files of the same mesh, sets included.
+#[test]
+fn meshio_binary_vtk_5_1_and_zlib_vtu_read_like_ascii() {
+    use hytled::io::mesh_file::read_mesh;
+    let read = |f: &str| read_mesh(&path(&format!("tests/data/vtk/{f}")), None, 1.0).unwrap();
+    let ascii = read("cyl_v51.vtk");
+    for f in ["cyl_v51_bin.vtk", "cyl_zlib.vtu"] {
+        let b = read(f);
+        assert_eq!(b.mesh.nodes, ascii.mesh.nodes, "{f}");
+        assert_eq!(b.mesh.cells, ascii.mesh.cells, "{f}");
+        assert_eq!(b.element_sets, ascii.element_sets, "{f}");
+        assert_eq!(b.face_sets, ascii.face_sets, "{f}");
+    }
+    let box42 = read("box_hex_bin.vtk");
+    for f in ["box_hex_v51_bin.vtk", "box_hex_zlib_u64.vtu"] {
+        let b = read(f);
+        assert_eq!(b.mesh.nodes, box42.mesh.nodes, "{f}");
+        assert_eq!(b.mesh.cells, box42.mesh.cells, "{f}");
+        assert_eq!(b.element_sets, box42.element_sets, "{f}");
+        // The integer point array `fixed` (1 on z = 0) is a node set.
+        let fixed = &b.node_sets["fixed"];
+        assert_eq!(fixed.len(), 20, "{f}");
+        assert!(fixed.iter().all(|&i| b.mesh.nodes[i].z == 0.0), "{f}");
+    }
+}

@@ -39,6 +39,18 @@ pub enum Selection {
     Box { min: [f64; 3], max: [f64; 3] },
     /// Nodes within `radius` of `center`.
     Sphere { center: [f64; 3], radius: f64 },
+    /// Nodes within `radius` of the line through `center` along `axis`, whose coordinate along
+    /// the axis lies in [`min`, `max`] (inclusive; either bound may be left out), e.g. an
+    /// indenter: `{ cylinder = { axis = "z", center = [0, 0, 0], radius = 0.005, min = 0.0275 } }`.
+    Cylinder {
+        axis: Axis,
+        center: [f64; 3],
+        radius: f64,
+        #[serde(default)]
+        min: Option<f64>,
+        #[serde(default)]
+        max: Option<f64>,
+    },
     /// A named node set from a mesh file.
     Set(String),
 }
@@ -95,11 +107,62 @@ impl Selection {
                     .filter(|&i| (nodes[i] - c).norm() <= *radius)
                     .collect()
             }
+            Selection::Cylinder {
+                axis,
+                center,
+                radius,
+                min,
+                max,
+            } => {
+                if !(radius.is_finite() && *radius >= 0.0) {
+                    return Err(Error::Input(format!(
+                        "{what}: cylinder radius {radius} m must be non-negative and finite"
+                    )));
+                }
+                let (lo_a, hi_a) = (min.unwrap_or(f64::NEG_INFINITY), max.unwrap_or(f64::INFINITY));
+                if lo_a.is_nan() || hi_a.is_nan() || lo_a > hi_a {
+                    return Err(Error::Input(format!(
+                        "{what}: cylinder bounds min = {lo_a} m, max = {hi_a} m must satisfy min <= max"
+                    )));
+                }
+                let k = axis.index();
+                let c = Vector3::from(*center);
+                // (distance from the axis, coordinate along it)
+                let split = |p: &Vector3<f64>| -> (f64, f64) {
+                    let mut d = p - c;
+                    d[k] = 0.0;
+                    (d.norm(), p[k])
+                };
+                let sel: Vec<usize> = (0..nodes.len())
+                    .filter(|&i| {
+                        let (r, t) = split(&nodes[i]);
+                        r <= *radius && t >= lo_a && t <= hi_a
+                    })
+                    .collect();
+                if sel.is_empty() {
+                    // Euclidean distance from the nearest node to the selected solid cylinder.
+                    let nearest = nodes
+                        .iter()
+                        .map(|p| {
+                            let (r, t) = split(p);
+                            let dr = (r - radius).max(0.0);
+                            let dt = (lo_a - t).max(t - hi_a).max(0.0);
+                            dr.hypot(dt)
+                        })
+                        .fold(f64::INFINITY, f64::min);
+                    return Err(Error::Input(format!(
+                        "{what}: cylinder along {axis:?} through {center:?} of radius {radius} m                          ({axis:?} in [{lo_a}, {hi_a}] m) selects no node (nearest node is                          {nearest:.6e} m away; the model spans {:?}..{:?} m)",
+                        lo.as_slice(),
+                        hi.as_slice()
+                    )));
+                }
+                sel
+            }
             Selection::Set(name) => {
                 let Some(lookup) = sets else {
                     return Err(Error::Input(format!(
                         "{what}: named set '{name}' is not available: built-in shapes define no node sets; \
-                         select with plane, box or sphere, or read the body from a mesh file (geometry.mesh)"
+                         select with plane, box, sphere or cylinder, or read the body from a mesh file (geometry.mesh)"
                     )));
                 };
                 let pos = lookup(name).map_err(|m| Error::Input(format!("{what}: {m}")))?;
@@ -173,5 +236,122 @@ mod tests {
             .unwrap_err()
             .to_string()
             .contains("contains no node"));
+    }
+
+    #[test]
+    fn cylinder_selection_radius_bounds_and_empty_error() {
+        // A 5 x 5 x 5 lattice of spacing 1 mm.
+        let mut nodes = Vec::new();
+        for k in 0..5 {
+            for j in 0..5 {
+                for i in 0..5 {
+                    nodes.push(Vector3::new(
+                        0.001 * i as f64,
+                        0.001 * j as f64,
+                        0.001 * k as f64,
+                    ));
+                }
+            }
+        }
+        let id = |i: usize, j: usize, k: usize| i + 5 * j + 25 * k;
+        // Axis z through (2, 2) mm, radius 1 mm (inclusive): the centre column and its four
+        // neighbours, top two layers only (z >= 3 mm, inclusive).
+        let s = Selection::Cylinder {
+            axis: Axis::Z,
+            center: [0.002, 0.002, 0.0],
+            radius: 0.001 + 1e-12,
+            min: Some(0.003),
+            max: None,
+        };
+        let mut want = Vec::new();
+        for k in 3..5 {
+            for (i, j) in [(2, 1), (1, 2), (2, 2), (3, 2), (2, 3)] {
+                want.push(id(i, j, k));
+            }
+        }
+        want.sort();
+        assert_eq!(s.select(&nodes, "indenter").unwrap(), want);
+        // Both bounds; axis x: the line y = z = 0 with radius 0 is the edge i = 0..4, j = k = 0.
+        let s = Selection::Cylinder {
+            axis: Axis::X,
+            center: [0.5, 0.0, 0.0],
+            radius: 0.0,
+            min: Some(0.001),
+            max: Some(0.003),
+        };
+        assert_eq!(
+            s.select(&nodes, "edge").unwrap(),
+            vec![id(1, 0, 0), id(2, 0, 0), id(3, 0, 0)]
+        );
+        // No bounds: the whole column.
+        let s = Selection::Cylinder {
+            axis: Axis::Y,
+            center: [0.004, 0.0, 0.004],
+            radius: 1e-9,
+            min: None,
+            max: None,
+        };
+        assert_eq!(
+            s.select(&nodes, "column").unwrap(),
+            (0..5).map(|j| id(4, j, 4)).collect::<Vec<_>>()
+        );
+        // Empty: above the model; the nearest node is 1 mm below the bottom of the cylinder.
+        let s = Selection::Cylinder {
+            axis: Axis::Z,
+            center: [0.002, 0.002, 0.0],
+            radius: 0.0005,
+            min: Some(0.005),
+            max: None,
+        };
+        let e = s.select(&nodes, "boundary 'indenter'").unwrap_err().to_string();
+        assert!(
+            e.contains("boundary 'indenter'")
+                && e.contains("selects no node")
+                && e.contains("1.000000e-3 m away"),
+            "{e}"
+        );
+        // Bad radius, crossed bounds.
+        let s = Selection::Cylinder {
+            axis: Axis::Z,
+            center: [0.0; 3],
+            radius: -1.0,
+            min: None,
+            max: None,
+        };
+        assert!(s.select(&nodes, "x").is_err());
+        let s = Selection::Cylinder {
+            axis: Axis::Z,
+            center: [0.0; 3],
+            radius: 1.0,
+            min: Some(0.003),
+            max: Some(0.001),
+        };
+        assert!(s.select(&nodes, "x").is_err());
+    }
+
+    #[test]
+    fn cylinder_selection_from_toml() {
+        #[derive(Deserialize)]
+        struct W {
+            select: Selection,
+        }
+        let w: W = toml::from_str(
+            "select = { cylinder = { axis = \"z\", center = [0.0, 0.0, 0.0], radius = 0.005, min = 0.0275 } }",
+        )
+        .unwrap();
+        assert_eq!(
+            w.select,
+            Selection::Cylinder {
+                axis: Axis::Z,
+                center: [0.0; 3],
+                radius: 0.005,
+                min: Some(0.0275),
+                max: None
+            }
+        );
+        assert!(toml::from_str::<W>(
+            "select = { cylinder = { axis = \"z\", center = [0.0, 0.0, 0.0], radius = 0.005, mni = 0.0 } }"
+        )
+        .is_err());
     }
 }

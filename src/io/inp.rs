@@ -37,13 +37,23 @@
 //!   Other surface types (`TYPE=NODE`, ...) are skipped with a warning.
 //! * `*INCLUDE, INPUT=file` (relative to the including file, nested up to 10 deep, cycles are
 //!   an error) and `INPUT=file` on `*NODE`, `*ELEMENT`, `*NSET`, `*ELSET`, `*SURFACE`.
-//! * `*PART` / `*END PART` / `*ASSEMBLY` / `*INSTANCE` / `*END INSTANCE` / `*END ASSEMBLY`:
-//!   a simplification of ABAQUS parts and instances. Only the first part's nodes and
-//!   elements are read (later parts are skipped with a warning), instance positioning
-//!   (translation/rotation lines) is ignored with a warning, and assembly-level sets with
-//!   `INSTANCE=<an instance of the first part>` are read as plain sets (instance-qualified
-//!   names like `Part-1-1.Set-1` resolve to `Set-1`). Assembly-level nodes (reference points)
-//!   and sets without `INSTANCE=` are skipped with a warning.
+//! * `*PART` / `*END PART` / `*ASSEMBLY` / `*INSTANCE` / `*END INSTANCE` / `*END ASSEMBLY`
+//!   (ABAQUS/CAE's layout). Every `*INSTANCE, NAME=i, PART=p` is a copy of part `p`'s nodes,
+//!   elements and sets (plus any `*NODE`/`*NSET`/... between `*INSTANCE` and `*END INSTANCE`),
+//!   placed by its optional data lines as ABAQUS does: a translation `dx, dy, dz`, then a
+//!   rotation `xa, ya, za, xb, yb, zb, angle` by `angle` degrees about the axis through a and b
+//!   (right-hand rule about a -> b), applied after the translation. The instances are merged
+//!   in file order; node and element ids stay the part's (they repeat across instances; a
+//!   warning lists each instance's node and element positions, and errors in a part's lines
+//!   name the instance being read). A part-level set `s` becomes `i.s` for each instance
+//!   (and also `s` when a single instance has a set of that name and the assembly defines
+//!   none). Assembly-level `*NSET` / `*ELSET` with `INSTANCE=i` take ids (and set names) of
+//!   instance `i` and keep their plain names; without `INSTANCE=`, sets of set names are read
+//!   and sets of ids (assembly nodes: reference points) are skipped with a warning, as are
+//!   assembly `*NODE`/`*ELEMENT` lines. Instances without volume elements (rigid or analytic
+//!   parts) or of another element shape than the first instance read are skipped with a
+//!   warning, with the assembly sets on them. Mesh data outside `*PART` in such a file is read
+//!   as one more body with plain set names.
 //! * Everything else (`*MATERIAL`, `*SOLID SECTION`, `*STEP` .. `*END STEP`, `*BOUNDARY`, ...)
 //!   is skipped with its data lines; one warning lists the skipped keywords.
 //!
@@ -83,6 +93,9 @@ pub fn parse_inp(text: &str, path: &Path) -> Result<MeshInput> {
     let mut lines = Vec::new();
     flat.flatten(text, 0, 0, &mut lines)?;
     let files = Files(flat.files);
+    if has_parts(&lines) {
+        return parse_assembly(&lines, &files);
+    }
     let mut p = Parser::new(&files);
     p.run(&lines)?;
     p.finish()
@@ -560,12 +573,91 @@ struct SurfElem {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum Mode {
     Top,
-    Part { active: bool },
-    Assembly,
-    Instance { active: bool },
     Step,
 }
 
+/// What the reader tells the user besides the mesh, gathered over every part read.
+#[derive(Default)]
+struct Notes {
+    warnings: Vec<String>,
+    /// Skipped keywords: (normalized name, name as written), first occurrence of each.
+    skipped: Vec<(String, String)>,
+    ignored_types: BTreeMap<String, usize>,
+    extra_node_fields: usize,
+    pre_keyword_lines: usize,
+    assembly_nodes_skipped: usize,
+    assembly_sets_skipped: Vec<String>,
+}
+
+impl Notes {
+    fn skip_keyword(&mut self, kw: &Keyword) {
+        if !self.skipped.iter().any(|(n, _)| *n == kw.name) {
+            self.skipped.push((kw.name.clone(), kw.shown.clone()));
+        }
+    }
+
+    /// Adds the notes of another part read (each warning once).
+    fn absorb(&mut self, o: Notes) {
+        for w in o.warnings {
+            if !self.warnings.contains(&w) {
+                self.warnings.push(w);
+            }
+        }
+        for (n, shown) in o.skipped {
+            if !self.skipped.iter().any(|(m, _)| *m == n) {
+                self.skipped.push((n, shown));
+            }
+        }
+        for (ty, n) in o.ignored_types {
+            *self.ignored_types.entry(ty).or_insert(0) += n;
+        }
+        self.extra_node_fields += o.extra_node_fields;
+        self.pre_keyword_lines += o.pre_keyword_lines;
+        self.assembly_nodes_skipped += o.assembly_nodes_skipped;
+        self.assembly_sets_skipped.extend(o.assembly_sets_skipped);
+    }
+
+    fn into_warnings(self) -> Vec<String> {
+        let mut warnings = self.warnings;
+        if self.pre_keyword_lines > 0 {
+            warnings.push(format!(
+                "{} data line(s) before the first keyword were ignored",
+                self.pre_keyword_lines
+            ));
+        }
+        if self.extra_node_fields > 0 {
+            warnings.push(format!(
+                "{} *NODE line(s) have more than 3 coordinates; the extra fields were ignored",
+                self.extra_node_fields
+            ));
+        }
+        for (ty, n) in &self.ignored_types {
+            warnings.push(format!(
+                "ignored {n} element(s) of type {ty} (line/point elements are not part of a volume mesh)"
+            ));
+        }
+        if self.assembly_nodes_skipped > 0 {
+            warnings.push(format!(
+                "{} node/element line(s) defined in the assembly (reference points?) were skipped",
+                self.assembly_nodes_skipped
+            ));
+        }
+        if !self.assembly_sets_skipped.is_empty() {
+            warnings.push(format!(
+                "assembly-level set(s) of assembly nodes (no INSTANCE=) or of skipped instances were skipped: {}",
+                self.assembly_sets_skipped.join(", ")
+            ));
+        }
+        if !self.skipped.is_empty() {
+            let names: Vec<&str> = self.skipped.iter().map(|(_, s)| s.as_str()).collect();
+            warnings.push(format!("skipped keywords: {}", names.join(", ")));
+        }
+        warnings
+    }
+}
+
+/// Reads the nodes, elements and sets of one mesh body: a whole file without parts, or one
+/// part (with its instance's own lines) of an assembly.
 struct Parser<'f> {
     files: &'f Files,
     nodes: Vec<Vector3<f64>>,
@@ -580,25 +672,44 @@ struct Parser<'f> {
     surf: Vec<SurfElem>,
     elem_index: HashMap<u64, (ElemRef, Loc)>,
     events: Vec<SetEvent>,
-    warnings: Vec<String>,
-    skipped: Vec<String>,
-    skipped_seen: HashSet<String>,
-    ignored_types: BTreeMap<String, usize>,
-    extra_node_fields: usize,
-    pre_keyword_lines: usize,
+    notes: Notes,
     mode: Mode,
-    parts_seen: usize,
-    first_part: Option<String>,
-    skipped_parts: Vec<String>,
-    /// Instance name (upper case) -> whether it is an instance of the part read.
-    instances: HashMap<String, bool>,
-    first_instances: Vec<String>,
-    assembly_nodes_skipped: usize,
-    assembly_sets_skipped: Vec<String>,
 }
 
 fn upper(s: &str) -> String {
     s.to_ascii_uppercase()
+}
+
+/// A keyword line with its data lines.
+struct Block<'l, 'a> {
+    kw: Keyword,
+    loc: Loc,
+    data: &'l [Line<'a>],
+}
+
+/// The keyword blocks of a list of lines, and the number of data lines before the first
+/// keyword.
+fn blocks<'l, 'a>(lines: &'l [Line<'a>]) -> (usize, Vec<Block<'l, 'a>>) {
+    let mut out = Vec::new();
+    let mut pre = 0;
+    let mut i = 0;
+    while let Some(l) = lines.get(i) {
+        i += 1;
+        if !l.keyword {
+            pre += 1;
+            continue;
+        }
+        let start = i;
+        while lines.get(i).is_some_and(|d| !d.keyword) {
+            i += 1;
+        }
+        out.push(Block {
+            kw: parse_keyword(&l.text),
+            loc: l.loc,
+            data: lines.get(start..i).unwrap_or(&[]),
+        });
+    }
+    (pre, out)
 }
 
 impl<'f> Parser<'f> {
@@ -616,20 +727,8 @@ impl<'f> Parser<'f> {
             surf: Vec::new(),
             elem_index: HashMap::new(),
             events: Vec::new(),
-            warnings: Vec::new(),
-            skipped: Vec::new(),
-            skipped_seen: HashSet::new(),
-            ignored_types: BTreeMap::new(),
-            extra_node_fields: 0,
-            pre_keyword_lines: 0,
+            notes: Notes::default(),
             mode: Mode::Top,
-            parts_seen: 0,
-            first_part: None,
-            skipped_parts: Vec::new(),
-            instances: HashMap::new(),
-            first_instances: Vec::new(),
-            assembly_nodes_skipped: 0,
-            assembly_sets_skipped: Vec::new(),
         }
     }
 
@@ -637,43 +736,18 @@ impl<'f> Parser<'f> {
         self.files.err(loc, msg)
     }
 
-    fn skip_keyword(&mut self, kw: &Keyword) {
-        if self.skipped_seen.insert(kw.name.clone()) {
-            self.skipped.push(kw.shown.clone());
-        }
-    }
-
     fn run(&mut self, lines: &[Line]) -> Result<()> {
-        let mut i = 0;
-        while let Some(l) = lines.get(i) {
-            i += 1;
-            if !l.keyword {
-                self.pre_keyword_lines += 1;
-                continue;
-            }
-            let start = i;
-            while lines.get(i).is_some_and(|d| !d.keyword) {
-                i += 1;
-            }
-            let data = lines.get(start..i).unwrap_or(&[]);
-            let kw = parse_keyword(&l.text);
-            self.keyword(&kw, l.loc, data)?;
+        let (pre, blocks) = blocks(lines);
+        self.notes.pre_keyword_lines += pre;
+        for b in &blocks {
+            self.keyword(&b.kw, b.loc, b.data)?;
         }
         Ok(())
     }
 
-    /// Whether node/element definitions here belong to the mesh read.
-    fn mesh_active(&self) -> bool {
-        match self.mode {
-            Mode::Top => true,
-            Mode::Part { active } | Mode::Instance { active } => active,
-            Mode::Assembly | Mode::Step => false,
-        }
-    }
-
     fn keyword(&mut self, kw: &Keyword, loc: Loc, data: &[Line]) -> Result<()> {
         if self.mode == Mode::Step {
-            self.skip_keyword(kw);
+            self.notes.skip_keyword(kw);
             if kw.name == "ENDSTEP" {
                 self.mode = Mode::Top;
             }
@@ -681,121 +755,48 @@ impl<'f> Parser<'f> {
         }
         match kw.name.as_str() {
             "HEADING" => {}
-            "PART" => {
-                self.parts_seen += 1;
-                let name = kw.get("NAME").unwrap_or("").to_string();
-                if self.parts_seen == 1 {
-                    self.first_part = Some(name);
-                    self.mode = Mode::Part { active: true };
-                } else {
-                    self.skipped_parts.push(name);
-                    self.mode = Mode::Part { active: false };
-                }
-            }
-            "ENDPART" | "ENDASSEMBLY" => self.mode = Mode::Top,
-            "ASSEMBLY" | "ENDINSTANCE" => self.mode = Mode::Assembly,
-            "INSTANCE" => self.instance(kw, data),
             "STEP" => {
-                self.skip_keyword(kw);
+                self.notes.skip_keyword(kw);
                 self.mode = Mode::Step;
             }
-            "NODE" => {
-                if self.mesh_active() {
-                    self.node_block(kw, data)?;
-                } else {
-                    self.inactive_mesh_data(data.len());
-                }
-            }
-            "ELEMENT" => {
-                if self.mesh_active() {
-                    self.element_block(kw, loc, data)?;
-                } else {
-                    self.inactive_mesh_data(data.len());
-                }
-            }
+            "NODE" => self.node_block(kw, data)?,
+            "ELEMENT" => self.element_block(kw, loc, data)?,
             "NSET" | "ELSET" => {
                 let key = if kw.name == "NSET" { "NSET" } else { "ELSET" };
                 let name = kw.get(key).unwrap_or("").to_string();
                 if name.is_empty() {
                     return Err(self.err(loc, format!("{} without {key}=<name>", kw.shown)));
                 }
-                if self.sets_active(kw, &name) {
-                    self.set_block(kw, key == "NSET", name, loc, data)?;
-                }
+                self.set_block(kw, key == "NSET", name, loc, data)?;
             }
             "SURFACE" => {
-                let name = kw.get("NAME").unwrap_or("").to_string();
-                if name.is_empty() {
-                    return Err(self.err(loc, format!("{} without NAME=<name>", kw.shown)));
-                }
-                let active = !matches!(
-                    self.mode,
-                    Mode::Part { active: false } | Mode::Instance { active: false }
-                );
-                let ty = kw
-                    .get("TYPE")
-                    .map(upper)
-                    .unwrap_or_else(|| "ELEMENT".into());
-                if ty != "ELEMENT" {
-                    self.warnings.push(format!(
-                        "{}: surface '{name}' of TYPE={ty} is not a set of element faces; skipped",
-                        self.files.at(loc)
-                    ));
-                } else if active {
+                if let Some(name) = self.surface_name(kw, loc)? {
                     self.surface_block(name, data)?;
                 }
             }
-            _ => self.skip_keyword(kw),
+            _ => self.notes.skip_keyword(kw),
         }
         Ok(())
     }
 
-    fn inactive_mesh_data(&mut self, n: usize) {
-        if matches!(self.mode, Mode::Assembly | Mode::Instance { .. }) {
-            self.assembly_nodes_skipped += n;
-        }
-        // Later parts: reported through skipped_parts.
-    }
-
-    fn instance(&mut self, kw: &Keyword, data: &[Line]) {
+    /// The name of an element-face *SURFACE, or None (with a warning) for other types.
+    fn surface_name(&mut self, kw: &Keyword, loc: Loc) -> Result<Option<String>> {
         let name = kw.get("NAME").unwrap_or("").to_string();
-        let part = kw.get("PART").unwrap_or("");
-        let of_first = match &self.first_part {
-            Some(f) => f.eq_ignore_ascii_case(part),
-            // No part definitions: the first instance may define its own nodes.
-            None => self.first_instances.is_empty(),
-        };
-        self.instances.insert(upper(&name), of_first);
-        if of_first {
-            self.first_instances.push(name.clone());
+        if name.is_empty() {
+            return Err(self.err(loc, format!("{} without NAME=<name>", kw.shown)));
         }
-        let moved = data
-            .iter()
-            .any(|l| fields(&l.text).iter().any(|f| f.parse::<f64>() != Ok(0.0)));
-        if moved {
-            self.warnings.push(format!(
-                "instance '{name}' has positioning lines (translation/rotation); hytled ignores them and reads the part's coordinates"
+        let ty = kw
+            .get("TYPE")
+            .map(upper)
+            .unwrap_or_else(|| "ELEMENT".into());
+        if ty != "ELEMENT" {
+            self.notes.warnings.push(format!(
+                "{}: surface '{name}' of TYPE={ty} is not a set of element faces; skipped",
+                self.files.at(loc)
             ));
+            return Ok(None);
         }
-        self.mode = Mode::Instance {
-            active: of_first && self.parts_seen == 0,
-        };
-    }
-
-    /// Whether an *NSET / *ELSET here is read.
-    fn sets_active(&mut self, kw: &Keyword, name: &str) -> bool {
-        match self.mode {
-            Mode::Top => true,
-            Mode::Part { active } | Mode::Instance { active } => active,
-            Mode::Step => false,
-            Mode::Assembly => match kw.get("INSTANCE") {
-                Some(inst) if self.instances.get(&upper(inst)).copied().unwrap_or(false) => true,
-                _ => {
-                    self.assembly_sets_skipped.push(name.to_string());
-                    false
-                }
-            },
-        }
+        Ok(Some(name))
     }
 
     // -- *NODE ---------------------------------------------------------------------------------
@@ -829,7 +830,7 @@ impl<'f> Parser<'f> {
                 ));
             }
             if coords.len() > 3 {
-                self.extra_node_fields += 1;
+                self.notes.extra_node_fields += 1;
             }
             let mut x = [0.0; 3];
             for (k, c) in coords.iter().take(3).enumerate() {
@@ -921,7 +922,7 @@ impl<'f> Parser<'f> {
             ));
         }
         if matches!(kind, ElemKind::Ignored(_)) {
-            *self.ignored_types.entry(ty.clone()).or_insert(0) += refs.len();
+            *self.notes.ignored_types.entry(ty.clone()).or_insert(0) += refs.len();
         }
         if let Some(name) = elset {
             self.events.push(SetEvent::ElemBlock { name, refs });
@@ -1125,15 +1126,12 @@ impl<'f> Parser<'f> {
 
     // -- Resolution ----------------------------------------------------------------------------
 
-    fn finish(self) -> Result<MeshInput> {
+    /// Resolves node references and set definitions: the body's mesh (cells empty and a
+    /// placeholder shape when it has no volume elements), ids and sets by upper-case name.
+    fn resolve(self) -> Result<(Body, Notes)> {
         let files = self.files;
-        let Some((shape, _, _)) = self.shape else {
-            return Err(Error::Input(format!(
-                "{}: no volume elements (C3D8*/C3D4*) found; hytled needs a hexahedral or tetrahedral volume mesh",
-                files.name(0)
-            )));
-        };
-        let npe = shape.nodes_per_cell();
+        let shape = self.shape.map(|s| s.0);
+        let npe = shape.map_or(8, |s| s.nodes_per_cell());
         let lookup_node = |nid: u64, eid: u64, loc: Loc| -> Result<usize> {
             self.node_index.get(&nid).copied().ok_or_else(|| {
                 files.err(
@@ -1163,149 +1161,719 @@ impl<'f> Parser<'f> {
         }
         let mesh = Mesh {
             nodes: self.nodes,
-            shape,
+            shape: shape.unwrap_or(ElementShape::Hex8),
             cells,
         };
-
-        let mut r = Resolver {
-            files,
-            node_index: &self.node_index,
-            elem_index: &self.elem_index,
-            mesh: &mesh,
-            faces: &faces,
-            nsets: HashMap::new(),
-            elsets: HashMap::new(),
-            surfaces: HashMap::new(),
-        };
+        let mut r = Resolver::new(files, &self.node_index, &self.elem_index, &mesh, &faces);
         for ev in &self.events {
             r.event(ev)?;
         }
+        let (nsets, elsets, surfaces) = (r.nsets, r.elsets, r.surfaces);
+        Ok((
+            Body {
+                mesh,
+                shape,
+                node_ids: self.node_ids,
+                node_index: self.node_index,
+                vol_ids: self.vol_ids,
+                elem_index: self.elem_index,
+                faces,
+                nsets,
+                elsets,
+                surfaces,
+            },
+            self.notes,
+        ))
+    }
 
-        let mut node_sets = BTreeMap::new();
-        for (_, (name, mut v)) in r.nsets {
+    fn finish(self) -> Result<MeshInput> {
+        if self.shape.is_none() {
+            return Err(Error::Input(format!(
+                "{}: no volume elements (C3D8*/C3D4*) found; hytled needs a hexahedral or tetrahedral volume mesh",
+                self.files.name(0)
+            )));
+        }
+        let (body, notes) = self.resolve()?;
+        let ids = body.vol_ids.clone();
+        Ok(build_input(body, notes, |e| {
+            format!("element {}", ids.get(e).copied().unwrap_or(0))
+        }))
+    }
+}
+
+/// A mesh body with its sets, resolved.
+struct Body {
+    mesh: Mesh,
+    shape: Option<ElementShape>,
+    node_ids: Vec<u64>,
+    node_index: HashMap<u64, usize>,
+    vol_ids: Vec<u64>,
+    elem_index: HashMap<u64, (ElemRef, Loc)>,
+    faces: Vec<Vec<usize>>,
+    nsets: HashMap<String, (String, Vec<usize>)>,
+    elsets: HashMap<String, ElsetAcc>,
+    surfaces: HashMap<String, (String, Vec<Vec<usize>>)>,
+}
+
+/// The [`MeshInput`] of a resolved body: sets by their names, the notes as warnings, and the
+/// unused-node and inverted-element checks (`label` names an element by its index).
+fn build_input(body: Body, notes: Notes, label: impl Fn(usize) -> String) -> MeshInput {
+    let Body {
+        mesh,
+        node_ids,
+        vol_ids,
+        faces,
+        nsets,
+        elsets,
+        surfaces,
+        ..
+    } = body;
+    let mut node_sets = BTreeMap::new();
+    for (_, (name, mut v)) in nsets {
+        v.sort_unstable();
+        v.dedup();
+        node_sets.insert(name, v);
+    }
+    let mut element_sets = BTreeMap::new();
+    let mut face_acc: HashMap<String, (String, Vec<Vec<usize>>)> = HashMap::new();
+    for (key, acc) in elsets {
+        if !acc.vol.is_empty() || (acc.faces.is_empty() && !acc.ignored) {
+            let mut v = acc.vol;
             v.sort_unstable();
             v.dedup();
-            node_sets.insert(name, v);
+            element_sets.insert(acc.name.clone(), v);
         }
-        let mut element_sets = BTreeMap::new();
-        let mut face_acc: HashMap<String, (String, Vec<Vec<usize>>)> = HashMap::new();
-        for (key, acc) in r.elsets {
-            if !acc.vol.is_empty() || (acc.faces.is_empty() && !acc.ignored) {
-                let mut v = acc.vol;
-                v.sort_unstable();
-                v.dedup();
-                element_sets.insert(acc.name.clone(), v);
-            }
-            if !acc.faces.is_empty() {
-                let mut seen = HashSet::new();
-                let fs: Vec<Vec<usize>> = acc
-                    .faces
-                    .iter()
-                    .filter(|&&i| seen.insert(i))
-                    .filter_map(|&i| faces.get(i).cloned())
-                    .collect();
-                face_acc.insert(key, (acc.name, fs));
-            }
+        if !acc.faces.is_empty() {
+            let mut seen = HashSet::new();
+            let fs: Vec<Vec<usize>> = acc
+                .faces
+                .iter()
+                .filter(|&&i| seen.insert(i))
+                .filter_map(|&i| faces.get(i).cloned())
+                .collect();
+            face_acc.insert(key, (acc.name, fs));
         }
-        for (key, (name, fs)) in r.surfaces {
-            face_acc
-                .entry(key)
-                .or_insert_with(|| (name, Vec::new()))
-                .1
-                .extend(fs);
-        }
-        let face_sets: BTreeMap<String, Vec<Vec<usize>>> = face_acc.into_values().collect();
-
-        // Warnings.
-        let mut warnings = self.warnings;
-        if self.pre_keyword_lines > 0 {
-            warnings.push(format!(
-                "{} data line(s) before the first keyword were ignored",
-                self.pre_keyword_lines
-            ));
-        }
-        if self.extra_node_fields > 0 {
-            warnings.push(format!(
-                "{} *NODE line(s) have more than 3 coordinates; the extra fields were ignored",
-                self.extra_node_fields
-            ));
-        }
-        for (ty, n) in &self.ignored_types {
-            warnings.push(format!(
-                "ignored {n} element(s) of type {ty} (line/point elements are not part of a volume mesh)"
-            ));
-        }
-        if !self.skipped_parts.is_empty() {
-            warnings.push(format!(
-                "only the first *PART ('{}') is read; skipped part(s): {}",
-                self.first_part.as_deref().unwrap_or(""),
-                self.skipped_parts.join(", ")
-            ));
-        }
-        if self.first_instances.len() > 1 {
-            warnings.push(format!(
-                "{} instances of the part read ({}); hytled reads the part once and merges the instances' sets",
-                self.first_instances.len(),
-                self.first_instances.join(", ")
-            ));
-        }
-        if self.assembly_nodes_skipped > 0 {
-            warnings.push(format!(
-                "{} node/element line(s) defined in the assembly (reference points?) were skipped",
-                self.assembly_nodes_skipped
-            ));
-        }
-        if !self.assembly_sets_skipped.is_empty() {
-            warnings.push(format!(
-                "assembly-level set(s) without INSTANCE=<an instance of the part read> skipped: {}",
-                self.assembly_sets_skipped.join(", ")
-            ));
-        }
-        if !self.skipped.is_empty() {
-            warnings.push(format!("skipped keywords: {}", self.skipped.join(", ")));
-        }
-        let mut used = vec![false; mesh.nodes.len()];
-        for &c in &mesh.cells {
-            if let Some(u) = used.get_mut(c) {
-                *u = true;
-            }
-        }
-        let unused = used.iter().filter(|u| !**u).count();
-        if unused > 0 {
-            warnings.push(format!(
-                "{unused} node(s) are used by no volume element (kept)"
-            ));
-        }
-        let mut inverted = 0usize;
-        let mut first_inverted = None;
-        for (e, &eid) in self.vol_ids.iter().enumerate() {
-            let c = mesh.cell(e);
-            let corner = match shape {
-                ElementShape::Tet4 => [c[0], c[1], c[2], c[3]],
-                ElementShape::Hex8 => [c[0], c[1], c[3], c[4]],
-            };
-            let p = corner.map(|i| mesh.nodes.get(i).copied().unwrap_or_default());
-            if tet_signed_volume(&p[0], &p[1], &p[2], &p[3]) <= 0.0 {
-                inverted += 1;
-                first_inverted.get_or_insert(eid);
-            }
-        }
-        if let Some(eid) = first_inverted {
-            warnings.push(format!(
-                "{inverted} element(s) have non-positive volume at their first corner (first: element {eid}); check their node order"
-            ));
-        }
-
-        Ok(MeshInput {
-            mesh,
-            node_ids: self.node_ids,
-            element_ids: self.vol_ids,
-            node_sets,
-            element_sets,
-            face_sets,
-            warnings,
-        })
     }
+    for (key, (name, fs)) in surfaces {
+        face_acc
+            .entry(key)
+            .or_insert_with(|| (name, Vec::new()))
+            .1
+            .extend(fs);
+    }
+    let face_sets: BTreeMap<String, Vec<Vec<usize>>> = face_acc.into_values().collect();
+
+    let mut warnings = notes.into_warnings();
+    let mut used = vec![false; mesh.nodes.len()];
+    for &c in &mesh.cells {
+        if let Some(u) = used.get_mut(c) {
+            *u = true;
+        }
+    }
+    let unused = used.iter().filter(|u| !**u).count();
+    if unused > 0 {
+        warnings.push(format!(
+            "{unused} node(s) are used by no volume element (kept)"
+        ));
+    }
+    let shape = mesh.shape;
+    let mut inverted = 0usize;
+    let mut first_inverted = None;
+    for e in 0..vol_ids.len().min(mesh.num_cells()) {
+        let c = mesh.cell(e);
+        let corner = match shape {
+            ElementShape::Tet4 => [c[0], c[1], c[2], c[3]],
+            ElementShape::Hex8 => [c[0], c[1], c[3], c[4]],
+        };
+        let p = corner.map(|i| mesh.nodes.get(i).copied().unwrap_or_default());
+        if tet_signed_volume(&p[0], &p[1], &p[2], &p[3]) <= 0.0 {
+            inverted += 1;
+            first_inverted.get_or_insert(e);
+        }
+    }
+    if let Some(e) = first_inverted {
+        warnings.push(format!(
+            "{inverted} element(s) have non-positive volume at their first corner (first: {}); check their node order",
+            label(e)
+        ));
+    }
+
+    MeshInput {
+        mesh,
+        node_ids,
+        element_ids: vol_ids,
+        node_sets,
+        element_sets,
+        face_sets,
+        warnings,
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Parts, instances and the assembly
+// ---------------------------------------------------------------------------------------------
+
+/// Whether the file uses parts and an assembly.
+fn has_parts(lines: &[Line]) -> bool {
+    lines.iter().any(|l| {
+        l.keyword
+            && matches!(
+                parse_keyword(&l.text).name.as_str(),
+                "PART" | "ASSEMBLY" | "INSTANCE"
+            )
+    })
+}
+
+struct PartDef<'l, 'a> {
+    name: String,
+    loc: Loc,
+    body: Vec<Block<'l, 'a>>,
+}
+
+struct InstanceDef<'l, 'a> {
+    name: String,
+    part: String,
+    loc: Loc,
+    /// The positioning lines (translation, rotation).
+    place: &'l [Line<'a>],
+    /// Keywords between *Instance and *End Instance (reference points, sets).
+    body: Vec<Block<'l, 'a>>,
+}
+
+/// Where the keyword blocks of an assembly file go.
+#[derive(Clone, Copy)]
+enum Region {
+    Top,
+    Part(usize),
+    Assembly,
+    Instance(usize),
+    Step,
+}
+
+/// An instance's placement: translation, then rotation about the axis through points a and b
+/// by an angle in degrees (right-hand rule about a -> b), as ABAQUS applies them.
+struct Placement {
+    translation: Vector3<f64>,
+    rotation: Option<(Vector3<f64>, nalgebra::Rotation3<f64>)>,
+}
+
+impl Placement {
+    fn parse(inst: &InstanceDef, files: &Files) -> Result<Placement> {
+        let what = format!("*Instance {}", inst.name);
+        let numbers = |l: &Line, n: usize, meaning: &str| -> Result<Vec<f64>> {
+            let f = fields(&l.text);
+            if f.len() > n {
+                return Err(files.err(
+                    l.loc,
+                    format!(
+                        "{what}: {} fields on the {meaning} line; it has {n}",
+                        f.len()
+                    ),
+                ));
+            }
+            let mut v = vec![0.0; n];
+            for (k, s) in f.iter().enumerate() {
+                if !s.is_empty() {
+                    v[k] = parse_coord(s)
+                        .map_err(|m| files.err(l.loc, format!("{what} {meaning} line: {m}")))?;
+                }
+            }
+            Ok(v)
+        };
+        let mut p = Placement {
+            translation: Vector3::zeros(),
+            rotation: None,
+        };
+        if let Some(l) = inst.place.first() {
+            let t = numbers(l, 3, "translation (dx, dy, dz)")?;
+            p.translation = Vector3::new(t[0], t[1], t[2]);
+        }
+        if let Some(l) = inst.place.get(1) {
+            let r = numbers(l, 7, "rotation (xa, ya, za, xb, yb, zb, angle)")?;
+            let a = Vector3::new(r[0], r[1], r[2]);
+            let b = Vector3::new(r[3], r[4], r[5]);
+            if r[6] != 0.0 {
+                let axis = nalgebra::Unit::try_new(b - a, 0.0).ok_or_else(|| {
+                    files.err(
+                        l.loc,
+                        format!("{what}: the rotation axis points a and b coincide"),
+                    )
+                })?;
+                p.rotation = Some((
+                    a,
+                    nalgebra::Rotation3::from_axis_angle(&axis, r[6].to_radians()),
+                ));
+            }
+        }
+        if let Some(l) = inst.place.get(2) {
+            return Err(files.err(
+                l.loc,
+                format!(
+                    "{what}: more than two positioning lines (translation, rotation); hytled reads those two"
+                ),
+            ));
+        }
+        Ok(p)
+    }
+
+    fn apply(&self, x: &Vector3<f64>) -> Vector3<f64> {
+        let y = x + self.translation;
+        match &self.rotation {
+            Some((a, r)) => a + r * (y - a),
+            None => y,
+        }
+    }
+}
+
+/// Adds "[instance 'I' of part 'P']" to an input error.
+fn in_instance(e: Error, inst: &InstanceDef) -> Error {
+    match e {
+        Error::Input(m) => Error::Input(format!(
+            "{m} [instance '{}' of part '{}']",
+            inst.name, inst.part
+        )),
+        other => other,
+    }
+}
+
+/// Node and element ids of one instance read, with their positions in the merged mesh.
+struct InstanceMaps {
+    node_index: HashMap<u64, usize>,
+    elem_index: HashMap<u64, (ElemRef, Loc)>,
+}
+
+/// Reads a file with `*Part`s and an `*Assembly`: every instance is a copy of its part's
+/// nodes, elements and sets, placed by its translation/rotation lines; see the module docs.
+fn parse_assembly(lines: &[Line], files: &Files) -> Result<MeshInput> {
+    let (pre, all) = blocks(lines);
+    let mut top: Vec<Block> = Vec::new();
+    let mut parts: Vec<PartDef> = Vec::new();
+    let mut instances: Vec<InstanceDef> = Vec::new();
+    let mut assembly: Vec<Block> = Vec::new();
+    let mut region = Region::Top;
+    for b in all {
+        match (region, b.kw.name.as_str()) {
+            (Region::Step, "ENDSTEP") => {
+                top.push(b);
+                region = Region::Top;
+            }
+            (Region::Step, _) => top.push(b),
+            (_, "STEP") => {
+                top.push(b);
+                region = Region::Step;
+            }
+            (_, "PART") => {
+                if let Region::Part(i) = region {
+                    return Err(files.err(
+                        b.loc,
+                        format!(
+                            "{} inside part '{}' (line {}): its *End Part is missing",
+                            b.kw.shown, parts[i].name, parts[i].loc.line
+                        ),
+                    ));
+                }
+                let name = b.kw.get("NAME").unwrap_or("").to_string();
+                if name.is_empty() {
+                    return Err(files.err(b.loc, format!("{} without NAME=<name>", b.kw.shown)));
+                }
+                if let Some(p) = parts.iter().find(|p| p.name.eq_ignore_ascii_case(&name)) {
+                    return Err(files.err(
+                        b.loc,
+                        format!(
+                            "part '{name}' is defined twice (first at {})",
+                            files.at(p.loc)
+                        ),
+                    ));
+                }
+                parts.push(PartDef {
+                    name,
+                    loc: b.loc,
+                    body: Vec::new(),
+                });
+                region = Region::Part(parts.len() - 1);
+            }
+            (_, "ENDPART") | (_, "ENDASSEMBLY") => region = Region::Top,
+            (_, "ASSEMBLY") | (_, "ENDINSTANCE") => region = Region::Assembly,
+            (_, "INSTANCE") => {
+                let name = b.kw.get("NAME").unwrap_or("").to_string();
+                if name.is_empty() {
+                    return Err(files.err(b.loc, format!("{} without NAME=<name>", b.kw.shown)));
+                }
+                if let Some(i) = instances
+                    .iter()
+                    .find(|i| i.name.eq_ignore_ascii_case(&name))
+                {
+                    return Err(files.err(
+                        b.loc,
+                        format!(
+                            "instance '{name}' is defined twice (first at {})",
+                            files.at(i.loc)
+                        ),
+                    ));
+                }
+                instances.push(InstanceDef {
+                    name,
+                    part: b.kw.get("PART").unwrap_or("").to_string(),
+                    loc: b.loc,
+                    place: b.data,
+                    body: Vec::new(),
+                });
+                region = Region::Instance(instances.len() - 1);
+            }
+            (Region::Part(i), _) => parts[i].body.push(b),
+            (Region::Instance(i), _) => instances[i].body.push(b),
+            (Region::Assembly, _) => assembly.push(b),
+            (Region::Top, _) => top.push(b),
+        }
+    }
+
+    let mut notes = Notes {
+        pre_keyword_lines: pre,
+        ..Notes::default()
+    };
+    // Bodies to merge: mesh data outside parts (plain set names), then every instance.
+    let mut bodies: Vec<(Option<&InstanceDef>, Body)> = Vec::new();
+    let mut p = Parser::new(files);
+    for b in &top {
+        p.keyword(&b.kw, b.loc, b.data)?;
+    }
+    if !p.nodes.is_empty() || !p.vol_ids.is_empty() || !p.surf.is_empty() {
+        let (body, n) = p.resolve()?;
+        notes.absorb(n);
+        bodies.push((None, body));
+    } else {
+        notes.absorb(p.notes);
+    }
+    for inst in &instances {
+        let part = parts
+            .iter()
+            .find(|p| p.name.eq_ignore_ascii_case(&inst.part));
+        let own_nodes = inst.body.iter().any(|b| b.kw.name == "NODE");
+        if part.is_none() && !own_nodes {
+            return Err(files.err(
+                inst.loc,
+                format!(
+                    "*Instance {}: part '{}' is not defined (no *Part, name={} before the assembly)",
+                    inst.name, inst.part, inst.part
+                ),
+            ));
+        }
+        let mut p = Parser::new(files);
+        for b in part
+            .map_or(&[][..], |p| &p.body[..])
+            .iter()
+            .chain(&inst.body)
+        {
+            p.keyword(&b.kw, b.loc, b.data)
+                .map_err(|e| in_instance(e, inst))?;
+        }
+        let (mut body, n) = p.resolve().map_err(|e| in_instance(e, inst))?;
+        notes.absorb(n);
+        let place = Placement::parse(inst, files)?;
+        for (k, x) in body.mesh.nodes.iter_mut().enumerate() {
+            *x = place.apply(x);
+            if !x.iter().all(|v| v.is_finite()) {
+                return Err(files.err(
+                    inst.loc,
+                    format!(
+                        "*Instance {}: node {} is not finite after the translation/rotation",
+                        inst.name,
+                        body.node_ids.get(k).copied().unwrap_or(0)
+                    ),
+                ));
+            }
+        }
+        bodies.push((Some(inst), body));
+    }
+
+    // Merge the bodies of the first shape read.
+    let mut shape: Option<(ElementShape, String)> = None;
+    let mut skipped: HashSet<String> = HashSet::new();
+    let mut nodes = Vec::new();
+    let mut node_ids = Vec::new();
+    let mut cells = Vec::new();
+    let mut vol_ids = Vec::new();
+    let mut faces: Vec<Vec<usize>> = Vec::new();
+    let mut nsets: HashMap<String, (String, Vec<usize>)> = HashMap::new();
+    let mut elsets: HashMap<String, ElsetAcc> = HashMap::new();
+    let mut surfaces: HashMap<String, (String, Vec<Vec<usize>>)> = HashMap::new();
+    let mut maps: HashMap<String, InstanceMaps> = HashMap::new();
+    // Part-level set names (kind, upper-case name) -> (qualified key, name) for each instance.
+    let mut local: BTreeMap<(u8, String), Vec<(String, String)>> = BTreeMap::new();
+    // Element index ranges of the instances, for messages.
+    let mut ranges: Vec<(usize, usize, String)> = Vec::new();
+    let mut listing: Vec<String> = Vec::new();
+    for (inst, body) in bodies {
+        let who = inst.map_or_else(
+            || "mesh data outside *Part".to_string(),
+            |i| format!("instance '{}' (part '{}')", i.name, i.part),
+        );
+        match (body.shape, &shape) {
+            (None, _) => {
+                notes.warnings.push(format!(
+                    "{who} has no volume elements (C3D8*/C3D4*); skipped"
+                ));
+                if let Some(i) = inst {
+                    skipped.insert(upper(&i.name));
+                }
+                continue;
+            }
+            (Some(s), Some((s0, first))) if s != *s0 => {
+                notes.warnings.push(format!(
+                    "{who} is {} but {first} is {}; hytled reads one element shape, so it was skipped",
+                    shape_name(s),
+                    shape_name(*s0)
+                ));
+                if let Some(i) = inst {
+                    skipped.insert(upper(&i.name));
+                }
+                continue;
+            }
+            (Some(s), None) => shape = Some((s, who.clone())),
+            _ => {}
+        }
+        let (no, co, fo) = (nodes.len(), vol_ids.len(), faces.len());
+        let shift = |r: ElemRef| match r {
+            ElemRef::Vol(i) => ElemRef::Vol(i + co),
+            ElemRef::Face(i) => ElemRef::Face(i + fo),
+            ElemRef::Ignored => ElemRef::Ignored,
+        };
+        nodes.extend_from_slice(&body.mesh.nodes);
+        node_ids.extend_from_slice(&body.node_ids);
+        cells.extend(body.mesh.cells.iter().map(|&c| c + no));
+        vol_ids.extend_from_slice(&body.vol_ids);
+        faces.extend(
+            body.faces
+                .iter()
+                .map(|f| f.iter().map(|&i| i + no).collect::<Vec<usize>>()),
+        );
+        let (prefix, shown) = match inst {
+            Some(i) => (format!("{}.", upper(&i.name)), format!("{}.", i.name)),
+            None => (String::new(), String::new()),
+        };
+        for (key, (name, v)) in body.nsets {
+            let q = format!("{prefix}{key}");
+            if inst.is_some() {
+                local
+                    .entry((0, key))
+                    .or_default()
+                    .push((q.clone(), name.clone()));
+            }
+            nsets.insert(
+                q,
+                (
+                    format!("{shown}{name}"),
+                    v.iter().map(|&i| i + no).collect(),
+                ),
+            );
+        }
+        for (key, acc) in body.elsets {
+            let q = format!("{prefix}{key}");
+            if inst.is_some() {
+                local
+                    .entry((1, key))
+                    .or_default()
+                    .push((q.clone(), acc.name.clone()));
+            }
+            elsets.insert(
+                q,
+                ElsetAcc {
+                    name: format!("{shown}{}", acc.name),
+                    vol: acc.vol.iter().map(|&i| i + co).collect(),
+                    faces: acc.faces.iter().map(|&i| i + fo).collect(),
+                    ignored: acc.ignored,
+                },
+            );
+        }
+        for (key, (name, fs)) in body.surfaces {
+            let q = format!("{prefix}{key}");
+            if inst.is_some() {
+                local
+                    .entry((2, key))
+                    .or_default()
+                    .push((q.clone(), name.clone()));
+            }
+            let fs = fs
+                .iter()
+                .map(|f| f.iter().map(|&i| i + no).collect())
+                .collect();
+            surfaces.insert(q, (format!("{shown}{name}"), fs));
+        }
+        let name = inst.map_or_else(String::new, |i| i.name.clone());
+        listing.push(format!(
+            "{who}: nodes {no}..{}, elements {co}..{}",
+            nodes.len(),
+            vol_ids.len()
+        ));
+        ranges.push((co, vol_ids.len(), name.clone()));
+        if let Some(i) = inst {
+            maps.insert(
+                upper(&i.name),
+                InstanceMaps {
+                    node_index: body.node_index.iter().map(|(&k, &v)| (k, v + no)).collect(),
+                    elem_index: body
+                        .elem_index
+                        .iter()
+                        .map(|(&k, &(r, l))| (k, (shift(r), l)))
+                        .collect(),
+                },
+            );
+        }
+    }
+    let Some((shape, _)) = shape else {
+        return Err(Error::Input(format!(
+            "{}: no volume elements (C3D8*/C3D4*) found in any part instance; hytled needs a hexahedral or tetrahedral volume mesh",
+            files.name(0)
+        )));
+    };
+    let mesh = Mesh {
+        nodes,
+        shape,
+        cells,
+    };
+
+    // Assembly-level sets and surfaces, in file order.
+    let empty_nodes = HashMap::new();
+    let empty_elems = HashMap::new();
+    let single = (maps.len() == 1).then(|| maps.values().next()).flatten();
+    let mut asm = Parser::new(files);
+    for b in &assembly {
+        let kw = &b.kw;
+        let (instance, event) = match kw.name.as_str() {
+            "NODE" | "ELEMENT" => {
+                notes.assembly_nodes_skipped += b.data.len();
+                continue;
+            }
+            "NSET" | "ELSET" => {
+                let key = if kw.name == "NSET" { "NSET" } else { "ELSET" };
+                let name = kw.get(key).unwrap_or("").to_string();
+                if name.is_empty() {
+                    return Err(files.err(b.loc, format!("{} without {key}=<name>", kw.shown)));
+                }
+                let instance = match kw.get("INSTANCE") {
+                    Some(i) if skipped.contains(&upper(i)) => {
+                        notes
+                            .assembly_sets_skipped
+                            .push(format!("{name} (instance {i})"));
+                        continue;
+                    }
+                    Some(i) if !maps.contains_key(&upper(i)) => {
+                        return Err(files.err(
+                            b.loc,
+                            format!(
+                                "{} {name}: INSTANCE={i} is not an instance of the assembly",
+                                kw.shown
+                            ),
+                        ))
+                    }
+                    Some(i) => Some(i.to_string()),
+                    None => None,
+                };
+                asm.set_block(kw, key == "NSET", name.clone(), b.loc, b.data)?;
+                let Some(ev) = asm.events.pop() else { continue };
+                let ids = match &ev {
+                    SetEvent::Nset { items, .. } | SetEvent::Elset { items, .. } => items
+                        .iter()
+                        .any(|(it, _)| matches!(it, Item::Id(_) | Item::Gen(..))),
+                    _ => false,
+                };
+                if instance.is_none() && ids {
+                    // Ids without INSTANCE= are assembly nodes/elements (reference points).
+                    notes.assembly_sets_skipped.push(name);
+                    continue;
+                }
+                (instance, ev)
+            }
+            "SURFACE" => {
+                let Some(name) = asm.surface_name(kw, b.loc)? else {
+                    continue;
+                };
+                asm.surface_block(name, b.data)?;
+                let Some(ev) = asm.events.pop() else { continue };
+                (None, ev)
+            }
+            _ => {
+                asm.notes.skip_keyword(kw);
+                continue;
+            }
+        };
+        let (node_index, elem_index) = match (&instance, single) {
+            (Some(i), _) => match maps.get(&upper(i)) {
+                Some(m) => (&m.node_index, &m.elem_index),
+                None => (&empty_nodes, &empty_elems),
+            },
+            // A surface listing element ids with a single instance: that instance's ids.
+            (None, Some(m)) => (&m.node_index, &m.elem_index),
+            (None, None) => (&empty_nodes, &empty_elems),
+        };
+        let mut r = Resolver::new(files, node_index, elem_index, &mesh, &faces);
+        r.nsets = std::mem::take(&mut nsets);
+        r.elsets = std::mem::take(&mut elsets);
+        r.surfaces = std::mem::take(&mut surfaces);
+        if let Some(i) = &instance {
+            r.prefix = Some(upper(i));
+            r.ctx = format!(" (in instance '{i}')");
+        }
+        let res = r.event(&event);
+        nsets = r.nsets;
+        elsets = r.elsets;
+        surfaces = r.surfaces;
+        res?;
+    }
+    notes.absorb(asm.notes);
+
+    // Plain names for part-level sets that only one instance has and the assembly does not
+    // define (so single-instance models keep the names of their part).
+    for ((kind, key), defs) in local {
+        let [(q, name)] = &defs[..] else { continue };
+        match kind {
+            0 if !nsets.contains_key(&key) => {
+                if let Some((_, v)) = nsets.get(q).cloned() {
+                    nsets.insert(key, (name.clone(), v));
+                }
+            }
+            1 if !elsets.contains_key(&key) => {
+                if let Some(mut acc) = elsets.get(q).cloned() {
+                    acc.name = name.clone();
+                    elsets.insert(key, acc);
+                }
+            }
+            2 if !surfaces.contains_key(&key) => {
+                if let Some((_, f)) = surfaces.get(q).cloned() {
+                    surfaces.insert(key, (name.clone(), f));
+                }
+            }
+            _ => {}
+        }
+    }
+    if listing.len() > 1 {
+        notes.warnings.push(format!(
+            "{} part instances read (node ids repeat across instances; positions in the mesh): {}",
+            listing.len(),
+            listing.join("; ")
+        ));
+    }
+
+    let body = Body {
+        mesh,
+        shape: Some(shape),
+        node_ids,
+        node_index: HashMap::new(),
+        vol_ids,
+        elem_index: HashMap::new(),
+        faces,
+        nsets,
+        elsets,
+        surfaces,
+    };
+    let ids = body.vol_ids.clone();
+    Ok(build_input(body, notes, |e| {
+        let id = ids.get(e).copied().unwrap_or(0);
+        match ranges.iter().find(|(a, b, _)| (*a..*b).contains(&e)) {
+            Some((_, _, n)) if !n.is_empty() => format!("element {id} of instance '{n}'"),
+            _ => format!("element {id}"),
+        }
+    }))
 }
 
 /// An element set being resolved: volume cells, surface elements, and whether it listed
@@ -1328,6 +1896,10 @@ struct Resolver<'a> {
     nsets: HashMap<String, (String, Vec<usize>)>,
     elsets: HashMap<String, ElsetAcc>,
     surfaces: HashMap<String, (String, Vec<Vec<usize>>)>,
+    /// Upper-case instance name whose sets are looked up first (assembly sets with INSTANCE=).
+    prefix: Option<String>,
+    /// Added to error messages (the instance).
+    ctx: String,
 }
 
 /// Finds a set by name, case-insensitively, also as `instance.name`.
@@ -1337,9 +1909,38 @@ fn find<'m, T>(map: &'m HashMap<String, T>, name: &str) -> Option<&'m T> {
         .or_else(|| key.rsplit_once('.').and_then(|(_, short)| map.get(short)))
 }
 
-impl Resolver<'_> {
+impl<'a> Resolver<'a> {
+    fn new(
+        files: &'a Files,
+        node_index: &'a HashMap<u64, usize>,
+        elem_index: &'a HashMap<u64, (ElemRef, Loc)>,
+        mesh: &'a Mesh,
+        faces: &'a [Vec<usize>],
+    ) -> Self {
+        Resolver {
+            files,
+            node_index,
+            elem_index,
+            mesh,
+            faces,
+            nsets: HashMap::new(),
+            elsets: HashMap::new(),
+            surfaces: HashMap::new(),
+            prefix: None,
+            ctx: String::new(),
+        }
+    }
+
     fn err(&self, loc: Loc, msg: impl std::fmt::Display) -> Error {
-        self.files.err(loc, msg)
+        self.files.err(loc, format!("{msg}{}", self.ctx))
+    }
+
+    /// A set by name: first as a set of the instance in `prefix`, then as [`find`] does.
+    fn lookup<'m, T>(&self, map: &'m HashMap<String, T>, name: &str) -> Option<&'m T> {
+        self.prefix
+            .as_ref()
+            .and_then(|p| map.get(&format!("{p}.{}", upper(name))))
+            .or_else(|| find(map, name))
     }
 
     fn elset_entry(&mut self, name: &str) -> &mut ElsetAcc {
@@ -1398,7 +1999,7 @@ impl Resolver<'_> {
                                 }
                             }
                         }
-                        Item::Name(other) => match find(&self.nsets, other) {
+                        Item::Name(other) => match self.lookup(&self.nsets, other) {
                             Some((_, nodes)) => v.extend(sorted_unique(nodes)),
                             None => {
                                 return Err(self.err(
@@ -1412,7 +2013,7 @@ impl Resolver<'_> {
                     }
                 }
                 if let Some(es) = elset {
-                    let Some(acc) = find(&self.elsets, es) else {
+                    let Some(acc) = self.lookup(&self.elsets, es) else {
                         return Err(self.err(
                             *loc,
                             format!("*NSET {name}: ELSET={es} is not an element set defined above"),
@@ -1452,7 +2053,7 @@ impl Resolver<'_> {
                                 }
                             }
                         }
-                        Item::Name(other) => match find(&self.elsets, other) {
+                        Item::Name(other) => match self.lookup(&self.elsets, other) {
                             Some(o) => {
                                 let o = o.deduped();
                                 add.vol.extend(o.vol);
@@ -1484,7 +2085,7 @@ impl Resolver<'_> {
                             add_ref(&mut a, self.elem(*id, &format!("*SURFACE {name}"), *loc)?);
                             a
                         }
-                        Target::Name(set) => match find(&self.elsets, set) {
+                        Target::Name(set) => match self.lookup(&self.elsets, set) {
                             Some(a) => a.deduped(),
                             None => {
                                 return Err(self.err(
@@ -2410,15 +3011,142 @@ Part-1-1.skinnodes
             vec![vec![6, 7, 10, 9], vec![7, 8, 11, 10]]
         );
         assert_eq!(m.face_sets["Load"], vec![vec![2, 5, 11, 8]]);
-        // The second part and the reference point are skipped, not read.
+        // The part's sets also under the instance's name.
+        assert_eq!(m.node_sets["Block-1.Set-1"], m.node_sets["Set-1"]);
+        assert_eq!(m.face_sets["Block-1.Top"], m.face_sets["Top"]);
+        assert_eq!(m.node_ids, (1..=12).collect::<Vec<u64>>());
+        // The tet instance (another shape) and the reference point are skipped, not read.
         let w = m.warnings.join("\n");
-        assert!(w.contains("only the first *PART ('Block')"), "{w}");
+        assert!(
+            w.contains("instance 'Indenter-1' (part 'Indenter') is tet4 but instance 'Block-1' (part 'Block') is hex8"),
+            "{w}"
+        );
+        assert!(w.contains("IndTip (instance Indenter-1)"), "{w}");
         assert!(
             w.contains("skipped keywords:") && w.contains("*Material") && w.contains("*Step"),
             "{w}"
         );
         assert!(w.contains("reference points"), "{w}");
         assert!(!w.contains("Fixed"), "{w}");
+    }
+
+    /// ABAQUS/CAE assembly: two placed instances of one part and one of another, part-level
+    /// sets per instance, assembly sets with INSTANCE=.
+    #[test]
+    fn assembly_instances_are_placed_copies() {
+        let m = read_inp(&data_file("abaqus_cae_two_instances.inp")).unwrap();
+        assert_eq!(m.mesh.shape, ElementShape::Hex8);
+        assert_eq!(m.mesh.nodes.len(), 32);
+        assert_eq!(m.mesh.num_cells(), 5);
+        let ids: Vec<u64> = (1..=12).chain(1..=12).chain(1..=8).collect();
+        assert_eq!(m.node_ids, ids);
+        assert_eq!(m.element_ids, vec![1, 2, 1, 2, 1]);
+        let near = |i: usize, x: [f64; 3]| {
+            let d = (m.mesh.nodes[i] - Vector3::from(x)).amax();
+            assert!(d < 1e-12, "node {i}: {:?} vs {x:?}", m.mesh.nodes[i]);
+        };
+        // Beam-1 as written.
+        near(2, [1.0, 0.0, 0.0]);
+        near(11, [1.0, 0.5, 0.5]);
+        // Beam-2: translated by (0, 0, 2), then turned 90 degrees about the z axis through
+        // (0, 0, 2): (x, y, z) -> (-y, x, z + 2).
+        near(12, [0.0, 0.0, 2.0]);
+        near(14, [0.0, 1.0, 2.0]);
+        near(23, [-0.5, 1.0, 2.5]);
+        // Pad-1: translated by (2, 0, 0).
+        near(31, [2.5, 0.5, 0.1]);
+        // Cells point into their own instance's nodes.
+        assert_eq!(&m.mesh.cells[16..24], &[12, 13, 16, 15, 18, 19, 22, 21]);
+        assert_eq!(&m.mesh.cells[32..40], &[24, 25, 27, 26, 28, 29, 31, 30]);
+        // Part-level sets, once per instance.
+        assert_eq!(m.node_sets["Beam-1.Set-All"], (0..12).collect::<Vec<_>>());
+        assert_eq!(m.node_sets["Beam-2.Set-All"], (12..24).collect::<Vec<_>>());
+        assert_eq!(m.element_sets["Beam-2.Set-All"], vec![2, 3]);
+        assert_eq!(m.node_sets["Beam-2.End"], vec![14, 17, 20, 23]);
+        assert_eq!(m.face_sets["Beam-2.Top"].len(), 2);
+        // A name only one instance has keeps its plain name too; shared ones do not.
+        assert_eq!(m.node_sets["PadAll"], (24..32).collect::<Vec<_>>());
+        assert_eq!(m.element_sets["Pad-1.PadAll"], vec![4]);
+        assert!(!m.node_sets.contains_key("Set-All") && !m.node_sets.contains_key("End"));
+        // Assembly sets: ids and set names resolved in their instance.
+        assert_eq!(m.node_sets["Fixed"], vec![0, 3, 6, 9]);
+        assert_eq!(m.node_sets["Ends"], vec![2, 5, 8, 11, 14, 17, 20, 23]);
+        assert_eq!(m.node_sets["Clamp"], vec![24, 25, 26, 27]);
+        // S4 of Beam-2's element 2 (the +x face in the part), outward: +y after the turn.
+        assert_eq!(m.face_sets["Load"], vec![vec![14, 17, 23, 20]]);
+        let f = &m.face_sets["Load"][0];
+        let x = |i: usize| m.mesh.nodes[f[i]];
+        let n = (x(2) - x(0)).cross(&(x(3) - x(1)));
+        assert!(n.y > 0.0 && n.x.abs() < 1e-12, "{n:?}");
+        // No inverted elements after the rotation; the instances are listed.
+        let w = m.warnings.join("\n");
+        assert!(!w.contains("non-positive"), "{w}");
+        assert!(
+            w.contains("3 part instances read")
+                && w.contains("instance 'Beam-2' (part 'Beam'): nodes 12..24, elements 2..4"),
+            "{w}"
+        );
+    }
+
+    #[test]
+    fn assembly_errors_name_the_instance_and_line() {
+        let text = std::fs::read_to_string(data_file("abaqus_cae_two_instances.inp")).unwrap();
+        let bad = |from: &str, to: &str| {
+            assert!(text.contains(from), "{from}");
+            err(&text.replacen(from, to, 1))
+        };
+        let e = bad("part=Pad\n", "part=Padx\n");
+        assert!(
+            e.contains("test.inp:74: *Instance Pad-1: part 'Padx' is not defined"),
+            "{e}"
+        );
+        let e = bad("instance=Pad-1", "instance=Pad-2");
+        assert!(
+            e.contains(
+                "test.inp:88: *Nset Clamp: INSTANCE=Pad-2 is not an instance of the assembly"
+            ),
+            "{e}"
+        );
+        // A missing node in an assembly set names the instance.
+        let e = bad(" 1, 2, 3, 4\n*End Assembly", " 1, 2, 3, 9\n*End Assembly");
+        assert!(
+            e.contains("test.inp:89: *NSET Clamp: node 9 is not defined (in instance 'Pad-1')"),
+            "{e}"
+        );
+        // A missing node in a part names the instance read.
+        let e = bad("1, 1, 2, 4, 3, 5, 6, 8, 7", "1, 1, 2, 4, 3, 5, 6, 8, 70");
+        assert!(
+            e.contains("test.inp:51: element 1 references node 70")
+                && e.contains("[instance 'Pad-1' of part 'Pad']"),
+            "{e}"
+        );
+        // Positioning lines.
+        let e = bad(
+            "          2.,           0.,           0.\n",
+            "          2., x, 0.\n",
+        );
+        assert!(
+            e.contains("test.inp:75: *Instance Pad-1 translation") && e.contains("'x'"),
+            "{e}"
+        );
+        let e = bad("          3.,          90.", "          2.,          90.");
+        assert!(
+            e.contains("test.inp:71: *Instance Beam-2: the rotation axis points a and b coincide"),
+            "{e}"
+        );
+        let e = bad("          0.,           0.,           2.\n", "1, 2, 3, 4\n");
+        assert!(
+            e.contains("test.inp:70: *Instance Beam-2: 4 fields on the translation"),
+            "{e}"
+        );
+        // Structure.
+        let e = bad("*End Part\n**\n*Part, name=Pad", "**\n**\n*Part, name=Pad");
+        assert!(
+            e.contains("test.inp:40: *Part inside part 'Beam' (line 8)"),
+            "{e}"
+        );
+        let e = bad("name=Pad-1", "name=Beam-1");
+        assert!(e.contains("instance 'Beam-1' is defined twice"), "{e}");
     }
 
     /// Sets that reference themselves stay bounded (no doubling per line).
@@ -2443,6 +3171,7 @@ Part-1-1.skinnodes
             TWO_HEX.to_string(),
             std::fs::read_to_string(data_file("gmsh_cube_tet4.inp")).unwrap(),
             std::fs::read_to_string(data_file("abaqus_cae_block_hex8.inp")).unwrap(),
+            std::fs::read_to_string(data_file("abaqus_cae_two_instances.inp")).unwrap(),
         ];
         let mut state = 0x9E37_79B9_7F4A_7C15u64;
         let mut rnd = move || {

@@ -7,6 +7,8 @@ pub mod model;
 pub mod msh;
 pub mod plot;
 pub mod vtk;
+mod vtk_legacy5;
+mod vtk_xml;
 pub mod vtu;
 
 /// An input error naming the file: "FILE: message".

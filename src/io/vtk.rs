@@ -1,5 +1,6 @@
-//! VTK unstructured-grid reader: legacy `.vtk` (ASCII or binary, file versions up to 4.2) and
-//! XML `.vtu` (ASCII, base64 binary, compressed), parsed by the `vtkio` crate.
+//! VTK unstructured-grid reader: legacy `.vtk` (ASCII or binary, file versions up to 5.x) and
+//! XML `.vtu` (ASCII, base64 binary, zlib-compressed, raw or base64 appended), parsed by the
+//! `vtkio` crate.
 //!
 //! What is read:
 //! - **Volume cells**: `VTK_TETRA` (10) become [`ElementShape::Tet4`], `VTK_HEXAHEDRON` (12)
@@ -32,14 +33,19 @@
 //! ParaView shows for a single piece). Coordinates are returned as written; the scene applies
 //! its units factor afterwards.
 //!
-//! Limits of `vtkio` and how they are met: XML files with raw appended binary data (which vtkio
-//! cannot parse when the data holds a '<' byte) are rewritten with the arrays inline as base64
-//! before parsing (uncompressed files; compressed raw appended data is refused with a hint);
-//! binary legacy files of version 5.x are refused (the error says to re-export as ASCII or 4.2). ASCII legacy 5.x files (VTK 9 / ParaView's default) are rewritten to the 4.2
-//! layout (OFFSETS/CONNECTIVITY cells to count-prefixed cells, vtktype* names to C names) and
-//! read. No input makes the reader panic: legacy
-//! headers are checked against the file size before parsing and the parse runs under
-//! `catch_unwind`.
+//! Limits of `vtkio` and how they are met:
+//! - XML files with compressed (zlib, meshio's default) or appended (raw or base64) arrays, or
+//!   with binary cell types other than UInt8 (meshio writes Int64), are rewritten with every
+//!   binary array inline as uncompressed base64 and UInt8 cell types before parsing
+//!   (`vtk_xml`); LZ4 / LZMA compressed files go to vtkio as they are.
+//! - Binary legacy files of version 5.x (VTK 9 / ParaView / meshio `binary=True`; vtkio reads
+//!   binary files up to 4.2) are read by `vtk_legacy5`; ASCII legacy 5.x files are rewritten
+//!   to the 4.2 layout (OFFSETS/CONNECTIVITY cells to count-prefixed cells, vtktype* names to
+//!   C names) and read by vtkio.
+//!
+//! No input makes the reader panic: legacy headers are checked against the file size before
+//! parsing and the parse runs under `catch_unwind`. Errors name the file and the line or byte
+//! offset where the reader can tell it.
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::panic::{catch_unwind, AssertUnwindSafe};
@@ -49,6 +55,7 @@ use nalgebra::Vector3;
 use vtkio::model::{Attribute, CellType, DataSet, IOBuffer, Piece, VertexNumbers};
 
 use super::model::MeshInput;
+use super::vtk_xml::find;
 use super::{clip, file_error as fail};
 use crate::geometry::{ElementShape, Mesh};
 use crate::{Error, Result};
@@ -133,7 +140,11 @@ fn import_legacy(bytes: &[u8], path: &Path) -> Result<vtkio::Vtk> {
         ));
     };
     let major: Option<u32> = version.split('.').next().and_then(|m| m.parse().ok());
-    if major == Some(5) && !lower_has_binary(bytes) {
+    if major == Some(5) {
+        if lower_has_binary(bytes) {
+            // VTK 9 / ParaView / meshio binary: read by this crate (vtkio reads binary <= 4.2).
+            return super::vtk_legacy5::read(bytes, path);
+        }
         // VTK 9 / ParaView default: rewrite the OFFSETS/CONNECTIVITY cells as version 4.2.
         let text = legacy5_to_42(bytes, path)?;
         return import_legacy(text.as_bytes(), path);
@@ -143,9 +154,8 @@ fn import_legacy(bytes: &[u8], path: &Path) -> Result<vtkio::Vtk> {
             return Err(fail(
                 path,
                 format!(
-                    "legacy VTK file version {version} (cells as OFFSETS/CONNECTIVITY) is not \
-                     supported; write legacy version 4.2 (meshio: fmt_version=\"4.2\"; VTK: \
-                     writer.SetFileVersion(42)) or an XML .vtu file"
+                    "legacy VTK file version {version} is not supported (versions up to 5.x \
+                     are read); write legacy version 5.1 or 4.2 or an XML .vtu file"
                 ),
             ))
         }
@@ -370,169 +380,22 @@ fn import_xml(bytes: &[u8], path: &Path) -> Result<vtkio::Vtk> {
     if bytes.iter().all(u8::is_ascii_whitespace) {
         return Err(fail(path, "the file is empty: not a VTK file"));
     }
-    // Raw appended data (the '<' bytes in it break vtkio's XML parser) is moved inline as base64.
-    let inlined = appended_to_inline(bytes);
-    let bytes: &[u8] = inlined.as_deref().unwrap_or(bytes);
+    // Compressed or appended arrays, and binary cell types other than UInt8, are rewritten
+    // inline as uncompressed base64 with UInt8 cell types (see `vtk_xml`).
+    let normalized = super::vtk_xml::normalize(bytes, path)?;
+    let bytes: &[u8] = normalized.as_deref().unwrap_or(bytes);
     let fixed = fix_cell_types(bytes, path)?;
     let input: &[u8] = fixed.as_deref().unwrap_or(bytes);
     let parsed = catch_unwind(AssertUnwindSafe(|| vtkio::Vtk::parse_xml(input)));
     match parsed {
         Ok(Ok(v)) => Ok(v),
-        Ok(Err(e)) => {
-            let m = e.to_string();
-            let raw_appended = find(bytes, b"<AppendedData").is_some_and(|i| {
-                let tag = &bytes[i..];
-                let end = tag.iter().position(|&b| b == b'>').unwrap_or(tag.len());
-                find(&tag[..end], b"raw").is_some()
-            });
-            if m.contains("AppendedData") || raw_appended {
-                Err(fail(
-                    path,
-                    format!(
-                        "cannot read the XML VTK file ({m}); raw appended binary data cannot be \
-                         read (the parser, vtkio, fails when the data holds a '<' byte): write \
-                         the file with ASCII or base64 encoding (ParaView: Data Mode 'Ascii', or \
-                         'Appended' with 'Encode Appended Data' on; meshio: \
-                         write(..., binary=False))"
-                    ),
-                ))
-            } else {
-                Err(fail(path, format!("cannot read the XML VTK file: {m}")))
-            }
-        }
+        Ok(Err(e)) => Err(fail(path, format!("cannot read the XML VTK file: {e}"))),
         Err(_) => Err(fail(
             path,
             "cannot read the XML VTK file: the parser (vtkio) failed on malformed data; the \
              file is corrupt or truncated",
         )),
     }
-}
-
-/// Rewrites an uncompressed XML file with raw `AppendedData` so that every appended array sits
-/// inline as base64 (`format="binary"`), the form vtkio parses. None when the file has no raw
-/// appended data, is compressed, or does not have the expected layout (the caller then parses
-/// it as it is and reports vtkio's error).
-fn appended_to_inline(bytes: &[u8]) -> Option<Vec<u8>> {
-    let app = find(bytes, b"<AppendedData")?;
-    let tag_end = app + bytes[app..].iter().position(|&b| b == b'>')?;
-    let tag = &bytes[app..tag_end];
-    find(tag, b"raw")?;
-    let head = &bytes[..app];
-    let vtkfile = find(head, b"<VTKFile")?;
-    let vtk_tag_end = vtkfile + head[vtkfile..].iter().position(|&b| b == b'>')?;
-    let vtk_tag = &head[vtkfile..vtk_tag_end];
-    if find(vtk_tag, b"compressor").is_some() {
-        return None;
-    }
-    let hsize = if find(vtk_tag, b"UInt64").is_some() {
-        8
-    } else {
-        4
-    };
-    let data = tag_end + 1 + bytes[tag_end + 1..].iter().position(|&b| b == b'_')? + 1;
-    let block = |offset: usize| -> Option<&[u8]> {
-        let start = data.checked_add(offset)?;
-        let h = bytes.get(start..start + hsize)?;
-        let n = if hsize == 8 {
-            u64::from_le_bytes(h.try_into().ok()?) as usize
-        } else {
-            u32::from_le_bytes(h.try_into().ok()?) as usize
-        };
-        bytes.get(start..start.checked_add(hsize)?.checked_add(n)?)
-    };
-    let mut out = Vec::with_capacity(bytes.len() * 4 / 3 + 64);
-    let mut at = 0;
-    while let Some(rel) = find(&head[at..], b"<DataArray") {
-        let start = at + rel;
-        let end = start + head[start..].iter().position(|&b| b == b'>')?;
-        let dtag = std::str::from_utf8(&head[start..end]).ok()?;
-        out.extend_from_slice(&head[at..start]);
-        at = end + 1;
-        if !dtag.contains("\"appended\"") {
-            out.extend_from_slice(&head[start..=end]);
-            continue;
-        }
-        let self_closing = dtag.ends_with('/');
-        let off: usize = attr_value(dtag.trim_end_matches('/'), "offset")?
-            .parse()
-            .ok()?;
-        let mut kept = String::new();
-        for part in split_attrs(dtag.trim_end_matches('/')) {
-            let name = part.split('=').next().unwrap_or("").trim();
-            if name != "format" && name != "offset" {
-                kept.push_str(part);
-                kept.push(' ');
-            }
-        }
-        out.extend_from_slice(kept.trim_end().as_bytes());
-        out.extend_from_slice(b" format=\"binary\">");
-        out.extend_from_slice(base64(block(off)?).as_bytes());
-        out.extend_from_slice(b"</DataArray>");
-        if !self_closing {
-            // Skip the (empty) body and the closing tag of a non-self-closing appended array.
-            let close = find(&head[at..], b"</DataArray>")?;
-            at += close + b"</DataArray>".len();
-        }
-    }
-    out.extend_from_slice(&head[at..]);
-    out.extend_from_slice(b"</VTKFile>\n");
-    Some(out)
-}
-
-/// The value of attribute `name` in an XML start tag.
-fn attr_value<'a>(tag: &'a str, name: &str) -> Option<&'a str> {
-    split_attrs(tag).into_iter().find_map(|p| {
-        let (k, v) = p.split_once('=')?;
-        (k.trim() == name).then(|| v.trim().trim_matches('"'))
-    })
-}
-
-/// A start tag split into its name and `key="value"` parts (values may contain spaces).
-fn split_attrs(tag: &str) -> Vec<&str> {
-    let mut parts = Vec::new();
-    let (mut start, mut quoted) = (0, false);
-    for (i, c) in tag.char_indices() {
-        match c {
-            '"' => quoted = !quoted,
-            c if c.is_whitespace() && !quoted => {
-                if i > start {
-                    parts.push(&tag[start..i]);
-                }
-                start = i + 1;
-            }
-            _ => {}
-        }
-    }
-    if start < tag.len() {
-        parts.push(&tag[start..]);
-    }
-    parts
-}
-
-/// Standard base64 with padding.
-fn base64(b: &[u8]) -> String {
-    const T: &[u8; 64] = b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
-    let mut s = String::with_capacity(b.len().div_ceil(3) * 4);
-    for c in b.chunks(3) {
-        let v = (c[0] as u32) << 16
-            | (*c.get(1).unwrap_or(&0) as u32) << 8
-            | *c.get(2).unwrap_or(&0) as u32;
-        for k in 0..4 {
-            if k <= c.len() {
-                s.push(T[(v >> (18 - 6 * k) & 63) as usize] as char);
-            } else {
-                s.push('=');
-            }
-        }
-    }
-    s
-}
-
-fn find(hay: &[u8], needle: &[u8]) -> Option<usize> {
-    if needle.is_empty() || hay.len() < needle.len() {
-        return None;
-    }
-    hay.windows(needle.len()).position(|w| w == needle)
 }
 
 /// The value of attribute `name` in the tag text `tag` (`name="value"`), with its range.
@@ -1142,6 +1005,7 @@ mod tests {
     use super::*;
     use crate::geometry::quality::tet_signed_volume;
     use crate::io::msh::read_msh;
+    use crate::io::vtk_xml::base64;
     use std::path::PathBuf;
 
     fn data(dir: &str, name: &str) -> PathBuf {
@@ -1264,13 +1128,244 @@ mod tests {
         }
     }
 
+    /// Everything but the warnings.
+    fn same(a: &MeshInput, b: &MeshInput, what: &str) {
+        assert_eq!(a.mesh.shape, b.mesh.shape, "{what}");
+        assert_eq!(max_abs_diff(a, b), 0.0, "{what}");
+        assert_eq!(a.mesh.cells, b.mesh.cells, "{what}");
+        assert_eq!(a.node_ids, b.node_ids, "{what}");
+        assert_eq!(a.element_ids, b.element_ids, "{what}");
+        assert_eq!(a.node_sets, b.node_sets, "{what}");
+        assert_eq!(a.element_sets, b.element_sets, "{what}");
+        assert_eq!(a.face_sets, b.face_sets, "{what}");
+    }
+
     #[test]
-    fn meshio_binary_vtu_is_refused_with_a_hint() {
-        let e = err(
-            &std::fs::read(data("vtk", "box_hex_meshio_b64.vtu")).unwrap(),
-            "m.vtu",
+    fn meshio_binary_vtu_with_int64_cell_types_reads() {
+        // meshio's uncompressed binary VTU: Int64 cell types, header base64-encoded apart.
+        same(
+            &read("box_hex_meshio_b64.vtu"),
+            &read("box_hex_bin.vtk"),
+            "meshio b64",
         );
-        assert!(e.contains("Int64") && e.contains("binary=False"), "{e}");
+    }
+
+    #[test]
+    fn binary_legacy_5_1_reads_like_ascii() {
+        // meshio binary=True (version 5.1, vtktypeint64 OFFSETS/CONNECTIVITY, big-endian).
+        let bin = read("cyl_v51_bin.vtk");
+        same(&bin, &read("cyl_v51.vtk"), "cyl 5.1 binary vs ASCII");
+        same(&bin, &read("cyl.vtk"), "cyl 5.1 binary vs 4.2 ASCII");
+        assert_eq!(bin.mesh.num_cells(), 617);
+        assert_eq!(bin.element_sets["gmsh:physical=4"].len(), 617);
+        // The hex box with an integer point array `fixed` (FIELD under POINT_DATA).
+        let msh = read_msh(&data("msh", "box_hex_v41.msh")).unwrap();
+        let b51 = read("box_hex_v51_bin.vtk");
+        let b42 = read("box_hex_bin.vtk");
+        assert_eq!(max_abs_diff(&b51, &b42), 0.0);
+        assert_eq!(b51.mesh.cells, b42.mesh.cells);
+        assert_eq!(b51.element_sets, b42.element_sets);
+        assert_eq!(b51.face_sets, b42.face_sets);
+        assert_eq!(b51.node_sets["fixed"], msh.set_nodes("fixed").unwrap());
+        assert_eq!(b51.node_sets["fixed=1"].len(), 20);
+    }
+
+    #[test]
+    fn zlib_compressed_vtu_from_meshio_reads() {
+        // meshio's default VTU: zlib, UInt32 header, Int64 connectivity/offsets/types.
+        let z = read("cyl_zlib.vtu");
+        same(&z, &read("cyl.vtk"), "cyl zlib vs legacy");
+        // header_type UInt64, with the point array.
+        let b = read("box_hex_zlib_u64.vtu");
+        same(
+            &b,
+            &read("box_hex_v51_bin.vtk"),
+            "box zlib u64 vs legacy 5.1 binary",
+        );
+    }
+
+    /// A one-tet VTU with its arrays appended, raw or base64, zlib-compressed in blocks of
+    /// `block` bytes (several blocks and a partial last one for the points).
+    fn compressed_appended(raw: bool, block: usize) -> Vec<u8> {
+        use flate2::write::ZlibEncoder;
+        use std::io::Write;
+        let arrays: Vec<Vec<u8>> = vec![
+            [0.0f64, 0., 0., 1., 0., 0., 0., 1., 0., 0., 0., 1.]
+                .iter()
+                .flat_map(|x| x.to_le_bytes())
+                .collect(),
+            [0i64, 1, 2, 3]
+                .iter()
+                .flat_map(|x| x.to_le_bytes())
+                .collect(),
+            4i64.to_le_bytes().to_vec(),
+            10i64.to_le_bytes().to_vec(),
+        ];
+        let mut blobs = Vec::new();
+        for a in &arrays {
+            let chunks: Vec<&[u8]> = a.chunks(block).collect();
+            let comp: Vec<Vec<u8>> = chunks
+                .iter()
+                .map(|c| {
+                    let mut e = ZlibEncoder::new(Vec::new(), flate2::Compression::default());
+                    e.write_all(c).unwrap();
+                    e.finish().unwrap()
+                })
+                .collect();
+            let last = a.len() % block;
+            let mut head: Vec<u64> = vec![chunks.len() as u64, block as u64, last as u64];
+            head.extend(comp.iter().map(|c| c.len() as u64));
+            let hb: Vec<u8> = head
+                .iter()
+                .flat_map(|x| (*x as u32).to_le_bytes())
+                .collect();
+            let body: Vec<u8> = comp.concat();
+            blobs.push(if raw {
+                [hb, body].concat()
+            } else {
+                [base64(&hb), base64(&body)].concat().into_bytes()
+            });
+        }
+        let mut offsets = Vec::new();
+        let mut at = 0;
+        for b in &blobs {
+            offsets.push(at);
+            at += b.len();
+        }
+        let mut f = format!(
+            r#"<?xml version="1.0"?>
+<VTKFile type="UnstructuredGrid" version="0.1" byte_order="LittleEndian" compressor="vtkZLibDataCompressor">
+<UnstructuredGrid>
+<Piece NumberOfPoints="4" NumberOfCells="1">
+<Points>
+<DataArray type="Float64" NumberOfComponents="3" format="appended" offset="{}"/>
+</Points>
+<Cells>
+<DataArray type="Int64" Name="connectivity" format="appended" offset="{}"/>
+<DataArray type="Int64" Name="offsets" format="appended" offset="{}"/>
+<DataArray type="Int64" Name="types" format="appended" offset="{}"></DataArray>
+</Cells>
+</Piece>
+</UnstructuredGrid>
+<AppendedData encoding="{}">
+_"#,
+            offsets[0],
+            offsets[1],
+            offsets[2],
+            offsets[3],
+            if raw { "raw" } else { "base64" }
+        )
+        .into_bytes();
+        for b in &blobs {
+            f.extend_from_slice(b);
+        }
+        f.extend_from_slice(b"\n</AppendedData>\n</VTKFile>\n");
+        f
+    }
+
+    #[test]
+    fn compressed_appended_data_reads() {
+        for raw in [true, false] {
+            for block in [7, 32, 1 << 15] {
+                let f = compressed_appended(raw, block);
+                let m = parse_vtk(&f, Path::new("app.vtu"))
+                    .unwrap_or_else(|e| panic!("raw {raw} block {block}: {e}"));
+                assert_eq!(m.mesh.cells, vec![0, 1, 2, 3]);
+                assert_eq!(m.mesh.nodes[3], Vector3::new(0.0, 0.0, 1.0));
+            }
+        }
+    }
+
+    #[test]
+    fn malformed_binary_and_compressed_files_give_clear_errors() {
+        // Legacy 5.1 binary, truncated inside the points.
+        let bin = std::fs::read(data("vtk", "cyl_v51_bin.vtk")).unwrap();
+        let e = err(&bin[..2000], "t.vtk");
+        assert!(
+            e.contains(
+                "t.vtk: byte 103: POINTS: the file ends inside the data (4704 bytes announced"
+            ),
+            "{e}"
+        );
+        // Truncated inside the cell data.
+        let e = err(&bin[..bin.len() - 100], "t.vtk");
+        assert!(
+            e.contains("FIELD array 'gmsh:geometrical'") && e.contains("truncated"),
+            "{e}"
+        );
+        // A wrong count: the reader lands in binary data where a keyword should be.
+        let wrong = |from: &str, to: &str| -> Vec<u8> {
+            let i = find(&bin, from.as_bytes()).unwrap();
+            [&bin[..i], to.as_bytes(), &bin[i + from.len()..]].concat()
+        };
+        let e = err(&wrong("POINTS 196 double", "POINTS 195 double"), "c.vtk");
+        assert!(
+            e.contains("c.vtk: byte 4783:") && e.contains("wrong count"),
+            "{e}"
+        );
+        // CELLS counts that disagree with OFFSETS.
+        let e = err(&wrong("CELLS 948 3458", "CELLS 948 3457"), "c.vtk");
+        assert!(e.contains("wrong count") || e.contains("OFFSETS"), "{e}");
+        let e = err(&wrong("CELL_TYPES 947", "CELL_TYPES 946"), "c.vtk");
+        assert!(
+            e.contains("c.vtk: byte 43919: expected a keyword line, found binary data"),
+            "{e}"
+        );
+        // An unsupported data type.
+        let e = err(&wrong("POINTS 196 double", "POINTS 196 string"), "s.vtk");
+        assert!(e.contains("unsupported data type 'string'"), "{e}");
+        // An absurd count is refused without allocating.
+        let e = err(
+            &wrong("CELLS 948 3458", "CELLS 99999999999999 3458"),
+            "big.vtk",
+        );
+        assert!(
+            e.contains("OFFSETS") && e.contains("truncated file or wrong count"),
+            "{e}"
+        );
+        // Not an unstructured grid.
+        let e = err(&wrong("UNSTRUCTURED_GRID", "POLYDATA"), "p.vtk");
+        assert!(e.contains("not an unstructured grid"), "{e}");
+
+        // Compressed VTU: a corrupt zlib stream in the points.
+        let z = std::fs::read(data("vtk", "cyl_zlib.vtu")).unwrap();
+        let tag = find(&z, b"Name=\"Points\"").unwrap();
+        let body = tag + z[tag..].iter().position(|&b| b == b'>').unwrap() + 1;
+        let mut bad = z.clone();
+        bad[body + 60..body + 68].copy_from_slice(b"AAAAAAAA");
+        let e = err(&bad, "z.vtu");
+        assert!(
+            e.contains("z.vtu: byte ") && e.contains("DataArray 'Points': zlib block 1 of 1"),
+            "{e}"
+        );
+        // Truncated compressed data.
+        let e = err(&z[..body + 200], "z.vtu");
+        assert!(
+            e.contains("DataArray 'Points'") && e.contains("truncated"),
+            "{e}"
+        );
+        // A header announcing more blocks than the data holds.
+        let mut bad = z.clone();
+        bad[body..body + 4].copy_from_slice(b"/w==");
+        let e = err(&bad, "z.vtu");
+        assert!(e.contains("DataArray 'Points'"), "{e}");
+        // Not base64.
+        let mut bad = z.clone();
+        bad[body + 30] = b'%';
+        let e = err(&bad, "z.vtu");
+        assert!(e.contains("invalid base64"), "{e}");
+        // Appended: an offset past the data; a truncated compressed block.
+        let f = compressed_appended(true, 32);
+        let s = String::from_utf8_lossy(&f).into_owned();
+        let i = s.find("offset=\"").unwrap();
+        let bad = format!("{}offset=\"99999{}", &s[..i], &s[i + 8..]);
+        let e = err(bad.as_bytes(), "a.vtu");
+        assert!(e.contains("past the end of the appended data"), "{e}");
+        let e = err(&f[..f.len() - 40], "a.vtu");
+        assert!(
+            e.contains("DataArray 'types'") || e.contains("truncated"),
+            "{e}"
+        );
     }
 
     /// Two pieces of one tetrahedron each, a point mask and a float cell array.
@@ -1470,11 +1565,18 @@ _"#
 
     #[test]
     fn garbage_never_panics() {
-        let files: Vec<(Vec<u8>, &str)> =
-            ["cyl.vtu", "cyl.vtk", "box_hex_b64.vtu", "box_hex_bin.vtk"]
-                .iter()
-                .map(|n| (std::fs::read(data("vtk", n)).unwrap(), *n))
-                .collect();
+        let files: Vec<(Vec<u8>, &str)> = [
+            "cyl.vtu",
+            "cyl.vtk",
+            "box_hex_b64.vtu",
+            "box_hex_bin.vtk",
+            "box_hex_v51_bin.vtk",
+            "box_hex_zlib_u64.vtu",
+            "box_hex_meshio_b64.vtu",
+        ]
+        .iter()
+        .map(|n| (std::fs::read(data("vtk", n)).unwrap(), *n))
+        .collect();
         let iters: usize = std::env::var("HYTLED_FUZZ_ITERS")
             .ok()
             .and_then(|v| v.parse().ok())

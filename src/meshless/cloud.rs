@@ -84,7 +84,16 @@ pub fn jittered_lattice(
         Domain::Cylinder { radius, height } => {
             cylinder_lattice(radius, height, h, jitter, &mut rng)
         }
+        Domain::HalfEllipsoid { .. } => Err(unsupported_cloud("lattice")),
     }
+}
+
+/// The generated clouds do not fill the half-ellipsoid yet: use the TetGen mesh's vertices.
+fn unsupported_cloud(kind: &str) -> Error {
+    Error::Input(format!(
+        "cloud = '{kind}' is not available for the half-ellipsoid; use cloud = 'mesh' (the \
+         vertices of its TetGen mesh, mesher = 'tetgen') or cloud = 'file'"
+    ))
 }
 
 /// Divisions round(len / h), at least 1, or an error when absurdly many.
@@ -539,6 +548,7 @@ pub fn halton_fill(
                 return Err(surface_error(count));
             }
         }
+        Domain::HalfEllipsoid { .. } => return Err(unsupported_cloud("halton")),
     }
 
     // Interior: 3-D Halton in the bounding box, kept clear of the surface.
@@ -753,6 +763,7 @@ mod tests {
                     .filter(|p| on(p) && (p.x.hypot(p.y) - radius).abs() < 1e-12)
                     .count(),
             ],
+            Domain::HalfEllipsoid { .. } => unreachable!("no half-ellipsoid clouds"),
         };
         assert!(counts.iter().all(|&c| c > 0), "{counts:?}");
         counts

@@ -62,6 +62,9 @@ pub fn domain(scene: &Scene) -> Option<Domain> {
             radius: *radius,
             height: *height,
         }),
+        Geometry::HalfEllipsoid { semi_axes } => Some(Domain::HalfEllipsoid {
+            semi_axes: Vector3::from(*semi_axes),
+        }),
         Geometry::Mesh { .. } => None,
     }
 }
@@ -90,6 +93,12 @@ pub fn spacing(scene: &Scene) -> Result<f64> {
         Geometry::Cylinder { radius, height } => {
             (radius / div[0].max(1) as f64 * 2.0).min(height / div[2].max(1) as f64)
         }
+        // As the box: the bounding box [2a, 2b, c] divided by [nx, ny, nz].
+        Geometry::HalfEllipsoid { semi_axes: s } => [2.0 * s[0], 2.0 * s[1], s[2]]
+            .iter()
+            .zip(div)
+            .map(|(len, n)| len / n.max(1) as f64)
+            .fold(f64::INFINITY, f64::min),
         Geometry::Mesh { .. } => {
             return Err(Error::Input(
                 "a node spacing from `divisions` needs a built-in shape; give discretization.size"
@@ -99,7 +108,7 @@ pub fn spacing(scene: &Scene) -> Result<f64> {
     })
 }
 
-fn mls_settings(scene: &Scene) -> MlsSettings {
+pub fn mls_settings(scene: &Scene) -> MlsSettings {
     let d = &scene.discretization;
     MlsSettings {
         basis: match d.basis {
@@ -111,7 +120,7 @@ fn mls_settings(scene: &Scene) -> MlsSettings {
     }
 }
 
-fn support_rule(scene: &Scene) -> SupportRule {
+pub fn support_rule(scene: &Scene) -> SupportRule {
     let d = &scene.discretization;
     let quadratic = d.basis == scene::Basis::Quadratic;
     match d.support {
@@ -213,7 +222,7 @@ fn nodes_and_tets(scene: &Scene) -> Result<(Mesh, String)> {
 
 /// Hexahedra split into six tets around the 0-6 diagonal (they tile each hex exactly, which is
 /// all integration and the boundary triangles need; tets of neighbouring hexes need not match).
-fn hex_to_tets(mesh: Mesh) -> Mesh {
+pub fn hex_to_tets(mesh: Mesh) -> Mesh {
     if mesh.shape == ElementShape::Tet4 {
         return mesh;
     }
@@ -244,16 +253,18 @@ fn hex_to_tets(mesh: Mesh) -> Mesh {
     }
 }
 
+/// Delaunay tetrahedralization of `nodes` (TetGen), as flat node-index quadruples.
 #[cfg(feature = "tetgen")]
-fn delaunay(nodes: &[Vector3<f64>]) -> Result<Vec<usize>> {
+pub fn delaunay(nodes: &[Vector3<f64>]) -> Result<Vec<usize>> {
     Ok(crate::geometry::tetgen::delaunay(nodes)?
         .into_iter()
         .flatten()
         .collect())
 }
 
+/// Without TetGen: an error that says how to do without.
 #[cfg(not(feature = "tetgen"))]
-fn delaunay(_nodes: &[Vector3<f64>]) -> Result<Vec<usize>> {
+pub fn delaunay(_nodes: &[Vector3<f64>]) -> Result<Vec<usize>> {
     Err(Error::Input(
         "integration = 'tets' on a generated or file cloud needs a Delaunay tetrahedralization (feature `tetgen`); \
          use integration = 'grid' or cloud = 'mesh'"
@@ -274,17 +285,17 @@ pub fn build(scene: &Scene, protected: &ProtectedNodes) -> Result<MeshlessBuild>
 
     let (positions, weights, owner, integration_name) = match d.integration {
         IntegrationKind::Tets => {
-            let rule_t = TetRule::from_points(d.tet_rule).ok_or_else(|| {
+            let rule_t = TetRule::from_points(d.tet_rule()).ok_or_else(|| {
                 Error::Input(format!(
                     "discretization.tet_rule = {}: use 1, 4 or 5",
-                    d.tet_rule
+                    d.tet_rule()
                 ))
             })?;
             let (p, w, o) = integration::tet_points(&background, rule_t)?;
             let name = format!(
                 "{} background tets x {} points",
                 background.num_cells(),
-                d.tet_rule
+                d.tet_rule()
             );
             (p, w, o, name)
         }

@@ -72,6 +72,21 @@ impl MeshlessCorrector {
                 .map(|(&i, &p)| (i as u32, p))
                 .collect())
         };
+        Self::from_parts(&build.nodes, &tris, &shape, boundaries, mass, method)
+    }
+
+    /// As [`MeshlessCorrector::new`] for any discretization: `nodes` (m), the boundary
+    /// triangles of the body in node ids (EBCIEM boundary integrals; empty for SEBCIEM) and
+    /// `shape(x)`, the shape-function values at x.
+    pub fn from_parts(
+        nodes_x: &[Vector3<f64>],
+        tris: &[[usize; 3]],
+        shape: &dyn Fn(&Vector3<f64>) -> Result<SparseVec>,
+        boundaries: &[Boundary],
+        mass: &[f64],
+        method: BcMethod,
+    ) -> Result<(Self, CorrectorReport)> {
+        let n = nodes_x.len();
         let mut comps = Vec::new();
         let mut lumped_nodes = 0;
         for c in 0..3 {
@@ -96,7 +111,7 @@ impl MeshlessCorrector {
             nodes.sort_unstable();
             let phi_rows: Vec<SparseVec> = nodes
                 .iter()
-                .map(|&i| shape(&build.nodes[i]))
+                .map(|&i| shape(&nodes_x[i]))
                 .collect::<Result<_>>()?;
             let v_cols = if method == BcMethod::Ebciem {
                 let on: Vec<bool> = (0..n).map(|i| owner[i] != usize::MAX).collect();
@@ -115,7 +130,7 @@ impl MeshlessCorrector {
                 let cols = if tri_nodes.is_empty() {
                     Vec::new()
                 } else {
-                    ebciem_columns(&tri_nodes, &build.nodes, &ctris, shape)?
+                    ebciem_columns(&tri_nodes, nodes_x, &ctris, shape)?
                 };
                 let mut it = cols.into_iter();
                 nodes

@@ -119,6 +119,18 @@ impl Support {
         Ok(s)
     }
 
+    /// Multiplies the influence radius of nodes `ids` by `factor` (radius rule; no effect for
+    /// the nearest rule).
+    pub fn scale_radii(&mut self, ids: &[usize], factor: f64) {
+        if self.radii.is_empty() {
+            return;
+        }
+        for &i in ids {
+            self.radii[i] *= factor;
+        }
+        self.max_radius = self.radii.iter().cloned().fold(0.0, f64::max);
+    }
+
     fn mean_nearest_distance(&self, i: usize, k: usize) -> f64 {
         let p = self.nodes[i];
         let k = k.min(self.nodes.len() - 1);

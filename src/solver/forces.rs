@@ -51,6 +51,8 @@ pub struct Forces<M: Material> {
     /// 1 / sum of ANP weights around each node (0 where a node has no ANP point).
     node_anp_inv_weight: Vec<f64>,
     has_anp: bool,
+    /// Weighted mean J of each mean-dilatation group.
+    group_j: Vec<f64>,
     /// Per-point energies, reused so that energy evaluations do not allocate.
     energy_scratch: Vec<f64>,
 }
@@ -78,7 +80,29 @@ impl<M: Material> Forces<M> {
             node_j: vec![1.0; if has_anp { num_nodes } else { 0 }],
             node_anp_inv_weight: inv_w,
             has_anp,
+            group_j: vec![1.0; qp.groups.len()],
             energy_scratch: vec![0.0; qp.len()],
+        }
+    }
+
+    /// The averaged J's the modified points need (ANP nodal averages, group means).
+    fn averages(&mut self, qp: &QuadraturePoints, slots: &NodeSlots, u: &[Vector3<f64>]) {
+        if self.has_anp {
+            self.average_nodal_j(qp, slots, u);
+        }
+        if !qp.groups.is_empty() {
+            self.group_j
+                .par_iter_mut()
+                .with_min_len(CHUNK / 8)
+                .zip(&qp.groups)
+                .for_each(|(gj, &[a, b])| {
+                    let (mut wj, mut w) = (0.0, 0.0);
+                    for p in a as usize..b as usize {
+                        wj += qp.weights[p] * deformation_gradient(qp, p, u).determinant();
+                        w += qp.weights[p];
+                    }
+                    *gj = wj / w;
+                });
         }
     }
 
@@ -117,7 +141,8 @@ impl<M: Material> Forces<M> {
     }
 
     /// F used for the stress at point `p`: the plain F, or for ANP points F scaled by
-    /// (J_avg / J)^(1/3) with J_avg the mean of the point's nodal averaged J's.
+    /// (J_avg / J)^(1/3) with J_avg the mean of the point's nodal averaged J's (mean-dilatation
+    /// points: J_avg the weighted mean J of the point's cell).
     #[inline(always)]
     fn stress_gradient(
         &self,
@@ -127,13 +152,18 @@ impl<M: Material> Forces<M> {
     ) -> (Matrix3<f64>, f64) {
         let f = deformation_gradient(qp, p, u);
         let j = f.determinant();
-        if qp.kinds[p] == PointKind::Anp {
-            let r = qp.slots(p);
-            let n = r.len() as f64;
-            let j_avg: f64 = r.map(|s| self.node_j[qp.nodes[s] as usize]).sum::<f64>() / n;
-            ((j_avg / j).cbrt() * f, j_avg)
-        } else {
-            (f, j)
+        match qp.kinds[p] {
+            PointKind::Anp => {
+                let r = qp.slots(p);
+                let n = r.len() as f64;
+                let j_avg: f64 = r.map(|s| self.node_j[qp.nodes[s] as usize]).sum::<f64>() / n;
+                ((j_avg / j).cbrt() * f, j_avg)
+            }
+            PointKind::MeanDilatation(g) => {
+                let j_avg = self.group_j[g as usize];
+                ((j_avg / j).cbrt() * f, j_avg)
+            }
+            _ => (f, j),
         }
     }
 
@@ -145,9 +175,7 @@ impl<M: Material> Forces<M> {
         u: &[Vector3<f64>],
         out: &mut [Vector3<f64>],
     ) {
-        if self.has_anp {
-            self.average_nodal_j(qp, slots, u);
-        }
+        self.averages(qp, slots, u);
         let sf = SharedMut(self.slot_forces.as_mut_ptr());
         let pj = SharedMut(self.point_j.as_mut_ptr());
         let this = &*self;
@@ -219,9 +247,7 @@ impl<M: Material> Forces<M> {
         slots: &NodeSlots,
         u: &[Vector3<f64>],
     ) -> f64 {
-        if self.has_anp {
-            self.average_nodal_j(qp, slots, u);
-        }
+        self.averages(qp, slots, u);
         let mut per_point = std::mem::take(&mut self.energy_scratch);
         let this = &*self;
         per_point.par_iter_mut().enumerate().for_each(|(p, e)| {
@@ -251,9 +277,7 @@ impl<M: Material> Forces<M> {
         slots: &NodeSlots,
         u: &[Vector3<f64>],
     ) -> (Vec<f64>, Vec<f64>, Vec<f64>) {
-        if self.has_anp {
-            self.average_nodal_j(qp, slots, u);
-        }
+        self.averages(qp, slots, u);
         let mut sig = vec![0.0; 9 * qp.len()];
         let mut vm = vec![0.0; qp.len()];
         let mut jj = vec![0.0; qp.len()];

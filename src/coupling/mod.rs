@@ -1,0 +1,525 @@
+//! Hybrid FE + meshless discretization: finite elements on the boundary, MLS nodes inside,
+//! FE and MLS shape functions blended by a ramp in the transition layer (Horton et al. 2010
+//! conclusions; coupled paper `mtled-fe-coupled-ebc-cylinder.txt` sect. 3.2, after Krongauz &
+//! Belytschko 1996).
+//!
+//! In a transition cell the ramp R(X) = sum of the cell's FE shape functions N_I over its
+//! interface nodes (R = 0 on the FE side, 1 on the meshless side) and the shape functions are
+//! phi_I = (1 - R) N_I + R phi_I^MLS, dphi_I = (1 - R) dN_I + R dphi_I^MLS + (phi_I^MLS - N_I) dR.
+//! They reproduce linear fields exactly (both families do), so the patch test holds through
+//! the transition layer. Every point, FE, blended or meshless, ends up in the one
+//! [`QuadraturePoints`] list the solver uses.
+
+pub mod mixed;
+pub mod regions;
+
+use nalgebra::{Matrix3, Vector3};
+use rayon::prelude::*;
+
+use crate::fe::{self, hex8, tet4, ElementKind};
+use crate::geometry::{ElementShape, Mesh};
+use crate::meshless::discretize::hex_to_tets;
+use crate::meshless::mls::MlsSettings;
+use crate::meshless::points::{build_points, shape_at};
+use crate::meshless::support::{Support, SupportRule};
+use crate::probe::Probe;
+use crate::quadrature::{PointKind, QuadraturePoints};
+use crate::{Error, Result};
+pub use regions::{CellRole, NodeRole, Regions};
+
+/// Settings of a coupled build.
+#[derive(Debug, Clone)]
+pub struct CoupledSettings {
+    /// Cell layers of finite elements from the boundary inwards (>= 1).
+    pub fe_layers: usize,
+    /// Element formulation of the pure FE cells (hex8 needs a hex mesh).
+    pub element: ElementKind,
+    /// Hex8 hourglass coefficient kappa_hg and the P-wave modulus lambda + 2 mu (Pa).
+    pub hourglass: f64,
+    pub lambda_plus_2mu: f64,
+    pub mls: MlsSettings,
+    pub rule: SupportRule,
+    /// Influence-radius factor of the interface nodes (radius rule): their supports must
+    /// reach across the transition layer, where only one side has MLS nodes.
+    pub interface_scale: f64,
+    /// Mean dilatation over each transition cell's Gauss points (no volumetric locking).
+    pub mean_dilatation: bool,
+    /// Integration points per interior background tet (1, 4 or 5).
+    pub tet_rule: crate::meshless::integration::TetRule,
+}
+
+/// A built coupled discretization over a mesh whose vertices are all nodes.
+pub struct CoupledBuild {
+    /// Nodes, m: the mesh vertices (FE, interface and meshless nodes).
+    pub nodes: Vec<Vector3<f64>>,
+    /// The FE layer's cells (pure FE and transition) over `nodes`.
+    pub fe_mesh: Mesh,
+    /// The interior's background cells over `nodes`: hexahedra (2x2x2 Gauss points each) when
+    /// the coupled mesh is hexahedral, else tets (`tet_rule` points each).
+    pub interior: Mesh,
+    /// Roles: `cell` has one entry per FE-layer cell (Fe or Transition), `node` one per node.
+    pub regions: Regions,
+    pub points: QuadraturePoints,
+    /// Cell of each quadrature point: FE-layer cells first, then interior cells
+    /// (index `fe_mesh.num_cells() + cell`).
+    pub owner: Vec<usize>,
+    /// Global ids of the MLS nodes (interface + meshless), ascending; `support` indexes them.
+    pub mls_nodes: Vec<usize>,
+    pub support: Support,
+    pub mls: MlsSettings,
+    /// Points per family: pure FE, blended (transition), meshless.
+    pub fe_points: usize,
+    pub transition_points: usize,
+    pub meshless_points: usize,
+    pub warnings: Vec<String>,
+}
+
+/// Shape-function values at a point: global node ids and phi.
+pub type Weights = Vec<(usize, f64)>;
+
+impl CoupledBuild {
+    /// (mean, min, max) support nodes per meshless and transition point.
+    pub fn support_statistics(&self) -> (f64, usize, usize) {
+        let sizes: Vec<usize> = (self.fe_points..self.points.len())
+            .map(|p| self.points.slots(p).len())
+            .collect();
+        match (sizes.iter().min(), sizes.iter().max()) {
+            (Some(&lo), Some(&hi)) => (
+                sizes.iter().sum::<usize>() as f64 / sizes.len() as f64,
+                lo,
+                hi,
+            ),
+            _ => (0.0, 0, 0),
+        }
+    }
+
+    /// MLS values at `x` (m) in global node ids.
+    fn mls_values(&self, x: &Vector3<f64>, what: &dyn Fn() -> String) -> Result<Weights> {
+        let s = shape_at(&self.support, &self.mls, x, false, what)?;
+        Ok(s.ids
+            .iter()
+            .zip(&s.phi)
+            .map(|(&i, &p)| (self.mls_nodes[i], p))
+            .collect())
+    }
+
+    /// Shape-function values at `x` (m): FE inside pure FE cells, blended in transition
+    /// cells, MLS in the interior. `name` names the point in errors.
+    pub fn shape_values(&self, name: &str, x: &Vector3<f64>) -> Result<Weights> {
+        let what = || format!("probe '{name}'");
+        // Inside an interior cell (not just near one): MLS.
+        let inner = Probe::locate(name, *x, &self.interior).ok();
+        if inner
+            .as_ref()
+            .is_some_and(|p| p.weights.iter().all(|&w| w >= -1e-12))
+        {
+            return self.mls_values(x, &what);
+        }
+        let pr = match (Probe::locate(name, *x, &self.fe_mesh), inner) {
+            (Ok(p), _) => p,
+            (Err(_), Some(_)) => return self.mls_values(x, &what),
+            (Err(e), None) => return Err(e),
+        };
+        match self.regions.cell[pr.element] {
+            CellRole::Fe => Ok(pr.nodes.into_iter().zip(pr.weights).collect()),
+            CellRole::Meshless => self.mls_values(x, &what),
+            CellRole::Transition => {
+                let r: f64 = pr
+                    .nodes
+                    .iter()
+                    .zip(&pr.weights)
+                    .filter(|(&i, _)| self.regions.node[i] == NodeRole::Interface)
+                    .map(|(_, &w)| w)
+                    .sum();
+                let mut acc: std::collections::BTreeMap<usize, f64> = Default::default();
+                for (i, w) in self.mls_values(x, &what)? {
+                    *acc.entry(i).or_default() += r * w;
+                }
+                for (&i, &w) in pr.nodes.iter().zip(&pr.weights) {
+                    *acc.entry(i).or_default() += (1.0 - r) * w;
+                }
+                Ok(acc.into_iter().collect())
+            }
+        }
+    }
+
+    /// VTU cells: the FE-layer cells then the interior tets, as (connectivity, offsets, VTK types).
+    pub fn vtu_cells(&self) -> (Vec<usize>, Vec<usize>, Vec<u8>) {
+        let mut conn = self.fe_mesh.cells.clone();
+        conn.extend_from_slice(&self.interior.cells);
+        let npc = self.fe_mesh.shape.nodes_per_cell();
+        let nf = self.fe_mesh.num_cells();
+        let ni = self.interior.num_cells();
+        let npi = self.interior.shape.nodes_per_cell();
+        let mut offsets: Vec<usize> = (1..=nf).map(|e| e * npc).collect();
+        offsets.extend((1..=ni).map(|e| nf * npc + npi * e));
+        let mut types = vec![self.fe_mesh.shape.vtk_type(); nf];
+        types.extend(std::iter::repeat_n(self.interior.shape.vtk_type(), ni));
+        (conn, offsets, types)
+    }
+
+    /// Weights that give the displacement at each mesh vertex: the node itself for FE nodes
+    /// (interpolating), the MLS values at interface and meshless nodes.
+    pub fn vertex_weights(&self) -> Result<Vec<Weights>> {
+        (0..self.nodes.len())
+            .map(|v| match self.regions.node[v] {
+                NodeRole::Fe => Ok(vec![(v, 1.0)]),
+                _ => self.mls_values(&self.nodes[v], &|| format!("output vertex {v}")),
+            })
+            .collect()
+    }
+}
+
+/// Gauss points of a full rule in the cell's natural coordinates: (xi, weight in the
+/// reference cell). Hex: 2x2x2 Gauss-Legendre; tet: barycentric degree-2 four-point rule.
+fn gauss(shape: ElementShape) -> Vec<([f64; 4], f64)> {
+    match shape {
+        ElementShape::Hex8 => {
+            let g = 1.0 / 3f64.sqrt();
+            let mut v = Vec::with_capacity(8);
+            for k in [-g, g] {
+                for j in [-g, g] {
+                    for i in [-g, g] {
+                        v.push(([i, j, k, 0.0], 1.0));
+                    }
+                }
+            }
+            v
+        }
+        ElementShape::Tet4 => {
+            const A: f64 = 0.585_410_196_624_968_5;
+            const B: f64 = 0.138_196_601_125_010_5;
+            vec![
+                ([A, B, B, B], 0.25),
+                ([B, A, B, B], 0.25),
+                ([B, B, A, B], 0.25),
+                ([B, B, B, A], 0.25),
+            ]
+        }
+    }
+}
+
+/// FE shape functions, their reference derivatives (1/m), the position (m) and the weight
+/// (m^3) at Gauss point `g` of cell `x`.
+type FePoint = (Vec<f64>, Vec<Vector3<f64>>, Vector3<f64>, f64);
+
+fn fe_point(
+    shape: ElementShape,
+    x: &[Vector3<f64>],
+    g: &([f64; 4], f64),
+) -> std::result::Result<FePoint, f64> {
+    match shape {
+        ElementShape::Hex8 => {
+            let xs: [Vector3<f64>; 8] = std::array::from_fn(|a| x[a]);
+            let xi = [g.0[0], g.0[1], g.0[2]];
+            let n = hex8::shape(xi);
+            let dn = hex8::shape_derivatives(xi);
+            let j: Matrix3<f64> = hex8::jacobian(&xs, xi);
+            let det = j.determinant();
+            let jinv_t = j.try_inverse().ok_or(det)?.transpose();
+            if !(det > 0.0) {
+                return Err(det);
+            }
+            let pos = xs
+                .iter()
+                .zip(&n)
+                .fold(Vector3::zeros(), |a, (p, w)| a + p * *w);
+            Ok((
+                n.to_vec(),
+                dn.iter().map(|d| jinv_t * d).collect(),
+                pos,
+                det * g.1,
+            ))
+        }
+        ElementShape::Tet4 => {
+            let xs: [Vector3<f64>; 4] = std::array::from_fn(|a| x[a]);
+            let (d, v) = tet4::derivatives(&xs)?;
+            let pos = (0..4).fold(Vector3::zeros(), |a, k| a + xs[k] * g.0[k]);
+            Ok((g.0.to_vec(), d.to_vec(), pos, v * g.1))
+        }
+    }
+}
+
+/// Blended points of one transition cell: (node ids ascending, dphi/dX, weight, position).
+type Blended = Vec<(Vec<usize>, Vec<Vector3<f64>>, f64, Vector3<f64>)>;
+
+fn transition_cell(
+    mesh: &Mesh,
+    e: usize,
+    node_role: &[NodeRole],
+    support: &Support,
+    mls_nodes: &[usize],
+    mls: &MlsSettings,
+) -> Result<Blended> {
+    let c = mesh.cell(e);
+    let x: Vec<Vector3<f64>> = c.iter().map(|&i| mesh.nodes[i]).collect();
+    let interface: Vec<bool> = c
+        .iter()
+        .map(|&i| node_role[i] == NodeRole::Interface)
+        .collect();
+    let mut out = Vec::new();
+    for g in gauss(mesh.shape) {
+        let (n, dn, pos, w) = fe_point(mesh.shape, &x, &g)
+            .map_err(|volume| Error::InvalidElement { element: e, volume })?;
+        let (mut r, mut dr) = (0.0, Vector3::zeros());
+        for a in 0..c.len() {
+            if interface[a] {
+                r += n[a];
+                dr += dn[a];
+            }
+        }
+        let s = shape_at(support, mls, &pos, true, &|| {
+            format!("transition point of element {e}")
+        })?;
+        // Union of the MLS support and the cell's nodes, ascending.
+        let mut acc: Vec<(usize, Vector3<f64>)> = s
+            .ids
+            .iter()
+            .zip(&s.phi)
+            .zip(&s.dphi)
+            .map(|((&i, &p), d)| (mls_nodes[i], d * r + dr * p))
+            .collect();
+        for a in 0..c.len() {
+            let d = dn[a] * (1.0 - r) - dr * n[a];
+            match acc.iter_mut().find(|(i, _)| *i == c[a]) {
+                Some(slot) => slot.1 += d,
+                None => acc.push((c[a], d)),
+            }
+        }
+        acc.sort_unstable_by_key(|a| a.0);
+        out.push((
+            acc.iter().map(|a| a.0).collect(),
+            acc.iter().map(|a| a.1).collect(),
+            w,
+            pos,
+        ));
+    }
+    Ok(out)
+}
+
+/// Builds the coupled discretization of `mesh` (hex8 or tet4 cells; every vertex a node):
+/// the outer `fe_layers` cell layers are the FE layer, the rest is split into background
+/// tets of the meshless interior.
+pub fn build(mesh: Mesh, s: &CoupledSettings) -> Result<CoupledBuild> {
+    check_shape(s, mesh.shape)?;
+    let regions = regions::split(&mesh, s.fe_layers)?;
+    let pick = |keep: &dyn Fn(CellRole) -> bool| Mesh {
+        nodes: mesh.nodes.clone(),
+        shape: mesh.shape,
+        cells: (0..mesh.num_cells())
+            .filter(|&e| keep(regions.cell[e]))
+            .flat_map(|e| mesh.cell(e).iter().cloned())
+            .collect(),
+    };
+    let fe_mesh = pick(&|r| r != CellRole::Meshless);
+    let interior = pick(&|r| r == CellRole::Meshless);
+    let fe_roles: Vec<CellRole> = regions
+        .cell
+        .iter()
+        .cloned()
+        .filter(|&r| r != CellRole::Meshless)
+        .collect();
+    assemble(
+        mesh.nodes,
+        fe_mesh,
+        interior,
+        Regions {
+            cell: fe_roles,
+            node: regions.node,
+            max_depth: regions.max_depth,
+        },
+        s,
+        Vec::new(),
+    )
+}
+
+/// The FE formulation must match the mesh's cells.
+fn check_shape(s: &CoupledSettings, shape: ElementShape) -> Result<()> {
+    if s.element.shape() != shape {
+        return Err(Error::Input(format!(
+            "coupled: element '{}' needs a {:?} mesh but the (FE-layer) mesh holds {:?} cells",
+            s.element.name(),
+            s.element.shape(),
+            shape
+        )));
+    }
+    Ok(())
+}
+
+/// Quadrature points of the coupled discretization: TLED points of the pure FE cells,
+/// blended full-Gauss points of the transition cells, MLS points of the interior tets.
+fn assemble(
+    nodes: Vec<Vector3<f64>>,
+    fe_mesh: Mesh,
+    interior: Mesh,
+    regions: Regions,
+    s: &CoupledSettings,
+    mut warnings: Vec<String>,
+) -> Result<CoupledBuild> {
+    let n = nodes.len();
+    // MLS nodes and the interior background tets in their local numbering.
+    let mls_nodes: Vec<usize> = (0..n)
+        .filter(|&i| regions.node[i] != NodeRole::Fe)
+        .collect();
+    let mut local = vec![usize::MAX; n];
+    for (k, &i) in mls_nodes.iter().enumerate() {
+        local[i] = k;
+    }
+    // Tets of the interior (hexahedra split) give each MLS node its neighbour distance.
+    let tets = hex_to_tets(interior.clone());
+    let local_tets: Vec<[usize; 4]> = tets
+        .cells
+        .chunks_exact(4)
+        .map(|c| [local[c[0]], local[c[1]], local[c[2]], local[c[3]]])
+        .collect();
+    if let Some(t) = local_tets.iter().position(|t| t.contains(&usize::MAX)) {
+        return Err(Error::Input(format!(
+            "coupled: interior tet {t} uses an FE-layer node that is not on the interface; \
+             the FE layer and the interior overlap"
+        )));
+    }
+    let mut support = Support::new(
+        mls_nodes.iter().map(|&i| nodes[i]).collect(),
+        s.rule,
+        Some(&local_tets),
+    )?;
+    let iface: Vec<usize> = (0..mls_nodes.len())
+        .filter(|&k| regions.node[mls_nodes[k]] == NodeRole::Interface)
+        .collect();
+    support.scale_radii(&iface, s.interface_scale);
+
+    // Pure FE cells keep their TLED kernels.
+    let fe_cells: Vec<usize> = (0..fe_mesh.num_cells())
+        .filter(|&e| regions.cell[e] == CellRole::Fe)
+        .collect();
+    let pure = Mesh {
+        nodes: nodes.clone(),
+        shape: fe_mesh.shape,
+        cells: fe_cells
+            .iter()
+            .flat_map(|&e| fe_mesh.cell(e).iter().cloned())
+            .collect(),
+    };
+    let fe_qp = fe::element_points(&pure, s.element, s.hourglass, s.lambda_plus_2mu).map_err(
+        |e| match e {
+            Error::InvalidElement { element, volume } => Error::InvalidElement {
+                element: fe_cells[element],
+                volume,
+            },
+            e => e,
+        },
+    )?;
+
+    // Transition cells: blended shape functions at full Gauss points.
+    let transition_cells: Vec<usize> = (0..fe_mesh.num_cells())
+        .filter(|&e| regions.cell[e] == CellRole::Transition)
+        .collect();
+    let blended: Vec<Blended> = transition_cells
+        .par_iter()
+        .map(|&e| transition_cell(&fe_mesh, e, &regions.node, &support, &mls_nodes, &s.mls))
+        .collect::<Result<_>>()?;
+
+    // Interior: MLS at the background-tet points.
+    // Interior hexahedra: 2x2x2 Gauss points; interior tets: the tet rule.
+    let (pos, w, tet_owner) = if interior.shape == ElementShape::Hex8 {
+        let g = gauss(ElementShape::Hex8);
+        let mut out = (Vec::new(), Vec::new(), Vec::new());
+        for e in 0..interior.num_cells() {
+            let x: Vec<Vector3<f64>> = interior.cell(e).iter().map(|&i| nodes[i]).collect();
+            for q in &g {
+                let (_, _, p, wq) = fe_point(ElementShape::Hex8, &x, q).map_err(|volume| {
+                    Error::Input(format!(
+                        "coupled: interior cell {e} has a non-positive Jacobian {volume:.6e} at a Gauss point"
+                    ))
+                })?;
+                out.0.push(p);
+                out.1.push(wq);
+                out.2.push(e);
+            }
+        }
+        out
+    } else {
+        crate::meshless::integration::tet_points(&interior, s.tet_rule).map_err(|e| match e {
+            Error::InvalidElement { element, volume } => Error::Input(format!(
+                "coupled: interior background tet {element} has non-positive volume {volume:.6e} m^3"
+            )),
+            e => e,
+        })?
+    };
+    let ml_qp = build_points(&support, &s.mls, &pos, &w)?;
+
+    let slots = fe_qp.nodes.len()
+        + blended.iter().flatten().map(|b| b.0.len()).sum::<usize>()
+        + ml_qp.nodes.len();
+    let n_blended: usize = blended.iter().map(|b| b.len()).sum();
+    let total = fe_qp.len() + n_blended + ml_qp.len();
+    let mut qp = QuadraturePoints::with_capacity(total, slots);
+    let mut owner = Vec::with_capacity(total);
+    let mut ids = Vec::new();
+    for p in 0..fe_qp.len() {
+        let r = fe_qp.slots(p);
+        ids.clear();
+        ids.extend(fe_qp.nodes[r.clone()].iter().map(|&i| i as usize));
+        match fe_qp.kinds[p] {
+            PointKind::Hourglass(h) => {
+                let d: [Vector3<f64>; 8] = std::array::from_fn(|a| fe_qp.dphi[r.start + a]);
+                qp.push_hourglass(&ids, &d, fe_qp.weights[p], fe_qp.hourglass[h as usize]);
+            }
+            k => qp.push(&ids, &fe_qp.dphi[r], fe_qp.weights[p], k),
+        }
+        owner.push(fe_cells[p]);
+    }
+    for (b, &e) in blended.iter().zip(&transition_cells) {
+        if s.mean_dilatation {
+            let pts: Vec<_> = b
+                .iter()
+                .map(|(ids, dphi, w, _)| (ids.clone(), dphi.clone(), *w))
+                .collect();
+            qp.push_group(&pts);
+        } else {
+            for (ids, dphi, w, _) in b {
+                qp.push(ids, dphi, *w, PointKind::Standard);
+            }
+        }
+        owner.extend(std::iter::repeat_n(e, b.len()));
+    }
+    let nf = fe_mesh.num_cells();
+    for p in 0..ml_qp.len() {
+        let r = ml_qp.slots(p);
+        ids.clear();
+        ids.extend(
+            ml_qp.nodes[r.clone()]
+                .iter()
+                .map(|&i| mls_nodes[i as usize]),
+        );
+        qp.push(&ids, &ml_qp.dphi[r], ml_qp.weights[p], PointKind::Standard);
+        owner.push(nf + tet_owner[p]);
+    }
+    // Every MLS node must be reached by enough points to carry mass and stiffness (one-point
+    // hexahedra reach their corner nodes once, so FE nodes are not checked).
+    let mut count = vec![0usize; n];
+    for &k in &qp.nodes {
+        count[k as usize] += 1;
+    }
+    let low = mls_nodes.iter().filter(|&&i| count[i] < 2).count();
+    if low > 0 {
+        warnings.push(format!(
+            "{low} meshless node(s) are reached by fewer than two quadrature points; raise tet_rule or the support size"
+        ));
+    }
+    Ok(CoupledBuild {
+        nodes,
+        fe_points: fe_qp.len(),
+        transition_points: n_blended,
+        meshless_points: ml_qp.len(),
+        fe_mesh,
+        interior,
+        regions,
+        points: qp,
+        owner,
+        mls_nodes,
+        support,
+        mls: s.mls.clone(),
+        warnings,
+    })
+}
