@@ -149,8 +149,7 @@ fn execute(cmd: Command) -> hytled::Result<()> {
         Command::Check { scene, set } => {
             let sc = hytled::scene::load(&scene, &set)?;
             let prep = simulation::prepare(&sc)?;
-            let c = hytled::material::Material::wave_speed(&prep.model.forces.material);
-            let (dt, p) = hytled::solver::timestep::critical_time_step(&prep.model.points, c);
+            let (dt, p) = hytled::solver::integrate::stable_step(&prep.model);
             for w in &prep.warnings {
                 eprintln!("warning: {w}");
             }
@@ -187,7 +186,7 @@ fn execute(cmd: Command) -> hytled::Result<()> {
                 println!("  min dihedral angle {a:.2} deg (element {e})");
             }
             println!(
-                "  critical time step {dt:.4e} s (point {p}); dt = {:.4e} s",
+                "  critical time step {dt:.4e} s (set by {p}); dt = {:.4e} s",
                 dt * sc.solver.dt_factor
             );
             Ok(())

@@ -51,8 +51,8 @@ pub struct MeshInfo {
     pub min_dihedral_deg: Option<f64>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub min_dihedral_element: Option<usize>,
-    /// Integration point (= element for FE) that sets the critical step.
-    pub critical_point: usize,
+    /// What sets the critical step: the per-point bound at a point or the nodal bound at a node.
+    pub critical: crate::solver::integrate::Critical,
     /// Sum of the integration weights, m^3.
     pub volume: f64,
 }
@@ -186,8 +186,8 @@ impl Summary {
         }
         let _ = writeln!(
             s,
-            "time step        {:.4e} s = {:.3} x critical {:.4e} s (set by point {})",
-            self.dt, self.dt_factor, self.dt_critical, self.mesh.critical_point
+            "time step        {:.4e} s = {:.3} x critical {:.4e} s (set by {})",
+            self.dt, self.dt_factor, self.dt_critical, self.mesh.critical
         );
         let _ = writeln!(
             s,

@@ -433,7 +433,7 @@ pub struct Discretization {
     pub fe_layers: usize,
     /// Coupled: influence-radius factor of the interface nodes (radius rule; default 1.5).
     /// Their supports must reach across the transition layer, where only one side has MLS
-    /// nodes; with 1.0 the exact cube is 0.1 % off, with 1.5 0.007 %.
+    /// nodes (exact cube, fe_layers = 2: F_z 0.40 % off at 1.0, 0.016 % at 1.5).
     #[serde(default = "default_interface_scale")]
     pub interface_scale: f64,
     /// Coupled: mean dilatation (the cell's weighted mean J) at the Gauss points of each

@@ -895,7 +895,7 @@ pub fn summarize(scene: &Scene, prep: &Prepared, out: &RunOutput, total_seconds:
             elements: prep.mesh.num_cells(),
             min_dihedral_deg: prep.min_dihedral.map(|m| m.0),
             min_dihedral_element: prep.min_dihedral.map(|m| m.1),
-            critical_point: out.critical_point,
+            critical: out.critical,
             volume: model.points.total_weight(),
         },
         support_nodes: prep

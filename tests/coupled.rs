@@ -319,3 +319,41 @@ fn cylinder_extension_coupled() {
 fn cylinder_shear_coupled() {
     cylinder_case("cylinder-shear");
 }
+
+#[test]
+#[ignore]
+fn debug_time_steps() {
+    use hytled::material::Material;
+    for (case, o) in [
+        ("cube-compression", vec!["discretization.method=fe"]),
+        ("cube-compression", vec!["discretization.method=coupled"]),
+        ("cube-compression", vec!["discretization.method=meshless"]),
+        ("cylinder-compression", vec!["discretization.method=fe"]),
+        (
+            "cylinder-compression",
+            vec!["discretization.method=coupled"],
+        ),
+        (
+            "cylinder-compression",
+            vec![
+                "discretization.method=meshless",
+                "discretization.tet_rule=1",
+            ],
+        ),
+    ] {
+        let o: Vec<String> = o.iter().map(|s| s.to_string()).collect();
+        let s = scene::load(Path::new(&format!("cases/{case}.toml")), &o).unwrap();
+        let p = simulation::prepare(&s).unwrap();
+        let m = &p.model;
+        let c = m.forces.material.wave_speed();
+        let rho = m.forces.material.density();
+        let a = hytled::solver::timestep::critical_time_step(&m.points, c);
+        let b = hytled::solver::timestep::nodal_time_step(&m.points, &m.slots, &m.mass, c, rho);
+        println!(
+            "{case} {o:?}: point bound {:.4e} s, nodal bound {:.4e} s (ratio {:.2})",
+            a.0,
+            b.0,
+            b.0 / a.0
+        );
+    }
+}

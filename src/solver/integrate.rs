@@ -112,8 +112,8 @@ pub struct RunOutput {
     pub f_int: Vec<Vector3<f64>>,
     pub dt: f64,
     pub dt_critical: f64,
-    /// Point that sets the critical step.
-    pub critical_point: usize,
+    /// What sets the critical step.
+    pub critical: Critical,
     pub steps: usize,
     pub simulated_time: f64,
     pub converged: bool,
@@ -135,13 +135,52 @@ fn rate_from_omega(omega: f64, dt: f64) -> f64 {
     ((k - 1.0) / (k + 1.0)).clamp(0.0, 0.99999)
 }
 
+/// The bound that sets the critical step (see [`super::timestep`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Critical {
+    /// The per-point bound, at this quadrature point.
+    Point(usize),
+    /// The nodal bound, at this node.
+    Node(usize),
+}
+
+impl std::fmt::Display for Critical {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Critical::Point(p) => write!(f, "point {p}"),
+            Critical::Node(n) => write!(f, "node {n}"),
+        }
+    }
+}
+
+/// Critical step of the model, s, and what sets it: both the per-point and the nodal bound
+/// hold for the reference stiffness, so the larger step (the tighter bound) is taken. The nodal
+/// bound is much tighter where supports are large (meshless about 1.5x, blended points 2-2.4x).
+pub fn stable_step<M: Material>(model: &Model<M>) -> (f64, Critical) {
+    let c = model.forces.material.wave_speed();
+    let (dt_point, crit_point) = critical_time_step(&model.points, c);
+    let (dt_node, crit_node) = super::timestep::nodal_time_step(
+        &model.points,
+        &model.slots,
+        &model.mass,
+        c,
+        model.forces.material.density(),
+    );
+    if dt_node > dt_point {
+        (dt_node, Critical::Node(crit_node))
+    } else {
+        (dt_point, Critical::Point(crit_point))
+    }
+}
+
 /// Runs the model to the end of the dynamic interval or to relaxation convergence.
 /// Fails with a clear message when the solution diverges or a point inverts.
 pub fn run<M: Material>(model: &mut Model<M>, s: &Settings) -> Result<RunOutput> {
     let start = Instant::now();
     let n = model.nodes.len();
     let c = model.forces.material.wave_speed();
-    let (dt_crit, crit_point) = critical_time_step(&model.points, c);
+    let (dt_crit, critical) = stable_step(model);
     if !(dt_crit.is_finite() && dt_crit > 0.0) {
         return Err(Error::Input(format!("the critical time step estimate is {dt_crit} s; the discretization has no usable points")));
     }
@@ -482,7 +521,7 @@ pub fn run<M: Material>(model: &mut Model<M>, s: &Settings) -> Result<RunOutput>
         f_int: f,
         dt,
         dt_critical: dt_crit,
-        critical_point: crit_point,
+        critical,
         steps: step,
         simulated_time: step as f64 * dt,
         converged,
