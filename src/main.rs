@@ -90,6 +90,11 @@ enum Command {
         /// VTU encoding.
         #[arg(long, value_enum, default_value = "binary")]
         vtu_format: VtuArg,
+        /// Also write the inputs of a mixed coupled scene made from this mesh: the outer
+        /// `discretization.fe_layers` cell layers as FE_LAYER.inp and the interior-only nodes as
+        /// CLOUD.csv (x,y,z in m).
+        #[arg(long, num_args = 2, value_names = ["FE_LAYER.inp", "CLOUD.csv"])]
+        split: Option<Vec<PathBuf>>,
     },
 }
 
@@ -230,6 +235,7 @@ fn execute(cmd: Command) -> hytled::Result<()> {
             set,
             out,
             vtu_format,
+            split,
         } => {
             let sc = hytled::scene::load(&scene, &set)?;
             let mesh = simulation::build_mesh(&sc)?;
@@ -252,6 +258,21 @@ fn execute(cmd: Command) -> hytled::Result<()> {
             );
             if let Some((a, e)) = hytled::geometry::quality::min_dihedral_angle(&mesh) {
                 println!("min dihedral angle {a:.2} deg (element {e})");
+            }
+            if let Some(paths) = split {
+                let (fe_path, cloud_path) = (&paths[0], &paths[1]);
+                let (n_fe, n_cloud) = hytled::coupling::regions::write_split_inputs(
+                    &mesh,
+                    sc.discretization.fe_layers,
+                    fe_path,
+                    cloud_path,
+                )?;
+                println!(
+                    "{}: FE layer ({} layer(s)), {n_fe} nodes; {}: {n_cloud} interior nodes",
+                    fe_path.display(),
+                    sc.discretization.fe_layers,
+                    cloud_path.display()
+                );
             }
             Ok(())
         }

@@ -194,26 +194,13 @@ fn mixed_inputs_match_the_built_in_coupled_cylinder() {
     let mut s0 = base.clone();
     s0.discretization.divisions = Some([4, 2, 8]);
     let mesh = simulation::build_mesh(&s0).unwrap();
-    let (fe, cloud) = hytled::coupling::regions::split_inputs(&mesh, 1).unwrap();
-    let n = fe.nodes.len() as u64;
-    let input = hytled::io::model::MeshInput {
-        mesh: fe.clone(),
-        node_ids: (1..=n).collect(),
-        element_ids: (1..=fe.num_cells() as u64).collect(),
-        node_sets: Default::default(),
-        element_sets: Default::default(),
-        face_sets: Default::default(),
-        warnings: Vec::new(),
-    };
-    hytled::io::inp::write_inp(&dir.join("fe-layer.inp"), &input).unwrap();
-    let csv: String = std::iter::once("x,y,z\n".to_string())
-        .chain(
-            cloud
-                .iter()
-                .map(|p| format!("{:.17e},{:.17e},{:.17e}\n", p.x, p.y, p.z)),
-        )
-        .collect();
-    std::fs::write(dir.join("interior.csv"), csv).unwrap();
+    hytled::coupling::regions::write_split_inputs(
+        &mesh,
+        1,
+        &dir.join("fe-layer.inp"),
+        &dir.join("interior.csv"),
+    )
+    .unwrap();
     let case = std::fs::read_to_string("cases/cylinder-compression.toml")
         .unwrap()
         .replace(

@@ -145,6 +145,33 @@ pub fn split(mesh: &Mesh, fe_layers: usize) -> Result<Regions> {
     })
 }
 
+/// Writes [`split_inputs`] of `mesh` as an ABAQUS file (`fe_path`) and a CSV cloud with an
+/// `x,y,z` header (`cloud_path`, m). Returns (FE-layer nodes, cloud nodes).
+pub fn write_split_inputs(
+    mesh: &Mesh,
+    fe_layers: usize,
+    fe_path: &std::path::Path,
+    cloud_path: &std::path::Path,
+) -> Result<(usize, usize)> {
+    let (fe, cloud) = split_inputs(mesh, fe_layers)?;
+    let input = crate::io::model::MeshInput {
+        node_ids: (1..=fe.nodes.len() as u64).collect(),
+        element_ids: (1..=fe.num_cells() as u64).collect(),
+        mesh: fe,
+        node_sets: Default::default(),
+        element_sets: Default::default(),
+        face_sets: Default::default(),
+        warnings: Vec::new(),
+    };
+    crate::io::inp::write_inp(fe_path, &input)?;
+    let mut text = String::from("x,y,z\n");
+    for p in &cloud {
+        text.push_str(&format!("{:.17e},{:.17e},{:.17e}\n", p.x, p.y, p.z));
+    }
+    std::fs::write(cloud_path, text).map_err(|e| Error::io(cloud_path, e))?;
+    Ok((input.mesh.nodes.len(), cloud.len()))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
