@@ -57,6 +57,27 @@ enum Command {
         #[arg(long, value_enum, default_value = "binary")]
         vtu_format: VtuArg,
     },
+    /// Run a scene with each discretization (FE, coupled, meshless) and print one table of
+    /// cost and error against the scene's references.
+    Compare {
+        scene: PathBuf,
+        /// Comma-separated methods: fe, coupled, meshless.
+        #[arg(long, default_value = "fe,coupled,meshless")]
+        methods: String,
+        #[arg(long = "set", value_name = "KEY.PATH=VALUE")]
+        set: Vec<String>,
+        /// Print a JSON array of the per-method results instead of the table.
+        #[arg(long)]
+        json: bool,
+        /// Write each run's outputs to DIR/METHOD, plus compare.csv, compare.md, reactions.svg.
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// Worker threads (default: all cores).
+        #[arg(long)]
+        threads: Option<usize>,
+        #[arg(long, value_enum, default_value = "binary")]
+        vtu_format: VtuArg,
+    },
     /// Validate a scene (schema, selections, mesh, probes) without running it.
     Check {
         scene: PathBuf,
@@ -216,6 +237,50 @@ fn execute(cmd: Command) -> hytled::Result<()> {
                 m.element_sets.len(),
                 m.face_sets.len()
             );
+            Ok(())
+        }
+        Command::Compare {
+            scene,
+            methods,
+            set,
+            json,
+            out,
+            threads,
+            vtu_format,
+        } => {
+            if let Some(n) = threads {
+                rayon::ThreadPoolBuilder::new()
+                    .num_threads(n.max(1))
+                    .build_global()
+                    .map_err(|e| hytled::Error::Input(format!("--threads {n}: {e}")))?;
+            }
+            let methods = hytled::comparison::parse_methods(&methods)?;
+            let opts = hytled::comparison::CompareOptions {
+                out,
+                vtu_format: vtu_format.into(),
+                progress: true,
+            };
+            let rows = hytled::comparison::run_compare(&scene, &set, &methods, &opts)?;
+            if json {
+                println!(
+                    "{}",
+                    serde_json::to_string_pretty(&rows).map_err(|e| hytled::Error::Input(
+                        format!("cannot serialise the comparison: {e}")
+                    ))?
+                );
+            } else {
+                print!("{}", hytled::comparison::table(&rows));
+            }
+            for r in &rows {
+                if let Some(s) = &r.summary {
+                    for w in &s.warnings {
+                        eprintln!("warning ({}): {w}", r.method);
+                    }
+                }
+            }
+            if rows.iter().all(|r| r.error.is_some()) {
+                return Err(hytled::Error::Input("compare: every method failed".into()));
+            }
             Ok(())
         }
         Command::Table { summaries } => {

@@ -1,0 +1,332 @@
+//! `hytled compare`: the same scene run with each discretization (FE, coupled, meshless) and
+//! one table of what each costs and how close it comes to the scene's references.
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use serde::Serialize;
+
+use crate::io::plot::{line_plot, Series};
+use crate::io::vtu::VtuFormat;
+use crate::report::Summary;
+use crate::scene;
+use crate::simulation;
+use crate::{Error, Result};
+
+/// Methods `compare` knows, in the default order.
+pub const METHODS: [&str; 3] = ["fe", "coupled", "meshless"];
+
+/// One method's run: its summary, or the error that stopped it.
+#[derive(Debug, Clone, Serialize)]
+pub struct CompareRow {
+    pub method: String,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub summary: Option<Summary>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub error: Option<String>,
+    /// Peak resident memory of the process during the run (VmHWM, reset before each run on
+    /// Linux), MiB.
+    pub peak_memory_mib: Option<f64>,
+    /// (time s, force N) of the compared reaction component, for the overlay plot.
+    #[serde(skip)]
+    pub reaction_history: Vec<(f64, f64)>,
+}
+
+/// Options of a comparison.
+#[derive(Debug, Clone, Default)]
+pub struct CompareOptions {
+    /// Write each run's outputs under DIR/METHOD plus compare.csv, compare.md, reactions.svg.
+    pub out: Option<PathBuf>,
+    pub vtu_format: VtuFormat,
+    /// Print a line per method to stderr.
+    pub progress: bool,
+}
+
+/// Parses a comma-separated method list ("fe,coupled,meshless").
+pub fn parse_methods(list: &str) -> Result<Vec<String>> {
+    let mut out = Vec::new();
+    for m in list.split(',').map(str::trim).filter(|m| !m.is_empty()) {
+        if !METHODS.contains(&m) {
+            return Err(Error::Input(format!(
+                "compare: unknown method '{m}'; use a comma-separated list of {}",
+                METHODS.join(", ")
+            )));
+        }
+        out.push(m.to_string());
+    }
+    if out.is_empty() {
+        return Err(Error::Input(format!(
+            "compare: no method given; use a comma-separated list of {}",
+            METHODS.join(", ")
+        )));
+    }
+    Ok(out)
+}
+
+/// Resets the peak resident set size (Linux: "5" to /proc/self/clear_refs).
+fn reset_peak_memory() {
+    let _ = std::fs::write("/proc/self/clear_refs", "5");
+}
+
+/// Peak resident set size since the last reset, MiB (None where /proc is unavailable).
+fn peak_memory_mib() -> Option<f64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kb: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb / 1024.0)
+}
+
+/// The reaction component the comparison plots: the first reference's reaction, else the z
+/// component of the first boundary with a prescribed displacement, else of the first boundary.
+fn compared_reaction(s: &scene::Scene) -> Option<(String, usize)> {
+    for r in s.references.values() {
+        let parts: Vec<&str> = r.quantity.split('.').collect();
+        if parts.len() == 3 && parts[0] == "reaction" {
+            let k = match parts[2] {
+                "x" => 0,
+                "y" => 1,
+                _ => 2,
+            };
+            return Some((parts[1].to_string(), k));
+        }
+    }
+    s.boundaries
+        .iter()
+        .find(|(_, b)| b.displacement.is_some())
+        .or_else(|| s.boundaries.iter().next())
+        .map(|(n, _)| (n.clone(), 2))
+}
+
+/// Runs `scene_path` once per method (the override `discretization.method=M` after
+/// `overrides`). A method that fails is a row with its error.
+pub fn run_compare(
+    scene_path: &Path,
+    overrides: &[String],
+    methods: &[String],
+    opts: &CompareOptions,
+) -> Result<Vec<CompareRow>> {
+    let mut rows = Vec::new();
+    for m in methods {
+        let t0 = Instant::now();
+        if opts.progress {
+            eprintln!("compare: {m} ...");
+        }
+        reset_peak_memory();
+        let mut o = overrides.to_vec();
+        o.push(format!("discretization.method={m}"));
+        let result = (|| -> Result<(Summary, Vec<(f64, f64)>)> {
+            let s = scene::load(scene_path, &o)?;
+            let mut prep = simulation::prepare(&s)?;
+            let settings = simulation::settings(&s, false);
+            let out = crate::solver::run(&mut prep.model, &settings)?;
+            let summary = simulation::summarize(&s, &prep, &out, t0.elapsed().as_secs_f64());
+            if let Some(dir) = &opts.out {
+                simulation::write_outputs(
+                    &dir.join(m),
+                    &s,
+                    &mut prep,
+                    &out,
+                    &summary,
+                    opts.vtu_format,
+                )?;
+            }
+            let hist = compared_reaction(&s)
+                .and_then(|(name, k)| {
+                    let b = prep.model.boundaries.iter().position(|b| b.name == name)?;
+                    Some(
+                        out.history
+                            .iter()
+                            .filter_map(|h| Some((h.time, h.reactions.get(b)?[k])))
+                            .collect(),
+                    )
+                })
+                .unwrap_or_default();
+            Ok((summary, hist))
+        })();
+        let peak = peak_memory_mib();
+        if opts.progress {
+            eprintln!(
+                "compare: {m} {} in {:.1} s",
+                if result.is_ok() { "done" } else { "FAILED" },
+                t0.elapsed().as_secs_f64()
+            );
+        }
+        rows.push(match result {
+            Ok((summary, hist)) => CompareRow {
+                method: m.clone(),
+                summary: Some(summary),
+                error: None,
+                peak_memory_mib: peak,
+                reaction_history: hist,
+            },
+            Err(e) => CompareRow {
+                method: m.clone(),
+                summary: None,
+                error: Some(e.to_string()),
+                peak_memory_mib: peak,
+                reaction_history: Vec::new(),
+            },
+        });
+    }
+    if let Some(dir) = &opts.out {
+        write_outputs(dir, scene_path, &rows)?;
+    }
+    Ok(rows)
+}
+
+/// Table columns: header and the cell of each row.
+fn columns(rows: &[CompareRow]) -> (Vec<String>, Vec<Vec<String>>) {
+    let mut head: Vec<String> = [
+        "method",
+        "nodes",
+        "points",
+        "dt (s)",
+        "steps",
+        "preprocess (s)",
+        "solve (s)",
+    ]
+    .map(String::from)
+    .to_vec();
+    // Reaction, probe and reference names from the first successful run.
+    let first = rows.iter().find_map(|r| r.summary.as_ref());
+    let reactions: Vec<String> = first
+        .map(|s| s.reactions.keys().cloned().collect())
+        .unwrap_or_default();
+    let probes: Vec<String> = first
+        .map(|s| s.probes.keys().cloned().collect())
+        .unwrap_or_default();
+    let refs: Vec<String> = first
+        .map(|s| s.reference.keys().cloned().collect())
+        .unwrap_or_default();
+    head.extend(reactions.iter().map(|r| format!("reaction {r} z (N)")));
+    head.extend(probes.iter().map(|p| format!("probe {p} (m)")));
+    head.extend(refs.iter().map(|r| format!("error {r} (%)")));
+    head.extend(["energy balance error (%)", "peak memory (MiB)", "status"].map(String::from));
+    let body =
+        rows.iter()
+            .map(|r| {
+                let mut c = vec![r.method.clone()];
+                match &r.summary {
+                    Some(s) => {
+                        c.push(s.nodes.to_string());
+                        c.push(s.integration_points.to_string());
+                        c.push(format!("{:.4e}", s.dt));
+                        c.push(s.steps.to_string());
+                        c.push(format!("{:.2}", s.wall_seconds.preprocess));
+                        c.push(format!("{:.2}", s.wall_seconds.solve));
+                        for name in &reactions {
+                            c.push(
+                                s.reactions
+                                    .get(name)
+                                    .map_or("-".into(), |v| format!("{:.5e}", v[2])),
+                            );
+                        }
+                        for name in &probes {
+                            c.push(s.probes.get(name).map_or("-".into(), |p| {
+                                let d = p.displacement;
+                                format!("({:.4e}, {:.4e}, {:.4e})", d[0], d[1], d[2])
+                            }));
+                        }
+                        for name in &refs {
+                            c.push(s.reference.get(name).map_or("-".into(), |x| {
+                                format!("{:.3}", 100.0 * x.relative_error)
+                            }));
+                        }
+                        c.push(
+                            s.energy
+                                .balance_error
+                                .map_or("n/a (relaxation)".into(), |e| format!("{:.3}", 100.0 * e)),
+                        );
+                    }
+                    None => {
+                        let n = 6 + reactions.len() + probes.len() + refs.len() + 1;
+                        c.extend(std::iter::repeat_n("-".to_string(), n));
+                    }
+                }
+                c.push(
+                    r.peak_memory_mib
+                        .map_or("n/a".into(), |m| format!("{m:.0}")),
+                );
+                c.push(match (&r.error, &r.summary) {
+                    (Some(e), _) => format!("failed: {e}"),
+                    (None, Some(s)) if !s.converged => "not converged".into(),
+                    _ => "ok".into(),
+                });
+                c
+            })
+            .collect();
+    (head, body)
+}
+
+/// The comparison as a Markdown table (units in the headers, SI).
+pub fn table(rows: &[CompareRow]) -> String {
+    let (head, body) = columns(rows);
+    let mut s = format!("| {} |\n|{}\n", head.join(" | "), "---|".repeat(head.len()));
+    for r in body {
+        s.push_str(&format!("| {} |\n", r.join(" | ")));
+    }
+    s
+}
+
+/// compare.csv, compare.md and reactions.svg (the compared reaction of every method against time).
+pub fn write_outputs(dir: &Path, scene_path: &Path, rows: &[CompareRow]) -> Result<()> {
+    std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
+    let (head, body) = columns(rows);
+    let quote = |s: &str| {
+        if s.contains([',', '"', '\n']) {
+            format!("\"{}\"", s.replace('"', "\"\""))
+        } else {
+            s.to_string()
+        }
+    };
+    let mut csv = head.iter().map(|h| quote(h)).collect::<Vec<_>>().join(",") + "\n";
+    for r in &body {
+        csv += &(r.iter().map(|c| quote(c)).collect::<Vec<_>>().join(",") + "\n");
+    }
+    let p = dir.join("compare.csv");
+    std::fs::write(&p, csv).map_err(|e| Error::io(&p, e))?;
+    let p = dir.join("compare.md");
+    let md = format!(
+        "# hytled compare {}\n\nSI units (m, N, s).\n\n{}",
+        scene_path.display(),
+        table(rows)
+    );
+    std::fs::write(&p, md).map_err(|e| Error::io(&p, e))?;
+    let series: Vec<Series> = rows
+        .iter()
+        .filter(|r| !r.reaction_history.is_empty())
+        .map(|r| Series {
+            name: &r.method,
+            points: r.reaction_history.clone(),
+        })
+        .collect();
+    if !series.is_empty() {
+        line_plot(
+            &dir.join("reactions.svg"),
+            "Reaction force by method",
+            "time (s)",
+            "force (N)",
+            &series,
+        )?;
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn method_lists() {
+        assert_eq!(
+            parse_methods("fe, meshless").unwrap(),
+            vec!["fe", "meshless"]
+        );
+        let e = parse_methods("fe,hybrid").unwrap_err().to_string();
+        assert!(
+            e.contains("unknown method 'hybrid'") && e.contains("coupled"),
+            "{e}"
+        );
+        assert!(parse_methods(" , ").is_err());
+    }
+}

@@ -1,0 +1,91 @@
+//! `hytled compare`: one row per method, errors per row, failures as rows.
+
+use std::path::Path;
+
+use hytled::comparison::{self, CompareOptions};
+
+#[test]
+fn compare_on_the_exact_cube_gives_three_accurate_rows() {
+    let dir = std::env::temp_dir().join("hytled-compare-cube");
+    let _ = std::fs::remove_dir_all(&dir);
+    let methods = comparison::parse_methods("fe,coupled,meshless").unwrap();
+    let opts = CompareOptions {
+        out: Some(dir.clone()),
+        ..Default::default()
+    };
+    let rows = comparison::run_compare(
+        Path::new("cases/cube-compression.toml"),
+        &[],
+        &methods,
+        &opts,
+    )
+    .unwrap();
+    assert_eq!(rows.len(), 3);
+    for r in &rows {
+        let s = r
+            .summary
+            .as_ref()
+            .unwrap_or_else(|| panic!("{}: {:?}", r.method, r.error));
+        assert_eq!(s.method, r.method);
+        assert!(s.converged);
+        // Exact cube (REFERENCE.md): F_z = -7.63269 N, lateral stretch 1.11574668.
+        let f = s.reactions["top"][2];
+        assert!(
+            (f + 7.63269).abs() / 7.63269 < 0.01,
+            "{}: F_z = {f}",
+            r.method
+        );
+        let ux = s.probes["corner"].displacement[0];
+        assert!(
+            (ux - 0.011574668).abs() < 1e-4,
+            "{}: corner u_x = {ux}",
+            r.method
+        );
+    }
+    let t = comparison::table(&rows);
+    assert_eq!(t.lines().count(), 5, "{t}");
+    for f in [
+        "compare.csv",
+        "compare.md",
+        "reactions.svg",
+        "fe/summary.json",
+        "coupled/summary.json",
+    ] {
+        assert!(dir.join(f).exists(), "{f} missing");
+    }
+    let csv = std::fs::read_to_string(dir.join("compare.csv")).unwrap();
+    assert_eq!(csv.lines().count(), 4);
+}
+
+#[test]
+fn a_failing_method_is_a_row_not_the_end() {
+    let methods = comparison::parse_methods("fe,meshless").unwrap();
+    // The cloud file is only read by the meshless run.
+    let o = vec![
+        "discretization.cloud=file".to_string(),
+        "discretization.cloud_file=no-such-cloud.csv".to_string(),
+        "discretization.size=0.025".to_string(),
+    ];
+    let rows = comparison::run_compare(
+        Path::new("cases/cube-compression.toml"),
+        &o,
+        &methods,
+        &CompareOptions::default(),
+    )
+    .unwrap();
+    assert!(rows[0].summary.is_some() && rows[0].error.is_none());
+    let e = rows[1].error.as_deref().unwrap();
+    assert!(e.contains("no-such-cloud.csv"), "{e}");
+    assert!(comparison::table(&rows).contains("failed: "));
+}
+
+#[test]
+fn unknown_method_is_an_error_naming_the_known_ones() {
+    let e = comparison::parse_methods("fe,abaqus")
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("'abaqus'") && e.contains("fe, coupled, meshless"),
+        "{e}"
+    );
+}
