@@ -222,7 +222,12 @@ fn execute(cmd: Command) -> hytled::Result<()> {
             output,
             vtu_format,
         } => {
-            let m = hytled::io::mesh_file::read_mesh(&input, None, 1.0)?;
+            let mut m = hytled::io::mesh_file::read_mesh(&input, None, 1.0)?;
+            if hytled::scene::MeshFormat::from_path(&output) == Some(hytled::scene::MeshFormat::Inp)
+            {
+                let renamed = hytled::io::mesh_file::inp_safe_set_names(&mut m);
+                m.warnings.extend(renamed);
+            }
             for w in &m.warnings {
                 eprintln!("warning: {w}");
             }

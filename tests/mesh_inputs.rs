@@ -280,3 +280,32 @@ fn meshio_binary_vtk_5_1_and_zlib_vtu_read_like_ascii() {
         assert!(fixed.iter().all(|&i| b.mesh.nodes[i].z == 0.0), "{f}");
     }
 }
+
+/// meshio names sets "gmsh:physical=2"; ABAQUS cannot carry '=' in a name, so converting to
+/// .inp renames them (with a message) instead of failing, and the sets survive the round trip.
+#[test]
+fn set_names_that_abaqus_cannot_carry_are_renamed_for_inp() {
+    use hytled::io::mesh_file::{inp_safe_set_names, read_mesh, write_mesh_file};
+    let mut m = read_mesh(
+        std::path::Path::new("tests/data/vtk/cyl_zlib.vtu"),
+        None,
+        1.0,
+    )
+    .unwrap();
+    let faces = m.face_sets.len();
+    let msgs = inp_safe_set_names(&mut m);
+    assert!(
+        !msgs.is_empty() && msgs.iter().all(|s| s.contains("renamed")),
+        "{msgs:?}"
+    );
+    let out = std::env::temp_dir().join("hytled-renamed-sets.inp");
+    write_mesh_file(&out, &m, hytled::io::vtu::VtuFormat::Binary).unwrap();
+    let back = read_mesh(&out, None, 1.0).unwrap();
+    assert_eq!(back.mesh.nodes.len(), m.mesh.nodes.len());
+    assert_eq!(back.mesh.cells, m.mesh.cells);
+    assert_eq!(back.face_sets.len(), faces);
+    assert!(back
+        .face_sets
+        .keys()
+        .any(|k| k.eq_ignore_ascii_case("gmsh:physical_2")));
+}

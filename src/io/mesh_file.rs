@@ -258,3 +258,50 @@ mod tests {
         assert_eq!(m.node_ids, vec![1, 2, 3, 4, 8]);
     }
 }
+
+/// Renames the sets whose names ABAQUS cannot carry (',', '"', '=' or control characters, e.g.
+/// meshio's "gmsh:geometrical=1") by replacing those characters with '_' (and appending '_2',
+/// '_3', ... on a clash). Returns one message per renamed set.
+pub fn inp_safe_set_names(m: &mut MeshInput) -> Vec<String> {
+    fn fix<T>(
+        kind: &str,
+        sets: &mut std::collections::BTreeMap<String, T>,
+        msgs: &mut Vec<String>,
+    ) {
+        let bad: Vec<String> = sets
+            .keys()
+            .filter(|n| {
+                n.chars()
+                    .any(|c| matches!(c, ',' | '"' | '=') || c.is_control())
+            })
+            .cloned()
+            .collect();
+        for old in bad {
+            let base: String = old
+                .chars()
+                .map(|c| {
+                    if matches!(c, ',' | '"' | '=') || c.is_control() {
+                        '_'
+                    } else {
+                        c
+                    }
+                })
+                .collect();
+            let mut new = base.clone();
+            let mut k = 2;
+            while sets.keys().any(|n| n.eq_ignore_ascii_case(&new)) {
+                new = format!("{base}_{k}");
+                k += 1;
+            }
+            if let Some(v) = sets.remove(&old) {
+                sets.insert(new.clone(), v);
+                msgs.push(format!("{kind} '{old}' renamed '{new}' for .inp"));
+            }
+        }
+    }
+    let mut msgs = Vec::new();
+    fix("node set", &mut m.node_sets, &mut msgs);
+    fix("element set", &mut m.element_sets, &mut msgs);
+    fix("face set", &mut m.face_sets, &mut msgs);
+    msgs
+}
