@@ -97,6 +97,53 @@ fn compared_reaction(s: &scene::Scene) -> Option<(String, usize)> {
         .map(|(n, _)| (n.clone(), 2))
 }
 
+/// One finished run of a scene: its summary and the history of its compared reaction.
+pub struct CaseRun {
+    pub summary: Summary,
+    /// (time s, force N) of the compared reaction component (see `compared_reaction`).
+    pub reaction_history: Vec<(f64, f64)>,
+}
+
+/// Loads `scene_path` with `overrides`, prepares, runs and summarises it (outputs to `out`
+/// when given). Returns the run or the error that stopped it, with the peak resident memory of
+/// the run (MiB, Linux only).
+pub fn run_case(
+    scene_path: &Path,
+    overrides: &[String],
+    out: Option<&Path>,
+    vtu_format: VtuFormat,
+) -> (Result<CaseRun>, Option<f64>) {
+    let t0 = Instant::now();
+    reset_peak_memory();
+    let result = (|| -> Result<CaseRun> {
+        let s = scene::load(scene_path, overrides)?;
+        let mut prep = simulation::prepare(&s)?;
+        let settings = simulation::settings(&s, false);
+        let out_run = crate::solver::run(&mut prep.model, &settings)?;
+        let summary = simulation::summarize(&s, &prep, &out_run, t0.elapsed().as_secs_f64());
+        if let Some(dir) = out {
+            simulation::write_outputs(dir, &s, &mut prep, &out_run, &summary, vtu_format)?;
+        }
+        let reaction_history = compared_reaction(&s)
+            .and_then(|(name, k)| {
+                let b = prep.model.boundaries.iter().position(|b| b.name == name)?;
+                Some(
+                    out_run
+                        .history
+                        .iter()
+                        .filter_map(|h| Some((h.time, h.reactions.get(b)?[k])))
+                        .collect(),
+                )
+            })
+            .unwrap_or_default();
+        Ok(CaseRun {
+            summary,
+            reaction_history,
+        })
+    })();
+    (result, peak_memory_mib())
+}
+
 /// Runs `scene_path` once per method (the override `discretization.method=M` after
 /// `overrides`). A method that fails is a row with its error.
 pub fn run_compare(
@@ -111,39 +158,10 @@ pub fn run_compare(
         if opts.progress {
             eprintln!("compare: {m} ...");
         }
-        reset_peak_memory();
         let mut o = overrides.to_vec();
         o.push(format!("discretization.method={m}"));
-        let result = (|| -> Result<(Summary, Vec<(f64, f64)>)> {
-            let s = scene::load(scene_path, &o)?;
-            let mut prep = simulation::prepare(&s)?;
-            let settings = simulation::settings(&s, false);
-            let out = crate::solver::run(&mut prep.model, &settings)?;
-            let summary = simulation::summarize(&s, &prep, &out, t0.elapsed().as_secs_f64());
-            if let Some(dir) = &opts.out {
-                simulation::write_outputs(
-                    &dir.join(m),
-                    &s,
-                    &mut prep,
-                    &out,
-                    &summary,
-                    opts.vtu_format,
-                )?;
-            }
-            let hist = compared_reaction(&s)
-                .and_then(|(name, k)| {
-                    let b = prep.model.boundaries.iter().position(|b| b.name == name)?;
-                    Some(
-                        out.history
-                            .iter()
-                            .filter_map(|h| Some((h.time, h.reactions.get(b)?[k])))
-                            .collect(),
-                    )
-                })
-                .unwrap_or_default();
-            Ok((summary, hist))
-        })();
-        let peak = peak_memory_mib();
+        let out_dir = opts.out.as_ref().map(|d| d.join(m));
+        let (result, peak) = run_case(scene_path, &o, out_dir.as_deref(), opts.vtu_format);
         if opts.progress {
             eprintln!(
                 "compare: {m} {} in {:.1} s",
@@ -152,12 +170,12 @@ pub fn run_compare(
             );
         }
         rows.push(match result {
-            Ok((summary, hist)) => CompareRow {
+            Ok(run) => CompareRow {
                 method: m.clone(),
-                summary: Some(summary),
+                summary: Some(run.summary),
                 error: None,
                 peak_memory_mib: peak,
-                reaction_history: hist,
+                reaction_history: run.reaction_history,
             },
             Err(e) => CompareRow {
                 method: m.clone(),

@@ -25,3 +25,4 @@ pub mod report;
 pub mod scene;
 pub mod simulation;
 pub mod solver;
+pub mod sweep;

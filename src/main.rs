@@ -78,6 +78,36 @@ enum Command {
         #[arg(long, value_enum, default_value = "binary")]
         vtu_format: VtuArg,
     },
+    /// Run a scene once per combination of varied values (the speed/accuracy trade): one row
+    /// per run with error vs reference, wall times, steps, dt, nodes, points and memory; a
+    /// failed run is a row with its error. Writes sweep.csv/.md/.json and error plots to --out.
+    Sweep {
+        scene: PathBuf,
+        /// KEY.PATH=V1,V2,... (any --set path; repeat for a cartesian product), e.g.
+        /// --vary discretization.method=fe,coupled --vary discretization.divisions=[4,2,8],[6,3,12]
+        #[arg(long = "vary", value_name = "KEY.PATH=V1,V2,...", required = true)]
+        vary: Vec<String>,
+        /// Fixed overrides applied to every run.
+        #[arg(long = "set", value_name = "KEY.PATH=VALUE")]
+        set: Vec<String>,
+        /// Run each combination N times and report the fastest (wall times only differ).
+        #[arg(long, default_value_t = 1)]
+        repeat: usize,
+        /// Write sweep.csv, sweep.md, sweep.json, error_vs_time.svg and error_vs_spacing.svg.
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// Also write every run's full outputs (VTU, history, summary) to DIR/runs/NNN.
+        #[arg(long)]
+        keep_outputs: bool,
+        /// Print the rows as a JSON array instead of the table.
+        #[arg(long)]
+        json: bool,
+        /// Worker threads (default: all cores).
+        #[arg(long)]
+        threads: Option<usize>,
+        #[arg(long, value_enum, default_value = "binary")]
+        vtu_format: VtuArg,
+    },
     /// Validate a scene (schema, selections, mesh, probes) without running it.
     Check {
         scene: PathBuf,
@@ -285,6 +315,60 @@ fn execute(cmd: Command) -> hytled::Result<()> {
             }
             if rows.iter().all(|r| r.error.is_some()) {
                 return Err(hytled::Error::Input("compare: every method failed".into()));
+            }
+            Ok(())
+        }
+        Command::Sweep {
+            scene,
+            vary,
+            set,
+            repeat,
+            out,
+            keep_outputs,
+            json,
+            threads,
+            vtu_format,
+        } => {
+            if let Some(n) = threads {
+                rayon::ThreadPoolBuilder::new()
+                    .num_threads(n.max(1))
+                    .build_global()
+                    .map_err(|e| hytled::Error::Input(format!("--threads {n}: {e}")))?;
+            }
+            if repeat == 0 {
+                return Err(hytled::Error::Input(
+                    "--repeat 0: give at least 1 run per combination".into(),
+                ));
+            }
+            if keep_outputs && out.is_none() {
+                return Err(hytled::Error::Input(
+                    "--keep-outputs needs --out DIR to write the runs to".into(),
+                ));
+            }
+            let varies = vary
+                .iter()
+                .map(|v| hytled::sweep::parse_vary(v))
+                .collect::<hytled::Result<Vec<_>>>()?;
+            let opts = hytled::sweep::SweepOptions {
+                out,
+                repeat,
+                keep_outputs,
+                vtu_format: vtu_format.into(),
+                progress: true,
+            };
+            let rows = hytled::sweep::run_sweep(&scene, &set, &varies, &opts)?;
+            if json {
+                println!(
+                    "{}",
+                    serde_json::to_string_pretty(&rows).map_err(|e| hytled::Error::Input(
+                        format!("cannot serialise the sweep: {e}")
+                    ))?
+                );
+            } else {
+                print!("{}", hytled::sweep::table(&varies, &rows));
+            }
+            if rows.iter().all(|r| r.error.is_some()) {
+                return Err(hytled::Error::Input("sweep: every run failed".into()));
             }
             Ok(())
         }

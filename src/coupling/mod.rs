@@ -519,7 +519,7 @@ fn assemble(
         owner,
         mls_nodes,
         support,
-        mls: s.mls.clone(),
+        mls: s.mls,
         warnings,
     })
 }

@@ -119,7 +119,10 @@ impl Selection {
                         "{what}: cylinder radius {radius} m must be non-negative and finite"
                     )));
                 }
-                let (lo_a, hi_a) = (min.unwrap_or(f64::NEG_INFINITY), max.unwrap_or(f64::INFINITY));
+                let (lo_a, hi_a) = (
+                    min.unwrap_or(f64::NEG_INFINITY),
+                    max.unwrap_or(f64::INFINITY),
+                );
                 if lo_a.is_nan() || hi_a.is_nan() || lo_a > hi_a {
                     return Err(Error::Input(format!(
                         "{what}: cylinder bounds min = {lo_a} m, max = {hi_a} m must satisfy min <= max"
@@ -303,7 +306,10 @@ mod tests {
             min: Some(0.005),
             max: None,
         };
-        let e = s.select(&nodes, "boundary 'indenter'").unwrap_err().to_string();
+        let e = s
+            .select(&nodes, "boundary 'indenter'")
+            .unwrap_err()
+            .to_string();
         assert!(
             e.contains("boundary 'indenter'")
                 && e.contains("selects no node")

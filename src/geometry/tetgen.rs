@@ -63,6 +63,7 @@ pub fn tetgen_box(
         volume,
         max_volume,
         radius_edge_ratio,
+        1e-9,
     )
 }
 
@@ -112,6 +113,7 @@ pub fn tetgen_cylinder(
         volume,
         max_volume,
         radius_edge_ratio,
+        1e-9,
     )
 }
 
@@ -152,7 +154,11 @@ impl EllipseArc {
                 let target = total * k as f64 / m as f64;
                 let i = self.s.partition_point(|&v| v <= target).clamp(1, Self::N);
                 let (s0, s1) = (self.s[i - 1], self.s[i]);
-                let f = if s1 > s0 { (target - s0) / (s1 - s0) } else { 0.0 };
+                let f = if s1 > s0 {
+                    (target - s0) / (s1 - s0)
+                } else {
+                    0.0
+                };
                 if k == 0 {
                     0.0
                 } else {
@@ -315,6 +321,10 @@ pub fn tetgen_half_ellipsoid(
         volume,
         max_volume,
         radius_edge_ratio,
+        // TetGen places the points it adds on the many slightly bent surface triangles up to
+        // about 1e-6 x the size off their planes (2.4e-7 of the volume at h = 5 mm on the
+        // brain-sized shape); they are moved onto the ellipsoid next anyway.
+        1e-5,
     )?;
     snap_to_half_ellipsoid(&mut mesh, &points, semi_axes)?;
     Ok(mesh)
@@ -378,7 +388,7 @@ fn snap_to_half_ellipsoid(
 }
 
 /// Meshes the PLC (`points` in m, `facets` as point-index polygons) enclosing `volume` (m^3)
-/// and checks that the tetrahedra fill exactly that volume.
+/// and checks that the tetrahedra fill that volume within the relative `volume_tolerance`.
 fn run_tetgen(
     what: &str,
     points: &[Vector3<f64>],
@@ -386,6 +396,7 @@ fn run_tetgen(
     volume: f64,
     max_volume: Option<f64>,
     radius_edge_ratio: Option<f64>,
+    volume_tolerance: f64,
 ) -> Result<Mesh> {
     if !tritet::TETGEN_IS_AVAILABLE {
         return Err(Error::Input(
@@ -489,7 +500,7 @@ fn run_tetgen(
         total += v;
         cells.extend_from_slice(&c);
     }
-    if ((total - volume) / volume).abs() > 1e-9 && std::env::var("HYDBG").is_err() {
+    if ((total - volume) / volume).abs() > volume_tolerance {
         return Err(fail(&format!(
             "its tetrahedra fill {total:e} m^3 instead of {volume:e} m^3"
         )));
@@ -669,7 +680,10 @@ mod tests {
                 assert_eq!(edges.get(&(j, i)), Some(&1), "edge {i}-{j} has no twin");
             }
             // Euler characteristic of a sphere: V - E + F = 2.
-            assert_eq!(p.len() as i64 - (edges.len() / 2) as i64 + t.len() as i64, 2);
+            assert_eq!(
+                p.len() as i64 - (edges.len() / 2) as i64 + t.len() as i64,
+                2
+            );
             // Outward: positive enclosed volume, a little below the exact one.
             let v: f64 = t
                 .iter()
@@ -687,7 +701,10 @@ mod tests {
             // Points on the base plane (exactly) or the ellipsoid; the apex is a vertex.
             for q in &p {
                 assert!(q.z >= 0.0);
-                assert!(q.z == 0.0 || ellipsoid_residual(q, BRAIN).abs() < 1e-14, "{q:?}");
+                assert!(
+                    q.z == 0.0 || ellipsoid_residual(q, BRAIN).abs() < 1e-14,
+                    "{q:?}"
+                );
                 if q.z == 0.0 {
                     assert!(ellipsoid_residual(q, BRAIN) < 1e-14);
                 }
@@ -773,58 +790,5 @@ mod tests {
         for h in handles {
             assert!(h.join().unwrap().unwrap() > 0);
         }
-    }
-}
-#[cfg(test)]
-mod dbg_tests {
-    use super::*;
-    #[test]
-    fn dbg_half() {
-        let s = [0.04625, 0.03125, 0.0285];
-        let h: f64 = std::env::var("HYH").map(|v| v.parse().unwrap()).unwrap_or(0.005);
-        let fac: f64 = std::env::var("HYF").map(|v| v.parse().unwrap()).unwrap_or(1.0);
-        let (p, t) = half_ellipsoid_surface(s, fac * h).unwrap();
-        let mv = h * h * h / (6.0 * 2f64.sqrt());
-        let facets: Vec<Vec<usize>> = t.iter().map(|t| t.to_vec()).collect();
-        let vol: f64 = t.iter().map(|t| p[t[0]].dot(&p[t[1]].cross(&p[t[2]])) / 6.0).sum();
-        let mvf: f64 = std::env::var("HYV").map(|v| v.parse().unwrap()).unwrap_or(1.0);
-        let q: Option<f64> = std::env::var("HYQ").ok().map(|v| v.parse().unwrap());
-        let m = run_tetgen("x", &p, &facets, vol, if mvf > 0.0 { Some(mv * mvf) } else { None }, q).unwrap();
-        let faces = crate::geometry::quality::boundary_faces(&m).unwrap();
-        let key = |q: &Vector3<f64>| [q.x.to_bits(), q.y.to_bits(), q.z.to_bits()];
-        let inp: std::collections::HashSet<_> = p.iter().map(key).collect();
-        let added: Vec<usize> = (0..m.nodes.len()).filter(|&i| !inp.contains(&key(&m.nodes[i]))).collect();
-        let mut bset = std::collections::HashSet::new();
-        for f in &faces { for &i in f { bset.insert(i); } }
-        let badd: Vec<_> = added.iter().filter(|i| bset.contains(i)).collect();
-        println!("input {} out {} added {} added-on-boundary {} bfaces {} input tris {}", p.len(), m.nodes.len(), added.len(), badd.len(), faces.len(), t.len());
-        let bv: f64 = faces.iter().map(|f| m.nodes[f[0]].dot(&m.nodes[f[1]].cross(&m.nodes[f[2]])) / 6.0).sum();
-        let tv: f64 = (0..m.num_cells()).map(|e| { let c = m.cell(e); tet_signed_volume(&m.nodes[c[0]], &m.nodes[c[1]], &m.nodes[c[2]], &m.nodes[c[3]]) }).sum();
-        println!("plc vol {vol:e} boundary vol {bv:e} tet vol {tv:e}");
-        for &&i in badd.iter().take(10) { let q = m.nodes[i]; println!("added {i} {:?} res {:e}", q, q.component_div(&Vector3::from(s)).norm() - 1.0); }
-        // input triangles not present in output boundary
-        let fs: std::collections::HashSet<Vec<[u64;3]>> = faces.iter().map(|f| { let mut v: Vec<_> = f.iter().map(|&i| key(&m.nodes[i])).collect(); v.sort(); v }).collect();
-        let missing = t.iter().filter(|tr| { let mut v: Vec<_> = tr.iter().map(|&i| key(&p[i])).collect(); v.sort(); !fs.contains(&v) }).count();
-        println!("input triangles missing from output boundary: {missing}");
-        let mut worst = 0.0f64;
-        for &&i in &badd {
-            let q = m.nodes[i];
-            let mut best = f64::INFINITY;
-            for tr in &t {
-                let (a, b, c) = (p[tr[0]], p[tr[1]], p[tr[2]]);
-                let n = (b - a).cross(&(c - a)).normalize();
-                let d = (q - a).dot(&n);
-                let proj = q - n * d;
-                // barycentric inside check
-                let v0 = b - a; let v1 = c - a; let v2 = proj - a;
-                let d00 = v0.dot(&v0); let d01 = v0.dot(&v1); let d11 = v1.dot(&v1);
-                let d20 = v2.dot(&v0); let d21 = v2.dot(&v1);
-                let den = d00 * d11 - d01 * d01;
-                let v = (d11 * d20 - d01 * d21) / den; let w = (d00 * d21 - d01 * d20) / den;
-                if v >= -1e-6 && w >= -1e-6 && v + w <= 1.0 + 1e-6 { best = best.min(d.abs()); }
-            }
-            worst = worst.max(best);
-        }
-        println!("worst added boundary point distance from the PLC: {worst:e}");
     }
 }

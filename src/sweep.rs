@@ -1,0 +1,738 @@
+//! `hytled sweep`: the cartesian product of varied scene values, one run each, and what each
+//! run cost against how close it came to the scene's references (the speed/accuracy trade).
+//!
+//! Any `--set` path can be varied. A run that fails (invalid value, unstable step, inverted
+//! element, singular support) is a row with its error message; the sweep goes on.
+
+use std::collections::{BTreeMap, BTreeSet};
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use serde::Serialize;
+
+use crate::comparison::run_case;
+use crate::io::plot::{log_log_plot, Series};
+use crate::io::vtu::VtuFormat;
+use crate::report::Summary;
+use crate::{Error, Result};
+
+/// One varied scene key and its values (the text of `--set KEY=VALUE` values).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Vary {
+    pub key: String,
+    pub values: Vec<String>,
+}
+
+/// Parses `key.path=v1,v2,...`. Commas inside brackets or quotes belong to a value, so
+/// `geometry.semi_axes=[1,2,3],[2,3,4]` gives two arrays.
+pub fn parse_vary(text: &str) -> Result<Vary> {
+    let bad = |why: &str| {
+        Error::Input(format!(
+            "--vary '{text}': {why}; write --vary key.path=v1,v2,... (e.g. --vary discretization.divisions=[4,2,8],[6,3,12])"
+        ))
+    };
+    let (key, list) = text.split_once('=').ok_or_else(|| bad("no '='"))?;
+    let key = key.trim();
+    if key.is_empty() {
+        return Err(bad("no key before '='"));
+    }
+    let mut values = Vec::new();
+    let (mut depth, mut quote, mut cur) = (0i32, None::<char>, String::new());
+    for c in list.chars() {
+        match (c, quote) {
+            ('"' | '\'', None) => quote = Some(c),
+            (q, Some(open)) if q == open => quote = None,
+            ('[' | '{', None) => depth += 1,
+            (']' | '}', None) => depth -= 1,
+            (',', None) if depth == 0 => {
+                values.push(std::mem::take(&mut cur));
+                continue;
+            }
+            _ => {}
+        }
+        cur.push(c);
+    }
+    if depth != 0 || quote.is_some() {
+        return Err(bad("unbalanced brackets or quotes"));
+    }
+    values.push(cur);
+    let values: Vec<String> = values.into_iter().map(|v| v.trim().to_string()).collect();
+    if values.iter().any(String::is_empty) {
+        return Err(bad("an empty value"));
+    }
+    Ok(Vary {
+        key: key.to_string(),
+        values,
+    })
+}
+
+/// Every combination of the varied values, the last key varying fastest.
+pub fn combinations(varies: &[Vary]) -> Vec<Vec<(String, String)>> {
+    let mut out: Vec<Vec<(String, String)>> = vec![Vec::new()];
+    for v in varies {
+        out = out
+            .into_iter()
+            .flat_map(|c| {
+                v.values.iter().map(move |x| {
+                    let mut c = c.clone();
+                    c.push((v.key.clone(), x.clone()));
+                    c
+                })
+            })
+            .collect();
+    }
+    out
+}
+
+/// Options of a sweep.
+#[derive(Debug, Clone)]
+pub struct SweepOptions {
+    /// Write sweep.csv, sweep.md, sweep.json and the plots to DIR.
+    pub out: Option<PathBuf>,
+    /// Run each combination this many times and keep the fastest (results are deterministic;
+    /// only the wall times differ).
+    pub repeat: usize,
+    /// Also write each run's full outputs (VTU, CSV, summary) to DIR/runs/NNN.
+    pub keep_outputs: bool,
+    pub vtu_format: VtuFormat,
+    /// A progress bar over runs (stderr).
+    pub progress: bool,
+}
+
+impl Default for SweepOptions {
+    fn default() -> Self {
+        SweepOptions {
+            out: None,
+            repeat: 1,
+            keep_outputs: false,
+            vtu_format: VtuFormat::default(),
+            progress: false,
+        }
+    }
+}
+
+/// One run of the sweep: the varied values and the run's summary, or the error that stopped it.
+#[derive(Debug, Clone, Serialize)]
+pub struct SweepRow {
+    /// 1-based run number (the order of `combinations`).
+    pub run: usize,
+    pub values: BTreeMap<String, String>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub summary: Option<Summary>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub error: Option<String>,
+    /// Peak resident memory of the run, MiB (Linux).
+    pub peak_memory_mib: Option<f64>,
+    /// Runs of this combination; the summary's wall times are the fastest one's.
+    pub repeats: usize,
+    /// On the Pareto front of error against wall time (no run is both faster and more
+    /// accurate).
+    pub pareto: bool,
+}
+
+impl SweepRow {
+    /// The largest relative error over the scene's references (None without references).
+    pub fn error_vs_reference(&self) -> Option<f64> {
+        let s = self.summary.as_ref()?;
+        s.reference
+            .values()
+            .map(|c| c.relative_error.abs())
+            .fold(None, |m: Option<f64>, e| Some(m.map_or(e, |m| m.max(e))))
+    }
+
+    /// Characteristic node spacing (volume / nodes)^(1/3), m.
+    pub fn spacing(&self) -> Option<f64> {
+        let s = self.summary.as_ref()?;
+        (s.nodes > 0 && s.mesh.volume > 0.0).then(|| (s.mesh.volume / s.nodes as f64).cbrt())
+    }
+
+    /// Which curve the row belongs to in the plots: method/element, plus the solver mode when
+    /// the sweep mixes modes.
+    fn series(&self, modes_differ: bool) -> Option<String> {
+        let s = self.summary.as_ref()?;
+        Some(if modes_differ {
+            format!("{}/{} {}", s.method, s.element, s.mode)
+        } else {
+            format!("{}/{}", s.method, s.element)
+        })
+    }
+}
+
+/// Runs every combination of `varies` on `scene_path` (after `overrides`). Fails early only
+/// when a varied key is unusable with every one of its values (e.g. a misspelt key).
+pub fn run_sweep(
+    scene_path: &Path,
+    overrides: &[String],
+    varies: &[Vary],
+    opts: &SweepOptions,
+) -> Result<Vec<SweepRow>> {
+    if varies.is_empty() {
+        return Err(Error::Input(
+            "sweep: nothing to vary; give at least one --vary key.path=v1,v2,...".into(),
+        ));
+    }
+    for v in varies {
+        let mut first_err = None;
+        let ok = v.values.iter().any(|x| {
+            let mut o = overrides.to_vec();
+            o.push(format!("{}={x}", v.key));
+            match crate::scene::load(scene_path, &o) {
+                Ok(_) => true,
+                Err(e) => {
+                    first_err.get_or_insert(e);
+                    false
+                }
+            }
+        });
+        if !ok {
+            let e = first_err.map(|e| e.to_string()).unwrap_or_default();
+            return Err(Error::Input(format!(
+                "sweep: no value of --vary {} gives a valid scene: {e}",
+                v.key
+            )));
+        }
+    }
+    let combos = combinations(varies);
+    let bar = progress_bar(combos.len(), opts.progress);
+    let mut rows = Vec::with_capacity(combos.len());
+    for (k, combo) in combos.iter().enumerate() {
+        let label = combo
+            .iter()
+            .map(|(key, v)| format!("{key}={v}"))
+            .collect::<Vec<_>>()
+            .join(" ");
+        bar.set_message(label.clone());
+        let t0 = Instant::now();
+        let mut o = overrides.to_vec();
+        o.extend(combo.iter().map(|(key, v)| format!("{key}={v}")));
+        let out_dir = opts
+            .out
+            .as_ref()
+            .filter(|_| opts.keep_outputs)
+            .map(|d| d.join("runs").join(format!("{:03}", k + 1)));
+        let mut best: Option<Summary> = None;
+        let mut error = None;
+        let mut peak = None;
+        for r in 0..opts.repeat.max(1) {
+            let dir = out_dir.as_deref().filter(|_| r == 0);
+            let (result, p) = run_case(scene_path, &o, dir, opts.vtu_format);
+            peak = match (peak, p) {
+                (Some(a), Some(b)) => Some(f64::max(a, b)),
+                (a, b) => a.or(b),
+            };
+            match result {
+                Ok(run) => {
+                    let faster = best
+                        .as_ref()
+                        .is_none_or(|b| run.summary.wall_seconds.total < b.wall_seconds.total);
+                    if faster {
+                        best = Some(run.summary);
+                    }
+                }
+                Err(e) => {
+                    error = Some(e.to_string());
+                    break;
+                }
+            }
+        }
+        let row = SweepRow {
+            run: k + 1,
+            values: combo.iter().cloned().collect(),
+            summary: if error.is_none() { best } else { None },
+            error,
+            peak_memory_mib: peak,
+            repeats: opts.repeat.max(1),
+            pareto: false,
+        };
+        let line = format!(
+            "run {}/{} {label}: {} in {:.1} s",
+            k + 1,
+            combos.len(),
+            match (&row.error, row.error_vs_reference()) {
+                (Some(e), _) => format!("FAILED ({e})"),
+                (None, Some(x)) => format!("error {} %", percent(x)),
+                (None, None) => "done".into(),
+            },
+            t0.elapsed().as_secs_f64()
+        );
+        if opts.progress {
+            if bar.is_hidden() {
+                eprintln!("sweep: {line}");
+            } else {
+                bar.println(line);
+            }
+        }
+        bar.inc(1);
+        rows.push(row);
+    }
+    bar.finish_and_clear();
+    mark_pareto(&mut rows);
+    if let Some(dir) = &opts.out {
+        write_outputs(dir, scene_path, varies, &rows)?;
+    }
+    Ok(rows)
+}
+
+fn progress_bar(n: usize, show: bool) -> indicatif::ProgressBar {
+    if !show {
+        return indicatif::ProgressBar::hidden();
+    }
+    let bar = indicatif::ProgressBar::new(n as u64);
+    if let Ok(style) = indicatif::ProgressStyle::with_template(
+        "sweep {bar:30} {pos}/{len} runs, eta {eta} | {msg}",
+    ) {
+        bar.set_style(style);
+    }
+    bar
+}
+
+/// Marks the runs that no other run beats on both wall time and error vs reference.
+pub fn mark_pareto(rows: &mut [SweepRow]) {
+    let pts: Vec<(usize, f64, f64)> = rows
+        .iter()
+        .enumerate()
+        .filter_map(|(i, r)| {
+            let e = r.error_vs_reference()?;
+            let t = r.summary.as_ref()?.wall_seconds.total;
+            (e.is_finite() && t.is_finite()).then_some((i, t, e))
+        })
+        .collect();
+    for &(i, t, e) in &pts {
+        let dominated = pts
+            .iter()
+            .any(|&(j, tj, ej)| j != i && tj <= t && ej <= e && (tj < t || ej < e));
+        rows[i].pareto = !dominated;
+    }
+}
+
+/// Least-squares slope of log(error) against log(spacing): the observed convergence order.
+/// None with fewer than two distinct spacings.
+pub fn convergence_order(points: &[(f64, f64)]) -> Option<f64> {
+    let logs: Vec<(f64, f64)> = points
+        .iter()
+        .filter(|(h, e)| *h > 0.0 && *e > 0.0 && h.is_finite() && e.is_finite())
+        .map(|(h, e)| (h.ln(), e.ln()))
+        .collect();
+    let n = logs.len() as f64;
+    if logs.len() < 2 {
+        return None;
+    }
+    let mx = logs.iter().map(|p| p.0).sum::<f64>() / n;
+    let my = logs.iter().map(|p| p.1).sum::<f64>() / n;
+    let sxx: f64 = logs.iter().map(|p| (p.0 - mx).powi(2)).sum();
+    let sxy: f64 = logs.iter().map(|p| (p.0 - mx) * (p.1 - my)).sum();
+    (sxx > 1e-12).then(|| sxy / sxx)
+}
+
+/// Per curve: (name, [(spacing m, error)], [(wall s, error)]) of the rows with an error.
+#[allow(clippy::type_complexity)]
+fn curves(rows: &[SweepRow]) -> Vec<(String, Vec<(f64, f64)>, Vec<(f64, f64)>)> {
+    let modes: BTreeSet<&str> = rows
+        .iter()
+        .filter_map(|r| Some(r.summary.as_ref()?.mode.as_str()))
+        .collect();
+    let mut out: BTreeMap<String, (Vec<(f64, f64)>, Vec<(f64, f64)>)> = BTreeMap::new();
+    for r in rows {
+        let (Some(name), Some(e), Some(h)) = (
+            r.series(modes.len() > 1),
+            r.error_vs_reference(),
+            r.spacing(),
+        ) else {
+            continue;
+        };
+        let t = r
+            .summary
+            .as_ref()
+            .map_or(f64::NAN, |s| s.wall_seconds.total);
+        let c = out.entry(name).or_default();
+        c.0.push((h, e));
+        c.1.push((t, e));
+    }
+    out.into_iter()
+        .map(|(n, (mut a, mut b))| {
+            a.sort_by(|p, q| p.0.total_cmp(&q.0));
+            b.sort_by(|p, q| p.0.total_cmp(&q.0));
+            (n, a, b)
+        })
+        .collect()
+}
+
+fn names<'a>(rows: &'a [SweepRow], f: impl Fn(&'a Summary) -> Vec<&'a String>) -> Vec<String> {
+    let set: BTreeSet<&String> = rows
+        .iter()
+        .filter_map(|r| r.summary.as_ref())
+        .flat_map(f)
+        .collect();
+    set.into_iter().cloned().collect()
+}
+
+/// The CSV table: the varied values, then the run's summary (SI units in the headers).
+fn csv_columns(varies: &[Vary], rows: &[SweepRow]) -> (Vec<String>, Vec<Vec<String>>) {
+    let reactions = names(rows, |s| s.reactions.keys().collect());
+    let probes = names(rows, |s| s.probes.keys().collect());
+    let refs = names(rows, |s| s.reference.keys().collect());
+    let mut head: Vec<String> = vec!["run".into()];
+    head.extend(varies.iter().map(|v| v.key.clone()));
+    head.extend(
+        [
+            "method",
+            "element",
+            "mode",
+            "nodes",
+            "points",
+            "spacing (m)",
+            "dt (s)",
+            "dt critical (s)",
+            "dt factor",
+            "steps",
+            "converged",
+            "preprocess (s)",
+            "solve (s)",
+            "total (s)",
+            "ms per step",
+            "threads",
+        ]
+        .map(String::from),
+    );
+    for r in &reactions {
+        head.extend(["x", "y", "z"].map(|c| format!("reaction {r} {c} (N)")));
+    }
+    for p in &probes {
+        head.extend(["x", "y", "z"].map(|c| format!("probe {p} u{c} (m)")));
+    }
+    head.extend(refs.iter().map(|r| format!("error {r} (%)")));
+    head.extend(
+        [
+            "max error (%)",
+            "energy balance error (%)",
+            "min dihedral (deg)",
+            "removed nodes",
+            "support nodes mean",
+            "peak memory (MiB)",
+            "pareto",
+            "status",
+        ]
+        .map(String::from),
+    );
+    let f = |x: f64| format!("{x:.6e}");
+    let body = rows
+        .iter()
+        .map(|r| {
+            let mut c = vec![r.run.to_string()];
+            c.extend(
+                varies
+                    .iter()
+                    .map(|v| r.values.get(&v.key).cloned().unwrap_or_default()),
+            );
+            match &r.summary {
+                Some(s) => {
+                    c.extend([
+                        s.method.clone(),
+                        s.element.clone(),
+                        s.mode.clone(),
+                        s.nodes.to_string(),
+                        s.integration_points.to_string(),
+                        r.spacing().map_or(String::new(), f),
+                        f(s.dt),
+                        f(s.dt_critical),
+                        s.dt_factor.to_string(),
+                        s.steps.to_string(),
+                        s.converged.to_string(),
+                        format!("{:.4}", s.wall_seconds.preprocess),
+                        format!("{:.4}", s.wall_seconds.solve),
+                        format!("{:.4}", s.wall_seconds.total),
+                        format!(
+                            "{:.5}",
+                            1e3 * s.wall_seconds.solve / (s.steps.max(1) as f64)
+                        ),
+                        s.threads.to_string(),
+                    ]);
+                    for name in &reactions {
+                        let v = s.reactions.get(name);
+                        c.extend((0..3).map(|k| v.map_or(String::new(), |v| f(v[k]))));
+                    }
+                    for name in &probes {
+                        let v = s.probes.get(name).map(|p| p.displacement);
+                        c.extend((0..3).map(|k| v.map_or(String::new(), |v| f(v[k]))));
+                    }
+                    for name in &refs {
+                        c.push(s.reference.get(name).map_or(String::new(), |x| {
+                            format!("{:.5}", 100.0 * x.relative_error)
+                        }));
+                    }
+                    c.push(
+                        r.error_vs_reference()
+                            .map_or(String::new(), |e| format!("{:.5}", 100.0 * e)),
+                    );
+                    c.push(
+                        s.energy
+                            .balance_error
+                            .map_or(String::new(), |e| format!("{:.5}", 100.0 * e)),
+                    );
+                    c.push(
+                        s.mesh
+                            .min_dihedral_deg
+                            .map_or(String::new(), |d| format!("{d:.3}")),
+                    );
+                    c.push(s.removed_nodes.map_or(String::new(), |n| n.to_string()));
+                    c.push(
+                        s.support_nodes
+                            .as_ref()
+                            .map_or(String::new(), |n| format!("{:.2}", n.mean)),
+                    );
+                }
+                None => {
+                    let n = 16 + 3 * reactions.len() + 3 * probes.len() + refs.len() + 5;
+                    c.extend(std::iter::repeat_n(String::new(), n));
+                }
+            }
+            c.push(
+                r.peak_memory_mib
+                    .map_or(String::new(), |m| format!("{m:.1}")),
+            );
+            c.push(r.pareto.to_string());
+            c.push(status(r));
+            c
+        })
+        .collect();
+    (head, body)
+}
+
+/// A fraction as a percentage with three decimals, or three significant digits when smaller.
+fn percent(x: f64) -> String {
+    let p = 100.0 * x;
+    if p.abs() >= 0.01 || p == 0.0 {
+        format!("{p:.3}")
+    } else {
+        format!("{p:.2e}")
+    }
+}
+
+fn status(r: &SweepRow) -> String {
+    match (&r.error, &r.summary) {
+        (Some(e), _) => format!("failed: {e}"),
+        (None, Some(s)) if !s.converged => "not converged".into(),
+        _ => "ok".into(),
+    }
+}
+
+/// The sweep as a Markdown table (the main columns; sweep.csv has them all) followed by the
+/// observed convergence orders and the Pareto front.
+pub fn table(varies: &[Vary], rows: &[SweepRow]) -> String {
+    let mut head: Vec<String> = vec!["run".into()];
+    head.extend(varies.iter().map(|v| v.key.clone()));
+    head.extend(
+        [
+            "method",
+            "nodes",
+            "points",
+            "dt (s)",
+            "steps",
+            "total (s)",
+            "max error (%)",
+            "energy error (%)",
+            "memory (MiB)",
+            "pareto",
+            "status",
+        ]
+        .map(String::from),
+    );
+    let mut s = format!("| {} |\n|{}\n", head.join(" | "), "---|".repeat(head.len()));
+    for r in rows {
+        let mut c = vec![r.run.to_string()];
+        c.extend(
+            varies
+                .iter()
+                .map(|v| r.values.get(&v.key).cloned().unwrap_or_default()),
+        );
+        match &r.summary {
+            Some(x) => c.extend([
+                format!("{}/{}", x.method, x.element),
+                x.nodes.to_string(),
+                x.integration_points.to_string(),
+                format!("{:.3e}", x.dt),
+                x.steps.to_string(),
+                format!("{:.2}", x.wall_seconds.total),
+                r.error_vs_reference().map_or("-".into(), percent),
+                x.energy.balance_error.map_or("-".into(), percent),
+            ]),
+            None => c.extend(std::iter::repeat_n("-".to_string(), 8)),
+        }
+        c.push(r.peak_memory_mib.map_or("-".into(), |m| format!("{m:.0}")));
+        c.push(if r.pareto {
+            "yes".into()
+        } else {
+            String::new()
+        });
+        c.push(status(r).replace('|', "/").replace('\n', " "));
+        s.push_str(&format!("| {} |\n", c.join(" | ")));
+    }
+    let curves = curves(rows);
+    let orders: Vec<String> = curves
+        .iter()
+        .filter_map(|(n, hs, _)| {
+            convergence_order(hs).map(|p| format!("| {n} | {} | {p:.2} |", hs.len()))
+        })
+        .collect();
+    if !orders.is_empty() {
+        s.push_str(
+            "\nObserved convergence order p (error ~ h^p, least squares over the runs; \
+             h = (volume / nodes)^(1/3)):\n\n| series | runs | p |\n|---|---|---|\n",
+        );
+        s.push_str(&(orders.join("\n") + "\n"));
+    }
+    s
+}
+
+/// sweep.csv, sweep.md, sweep.json, error_vs_time.svg, error_vs_spacing.svg.
+pub fn write_outputs(
+    dir: &Path,
+    scene_path: &Path,
+    varies: &[Vary],
+    rows: &[SweepRow],
+) -> Result<()> {
+    std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
+    let quote = |s: &str| {
+        if s.contains([',', '"', '\n']) {
+            format!("\"{}\"", s.replace('"', "\"\""))
+        } else {
+            s.to_string()
+        }
+    };
+    let (head, body) = csv_columns(varies, rows);
+    let mut csv = head.iter().map(|h| quote(h)).collect::<Vec<_>>().join(",") + "\n";
+    for r in &body {
+        csv += &(r.iter().map(|c| quote(c)).collect::<Vec<_>>().join(",") + "\n");
+    }
+    let p = dir.join("sweep.csv");
+    std::fs::write(&p, csv).map_err(|e| Error::io(&p, e))?;
+    let vary_args: Vec<String> = varies
+        .iter()
+        .map(|v| format!("--vary {}={}", v.key, v.values.join(",")))
+        .collect();
+    let md = format!(
+        "# hytled sweep {} {}\n\nSI units (m, N, s). Error: the largest relative error over the \
+         scene's references.\n\n{}",
+        scene_path.display(),
+        vary_args.join(" "),
+        table(varies, rows)
+    );
+    let p = dir.join("sweep.md");
+    std::fs::write(&p, md).map_err(|e| Error::io(&p, e))?;
+    let p = dir.join("sweep.json");
+    let json = serde_json::to_string_pretty(rows)
+        .map_err(|e| Error::Input(format!("cannot serialise the sweep: {e}")))?;
+    std::fs::write(&p, json).map_err(|e| Error::io(&p, e))?;
+
+    let curves = curves(rows);
+    if curves.is_empty() {
+        return Ok(());
+    }
+    let mut front: Vec<(f64, f64)> = rows
+        .iter()
+        .filter(|r| r.pareto)
+        .filter_map(|r| {
+            Some((
+                r.summary.as_ref()?.wall_seconds.total,
+                r.error_vs_reference()?,
+            ))
+        })
+        .map(|(t, e)| (t, 100.0 * e))
+        .collect();
+    front.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let time_series: Vec<Series> = curves
+        .iter()
+        .map(|(n, _, te)| Series {
+            name: n,
+            points: te.iter().map(|&(t, e)| (t, 100.0 * e)).collect(),
+        })
+        .collect();
+    log_log_plot(
+        &dir.join("error_vs_time.svg"),
+        "Error vs wall time (Pareto front dashed)",
+        "wall time (s)",
+        "max error vs reference (%)",
+        &time_series,
+        Some(&front),
+    )?;
+    let labels: Vec<String> = curves
+        .iter()
+        .map(|(n, hs, _)| match convergence_order(hs) {
+            Some(p) => format!("{n} (p = {p:.2})"),
+            None => n.clone(),
+        })
+        .collect();
+    let h_series: Vec<Series> = curves
+        .iter()
+        .zip(&labels)
+        .map(|((_, hs, _), l)| Series {
+            name: l,
+            points: hs.iter().map(|&(h, e)| (h, 100.0 * e)).collect(),
+        })
+        .collect();
+    log_log_plot(
+        &dir.join("error_vs_spacing.svg"),
+        "Error vs node spacing (observed order p)",
+        "node spacing (volume / nodes)^(1/3) (m)",
+        "max error vs reference (%)",
+        &h_series,
+        None,
+    )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn vary_lists_split_outside_brackets() {
+        let v = parse_vary("discretization.divisions=[4,2,8], [6,3,12]").unwrap();
+        assert_eq!(v.key, "discretization.divisions");
+        assert_eq!(v.values, vec!["[4,2,8]", "[6,3,12]"]);
+        let v = parse_vary("material.poisson_ratio=0.3,0.45,0.49").unwrap();
+        assert_eq!(v.values, vec!["0.3", "0.45", "0.49"]);
+        let v = parse_vary("name=\"a,b\",c").unwrap();
+        assert_eq!(v.values, vec!["\"a,b\"", "c"]);
+        for bad in ["novalue", "=1,2", "a=1,,2", "a=[1,2", "a=1,"] {
+            let e = parse_vary(bad).unwrap_err().to_string();
+            assert!(e.contains("--vary") && e.contains(bad), "{bad}: {e}");
+        }
+    }
+
+    #[test]
+    fn combinations_are_the_cartesian_product_last_key_fastest() {
+        let v = [
+            Vary {
+                key: "a".into(),
+                values: vec!["1".into(), "2".into()],
+            },
+            Vary {
+                key: "b".into(),
+                values: vec!["x".into(), "y".into(), "z".into()],
+            },
+        ];
+        let c = combinations(&v);
+        assert_eq!(c.len(), 6);
+        assert_eq!(
+            c[0],
+            vec![("a".into(), "1".into()), ("b".into(), "x".into())]
+        );
+        assert_eq!(c[1][1].1, "y");
+        assert_eq!(
+            c[3],
+            vec![("a".into(), "2".into()), ("b".into(), "x".into())]
+        );
+    }
+
+    #[test]
+    fn convergence_order_recovers_a_power_law() {
+        let pts: Vec<(f64, f64)> = [0.1, 0.05, 0.025, 0.0125]
+            .iter()
+            .map(|&h: &f64| (h, 3.0 * h.powf(1.7)))
+            .collect();
+        let p = convergence_order(&pts).unwrap();
+        assert!((p - 1.7).abs() < 1e-12, "{p}");
+        assert!(convergence_order(&pts[..1]).is_none());
+        assert!(convergence_order(&[(0.1, 1.0), (0.1, 2.0)]).is_none());
+    }
+}
