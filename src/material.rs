@@ -50,6 +50,38 @@ impl NeoHookean {
     }
 }
 
+/// Homogeneous uniaxial stretch of the neo-Hookean solid with free lateral faces:
+/// F = diag(a, a, stretch) with a such that the lateral Cauchy stress vanishes
+/// (REFERENCE.md "Cube"). From sigma = mu J^(-5/3) dev(B) + kappa (J - 1) I with J = a^2 stretch:
+/// sigma_xx = mu J^(-5/3) (a^2 - stretch^2) / 3 + kappa (J - 1) = 0, solved by bisection
+/// (sigma_xx rises monotonically with a). Returns (a, J, sigma_zz in Pa).
+pub fn uniaxial_stretch(m: &NeoHookean, stretch: f64) -> (f64, f64, f64) {
+    let sxx = |a: f64| {
+        let j = a * a * stretch;
+        m.mu * j.powf(-5.0 / 3.0) * (a * a - stretch * stretch) / 3.0 + m.kappa * (j - 1.0)
+    };
+    // Bracket: at a with J = 1 the lateral stress has the sign of a^2 - stretch^2, at the
+    // isochoric a = stretch^(-1/2) it vanishes in the volumetric part; widen until it changes
+    // sign.
+    let (mut lo, mut hi) = (1e-3, 1.0 / stretch.sqrt());
+    while sxx(hi) < 0.0 && hi < 1e6 {
+        hi *= 2.0;
+    }
+    for _ in 0..200 {
+        let mid = 0.5 * (lo + hi);
+        if sxx(mid) < 0.0 {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+    }
+    let a = 0.5 * (lo + hi);
+    let j = a * a * stretch;
+    let szz =
+        m.mu * j.powf(-5.0 / 3.0) * 2.0 * (stretch * stretch - a * a) / 3.0 + m.kappa * (j - 1.0);
+    (a, j, szz)
+}
+
 impl Material for NeoHookean {
     fn strain_energy(&self, f: &Matrix3<f64>) -> f64 {
         let j = f.determinant();
@@ -230,5 +262,31 @@ mod tests {
             "axial {}",
             sig[(2, 2)]
         );
+    }
+
+    #[test]
+    fn uniaxial_stretch_matches_the_reference_cube_and_the_kernel() {
+        // REFERENCE.md: E = 3000 Pa, nu = 0.49, 20 % compression.
+        let m = NeoHookean::from_young_poisson(3000.0, 0.49, 1000.0);
+        let (a, j, szz) = uniaxial_stretch(&m, 0.8);
+        assert!((a - 1.11574668).abs() < 5e-9, "{a}");
+        assert!((j - 0.99591252).abs() < 5e-9, "{j}");
+        assert!((szz + 613.1215).abs() < 5e-5, "{szz}");
+        // The kernel's stress at that F is uniaxial, for other nu and stretches too.
+        for nu in [0.3, 0.45, 0.4999] {
+            for stretch in [0.2, 0.8, 1.3] {
+                let m = NeoHookean::from_young_poisson(3000.0, nu, 1000.0);
+                let (a, _, szz) = uniaxial_stretch(&m, stretch);
+                let s = m.cauchy(&Matrix3::from_diagonal(&nalgebra::Vector3::new(
+                    a, a, stretch,
+                )));
+                let scale = szz.abs();
+                assert!(
+                    s[(0, 0)].abs() < 1e-9 * scale && s[(1, 1)].abs() < 1e-9 * scale,
+                    "{s}"
+                );
+                assert!((s[(2, 2)] - szz).abs() < 1e-9 * scale, "{s} vs {szz}");
+            }
+        }
     }
 }

@@ -662,7 +662,14 @@ pub struct ProbeSpec {
 pub struct ReferenceSpec {
     /// `reaction.BOUNDARY.x|y|z` (N) or `probe.NAME.x|y|z` (m).
     pub quantity: String,
-    pub value: f64,
+    /// The reference value (N or m). Filled in from `exact` when that is given.
+    #[serde(default)]
+    pub value: Option<f64>,
+    /// `"uniaxial"`: the exact homogeneous solution of a box stretched or compressed along one
+    /// axis with free lateral faces (REFERENCE.md "Cube"), computed from the scene's material,
+    /// box and prescribed displacement, so it follows `--set material.poisson_ratio=...`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub exact: Option<String>,
     #[serde(default)]
     pub source: Option<String>,
 }
@@ -710,11 +717,12 @@ pub fn parse(text: &str, path: &Path, overrides: &[String]) -> Result<Scene> {
     // Deserialise the file as written first, so schema errors carry its line numbers.
     let mut scene: Scene =
         toml::from_str(text).map_err(|e| err(with_suggestion(&e.to_string())))?;
+    let mut value: toml::Table = toml::from_str(text).map_err(|e| err(e.to_string()))?;
+    for o in overrides {
+        apply_override(&mut value, o).map_err(|m| err(format!("--set {o}: {m}")))?;
+    }
+    check_finite(&toml::Value::Table(value.clone()), "").map_err(err)?;
     if !overrides.is_empty() {
-        let mut value: toml::Table = toml::from_str(text).map_err(|e| err(e.to_string()))?;
-        for o in overrides {
-            apply_override(&mut value, o).map_err(|m| err(format!("--set {o}: {m}")))?;
-        }
         scene = toml::Value::Table(value)
             .try_into()
             .map_err(|e: toml::de::Error| {
@@ -729,8 +737,155 @@ pub fn parse(text: &str, path: &Path, overrides: &[String]) -> Result<Scene> {
         scene.name = path.file_stem().map(|s| s.to_string_lossy().into_owned());
     }
     validate(&scene).map_err(err)?;
+    resolve_exact(&mut scene).map_err(err)?;
     Ok(scene)
 }
+
+/// Computes the value of every `exact = "uniaxial"` reference: a box with one face (a plane
+/// selection at the box's min or max along axis k) driven by d along k stretches by
+/// lambda = 1 + d / L_k; the lateral stretch a and sigma_kk come from
+/// [`crate::material::uniaxial_stretch`]. Reactions along k on either end face are
+/// +-sigma_kk times the deformed cross-section; probe displacements are (stretch - 1) times
+/// the probe's distance from the box's min corner.
+fn resolve_exact(s: &mut Scene) -> std::result::Result<(), String> {
+    let names: Vec<String> = s
+        .references
+        .iter()
+        .filter(|(_, r)| r.exact.is_some())
+        .map(|(n, _)| n.clone())
+        .collect();
+    for name in names {
+        let r = &s.references[&name];
+        let kind = r.exact.clone().unwrap_or_default();
+        let fail = |why: String| format!("references.{name}: exact = '{kind}': {why}");
+        if kind != "uniaxial" {
+            return Err(fail("the known exact solution is 'uniaxial'".into()));
+        }
+        let Geometry::Box { min, max } = s.geometry else {
+            return Err(fail("needs geometry.shape = 'box'".into()));
+        };
+        // The driven face: the one boundary with a prescribed displacement on a face of the box
+        // (conditions inside the box, such as a plane held at the exact field, are ignored).
+        let on_face = |b: &BoundarySpec| match &b.select {
+            Selection::Plane { axis, value, .. } => {
+                let k = axis.index();
+                let tol = 1e-9 * (max[k] - min[k]);
+                ((value - max[k]).abs() <= tol)
+                    .then_some((k, true))
+                    .or_else(|| ((value - min[k]).abs() <= tol).then_some((k, false)))
+            }
+            _ => None,
+        };
+        let driven: Vec<(&String, &BoundarySpec, usize, bool)> = s
+            .boundaries
+            .iter()
+            .filter(|(_, b)| b.displacement.is_some())
+            .filter_map(|(n, b)| on_face(b).map(|(k, at_max)| (n, b, k, at_max)))
+            .collect();
+        let [(bname, b, k, at_max)] = driven[..] else {
+            return Err(fail(format!(
+                "needs exactly one boundary with a displacement on a face of the box (found {})",
+                driven.len()
+            )));
+        };
+        let d = b.displacement.clone().unwrap_or(Displacement {
+            x: None,
+            y: None,
+            z: None,
+        });
+        let comps = [d.x, d.y, d.z];
+        if (0..3).any(|c| c != k && comps[c].is_some_and(|v| v != 0.0)) {
+            return Err(fail(format!(
+                "boundary '{bname}' must be driven along its normal only"
+            )));
+        }
+        let len = max[k] - min[k];
+        let dk = comps[k].unwrap_or(0.0);
+        let stretch = 1.0 + if at_max { dk } else { -dk } / len;
+        if !(stretch > 0.0) {
+            return Err(fail(format!(
+                "the stretch 1 + d / L = {stretch} must be positive"
+            )));
+        }
+        let m = crate::simulation::material(s);
+        let (a, _, sigma) = crate::material::uniaxial_stretch(&m, stretch);
+        let parts: Vec<&str> = r.quantity.split('.').collect();
+        let c = match parts[2] {
+            "x" => 0,
+            "y" => 1,
+            _ => 2,
+        };
+        let value = match parts[0] {
+            "reaction" if c == k => {
+                let Some(Selection::Plane { axis, value, .. }) =
+                    s.boundaries.get(parts[1]).map(|b| &b.select)
+                else {
+                    return Err(fail(format!("boundary '{}' must select a face", parts[1])));
+                };
+                if axis.index() != k {
+                    return Err(fail(format!(
+                        "boundary '{}' is not an end face along {}",
+                        parts[1],
+                        ["x", "y", "z"][k]
+                    )));
+                }
+                let area: f64 = (0..3)
+                    .filter(|&i| i != k)
+                    .map(|i| a * (max[i] - min[i]))
+                    .product();
+                let sign = if (value - max[k]).abs() < (value - min[k]).abs() {
+                    1.0
+                } else {
+                    -1.0
+                };
+                sign * sigma * area
+            }
+            "reaction" => {
+                return Err(fail(
+                    "lateral reactions vanish exactly; a relative error against 0 is undefined"
+                        .into(),
+                ))
+            }
+            _ => {
+                let Some(pos) = s.probes.get(parts[1]).and_then(|p| p.position) else {
+                    return Err(fail(format!("probe '{}' needs a `position`", parts[1])));
+                };
+                let st = if c == k { stretch } else { a };
+                (st - 1.0) * (pos[c] - min[c])
+            }
+        };
+        if let Some(r) = s.references.get_mut(&name) {
+            r.value = Some(value);
+        }
+    }
+    Ok(())
+}
+
+/// Refuses nan and inf anywhere in the scene (TOML allows them; no scene value means them).
+fn check_finite(v: &toml::Value, key: &str) -> std::result::Result<(), String> {
+    match v {
+        toml::Value::Float(x) if !x.is_finite() => Err(format!(
+            "{key} = {x}: numbers must be finite (nan and inf are not scene values)"
+        )),
+        toml::Value::Array(a) => a
+            .iter()
+            .enumerate()
+            .try_for_each(|(i, x)| check_finite(x, &format!("{key}[{i}]"))),
+        toml::Value::Table(t) => t.iter().try_for_each(|(k, x)| {
+            let key = if key.is_empty() {
+                k.clone()
+            } else {
+                format!("{key}.{k}")
+            };
+            check_finite(x, &key)
+        }),
+        _ => Ok(()),
+    }
+}
+
+/// Built-in meshes larger than this many elements are refused before any memory is taken
+/// (about 1 kB per element and its points: 20 GB).
+pub const MAX_ELEMENTS: f64 = 2e7;
 
 /// Sets `a.b.c = value` in a TOML table; the value is parsed as TOML (number, bool, array,
 /// inline table) or else taken as a string.
@@ -862,6 +1017,30 @@ fn validate(s: &Scene) -> std::result::Result<(), String> {
                 "discretization.divisions = {div:?}: every division must be at least 1"
             ));
         }
+        let n: f64 = div.iter().map(|&k| k as f64).product();
+        if n > MAX_ELEMENTS {
+            return Err(format!(
+                "discretization.divisions = {div:?} gives {n:.3e} cells, more than the limit of \
+                 {MAX_ELEMENTS:.0e}; use fewer divisions"
+            ));
+        }
+    }
+    let extent = match &s.geometry {
+        Geometry::Box { min, max } => Some([max[0] - min[0], max[1] - min[1], max[2] - min[2]]),
+        Geometry::Cylinder { radius, height } => Some([2.0 * radius, 2.0 * radius, *height]),
+        Geometry::HalfEllipsoid { semi_axes: a } => Some([2.0 * a[0], 2.0 * a[1], a[2]]),
+        Geometry::Mesh { .. } => None,
+    };
+    if let (Some(e), Some(h), None) = (extent, d.size, d.divisions) {
+        let n: f64 = e.iter().map(|l| (l / h).max(1.0)).product();
+        if n > MAX_ELEMENTS {
+            return Err(format!(
+                "discretization.size = {h} m gives about {n:.3e} cells over the {:.3} x {:.3} x \
+                 {:.3} m shape, more than the limit of {MAX_ELEMENTS:.0e}; lengths are in metres \
+                 (is the size given in mm?)",
+                e[0], e[1], e[2]
+            ));
+        }
     }
     if ![1, 4, 5].contains(&d.tet_rule()) {
         return Err(format!(
@@ -983,6 +1162,17 @@ fn validate(s: &Scene) -> std::result::Result<(), String> {
         }
     }
     for (name, r) in &s.references {
+        if r.value.is_some() == r.exact.is_some() {
+            return Err(format!(
+                "references.{name}: give either `value` (N or m) or `exact = \"uniaxial\"`"
+            ));
+        }
+        if r.value.is_some_and(|v| v == 0.0) {
+            return Err(format!(
+                "references.{name}.value = 0: a relative error against 0 is undefined; compare a \
+                 non-zero quantity"
+            ));
+        }
         let parts: Vec<&str> = r.quantity.split('.').collect();
         let ok = parts.len() == 3
             && matches!(parts[2], "x" | "y" | "z")

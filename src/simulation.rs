@@ -830,12 +830,13 @@ pub fn summarize(scene: &Scene, prep: &Prepared, out: &RunOutput, total_seconds:
                 "reaction" => reactions.get(parts[1])?[k],
                 _ => probes.get(parts[1])?.displacement[k],
             };
-            let relative_error = (computed - r.value).abs() / r.value.abs().max(f64::MIN_POSITIVE);
+            let value = r.value?;
+            let relative_error = (computed - value).abs() / value.abs().max(f64::MIN_POSITIVE);
             Some((
                 name.clone(),
                 Comparison {
                     quantity: r.quantity.clone(),
-                    value: r.value,
+                    value,
                     computed,
                     relative_error,
                     source: r.source.clone(),

@@ -128,12 +128,12 @@ fn unknown_key_names_it_and_suggests_the_closest() {
 
 #[test]
 fn empty_selection_is_an_error_naming_the_boundary() {
-    let sc = scene(&["boundaries.top.select.plane.value=0.2"]);
+    let sc = scene(&["boundaries.bottom.select.plane.value=-0.1"]);
     let e = run_scene(&sc, &RunOptions::default())
         .expect_err("empty")
         .to_string();
     assert!(
-        e.contains("boundary 'top'") && e.contains("selects no node"),
+        e.contains("boundary 'bottom'") && e.contains("selects no node"),
         "{e}"
     );
 }

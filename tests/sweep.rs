@@ -52,7 +52,9 @@ fn sweep_runs_every_combination_and_keeps_failures_as_rows() {
         let ux = s.probes["corner"].displacement[0];
         let exact = ((f + 7.63269).abs() / 7.63269).max((ux - 0.011574668).abs() / 0.011574668);
         let e = r.error_vs_reference().unwrap();
-        assert!((e - exact).abs() < 1e-9, "{e} vs {exact}");
+        // (The scene computes the exact values to machine precision; REFERENCE.md rounds them
+        // to 6 and 8 digits.)
+        assert!((e - exact).abs() < 2e-6, "{e} vs {exact}");
         assert!(e < 0.01, "run {}: {e}", r.run);
         let h = r.spacing().unwrap();
         let size: f64 = r.values["discretization.size"].parse().unwrap();

@@ -609,10 +609,92 @@ fn fill_patch<const D: usize>(
 pub fn read_cloud(path: &Path) -> Result<Vec<Vector3<f64>>> {
     if crate::scene::MeshFormat::from_path(path).is_some() {
         // The vertices of a mesh file (.inp, .msh, .vtk, .vtu), unused nodes dropped.
-        return Ok(crate::io::mesh_file::read_mesh(path, None, 1.0)?.mesh.nodes);
+        let nodes = crate::io::mesh_file::read_mesh(path, None, 1.0)?.mesh.nodes;
+        check_cloud(&nodes, path)?;
+        return Ok(nodes);
     }
     let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
-    parse_cloud(&text, path)
+    let nodes = parse_cloud(&text, path)?;
+    check_cloud(&nodes, path)?;
+    Ok(nodes)
+}
+
+/// Refuses clouds no meshless body can be built on: coincident nodes (closer than 1e-9 x the
+/// cloud's size; their MLS moment matrices and background tets are singular) and nodes that
+/// do not span a volume (fewer than 4, or all on one plane or line). Node numbers in the
+/// errors are 1-based in file order.
+pub fn check_cloud(nodes: &[Vector3<f64>], source: &Path) -> Result<()> {
+    let name = source.display();
+    if nodes.len() < 4 {
+        return Err(Error::Input(format!(
+            "{name}: {} node(s); a meshless body needs at least 4 nodes spread through a volume",
+            nodes.len()
+        )));
+    }
+    let (mut lo, mut hi) = (nodes[0], nodes[0]);
+    for p in nodes {
+        lo = lo.inf(p);
+        hi = hi.sup(p);
+    }
+    let size = (hi - lo).norm();
+    let tol = 1e-9 * size;
+    let mut order: Vec<usize> = (0..nodes.len()).collect();
+    order.sort_by(|&a, &b| nodes[a].x.total_cmp(&nodes[b].x));
+    let mut pairs = Vec::new();
+    for (k, &i) in order.iter().enumerate() {
+        for &j in &order[k + 1..] {
+            if nodes[j].x - nodes[i].x > tol {
+                break;
+            }
+            if (nodes[j] - nodes[i]).norm() <= tol {
+                pairs.push((i.min(j), i.max(j)));
+            }
+        }
+    }
+    if !pairs.is_empty() {
+        pairs.sort_unstable();
+        let list: Vec<String> = pairs
+            .iter()
+            .take(5)
+            .map(|&(i, j)| {
+                let p = nodes[i];
+                format!(
+                    "{} and {} at ({:e}, {:e}, {:e})",
+                    i + 1,
+                    j + 1,
+                    p.x,
+                    p.y,
+                    p.z
+                )
+            })
+            .collect();
+        return Err(Error::Input(format!(
+            "{name}: {} pair(s) of coincident nodes (closer than {tol:.1e} m): {}{}; remove or \
+             merge them (node numbers count from 1 in file order)",
+            pairs.len(),
+            list.join("; "),
+            if pairs.len() > 5 { "; ..." } else { "" }
+        )));
+    }
+    let n = nodes.len() as f64;
+    let mean = nodes.iter().sum::<Vector3<f64>>() / n;
+    let cov = nodes
+        .iter()
+        .map(|p| (p - mean) * (p - mean).transpose())
+        .sum::<nalgebra::Matrix3<f64>>()
+        / n;
+    let eig = cov.symmetric_eigenvalues();
+    let (min, max) = (eig.min(), eig.max());
+    if !(min > 1e-12 * max) {
+        return Err(Error::Input(format!(
+            "{name}: the {} nodes lie on one plane or line (thickness {:.3e} m across a spread \
+             of {:.3e} m); a meshless body needs nodes spread through a volume",
+            nodes.len(),
+            min.max(0.0).sqrt(),
+            max.sqrt()
+        )));
+    }
+    Ok(())
 }
 
 /// What [`read_cloud`] uses: parses the text of a cloud file; `source` only names the file in

@@ -311,10 +311,19 @@ pub fn run<M: Material>(model: &mut Model<M>, s: &Settings) -> Result<RunOutput>
             .compute(&model.points, &model.slots, &u, &mut f);
         let (min_j, p_min) = model.forces.min_j();
         if !(min_j > 0.0) {
+            // Where: the centroid of the point's supporting nodes (reference configuration).
+            let sl = model.points.slots(p_min);
+            let near = sl
+                .clone()
+                .map(|k| model.nodes[model.points.nodes[k] as usize])
+                .sum::<Vector3<f64>>()
+                / sl.len().max(1) as f64;
             return Err(Error::Unstable(format!(
-                "integration point {p_min} (element {p_min} of an FE mesh) inverted (J = {min_j:.4}) at step {step}, t = {t:.6} s \
-                 (dt = {dt:.4e} s, {:.3} x the critical estimate {dt_crit:.4e} s). The load is too large or fast for this mesh, \
-                 or the step too large: reduce solver.dt_factor, refine the mesh, or use a slower load",
+                "integration point {p_min} near ({:.4e}, {:.4e}, {:.4e}) m inverted (J = {min_j:.4}) at step {step}, t = {t:.6} s \
+                 (dt = {dt:.4e} s, {:.3} x the critical estimate {dt_crit:.4e} s; one-point FE meshes number points as their elements). \
+                 The load is too large or fast for this discretization, or the step too large: reduce solver.dt_factor \
+                 (large compression shortens the elements below the undeformed estimate), refine, or use a slower load",
+                near.x, near.y, near.z,
                 dt / dt_crit
             )));
         }
@@ -429,7 +438,8 @@ pub fn run<M: Material>(model: &mut Model<M>, s: &Settings) -> Result<RunOutput>
         if !max_u.is_finite() || !max_du.is_finite() || max_u > 10.0 * size || max_du > max_rate {
             return Err(Error::Unstable(format!(
                 "the solution diverged at step {step}, t = {t:.6} s (largest displacement {max_u:.3e} m, largest change in one step {max_du:.3e} m): \
-                 dt = {dt:.4e} s is {:.3} x the critical estimate {dt_crit:.4e} s; reduce solver.dt_factor (default 0.9)",
+                 dt = {dt:.4e} s is {:.3} x the critical estimate {dt_crit:.4e} s; reduce solver.dt_factor (default 0.9; \
+                 the estimate holds for the undeformed body, and large compression lowers the critical step)",
                 dt / dt_crit
             )));
         }
