@@ -85,8 +85,12 @@ enum Command {
         scene: PathBuf,
         /// KEY.PATH=V1,V2,... (any --set path; repeat for a cartesian product), e.g.
         /// --vary discretization.method=fe,coupled --vary discretization.divisions=[4,2,8],[6,3,12]
-        #[arg(long = "vary", value_name = "KEY.PATH=V1,V2,...", required = true)]
+        #[arg(long = "vary", value_name = "KEY.PATH=V1,V2,...")]
         vary: Vec<String>,
+        /// A named group of overrides, NAME=key.path=v;key.path=v (repeat: the presets form one
+        /// varied dimension, `preset`), e.g. --preset 'mmls=discretization.method=meshless;discretization.basis=quadratic'
+        #[arg(long = "preset", value_name = "NAME=KEY.PATH=V;...")]
+        preset: Vec<String>,
         /// Fixed overrides applied to every run.
         #[arg(long = "set", value_name = "KEY.PATH=VALUE")]
         set: Vec<String>,
@@ -321,6 +325,7 @@ fn execute(cmd: Command) -> hytled::Result<()> {
         Command::Sweep {
             scene,
             vary,
+            preset,
             set,
             repeat,
             out,
@@ -349,7 +354,17 @@ fn execute(cmd: Command) -> hytled::Result<()> {
                 .iter()
                 .map(|v| hytled::sweep::parse_vary(v))
                 .collect::<hytled::Result<Vec<_>>>()?;
+            let mut presets = std::collections::BTreeMap::new();
+            for p in &preset {
+                let (name, sets) = hytled::sweep::parse_preset(p)?;
+                if presets.insert(name.clone(), sets).is_some() {
+                    return Err(hytled::Error::Input(format!(
+                        "--preset {name} is given twice"
+                    )));
+                }
+            }
             let opts = hytled::sweep::SweepOptions {
+                presets,
                 out,
                 repeat,
                 keep_outputs,
@@ -365,7 +380,8 @@ fn execute(cmd: Command) -> hytled::Result<()> {
                     ))?
                 );
             } else {
-                print!("{}", hytled::sweep::table(&varies, &rows));
+                let dims = hytled::sweep::dimensions(&varies, &opts.presets);
+                print!("{}", hytled::sweep::table(&dims, &rows));
             }
             if rows.iter().all(|r| r.error.is_some()) {
                 return Err(hytled::Error::Input("sweep: every run failed".into()));

@@ -66,6 +66,62 @@ pub fn parse_vary(text: &str) -> Result<Vary> {
     })
 }
 
+/// The pseudo-key of named groups of overrides (`--preset NAME=key=v;key=v`): one varied
+/// dimension whose values are the preset names.
+pub const PRESET: &str = "preset";
+
+/// The varied dimensions of a sweep: `preset` first (when presets are given), then `varies`.
+pub fn dimensions(varies: &[Vary], presets: &BTreeMap<String, Vec<String>>) -> Vec<Vary> {
+    let mut all = Vec::new();
+    if !presets.is_empty() {
+        all.push(Vary {
+            key: PRESET.into(),
+            values: presets.keys().cloned().collect(),
+        });
+    }
+    all.extend(varies.iter().cloned());
+    all
+}
+
+/// Parses `NAME=key.path=v;key.path=v` into the preset's name and its overrides.
+pub fn parse_preset(text: &str) -> Result<(String, Vec<String>)> {
+    let bad = |why: &str| {
+        Error::Input(format!(
+            "--preset '{text}': {why}; write --preset NAME=key.path=v;key.path=v (e.g. --preset \
+             mmls=discretization.method=meshless;discretization.basis=quadratic)"
+        ))
+    };
+    let (name, rest) = text.split_once('=').ok_or_else(|| bad("no '='"))?;
+    let name = name.trim();
+    if name.is_empty() || name.contains([',', ' ']) {
+        return Err(bad("the name must be a non-empty word"));
+    }
+    let sets: Vec<String> = rest
+        .split(';')
+        .map(str::trim)
+        .filter(|x| !x.is_empty())
+        .map(String::from)
+        .collect();
+    if sets.iter().any(|x| !x.contains('=')) {
+        return Err(bad("each override needs key.path=value"));
+    }
+    Ok((name.to_string(), sets))
+}
+
+/// The overrides of one combination: presets expanded to their assignments.
+fn assignments(
+    combo: &[(String, String)],
+    presets: &BTreeMap<String, Vec<String>>,
+) -> Vec<String> {
+    combo
+        .iter()
+        .flat_map(|(key, v)| match (key.as_str(), presets.get(v)) {
+            (PRESET, Some(sets)) => sets.clone(),
+            _ => vec![format!("{key}={v}")],
+        })
+        .collect()
+}
+
 /// Every combination of the varied values, the last key varying fastest.
 pub fn combinations(varies: &[Vary]) -> Vec<Vec<(String, String)>> {
     let mut out: Vec<Vec<(String, String)>> = vec![Vec::new()];
@@ -87,6 +143,8 @@ pub fn combinations(varies: &[Vary]) -> Vec<Vec<(String, String)>> {
 /// Options of a sweep.
 #[derive(Debug, Clone)]
 pub struct SweepOptions {
+    /// Named groups of overrides, varied as the key `preset` (first, slowest) when present.
+    pub presets: BTreeMap<String, Vec<String>>,
     /// Write sweep.csv, sweep.md, sweep.json and the plots to DIR.
     pub out: Option<PathBuf>,
     /// Run each combination this many times and keep the fastest (results are deterministic;
@@ -102,6 +160,7 @@ pub struct SweepOptions {
 impl Default for SweepOptions {
     fn default() -> Self {
         SweepOptions {
+            presets: BTreeMap::new(),
             out: None,
             repeat: 1,
             keep_outputs: false,
@@ -150,10 +209,14 @@ impl SweepRow {
     /// the sweep mixes modes.
     fn series(&self, modes_differ: bool) -> Option<String> {
         let s = self.summary.as_ref()?;
+        let name = match self.values.get(PRESET) {
+            Some(p) => p.clone(),
+            None => format!("{}/{}", s.method, s.element),
+        };
         Some(if modes_differ {
-            format!("{}/{} {}", s.method, s.element, s.mode)
+            format!("{name} {}", s.mode)
         } else {
-            format!("{}/{}", s.method, s.element)
+            name
         })
     }
 }
@@ -166,16 +229,18 @@ pub fn run_sweep(
     varies: &[Vary],
     opts: &SweepOptions,
 ) -> Result<Vec<SweepRow>> {
+    let all = dimensions(varies, &opts.presets);
+    let varies = &all[..];
     if varies.is_empty() {
         return Err(Error::Input(
-            "sweep: nothing to vary; give at least one --vary key.path=v1,v2,...".into(),
+            "sweep: nothing to vary; give at least one --vary key.path=v1,v2,... or --preset".into(),
         ));
     }
     for v in varies {
         let mut first_err = None;
         let ok = v.values.iter().any(|x| {
             let mut o = overrides.to_vec();
-            o.push(format!("{}={x}", v.key));
+            o.extend(assignments(&[(v.key.clone(), x.clone())], &opts.presets));
             match crate::scene::load(scene_path, &o) {
                 Ok(_) => true,
                 Err(e) => {
@@ -204,7 +269,7 @@ pub fn run_sweep(
         bar.set_message(label.clone());
         let t0 = Instant::now();
         let mut o = overrides.to_vec();
-        o.extend(combo.iter().map(|(key, v)| format!("{key}={v}")));
+        o.extend(assignments(combo, &opts.presets));
         let out_dir = opts
             .out
             .as_ref()
@@ -268,7 +333,7 @@ pub fn run_sweep(
     bar.finish_and_clear();
     mark_pareto(&mut rows);
     if let Some(dir) = &opts.out {
-        write_outputs(dir, scene_path, varies, &rows)?;
+        write_outputs(dir, scene_path, varies, &opts.presets, &rows)?;
     }
     Ok(rows)
 }
@@ -589,6 +654,7 @@ pub fn write_outputs(
     dir: &Path,
     scene_path: &Path,
     varies: &[Vary],
+    presets: &BTreeMap<String, Vec<String>>,
     rows: &[SweepRow],
 ) -> Result<()> {
     std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
@@ -608,7 +674,13 @@ pub fn write_outputs(
     std::fs::write(&p, csv).map_err(|e| Error::io(&p, e))?;
     let vary_args: Vec<String> = varies
         .iter()
+        .filter(|v| v.key != PRESET)
         .map(|v| format!("--vary {}={}", v.key, v.values.join(",")))
+        .chain(
+            presets
+                .iter()
+                .map(|(n, o)| format!("--preset '{n}={}'", o.join(";"))),
+        )
         .collect();
     let md = format!(
         "# hytled sweep {} {}\n\nSI units (m, N, s). Error: the largest relative error over the \

@@ -155,3 +155,42 @@ fn sweep_refuses_a_key_no_value_makes_valid() {
         .to_string();
     assert!(e.contains("nothing to vary"), "{e}");
 }
+
+#[test]
+fn presets_form_one_dimension_and_name_the_series() {
+    let dir = std::env::temp_dir().join("hytled-sweep-presets");
+    let _ = std::fs::remove_dir_all(&dir);
+    let mut presets = std::collections::BTreeMap::new();
+    for p in [
+        "fe-tet4-anp=discretization.method=fe;discretization.element=tet4-anp",
+        "mmls=discretization.method=meshless;discretization.basis=quadratic",
+    ] {
+        let (name, sets) = sweep::parse_preset(p).unwrap();
+        presets.insert(name, sets);
+    }
+    assert!(sweep::parse_preset("x=discretization.method").is_err());
+    assert!(sweep::parse_preset("=a=1").is_err());
+    let opts = SweepOptions {
+        presets: presets.clone(),
+        out: Some(dir.clone()),
+        ..Default::default()
+    };
+    let varies = [vary("discretization.size=0.05,0.025")];
+    let rows = sweep::run_sweep(Path::new(CUBE), &[], &varies, &opts).unwrap();
+    assert_eq!(rows.len(), 4);
+    for r in &rows {
+        let s = r.summary.as_ref().unwrap();
+        match r.values["preset"].as_str() {
+            "fe-tet4-anp" => assert_eq!((s.method.as_str(), s.element.as_str()), ("fe", "tet4-anp")),
+            "mmls" => assert_eq!((s.method.as_str(), s.element.as_str()), ("meshless", "mmls")),
+            p => panic!("{p}"),
+        }
+    }
+    let table = sweep::table(&sweep::dimensions(&varies, &presets), &rows);
+    assert!(table.contains("| preset |") || table.contains("| run | preset |"), "{table}");
+    let svg = std::fs::read_to_string(dir.join("error_vs_spacing.svg")).unwrap();
+    assert!(svg.contains("fe-tet4-anp") && svg.contains("mmls"));
+    let md = std::fs::read_to_string(dir.join("sweep.md")).unwrap();
+    assert!(md.contains("--preset 'mmls=discretization.method=meshless;discretization.basis=quadratic'"), "{md}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
