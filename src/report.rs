@@ -110,6 +110,9 @@ pub struct Summary {
     pub dt_critical: f64,
     pub dt_factor: f64,
     pub steps: usize,
+    /// Relaxation: pseudo-steps over which the load was applied.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub load_steps: Option<usize>,
     pub simulated_time: f64,
     pub converged: bool,
     pub threads: usize,
@@ -191,9 +194,11 @@ impl Summary {
         );
         let _ = writeln!(
             s,
-            "steps            {} (t = {:.4} s){}",
+            "steps            {} (t = {:.4} s){}{}",
             self.steps,
             self.simulated_time,
+            self.load_steps
+                .map_or(String::new(), |n| format!(", load over the first {n}")),
             if self.converged {
                 ""
             } else {

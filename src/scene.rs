@@ -590,9 +590,11 @@ pub struct SolverSpec {
     /// Dynamic: time over which the load curves run, s (default: the duration).
     #[serde(default)]
     pub load_time: Option<f64>,
-    /// Relaxation: pseudo-steps over which the load curves run.
-    #[serde(default = "default_load_steps")]
-    pub load_steps: usize,
+    /// Relaxation: pseudo-steps over which the load curves run (default: the larger of 400 and
+    /// the steps a shear wave takes to cross the body, so near-incompressible bodies are not
+    /// loaded faster than they can shear).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub load_steps: Option<usize>,
     #[serde(default = "default_dt_factor")]
     pub dt_factor: f64,
     /// Mass-proportional damping, 1/s (dynamic).
@@ -610,9 +612,6 @@ pub struct SolverSpec {
 
 fn default_duration() -> f64 {
     3.0
-}
-fn default_load_steps() -> usize {
-    400
 }
 fn default_dt_factor() -> f64 {
     0.9
@@ -633,7 +632,7 @@ impl Default for SolverSpec {
             mode: Mode::Dynamic,
             duration: default_duration(),
             load_time: None,
-            load_steps: default_load_steps(),
+            load_steps: None,
             dt_factor: default_dt_factor(),
             damping: 0.0,
             tolerance: default_tolerance(),

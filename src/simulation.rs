@@ -933,6 +933,7 @@ pub fn summarize(scene: &Scene, prep: &Prepared, out: &RunOutput, total_seconds:
         }),
         warnings: prep.warnings.clone(),
         relaxation: out.relaxation.clone(),
+        load_steps: out.load_steps,
     }
 }
 

@@ -109,10 +109,7 @@ pub fn parse_preset(text: &str) -> Result<(String, Vec<String>)> {
 }
 
 /// The overrides of one combination: presets expanded to their assignments.
-fn assignments(
-    combo: &[(String, String)],
-    presets: &BTreeMap<String, Vec<String>>,
-) -> Vec<String> {
+fn assignments(combo: &[(String, String)], presets: &BTreeMap<String, Vec<String>>) -> Vec<String> {
     combo
         .iter()
         .flat_map(|(key, v)| match (key.as_str(), presets.get(v)) {
@@ -233,7 +230,8 @@ pub fn run_sweep(
     let varies = &all[..];
     if varies.is_empty() {
         return Err(Error::Input(
-            "sweep: nothing to vary; give at least one --vary key.path=v1,v2,... or --preset".into(),
+            "sweep: nothing to vary; give at least one --vary key.path=v1,v2,... or --preset"
+                .into(),
         ));
     }
     for v in varies {
@@ -584,16 +582,13 @@ fn status(r: &SweepRow) -> String {
 /// The sweep as a Markdown table (the main columns; sweep.csv has them all) followed by the
 /// observed convergence orders and the Pareto front.
 pub fn table(varies: &[Vary], rows: &[SweepRow]) -> String {
+    let reactions = names(rows, |s| s.reactions.keys().collect());
     let mut head: Vec<String> = vec!["run".into()];
     head.extend(varies.iter().map(|v| v.key.clone()));
+    head.extend(["method", "nodes", "points", "dt (s)", "steps", "total (s)"].map(String::from));
+    head.extend(reactions.iter().map(|r| format!("reaction {r} z (N)")));
     head.extend(
         [
-            "method",
-            "nodes",
-            "points",
-            "dt (s)",
-            "steps",
-            "total (s)",
             "max error (%)",
             "energy error (%)",
             "memory (MiB)",
@@ -611,17 +606,26 @@ pub fn table(varies: &[Vary], rows: &[SweepRow]) -> String {
                 .map(|v| r.values.get(&v.key).cloned().unwrap_or_default()),
         );
         match &r.summary {
-            Some(x) => c.extend([
-                format!("{}/{}", x.method, x.element),
-                x.nodes.to_string(),
-                x.integration_points.to_string(),
-                format!("{:.3e}", x.dt),
-                x.steps.to_string(),
-                format!("{:.2}", x.wall_seconds.total),
-                r.error_vs_reference().map_or("-".into(), percent),
-                x.energy.balance_error.map_or("-".into(), percent),
-            ]),
-            None => c.extend(std::iter::repeat_n("-".to_string(), 8)),
+            Some(x) => {
+                c.extend([
+                    format!("{}/{}", x.method, x.element),
+                    x.nodes.to_string(),
+                    x.integration_points.to_string(),
+                    format!("{:.3e}", x.dt),
+                    x.steps.to_string(),
+                    format!("{:.2}", x.wall_seconds.total),
+                ]);
+                c.extend(reactions.iter().map(|n| {
+                    x.reactions
+                        .get(n)
+                        .map_or("-".into(), |v| format!("{:.5e}", v[2]))
+                }));
+                c.extend([
+                    r.error_vs_reference().map_or("-".into(), percent),
+                    x.energy.balance_error.map_or("-".into(), percent),
+                ]);
+            }
+            None => c.extend(std::iter::repeat_n("-".to_string(), 8 + reactions.len())),
         }
         c.push(r.peak_memory_mib.map_or("-".into(), |m| format!("{m:.0}")));
         c.push(if r.pareto {

@@ -181,16 +181,29 @@ fn presets_form_one_dimension_and_name_the_series() {
     for r in &rows {
         let s = r.summary.as_ref().unwrap();
         match r.values["preset"].as_str() {
-            "fe-tet4-anp" => assert_eq!((s.method.as_str(), s.element.as_str()), ("fe", "tet4-anp")),
-            "mmls" => assert_eq!((s.method.as_str(), s.element.as_str()), ("meshless", "mmls")),
+            "fe-tet4-anp" => {
+                assert_eq!((s.method.as_str(), s.element.as_str()), ("fe", "tet4-anp"))
+            }
+            "mmls" => assert_eq!(
+                (s.method.as_str(), s.element.as_str()),
+                ("meshless", "mmls")
+            ),
             p => panic!("{p}"),
         }
     }
     let table = sweep::table(&sweep::dimensions(&varies, &presets), &rows);
-    assert!(table.contains("| preset |") || table.contains("| run | preset |"), "{table}");
+    assert!(
+        table.contains("| preset |") || table.contains("| run | preset |"),
+        "{table}"
+    );
     let svg = std::fs::read_to_string(dir.join("error_vs_spacing.svg")).unwrap();
     assert!(svg.contains("fe-tet4-anp") && svg.contains("mmls"));
     let md = std::fs::read_to_string(dir.join("sweep.md")).unwrap();
-    assert!(md.contains("--preset 'mmls=discretization.method=meshless;discretization.basis=quadratic'"), "{md}");
+    assert!(
+        md.contains(
+            "--preset 'mmls=discretization.method=meshless;discretization.basis=quadratic'"
+        ),
+        "{md}"
+    );
     let _ = std::fs::remove_dir_all(&dir);
 }

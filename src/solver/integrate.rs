@@ -34,8 +34,9 @@ pub struct Settings {
     pub duration: f64,
     /// Dynamic: time over which load curves run from 0 to 1, s.
     pub load_time: f64,
-    /// Relaxation: pseudo-steps over which load curves run from 0 to 1.
-    pub load_steps: usize,
+    /// Relaxation: pseudo-steps over which load curves run from 0 to 1 (None: the larger of
+    /// 400 and the shear-wave crossing time of the body in steps, see [`auto_load_steps`]).
+    pub load_steps: Option<usize>,
     /// dt = dt_factor x the critical step estimate.
     pub dt_factor: f64,
     /// Mass-proportional damping coefficient (dynamic), 1/s.
@@ -61,7 +62,7 @@ impl Default for Settings {
             mode: Mode::Dynamic,
             duration: 3.0,
             load_time: 3.0,
-            load_steps: 400,
+            load_steps: None,
             dt_factor: 0.9,
             damping: 0.0,
             tolerance: 1e-7,
@@ -115,6 +116,8 @@ pub struct RunOutput {
     /// What sets the critical step.
     pub critical: Critical,
     pub steps: usize,
+    /// Relaxation: the pseudo-steps the load took (None for dynamic runs).
+    pub load_steps: Option<usize>,
     pub simulated_time: f64,
     pub converged: bool,
     pub history: Vec<HistoryRow>,
@@ -174,6 +177,21 @@ pub fn stable_step<M: Material>(model: &Model<M>) -> (f64, Critical) {
     }
 }
 
+/// Default relaxation load steps: the larger of 400 and the number of steps of length `dt` (s)
+/// a shear wave (speed sqrt(mu / rho)) takes to cross the body's largest extent `length` (m).
+/// Relaxation follows a fictitious dynamic path; loading it faster than the body can shear
+/// drives shear shocks that tear near-incompressible meshes (measured: the cylinder at
+/// nu = 0.4999 with 4,389-node tet4-anp diverged in 207 steps with 400 load steps and converged
+/// with 2,000).
+pub fn auto_load_steps(length: f64, mu: f64, density: f64, dt: f64) -> usize {
+    let crossing = length / (mu / density).sqrt() / dt;
+    if crossing.is_finite() {
+        crossing.ceil().clamp(400.0, 1e7) as usize
+    } else {
+        400
+    }
+}
+
 /// Runs the model to the end of the dynamic interval or to relaxation convergence.
 /// Fails with a clear message when the solution diverges or a point inverts.
 pub fn run<M: Material>(model: &mut Model<M>, s: &Settings) -> Result<RunOutput> {
@@ -201,6 +219,10 @@ pub fn run<M: Material>(model: &mut Model<M>, s: &Settings) -> Result<RunOutput>
         |(l, h), p| (l.inf(p), h.sup(p)),
     );
     let size = (hi - lo).norm();
+    let load_steps = s.load_steps.unwrap_or_else(|| {
+        let (_, mu) = model.forces.material.lame();
+        auto_load_steps((hi - lo).max(), mu, model.forces.material.density(), dt)
+    });
     let load_frac = |step: usize| -> f64 {
         if dynamic {
             if s.load_time > 0.0 {
@@ -208,8 +230,8 @@ pub fn run<M: Material>(model: &mut Model<M>, s: &Settings) -> Result<RunOutput>
             } else {
                 1.0
             }
-        } else if s.load_steps > 0 {
-            step as f64 / s.load_steps as f64
+        } else if load_steps > 0 {
+            step as f64 / load_steps as f64
         } else {
             1.0
         }
@@ -293,7 +315,7 @@ pub fn run<M: Material>(model: &mut Model<M>, s: &Settings) -> Result<RunOutput>
     let mut external_work = 0.0f64;
     let mut initial_kinetic = 0.0f64;
     // Dynamic relaxation state.
-    let r_load = (1.0 - 10.0 / s.load_steps.max(20) as f64).clamp(0.5, 0.999);
+    let r_load = (1.0 - 10.0 / load_steps.max(20) as f64).clamp(0.5, 0.999);
     let mut r = r_load;
     let mut omega_prev: Option<f64> = None;
     let mut ref_step = usize::MAX;
@@ -444,8 +466,8 @@ pub fn run<M: Material>(model: &mut Model<M>, s: &Settings) -> Result<RunOutput>
             )));
         }
 
-        if !dynamic && step + 1 >= s.load_steps {
-            let loaded_step = step + 1 - s.load_steps;
+        if !dynamic && step + 1 >= load_steps {
+            let loaded_step = step + 1 - load_steps;
             if loaded_step == 0 {
                 // Initial guess: Rayleigh quotient of the loaded shape over all DOFs.
                 let num: f64 = u.iter().zip(&f).map(|(x, y)| x.dot(y)).sum();
@@ -533,6 +555,7 @@ pub fn run<M: Material>(model: &mut Model<M>, s: &Settings) -> Result<RunOutput>
         dt_critical: dt_crit,
         critical,
         steps: step,
+        load_steps: (!dynamic).then_some(load_steps),
         simulated_time: step as f64 * dt,
         converged,
         history,
