@@ -113,6 +113,9 @@ pub struct Summary {
     /// Relaxation: pseudo-steps over which the load was applied.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub load_steps: Option<usize>,
+    /// Dynamic runs: linear and angular momentum at the start and the end.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub momentum: Option<crate::solver::integrate::Momentum>,
     pub simulated_time: f64,
     pub converged: bool,
     pub threads: usize,
@@ -192,6 +195,18 @@ impl Summary {
             "time step        {:.4e} s = {:.3} x critical {:.4e} s (set by {})",
             self.dt, self.dt_factor, self.dt_critical, self.mesh.critical
         );
+        if let Some(d) = self.momentum.as_ref().and_then(|m| m.angular_drift()) {
+            let m = self
+                .momentum
+                .as_ref()
+                .map(|m| m.angular_end)
+                .unwrap_or_default();
+            let _ = writeln!(
+                s,
+                "momentum         angular at the end ({:.6e}, {:.6e}, {:.6e}) kg m^2/s, drift {:.3e} of the start",
+                m[0], m[1], m[2], d
+            );
+        }
         let _ = writeln!(
             s,
             "steps            {} (t = {:.4} s){}{}",

@@ -35,6 +35,9 @@ pub struct Scene {
     pub references: BTreeMap<String, ReferenceSpec>,
     #[serde(default)]
     pub output: OutputSpec,
+    /// `[initial]`: rigid initial motion (dynamic runs).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub initial: Option<InitialSpec>,
     /// Directory of the scene file: relative input paths are resolved against it.
     #[serde(skip)]
     pub base_dir: PathBuf,
@@ -673,6 +676,22 @@ pub struct ReferenceSpec {
     pub source: Option<String>,
 }
 
+/// `[initial]`: the body starts with the rigid velocity field v(X) = velocity +
+/// angular_velocity x (X - center) on its free DOFs (dynamic runs only).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct InitialSpec {
+    /// Translational velocity, m/s.
+    #[serde(default)]
+    pub velocity: [f64; 3],
+    /// Angular velocity, rad/s (e.g. [0, 0, 6.283185307179586] spins at 1 Hz about z).
+    #[serde(default)]
+    pub angular_velocity: [f64; 3],
+    /// Centre of the rotation, m.
+    #[serde(default)]
+    pub center: [f64; 3],
+}
+
 /// `[output]`.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -698,6 +717,13 @@ impl Default for OutputSpec {
             frames: default_frames(),
             history_rows: default_history(),
         }
+    }
+}
+
+impl Scene {
+    /// True for `solver.mode = "dynamic"`.
+    pub fn mode_is_dynamic(&self) -> bool {
+        self.solver.mode == Mode::Dynamic
     }
 }
 
@@ -1159,6 +1185,12 @@ fn validate(s: &Scene) -> std::result::Result<(), String> {
                 "probes.{name}: give either `position = [x, y, z]` (m) or `select = {{ ... }}`"
             ));
         }
+    }
+    if s.initial.is_some() && s.solver.mode != Mode::Dynamic {
+        return Err(
+            "[initial] motion needs solver.mode = \"dynamic\" (relaxation seeks a steady state)"
+                .into(),
+        );
     }
     for (name, r) in &s.references {
         if r.value.is_some() == r.exact.is_some() {

@@ -777,6 +777,13 @@ pub fn settings(scene: &Scene, progress: bool) -> Settings {
         frames: scene.output.frames,
         progress,
         initial_velocity: None,
+        initial_motion: scene.initial.as_ref().map(|i| {
+            [
+                Vector3::from(i.velocity),
+                Vector3::from(i.angular_velocity),
+                Vector3::from(i.center),
+            ]
+        }),
     }
 }
 
@@ -934,6 +941,7 @@ pub fn summarize(scene: &Scene, prep: &Prepared, out: &RunOutput, total_seconds:
         warnings: prep.warnings.clone(),
         relaxation: out.relaxation.clone(),
         load_steps: out.load_steps,
+        momentum: (scene.mode_is_dynamic()).then_some(out.momentum),
     }
 }
 

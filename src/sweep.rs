@@ -369,7 +369,7 @@ pub fn mark_pareto(rows: &mut [SweepRow]) {
 }
 
 /// Least-squares slope of log(error) against log(spacing): the observed convergence order.
-/// None with fewer than two distinct spacings.
+/// None with fewer than two spacings or when they span less than a factor 1.2.
 pub fn convergence_order(points: &[(f64, f64)]) -> Option<f64> {
     let logs: Vec<(f64, f64)> = points
         .iter()
@@ -384,7 +384,13 @@ pub fn convergence_order(points: &[(f64, f64)]) -> Option<f64> {
     let my = logs.iter().map(|p| p.1).sum::<f64>() / n;
     let sxx: f64 = logs.iter().map(|p| (p.0 - mx).powi(2)).sum();
     let sxy: f64 = logs.iter().map(|p| (p.0 - mx) * (p.1 - my)).sum();
-    (sxx > 1e-12).then(|| sxy / sxx)
+    // Runs at (nearly) one resolution say nothing about the order: ask for a 20 % spread.
+    let (lo, hi) = logs
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), p| {
+            (a.min(p.0), b.max(p.0))
+        });
+    (hi - lo > 1.2f64.ln() && sxx > 0.0).then(|| sxy / sxx)
 }
 
 /// Per curve: (name, [(spacing m, error)], [(wall s, error)]) of the rows with an error.
@@ -468,6 +474,7 @@ fn csv_columns(varies: &[Vary], rows: &[SweepRow]) -> (Vec<String>, Vec<Vec<Stri
         [
             "max error (%)",
             "energy balance error (%)",
+            "angular momentum drift",
             "min dihedral (deg)",
             "removed nodes",
             "support nodes mean",
@@ -533,6 +540,11 @@ fn csv_columns(varies: &[Vary], rows: &[SweepRow]) -> (Vec<String>, Vec<Vec<Stri
                             .map_or(String::new(), |e| format!("{:.5}", 100.0 * e)),
                     );
                     c.push(
+                        s.momentum
+                            .and_then(|m| m.angular_drift())
+                            .map_or(String::new(), |d| format!("{d:.3e}")),
+                    );
+                    c.push(
                         s.mesh
                             .min_dihedral_deg
                             .map_or(String::new(), |d| format!("{d:.3}")),
@@ -545,7 +557,7 @@ fn csv_columns(varies: &[Vary], rows: &[SweepRow]) -> (Vec<String>, Vec<Vec<Stri
                     );
                 }
                 None => {
-                    let n = 16 + 3 * reactions.len() + 3 * probes.len() + refs.len() + 5;
+                    let n = 16 + 3 * reactions.len() + 3 * probes.len() + refs.len() + 6;
                     c.extend(std::iter::repeat_n(String::new(), n));
                 }
             }
@@ -587,6 +599,16 @@ pub fn table(varies: &[Vary], rows: &[SweepRow]) -> String {
     head.extend(varies.iter().map(|v| v.key.clone()));
     head.extend(["method", "nodes", "points", "dt (s)", "steps", "total (s)"].map(String::from));
     head.extend(reactions.iter().map(|r| format!("reaction {r} z (N)")));
+    let spins = rows.iter().any(|r| {
+        r.summary
+            .as_ref()
+            .and_then(|s| s.momentum)
+            .and_then(|m| m.angular_drift())
+            .is_some()
+    });
+    if spins {
+        head.push("angular momentum drift".into());
+    }
     head.extend(
         [
             "max error (%)",
@@ -620,6 +642,13 @@ pub fn table(varies: &[Vary], rows: &[SweepRow]) -> String {
                         .get(n)
                         .map_or("-".into(), |v| format!("{:.5e}", v[2]))
                 }));
+                if spins {
+                    c.push(
+                        x.momentum
+                            .and_then(|m| m.angular_drift())
+                            .map_or("-".into(), |d| format!("{d:.2e}")),
+                    );
+                }
                 c.extend([
                     r.error_vs_reference().map_or("-".into(), percent),
                     x.energy.balance_error.map_or("-".into(), percent),
@@ -810,5 +839,6 @@ mod tests {
         assert!((p - 1.7).abs() < 1e-12, "{p}");
         assert!(convergence_order(&pts[..1]).is_none());
         assert!(convergence_order(&[(0.1, 1.0), (0.1, 2.0)]).is_none());
+        assert!(convergence_order(&[(0.1, 1.0), (0.105, 2.0)]).is_none());
     }
 }

@@ -2,10 +2,10 @@
 # Regenerates the committed study reports (issue 6). Each study is one or more `hytled sweep`
 # runs; every file under studies/<study>/ is written by the program. Usage:
 #   cargo build --release && studies/run.sh [study ...]     (default: all)
-# Studies: timestep incompressibility large-deformation irregular speed-accuracy
+# Studies: timestep incompressibility large-deformation irregular spin speed-accuracy
 set -euo pipefail
 cd "$(dirname "$0")/.."
-H=target/release/hytled
+H=${HYTLED:-target/release/hytled}
 FE_HEX='fe-hex8=discretization.method=fe;discretization.element=hex8'
 FE_TET4='fe-tet4=discretization.method=fe;discretization.element=tet4'
 FE_ANP='fe-tet4-anp=discretization.method=fe;discretization.element=tet4-anp'
@@ -60,6 +60,13 @@ irregular() {
     --vary discretization.point_ratio=0.5,1,1.5,2,3,4 --out studies/irregular/point-ratio
 }
 
+spin() {
+  # Study 6: 20 s of free spin at 1 Hz (cases/cube-spin.toml): momentum and energy per method.
+  $H sweep cases/cube-spin.toml --set discretization.fe_layers=1 \
+    --preset "$FE_HEX" --preset "$FE_ANP" --preset "$MLS" --preset "$COUPLED" \
+    --vary discretization.size=0.025,0.0125 --out studies/spin
+}
+
 speed_accuracy() {
   # Study 1: h-refinement per method, relaxation; the cheapest way to 1 % and 5 %.
   for c in cylinder-compression cylinder-extension cylinder-shear; do
@@ -77,5 +84,5 @@ speed_accuracy() {
     --vary discretization.size=0.05,0.025,0.02,0.0125 --out studies/speed-accuracy/cube-compression
 }
 
-studies=("$@"); [ ${#studies[@]} -eq 0 ] && studies=(timestep incompressibility large_deformation irregular speed_accuracy)
+studies=("$@"); [ ${#studies[@]} -eq 0 ] && studies=(timestep incompressibility large_deformation irregular spin speed_accuracy)
 for s in "${studies[@]}"; do echo "== study $s"; "${s//-/_}"; done

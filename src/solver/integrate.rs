@@ -54,6 +54,9 @@ pub struct Settings {
     pub progress: bool,
     /// Dynamic: initial nodal velocities, m/s (default: at rest).
     pub initial_velocity: Option<Vec<Vector3<f64>>>,
+    /// Dynamic: a rigid initial motion (velocity m/s, angular velocity rad/s, centre m), used
+    /// when `initial_velocity` is not given.
+    pub initial_motion: Option<[Vector3<f64>; 3]>,
 }
 
 impl Default for Settings {
@@ -72,6 +75,7 @@ impl Default for Settings {
             frames: 10,
             progress: false,
             initial_velocity: None,
+            initial_motion: None,
         }
     }
 }
@@ -127,9 +131,50 @@ pub struct RunOutput {
     pub external_work: f64,
     /// Kinetic energy at the start (initial velocities), J.
     pub initial_kinetic: f64,
+    /// Linear (kg m/s) and angular (kg m^2/s, about the origin) momentum at the first and the
+    /// last step, from the central-difference velocities.
+    pub momentum: Momentum,
     pub strain_energy: f64,
     pub kinetic_energy: f64,
     pub solve_seconds: f64,
+}
+
+/// Momentum of the nodal masses at the start and the end of a run.
+#[derive(Debug, Clone, Copy, Default, Serialize, Deserialize)]
+pub struct Momentum {
+    pub linear_start: [f64; 3],
+    pub linear_end: [f64; 3],
+    pub angular_start: [f64; 3],
+    pub angular_end: [f64; 3],
+}
+
+impl Momentum {
+    /// |L_end - L_start| / |L_start| (None when the body starts without angular momentum).
+    pub fn angular_drift(&self) -> Option<f64> {
+        let (a, b) = (
+            Vector3::from(self.angular_start),
+            Vector3::from(self.angular_end),
+        );
+        (a.norm() > 0.0).then(|| (b - a).norm() / a.norm())
+    }
+}
+
+/// (linear, angular about the origin) momentum with positions X + u and velocities
+/// (u - u_prev) / dt.
+fn momentum(
+    mass: &[f64],
+    x: &[Vector3<f64>],
+    u: &[Vector3<f64>],
+    u_prev: &[Vector3<f64>],
+    dt: f64,
+) -> ([f64; 3], [f64; 3]) {
+    let (mut p, mut l) = (Vector3::zeros(), Vector3::zeros());
+    for i in 0..mass.len() {
+        let v = (u[i] - u_prev[i]) / dt;
+        p += v * mass[i];
+        l += (x[i] + u[i]).cross(&v) * mass[i];
+    }
+    (p.into(), l.into())
 }
 
 /// Dynamic-relaxation rate from the lowest frequency: k = 2 / (w_min dt), r = (k - 1) / (k + 1).
@@ -257,7 +302,11 @@ pub fn run<M: Material>(model: &mut Model<M>, s: &Settings) -> Result<RunOutput>
         corr.correct(&mut u, load_frac(0), 1.0);
     }
     u_prev.copy_from_slice(&u);
-    if let (true, Some(v0)) = (dynamic, &s.initial_velocity) {
+    let rigid: Option<Vec<Vector3<f64>>> = s
+        .initial_motion
+        .map(|[v, w, c]| model.nodes.iter().map(|x| v + w.cross(&(x - c))).collect());
+    let initial = s.initial_velocity.as_ref().or(rigid.as_ref());
+    if let (true, Some(v0)) = (dynamic, initial) {
         if v0.len() != n {
             return Err(Error::Input(format!(
                 "initial velocity has {} entries for {n} nodes",
@@ -273,6 +322,8 @@ pub fn run<M: Material>(model: &mut Model<M>, s: &Settings) -> Result<RunOutput>
             }
         }
     }
+
+    let (linear_start, angular_start) = momentum(&model.mass, &model.nodes, &u, &u_prev, dt);
 
     let frame_steps: Vec<usize> = if dynamic {
         (0..=s.frames.max(1))
@@ -547,7 +598,14 @@ pub fn run<M: Material>(model: &mut Model<M>, s: &Settings) -> Result<RunOutput>
     let (strain_energy, kinetic_energy) = last
         .map(|h| (h.strain_energy, h.kinetic_energy))
         .unwrap_or((0.0, 0.0));
+    let (linear_end, angular_end) = momentum(&model.mass, &model.nodes, &u, &u_prev, dt);
     Ok(RunOutput {
+        momentum: Momentum {
+            linear_start,
+            linear_end,
+            angular_start,
+            angular_end,
+        },
         u,
         u_prev,
         f_int: f,
