@@ -665,6 +665,7 @@ pub fn table(varies: &[Vary], rows: &[SweepRow]) -> String {
         c.push(status(r).replace('|', "/").replace('\n', " "));
         s.push_str(&format!("| {} |\n", c.join(" | ")));
     }
+    s.push_str(&cheapest(rows));
     let curves = curves(rows);
     let orders: Vec<String> = curves
         .iter()
@@ -680,6 +681,77 @@ pub fn table(varies: &[Vary], rows: &[SweepRow]) -> String {
         s.push_str(&(orders.join("\n") + "\n"));
     }
     s
+}
+
+/// Thresholds of the "cheapest run" table: 1 % and 5 % error vs reference.
+pub const THRESHOLDS: [f64; 2] = [0.01, 0.05];
+
+/// For each threshold, the fastest run (total wall time) of each series whose error vs
+/// reference is at most the threshold, fastest series first (empty without references).
+fn cheapest(rows: &[SweepRow]) -> String {
+    let modes: BTreeSet<&str> = rows
+        .iter()
+        .filter_map(|r| Some(r.summary.as_ref()?.mode.as_str()))
+        .collect();
+    let mut out = String::new();
+    for t in THRESHOLDS {
+        let mut best: BTreeMap<String, &SweepRow> = BTreeMap::new();
+        for r in rows {
+            let (Some(e), Some(name), Some(s)) = (
+                r.error_vs_reference(),
+                r.series(modes.len() > 1),
+                r.summary.as_ref(),
+            ) else {
+                continue;
+            };
+            if e > t || !s.converged {
+                continue;
+            }
+            let faster = best.get(&name).is_none_or(|b| {
+                b.summary
+                    .as_ref()
+                    .is_none_or(|bs| s.wall_seconds.total < bs.wall_seconds.total)
+            });
+            if faster {
+                best.insert(name, r);
+            }
+        }
+        let have_errors = rows.iter().any(|r| r.error_vs_reference().is_some());
+        if !have_errors {
+            return out;
+        }
+        out.push_str(&format!(
+            "\nCheapest run within {:.0} % of the references, per series (fastest first):\n\n",
+            100.0 * t
+        ));
+        if best.is_empty() {
+            out.push_str("none of the runs reaches it\n");
+            continue;
+        }
+        out.push_str("| series | run | nodes | points | total (s) | max error (%) |\n|---|---|---|---|---|---|\n");
+        let mut list: Vec<(String, &SweepRow)> = best.into_iter().collect();
+        list.sort_by(|a, b| {
+            let t = |r: &SweepRow| {
+                r.summary
+                    .as_ref()
+                    .map_or(f64::INFINITY, |s| s.wall_seconds.total)
+            };
+            t(a.1).total_cmp(&t(b.1))
+        });
+        for (name, r) in list {
+            if let Some(s) = &r.summary {
+                out.push_str(&format!(
+                    "| {name} | {} | {} | {} | {:.2} | {} |\n",
+                    r.run,
+                    s.nodes,
+                    s.integration_points,
+                    s.wall_seconds.total,
+                    r.error_vs_reference().map_or("-".into(), percent)
+                ));
+            }
+        }
+    }
+    out
 }
 
 /// sweep.csv, sweep.md, sweep.json, error_vs_time.svg, error_vs_spacing.svg.
