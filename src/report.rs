@@ -27,7 +27,11 @@ pub struct Energy {
     pub external_work: f64,
     pub strain_energy: f64,
     pub kinetic: f64,
-    /// |W_ext - (U + K)| / |W_ext|; null for relaxation, whose damped path is fictitious.
+    /// Largest |W_ext| during the run, J.
+    pub peak_external_work: f64,
+    /// |W_ext + K_0 - (U + K)| / max(|W_ext + K_0|, peak |W_ext| + K_0), with K_0 the initial
+    /// kinetic energy: the peak scales it when a load comes back to zero; null for relaxation,
+    /// whose damped path is fictitious.
     pub balance_error: Option<f64>,
 }
 

@@ -599,6 +599,12 @@ fn prepare_coupled(scene: &Scene) -> Result<Prepared> {
     };
     let min_dihedral = quality::min_dihedral_angle(&mesh);
     let mixed = input.is_some() && d.cloud == crate::scene::CloudKind::File;
+    let tets = |p: &[Vector3<f64>]| -> Result<Vec<[usize; 4]>> {
+        Ok(discretize::delaunay(p)?
+            .chunks_exact(4)
+            .map(|c| [c[0], c[1], c[2], c[3]])
+            .collect())
+    };
     let built = if mixed {
         let rel = d.cloud_file.clone().unwrap_or_default();
         let path = if rel.is_absolute() {
@@ -607,13 +613,16 @@ fn prepare_coupled(scene: &Scene) -> Result<Prepared> {
             scene.base_dir.join(rel)
         };
         let cloud = crate::meshless::cloud::read_cloud(&path)?;
-        let tets = |p: &[Vector3<f64>]| -> Result<Vec<[usize; 4]>> {
-            Ok(discretize::delaunay(p)?
-                .chunks_exact(4)
-                .map(|c| [c[0], c[1], c[2], c[3]])
-                .collect())
-        };
-        coupling::mixed::build(mesh, &cloud, &settings, &tets).map(|(b, _)| b)
+        coupling::mixed::build(mesh, &cloud, 0.0, &settings, &tets).map(|(b, _)| b)
+    } else if matches!(
+        d.cloud,
+        crate::scene::CloudKind::Lattice | crate::scene::CloudKind::Halton
+    ) {
+        // A generated interior: the outer fe_layers of the mesh stay FE, the generator's nodes
+        // fill the cavity (those within half a spacing of the inner surface dropped).
+        let (cloud, _, h) = discretize::generated_cloud(scene)?;
+        let (shell, _) = coupling::regions::split_inputs(&mesh, d.fe_layers)?;
+        coupling::mixed::build(shell, &cloud, 0.5 * h, &settings, &tets).map(|(b, _)| b)
     } else {
         coupling::build(mesh, &settings)
     };
@@ -891,11 +900,15 @@ pub fn summarize(scene: &Scene, prep: &Prepared, out: &RunOutput, total_seconds:
             external_work: w,
             strain_energy: out.strain_energy,
             kinetic: out.kinetic_energy,
+            peak_external_work: out.peak_external_work,
             // Initial kinetic energy (initial velocities) is energy put in, like the work.
             balance_error: (scene.solver.mode == Mode::Dynamic).then(|| {
                 let input = w + out.initial_kinetic;
+                let scale = input
+                    .abs()
+                    .max(out.peak_external_work + out.initial_kinetic);
                 (input - out.strain_energy - out.kinetic_energy).abs()
-                    / input.abs().max(f64::MIN_POSITIVE)
+                    / scale.max(f64::MIN_POSITIVE)
             }),
         },
         reference,

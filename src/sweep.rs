@@ -327,12 +327,22 @@ pub fn run_sweep(
         }
         bar.inc(1);
         rows.push(row);
+        // Rewritten after every run, so a sweep that is stopped keeps the runs it finished.
+        if let Some(dir) = &opts.out {
+            let mut so_far = rows.clone();
+            mark_pareto(&mut so_far);
+            write_outputs(
+                dir,
+                scene_path,
+                varies,
+                &opts.presets,
+                &so_far,
+                combos.len(),
+            )?;
+        }
     }
     bar.finish_and_clear();
     mark_pareto(&mut rows);
-    if let Some(dir) = &opts.out {
-        write_outputs(dir, scene_path, varies, &opts.presets, &rows)?;
-    }
     Ok(rows)
 }
 
@@ -473,6 +483,10 @@ fn csv_columns(varies: &[Vary], rows: &[SweepRow]) -> (Vec<String>, Vec<Vec<Stri
     head.extend(
         [
             "max error (%)",
+            "external work (J)",
+            "peak external work (J)",
+            "strain energy (J)",
+            "kinetic energy (J)",
             "energy balance error (%)",
             "angular momentum drift",
             "min dihedral (deg)",
@@ -534,9 +548,18 @@ fn csv_columns(varies: &[Vary], rows: &[SweepRow]) -> (Vec<String>, Vec<Vec<Stri
                         r.error_vs_reference()
                             .map_or(String::new(), |e| format!("{:.5}", 100.0 * e)),
                     );
+                    let e = &s.energy;
+                    c.extend(
+                        [
+                            e.external_work,
+                            e.peak_external_work,
+                            e.strain_energy,
+                            e.kinetic,
+                        ]
+                        .map(f),
+                    );
                     c.push(
-                        s.energy
-                            .balance_error
+                        e.balance_error
                             .map_or(String::new(), |e| format!("{:.5}", 100.0 * e)),
                     );
                     c.push(
@@ -557,7 +580,7 @@ fn csv_columns(varies: &[Vary], rows: &[SweepRow]) -> (Vec<String>, Vec<Vec<Stri
                     );
                 }
                 None => {
-                    let n = 16 + 3 * reactions.len() + 3 * probes.len() + refs.len() + 6;
+                    let n = 16 + 3 * reactions.len() + 3 * probes.len() + refs.len() + 10;
                     c.extend(std::iter::repeat_n(String::new(), n));
                 }
             }
@@ -761,6 +784,7 @@ pub fn write_outputs(
     varies: &[Vary],
     presets: &BTreeMap<String, Vec<String>>,
     rows: &[SweepRow],
+    planned: usize,
 ) -> Result<()> {
     std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
     let quote = |s: &str| {
@@ -787,9 +811,17 @@ pub fn write_outputs(
                 .map(|(n, o)| format!("--preset '{n}={}'", o.join(";"))),
         )
         .collect();
+    let partial = if rows.len() < planned {
+        format!(
+            "**Partial: {} of {planned} runs finished** (the sweep was stopped or is running).\n\n",
+            rows.len()
+        )
+    } else {
+        String::new()
+    };
     let md = format!(
-        "# hytled sweep {} {}\n\nSI units (m, N, s). Error: the largest relative error over the \
-         scene's references.\n\n{}",
+        "# hytled sweep {} {}\n\n{partial}SI units (m, N, s). Error: the largest relative error \
+         over the scene's references.\n\n{}",
         scene_path.display(),
         vary_args.join(" "),
         table(varies, rows)
@@ -860,6 +892,33 @@ pub fn write_outputs(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_stopped_sweep_says_how_many_runs_it_finished() {
+        let dir = std::env::temp_dir().join(format!("hytled-partial-{}", std::process::id()));
+        let varies = vec![parse_vary("solver.dt_factor=0.5,0.9").unwrap()];
+        let row = SweepRow {
+            run: 1,
+            values: [("solver.dt_factor".to_string(), "0.5".to_string())].into(),
+            summary: None,
+            error: Some("unstable".into()),
+            peak_memory_mib: None,
+            repeats: 1,
+            pareto: false,
+        };
+        let rows = vec![row];
+        let scene = Path::new("cases/cube-compression.toml");
+        write_outputs(&dir, scene, &varies, &BTreeMap::new(), &rows, 2).unwrap();
+        let md = std::fs::read_to_string(dir.join("sweep.md")).unwrap();
+        assert!(md.contains("Partial: 1 of 2 runs"), "{md}");
+        let csv = std::fs::read_to_string(dir.join("sweep.csv")).unwrap();
+        assert_eq!(csv.lines().count(), 2, "{csv}");
+        assert!(csv.contains("unstable"), "{csv}");
+        write_outputs(&dir, scene, &varies, &BTreeMap::new(), &rows, 1).unwrap();
+        let md = std::fs::read_to_string(dir.join("sweep.md")).unwrap();
+        assert!(!md.contains("Partial"), "{md}");
+        std::fs::remove_dir_all(&dir).ok();
+    }
 
     #[test]
     fn vary_lists_split_outside_brackets() {

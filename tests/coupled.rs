@@ -149,6 +149,61 @@ fn cube_coupled_matches_exact_solution() {
     }
 }
 
+/// Issue 5 (a): any cloud generator fills the interior of a built-in shape's FE layer. The
+/// exact cube is reproduced with a jittered lattice and a Halton cloud inside one hex layer.
+#[test]
+fn cube_coupled_with_generated_interior_clouds_matches_exact_solution() {
+    for (cloud, jitter) in [("lattice", "0.3"), ("halton", "0")] {
+        let (p, u, s) = run(
+            "cube-compression",
+            &[
+                "discretization.fe_layers=1",
+                "discretization.size=0.0125",
+                &format!("discretization.cloud={cloud}"),
+                &format!("discretization.jitter={jitter}"),
+            ],
+        );
+        assert!(s.converged);
+        let c = p.coupled.as_ref().unwrap();
+        // The mesh's own vertices lie on the 12.5 mm grid; generated interior nodes do not.
+        let off_grid = c
+            .nodes
+            .iter()
+            .filter(|x| {
+                x.iter()
+                    .any(|v| ((v / 0.0125) - (v / 0.0125).round()).abs() > 1e-6)
+            })
+            .count();
+        assert!(off_grid > 0, "{cloud}: the mesh's own vertices were used");
+        assert!(
+            p.warnings.iter().any(|w| w.contains("coupled interior")),
+            "{:?}",
+            p.warnings
+        );
+        let f = s.reactions["top"][2];
+        let err = (f - -7.63269).abs() / 7.63269;
+        let (worst, mean) = cube_nodal_error(&p, &u);
+        println!(
+            "cube coupled, {cloud} interior (jitter {jitter}): {} nodes, F_z {f:.6} N (error {:.4} %), nodal error max {:.4} mm mean {:.4} mm, {} steps",
+            c.nodes.len(),
+            100.0 * err,
+            worst * 1e3,
+            mean * 1e3,
+            s.steps
+        );
+        // Irregular nodes with one-point Delaunay cells do not pass the integration patch test
+        // (MLS derivatives are not polynomials), so the affine solution is not reproduced
+        // exactly at every node as on the regular mesh: the pure meshless run on the same
+        // jittered lattice misses the corner displacement by 0.31 %. Bound the reaction, the
+        // corner probe and the mean nodal error; the largest is printed above.
+        assert!(err < 0.01, "{cloud}: F_z = {f}");
+        let corner = s.probes["corner"].displacement[0];
+        let corner_err = (corner - 0.011574668).abs() / 0.011574668;
+        assert!(corner_err < 0.01, "{cloud}: corner u_x = {corner}");
+        assert!(mean < 1e-4, "{cloud}: mean nodal error {mean} m");
+    }
+}
+
 /// The alternate path: a condition on meshless nodes (an interior plane held at the exact
 /// solution's u_z) goes through EBCIEM / SEBCIEM; the exact solution is unchanged, so the
 /// cube still matches it and the interior plane carries no force.
@@ -305,42 +360,4 @@ fn cylinder_extension_coupled() {
 #[test]
 fn cylinder_shear_coupled() {
     cylinder_case("cylinder-shear");
-}
-
-#[test]
-#[ignore]
-fn debug_time_steps() {
-    use hytled::material::Material;
-    for (case, o) in [
-        ("cube-compression", vec!["discretization.method=fe"]),
-        ("cube-compression", vec!["discretization.method=coupled"]),
-        ("cube-compression", vec!["discretization.method=meshless"]),
-        ("cylinder-compression", vec!["discretization.method=fe"]),
-        (
-            "cylinder-compression",
-            vec!["discretization.method=coupled"],
-        ),
-        (
-            "cylinder-compression",
-            vec![
-                "discretization.method=meshless",
-                "discretization.tet_rule=1",
-            ],
-        ),
-    ] {
-        let o: Vec<String> = o.iter().map(|s| s.to_string()).collect();
-        let s = scene::load(Path::new(&format!("cases/{case}.toml")), &o).unwrap();
-        let p = simulation::prepare(&s).unwrap();
-        let m = &p.model;
-        let c = m.forces.material.wave_speed();
-        let rho = m.forces.material.density();
-        let a = hytled::solver::timestep::critical_time_step(&m.points, c);
-        let b = hytled::solver::timestep::nodal_time_step(&m.points, &m.slots, &m.mass, c, rho);
-        println!(
-            "{case} {o:?}: point bound {:.4e} s, nodal bound {:.4e} s (ratio {:.2})",
-            a.0,
-            b.0,
-            b.0 / a.0
-        );
-    }
 }

@@ -328,3 +328,39 @@ fn free_spin_conserves_momentum_and_energy_for_every_method() {
         .to_string();
     assert!(e.contains("[initial]") && e.contains("dynamic"), "{e}");
 }
+
+#[test]
+fn compression_and_back_returns_the_work() {
+    // Horton 2010 sect. 4.7, there and back: the cylinder compressed to 40 % of its height and
+    // released along the same smooth curve (3 s each way). The body is elastic, so the work done
+    // on the way in comes back on the way out: at the end the work, the strain energy and the
+    // kinetic energy are small against the peak work, and their balance holds throughout.
+    for method in ["fe", "meshless", "coupled"] {
+        let m = format!("discretization.method={method}");
+        let s = run(
+            CYL,
+            &[
+                m.as_str(),
+                "discretization.divisions=[3,2,6]",
+                "discretization.fe_layers=1",
+                "boundaries.top.displacement.z=-0.06",
+                "boundaries.top.curve=smooth-return",
+                "solver.duration=6.0",
+                "solver.dt_factor=0.5",
+            ],
+        )
+        .unwrap_or_else(|e| panic!("{method}: {e}"));
+        let e = &s.energy;
+        println!("{method}: {} steps, {e:?}", s.steps);
+        assert!(e.peak_external_work > 1e-3, "{method}: {e:?}");
+        assert!(e.balance_error.unwrap() < 0.02, "{method}: {e:?}");
+        for v in [e.external_work, e.strain_energy, e.kinetic] {
+            assert!(v.abs() < 0.02 * e.peak_external_work, "{method}: {e:?}");
+        }
+        assert!(
+            s.reactions["top"][2].abs() < 0.05,
+            "{method}: {:?}",
+            s.reactions
+        );
+    }
+}

@@ -19,6 +19,9 @@ pub enum LoadCurve {
     Ramp,
     /// d(t) = d_max from the first step.
     Constant,
+    /// There and back: the smooth curve to d_max over the first half of T and, mirrored, back to
+    /// zero over the second half (loading and unloading, Horton 2010 sect. 4.7).
+    SmoothReturn,
 }
 
 impl LoadCurve {
@@ -30,6 +33,10 @@ impl LoadCurve {
             LoadCurve::Smooth => (10.0 - 15.0 * t + 6.0 * t * t) * t * t * t,
             LoadCurve::Ramp => t,
             LoadCurve::Constant => 1.0,
+            LoadCurve::SmoothReturn => {
+                let h = if t <= 0.5 { 2.0 * t } else { 2.0 - 2.0 * t };
+                (10.0 - 15.0 * h + 6.0 * h * h) * h * h * h
+            }
         }
     }
 }
@@ -119,6 +126,26 @@ mod tests {
         let h = 1e-6;
         assert!(((c.value(1.0) - c.value(1.0 - h)) / h).abs() < 1e-5);
         assert!(((c.value(h) - c.value(0.0)) / h).abs() < 1e-5);
+    }
+
+    #[test]
+    fn return_curve_peaks_at_half_time_and_comes_back_smoothly() {
+        let c = LoadCurve::SmoothReturn;
+        assert_eq!(c.value(0.0), 0.0);
+        assert!((c.value(0.5) - 1.0).abs() < 1e-15);
+        assert!(c.value(1.0).abs() < 1e-15);
+        // Symmetric about the peak and equal to the smooth curve at double speed.
+        for tau in [0.1, 0.2, 0.3, 0.45] {
+            assert!((c.value(tau) - c.value(1.0 - tau)).abs() < 1e-14);
+            assert!((c.value(tau) - LoadCurve::Smooth.value(2.0 * tau)).abs() < 1e-15);
+        }
+        let h = 1e-6;
+        for tau in [0.0 + h, 0.5, 1.0] {
+            assert!(
+                ((c.value(tau) - c.value(tau - h)) / h).abs() < 1e-4,
+                "rate at {tau}"
+            );
+        }
     }
 
     #[test]

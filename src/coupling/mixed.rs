@@ -77,6 +77,46 @@ fn diagonal(nodes: &[Vector3<f64>], tris: &[[usize; 3]]) -> f64 {
     (hi - lo).norm()
 }
 
+/// Distance (m) from `x` to the triangle `a b c` (closest point by Voronoi regions; Ericson,
+/// Real-Time Collision Detection, sect. 5.1.5).
+fn triangle_distance(
+    x: &Vector3<f64>,
+    a: &Vector3<f64>,
+    b: &Vector3<f64>,
+    c: &Vector3<f64>,
+) -> f64 {
+    let (ab, ac, ap) = (b - a, c - a, x - a);
+    let (d1, d2) = (ab.dot(&ap), ac.dot(&ap));
+    if d1 <= 0.0 && d2 <= 0.0 {
+        return ap.norm();
+    }
+    let bp = x - b;
+    let (d3, d4) = (ab.dot(&bp), ac.dot(&bp));
+    if d3 >= 0.0 && d4 <= d3 {
+        return bp.norm();
+    }
+    let vc = d1 * d4 - d3 * d2;
+    if vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0 {
+        return (x - (a + ab * (d1 / (d1 - d3)))).norm();
+    }
+    let cp = x - c;
+    let (d5, d6) = (ab.dot(&cp), ac.dot(&cp));
+    if d6 >= 0.0 && d5 <= d6 {
+        return cp.norm();
+    }
+    let vb = d5 * d2 - d1 * d6;
+    if vb <= 0.0 && d2 >= 0.0 && d6 <= 0.0 {
+        return (x - (a + ac * (d2 / (d2 - d6)))).norm();
+    }
+    let va = d3 * d6 - d5 * d4;
+    if va <= 0.0 && (d4 - d3) >= 0.0 && (d5 - d6) >= 0.0 {
+        let w = (d4 - d3) / ((d4 - d3) + (d5 - d6));
+        return (x - (b + (c - b) * w)).norm();
+    }
+    let denom = 1.0 / (va + vb + vc);
+    (x - (a + ab * (vb * denom) + ac * (vc * denom))).norm()
+}
+
 /// What the mixed build measured, for the report.
 #[derive(Debug, Clone)]
 pub struct MixedReport {
@@ -88,13 +128,18 @@ pub struct MixedReport {
     pub duplicates: usize,
     /// Cloud nodes dropped because they lie outside the cavity (in or beyond the FE layer).
     pub outside: usize,
+    /// Cloud nodes dropped because they lie within `min_gap` of the inner surface.
+    pub near_surface: usize,
 }
 
 /// Builds the coupled discretization from the FE layer `fe` (a shell) and the `cloud` (m)
-/// that fills its cavity. `delaunay` tetrahedralizes a point set.
+/// that fills its cavity. `delaunay` tetrahedralizes a point set. Cloud nodes closer than
+/// `min_gap` (m) to the inner surface are dropped: a generated cloud knows nothing of the
+/// surface, and a node just inside it makes flat interior tets (0 keeps every node).
 pub fn build(
     fe: Mesh,
     cloud: &[Vector3<f64>],
+    min_gap: f64,
     s: &CoupledSettings,
     delaunay: &dyn Fn(&[Vector3<f64>]) -> Result<Vec<[usize; 4]>>,
 ) -> Result<(CoupledBuild, MixedReport)> {
@@ -131,7 +176,7 @@ pub fn build(
         kiddo::ImmutableKdTree::<f64, 3>::new_from_slice(&pts)
             .map_err(|e| Error::Input(format!("cannot build the FE-node search tree: {e:?}")))?
     };
-    let (mut duplicates, mut outside) = (0, 0);
+    let (mut duplicates, mut outside, mut near_surface) = (0, 0, 0);
     let mut kept = Vec::new();
     for x in cloud {
         let nn = fe_tree
@@ -142,6 +187,12 @@ pub fn build(
             duplicates += 1;
         } else if winding(&fe.nodes, &inner, x).abs() < 0.5 {
             outside += 1;
+        } else if min_gap > 0.0
+            && inner.iter().any(|t| {
+                triangle_distance(x, &fe.nodes[t[0]], &fe.nodes[t[1]], &fe.nodes[t[2]]) < min_gap
+            })
+        {
+            near_surface += 1;
         } else {
             kept.push(*x);
         }
@@ -241,8 +292,9 @@ pub fn build(
         cells,
     };
     let warnings = vec![format!(
-        "mixed inputs: interior tets {interior_volume:.6e} m^3 vs cavity {cavity_volume:.6e} m^3 ({:+.4} %); \
-         {duplicates} cloud node(s) on FE nodes and {outside} outside the cavity dropped",
+        "coupled interior: tets {interior_volume:.6e} m^3 vs cavity {cavity_volume:.6e} m^3 ({:+.4} %); \
+         {duplicates} cloud node(s) on FE nodes, {outside} outside the cavity and {near_surface} within \
+         {min_gap:.3e} m of its surface dropped",
         100.0 * (interior_volume - cavity_volume) / cavity_volume.max(f64::MIN_POSITIVE)
     )];
     let b = assemble(
@@ -264,6 +316,7 @@ pub fn build(
             interior_volume,
             duplicates,
             outside,
+            near_surface,
         },
     ))
 }
@@ -271,6 +324,38 @@ pub fn build(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn triangle_distance_matches_a_dense_sampling() {
+        let (a, b, c) = (
+            Vector3::new(0.0, 0.0, 0.0),
+            Vector3::new(1.0, 0.2, 0.0),
+            Vector3::new(0.3, 0.9, 0.1),
+        );
+        let n = 400;
+        for x in [
+            Vector3::new(0.4, 0.3, 0.5),   // above the face
+            Vector3::new(-0.5, -0.2, 0.1), // near vertex a
+            Vector3::new(1.5, 0.0, 0.0),   // near vertex b
+            Vector3::new(0.2, 1.4, -0.3),  // near vertex c
+            Vector3::new(0.5, -0.4, 0.2),  // near edge ab
+            Vector3::new(-0.3, 0.5, 0.0),  // near edge ac
+            Vector3::new(0.9, 0.8, 0.3),   // near edge bc
+        ] {
+            let mut best = f64::INFINITY;
+            for i in 0..=n {
+                for j in 0..=(n - i) {
+                    let (u, v) = (i as f64 / n as f64, j as f64 / n as f64);
+                    best = best.min((x - (a + (b - a) * u + (c - a) * v)).norm());
+                }
+            }
+            let d = triangle_distance(&x, &a, &b, &c);
+            assert!(
+                d <= best + 1e-12 && best - d < 5e-3,
+                "{x:?}: {d} vs sampled {best}"
+            );
+        }
+    }
 
     #[test]
     fn winding_and_volume_of_a_cube_surface() {

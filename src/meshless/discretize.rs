@@ -134,6 +134,46 @@ pub fn support_rule(scene: &Scene) -> SupportRule {
     }
 }
 
+/// The nodes (m) of a generated cloud (`cloud = "lattice"` or `"halton"`) over the scene's
+/// built-in shape, a description of it, and its spacing h (m).
+pub fn generated_cloud(scene: &Scene) -> Result<(Vec<Vector3<f64>>, String, f64)> {
+    let d = &scene.discretization;
+    let h = spacing(scene)?;
+    match d.cloud {
+        CloudKind::Lattice => Ok((
+            cloud::jittered_lattice(
+                &need_domain(scene, "cloud = 'lattice'")?,
+                h,
+                d.jitter,
+                d.seed,
+            )?,
+            format!(
+                "lattice h = {h:.4e} m, jitter {}, seed {}",
+                d.jitter, d.seed
+            ),
+            h,
+        )),
+        CloudKind::Halton => {
+            let domain = &need_domain(scene, "cloud = 'halton'")?;
+            // Fill to saturation (random sequential packing at 0.85 h is about as dense as the
+            // lattice of spacing h); the cap only bounds the work.
+            let count = 3 * cloud::jittered_lattice(domain, h, 0.0, 0)?.len();
+            Ok((
+                cloud::halton_fill(domain, count, d.min_spacing * h, d.seed)?,
+                format!(
+                    "Halton fill, min spacing {:.4e} m, seed {}",
+                    d.min_spacing * h,
+                    d.seed
+                ),
+                h,
+            ))
+        }
+        other => Err(Error::Input(format!(
+            "cloud = '{other:?}' is not a generated cloud (use 'lattice' or 'halton')"
+        ))),
+    }
+}
+
 /// Nodes (and background tets when the nodes come from a tet mesh or Delaunay) of the scene.
 fn nodes_and_tets(scene: &Scene) -> Result<(Mesh, String)> {
     let d = &scene.discretization;
@@ -164,35 +204,9 @@ fn nodes_and_tets(scene: &Scene) -> Result<(Mesh, String)> {
             };
             return Ok((bg, name));
         }
-        CloudKind::Lattice => {
-            let h = spacing(scene)?;
-            (
-                cloud::jittered_lattice(
-                    &need_domain(scene, "cloud = 'lattice'")?,
-                    h,
-                    d.jitter,
-                    d.seed,
-                )?,
-                format!(
-                    "lattice h = {h:.4e} m, jitter {}, seed {}",
-                    d.jitter, d.seed
-                ),
-            )
-        }
-        CloudKind::Halton => {
-            let h = spacing(scene)?;
-            let domain = &need_domain(scene, "cloud = 'halton'")?;
-            // Fill to saturation (random sequential packing at 0.85 h is about as dense as the
-            // lattice of spacing h); the cap only bounds the work.
-            let count = 3 * cloud::jittered_lattice(domain, h, 0.0, 0)?.len();
-            (
-                cloud::halton_fill(domain, count, d.min_spacing * h, d.seed)?,
-                format!(
-                    "Halton fill, min spacing {:.4e} m, seed {}",
-                    d.min_spacing * h,
-                    d.seed
-                ),
-            )
+        CloudKind::Lattice | CloudKind::Halton => {
+            let (nodes, name, _) = generated_cloud(scene)?;
+            (nodes, name)
         }
         CloudKind::File => {
             let rel = d.cloud_file.clone().unwrap_or_default();

@@ -38,7 +38,8 @@ pub struct Support {
 
 impl Support {
     /// Builds the search structure. `tets` (node-index quadruples) give each node its
-    /// neighbours for the radius rule; without them the 8 nearest nodes are used.
+    /// neighbours for the radius rule (flat slivers, of shape quality below 0.1, excluded);
+    /// without them the 8 nearest nodes are used.
     pub fn new(
         nodes: Vec<Vector3<f64>>,
         rule: SupportRule,
@@ -194,10 +195,52 @@ impl Support {
     }
 }
 
-/// Mean distance from each node to the nodes it shares a tetrahedron with (None for nodes in no tet).
+/// Tetrahedra below this shape quality (see [`tet_quality`]; 1 for the regular tetrahedron)
+/// do not make their vertices neighbours for the influence radius.
+///
+/// The Delaunay tetrahedralization of a generated or file cloud fills the convex hull of the
+/// nodes. Where the surface is curved, the hull is closed by flat slivers between surface nodes
+/// that may be far apart: on a cylinder, the hull joins nodes of the lateral surface that are
+/// close in angle whatever their distance along the axis, up to the full height (Halton cloud,
+/// h = 0.0125 m, radius 0.05 m: 864 tet edges longer than 3 cm, the longest 0.1 m, in tets of
+/// quality below 0.06). Counting those as neighbours doubled the influence radii of the rim
+/// nodes (mean 0.052 m against 0.024 m inside) and raised those of the lateral surface by half;
+/// the wide, overlapping rim supports made the EBCIEM matrix Phi M^-1 V nearly singular
+/// (condition 8e6, near-null vectors alternating along the rim) and the corrected system
+/// unstable at any time step (eigenvalues of P M^-1 K down to -1.3e6 s^-2). Without the slivers
+/// the rim radii are 0.022 m and the condition 5e2, as on a regular lattice. The tets of
+/// structured and TetGen meshes (the `mesh` cloud, the coupled interior) have quality above 0.2
+/// in the shipped scenes, so this changes nothing there; the Delaunay cube has 8 tets below.
+const MIN_NEIGHBOUR_TET_QUALITY: f64 = 0.1;
+
+/// Shape quality of a tetrahedron: 6 sqrt(2) |V| / l_rms^3 with l_rms the root mean square of
+/// its six edge lengths; 1 for the regular tetrahedron, 0 for a flat one.
+fn tet_quality(p: &[Vector3<f64>; 4]) -> f64 {
+    let v = ((p[1] - p[0]).dot(&(p[2] - p[0]).cross(&(p[3] - p[0]))) / 6.0).abs();
+    let mut l2 = 0.0;
+    for a in 0..4 {
+        for b in a + 1..4 {
+            l2 += (p[a] - p[b]).norm_squared();
+        }
+    }
+    let l_rms = (l2 / 6.0).sqrt();
+    if l_rms > 0.0 {
+        6.0 * std::f64::consts::SQRT_2 * v / (l_rms * l_rms * l_rms)
+    } else {
+        0.0
+    }
+}
+
+/// Mean distance from each node to the nodes it shares a tetrahedron of quality at least
+/// [`MIN_NEIGHBOUR_TET_QUALITY`] with (None for nodes in no such tet).
 fn mean_tet_neighbour_distance(nodes: &[Vector3<f64>], tets: &[[usize; 4]]) -> Vec<Option<f64>> {
     let mut nbr: Vec<Vec<u32>> = vec![Vec::new(); nodes.len()];
     for t in tets {
+        if t.iter().all(|&a| a < nodes.len())
+            && tet_quality(&t.map(|a| nodes[a])) < MIN_NEIGHBOUR_TET_QUALITY
+        {
+            continue;
+        }
         for &a in t {
             for &b in t {
                 if a != b && a < nodes.len() && b < nodes.len() {
@@ -284,6 +327,29 @@ mod tests {
             .collect();
         assert_eq!(ids, want);
         assert!(ids.len() >= 8);
+    }
+
+    #[test]
+    fn flat_sliver_tets_do_not_make_neighbours() {
+        // Lattice index (i * 3 + j) * 3 + k for (i, j, k) h: node 0 at the origin, nodes 2, 6
+        // and 8 on the plane x = 0 with it, so [0, 2, 6, 8] is flat.
+        let nodes = lattice(3, 0.1);
+        let rule = SupportRule::Radius { dilatation: 1.6 };
+        let good = [[0, 1, 3, 9]];
+        let with_sliver = [[0, 1, 3, 9], [0, 2, 6, 8]];
+        let a = Support::new(nodes.clone(), rule, Some(&good)).unwrap();
+        let b = Support::new(nodes.clone(), rule, Some(&with_sliver)).unwrap();
+        let none = Support::new(nodes.clone(), rule, None).unwrap();
+        assert_eq!(a.radii, b.radii);
+        // Node 0's neighbours are 1, 3, 9 at h: the sliver's 2 h and 2.83 h edges are ignored.
+        assert!((b.radii[0] - 1.6 * 0.1).abs() < 1e-12, "{}", b.radii[0]);
+        // Nodes only in the sliver fall back to their 8 nearest nodes.
+        for i in [2, 6, 8] {
+            assert_eq!(b.radii[i], none.radii[i]);
+        }
+        let q = |t: [usize; 4]| tet_quality(&t.map(|i| nodes[i]));
+        assert!(q([0, 2, 6, 8]).abs() < 1e-12);
+        assert!(q([0, 1, 3, 9]) > MIN_NEIGHBOUR_TET_QUALITY);
     }
 
     #[test]

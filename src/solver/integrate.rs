@@ -129,6 +129,9 @@ pub struct RunOutput {
     /// (time, displacement) snapshots for output frames.
     pub frames: Vec<(f64, Vec<Vector3<f64>>)>,
     pub external_work: f64,
+    /// Largest |external work| reached during the run, J (the scale of the energy balance when
+    /// a load comes back, when the final work is near zero).
+    pub peak_external_work: f64,
     /// Kinetic energy at the start (initial velocities), J.
     pub initial_kinetic: f64,
     /// Linear (kg m/s) and angular (kg m^2/s, about the origin) momentum at the first and the
@@ -364,6 +367,7 @@ pub fn run<M: Material>(model: &mut Model<M>, s: &Settings) -> Result<RunOutput>
     };
 
     let mut external_work = 0.0f64;
+    let mut peak_external_work = 0.0f64;
     let mut initial_kinetic = 0.0f64;
     // Dynamic relaxation state.
     let r_load = (1.0 - 10.0 / load_steps.max(20) as f64).clamp(0.5, 0.999);
@@ -505,6 +509,7 @@ pub fn run<M: Material>(model: &mut Model<M>, s: &Settings) -> Result<RunOutput>
             };
             external_work += (f[i][k] + inertia) * 0.5 * (u_next[i][k] - u_prev[i][k]);
         }
+        peak_external_work = peak_external_work.max(external_work.abs());
         for &(node, comp) in cons.dofs.iter() {
             max_u = nan_max(max_u, u_next[node as usize][comp as usize].abs());
         }
@@ -620,6 +625,7 @@ pub fn run<M: Material>(model: &mut Model<M>, s: &Settings) -> Result<RunOutput>
         relaxation,
         frames,
         external_work,
+        peak_external_work,
         initial_kinetic,
         strain_energy,
         kinetic_energy,
