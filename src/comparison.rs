@@ -64,12 +64,12 @@ pub fn parse_methods(list: &str) -> Result<Vec<String>> {
 }
 
 /// Resets the peak resident set size (Linux: "5" to /proc/self/clear_refs).
-fn reset_peak_memory() {
+pub fn reset_peak_memory() {
     let _ = std::fs::write("/proc/self/clear_refs", "5");
 }
 
 /// Peak resident set size since the last reset, MiB (None where /proc is unavailable).
-fn peak_memory_mib() -> Option<f64> {
+pub fn peak_memory_mib() -> Option<f64> {
     let status = std::fs::read_to_string("/proc/self/status").ok()?;
     let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
     let kb: f64 = line.split_whitespace().nth(1)?.parse().ok()?;

@@ -14,6 +14,7 @@ pub mod io;
 
 pub use error::{Error, Result};
 pub mod bc;
+pub mod bench;
 pub mod comparison;
 pub mod coupling;
 pub mod fe;

@@ -809,6 +809,26 @@ pub fn run_scene(scene: &Scene, opts: &RunOptions) -> Result<Summary> {
     Ok(summary)
 }
 
+/// "fe", "coupled" or "meshless".
+pub fn method_name(prep: &Prepared) -> &'static str {
+    if prep.meshless.is_some() {
+        "meshless"
+    } else if prep.coupled.is_some() {
+        "coupled"
+    } else {
+        "fe"
+    }
+}
+
+/// The element or basis of a prepared scene: "hex8", "mls", "hex8+mls", ...
+pub fn element_label(scene: &Scene, prep: &Prepared) -> String {
+    match (&prep.meshless, &prep.coupled) {
+        (Some(_), _) => basis_name(scene).into(),
+        (None, Some(_)) => format!("{}+{}", prep.kind.name(), basis_name(scene)),
+        (None, None) => prep.kind.name().into(),
+    }
+}
+
 /// Builds the summary of a finished run.
 pub fn summarize(scene: &Scene, prep: &Prepared, out: &RunOutput, total_seconds: f64) -> Summary {
     let model = &prep.model;
@@ -864,18 +884,8 @@ pub fn summarize(scene: &Scene, prep: &Prepared, out: &RunOutput, total_seconds:
     Summary {
         scene: scene.name.clone().unwrap_or_default(),
         units: "SI: m, kg, s, N, Pa, J",
-        method: if prep.meshless.is_some() {
-            "meshless".into()
-        } else if prep.coupled.is_some() {
-            "coupled".into()
-        } else {
-            "fe".into()
-        },
-        element: match (&prep.meshless, &prep.coupled) {
-            (Some(_), _) => basis_name(scene).into(),
-            (None, Some(_)) => format!("{}+{}", prep.kind.name(), basis_name(scene)),
-            (None, None) => prep.kind.name().into(),
-        },
+        method: method_name(prep).into(),
+        element: element_label(scene, prep),
         mode: match scene.solver.mode {
             Mode::Dynamic => "dynamic".into(),
             Mode::Relaxation => "relaxation".into(),

@@ -8,7 +8,7 @@
 use nalgebra::{Matrix3, Vector3};
 use rayon::prelude::*;
 
-use crate::material::Material;
+use crate::material::{inv_cbrt, Material};
 use crate::quadrature::{NodeSlots, PointKind, QuadraturePoints};
 
 /// A raw pointer that may cross threads: each parallel task writes a disjoint index range.
@@ -40,6 +40,13 @@ pub fn deformation_gradient(qp: &QuadraturePoints, p: usize, u: &[Vector3<f64>])
     f
 }
 
+/// x^(1/3) = x (x^(-1/3))^2 through the fast [`inv_cbrt`].
+#[inline(always)]
+fn cbrt(x: f64) -> f64 {
+    let r = inv_cbrt(x);
+    x * (r * r)
+}
+
 /// Internal-force evaluator with its preallocated scratch space (no allocation per call).
 pub struct Forces<M: Material> {
     pub material: M,
@@ -55,11 +62,35 @@ pub struct Forces<M: Material> {
     group_j: Vec<f64>,
     /// Per-point energies, reused so that energy evaluations do not allocate.
     energy_scratch: Vec<f64>,
+    /// Nodes the evaluator was built for (every slot's node id is below it).
+    num_nodes: usize,
+    /// (smallest J, its point) of the last evaluation.
+    min_j: (f64, usize),
+}
+
+/// The smaller J of two (J, point) pairs, the lower point among equals: associative and
+/// commutative, so the parallel reduction gives the same pair for any thread count.
+#[inline]
+fn min_by_j(a: (f64, usize), b: (f64, usize)) -> (f64, usize) {
+    if b.0 < a.0 || (b.0 == a.0 && b.1 < a.1) || a.0.is_nan() && !b.0.is_nan() {
+        b
+    } else {
+        a
+    }
 }
 
 impl<M: Material> Forces<M> {
     /// Prepares scratch space for `qp` on `num_nodes` nodes.
+    ///
+    /// # Panics
+    /// When a point refers to a node id at or above `num_nodes` (discretizations validate ids
+    /// before they get here; [`Model::new`](super::Model::new) builds the node map first).
     pub fn new(material: M, qp: &QuadraturePoints, slots: &NodeSlots, num_nodes: usize) -> Self {
+        assert!(
+            qp.node_bound() <= num_nodes,
+            "quadrature points refer to node {} of {num_nodes}",
+            qp.node_bound().saturating_sub(1)
+        );
         let has_anp = qp.kinds.contains(&PointKind::Anp);
         let mut inv_w = vec![0.0; num_nodes];
         if has_anp {
@@ -82,7 +113,20 @@ impl<M: Material> Forces<M> {
             has_anp,
             group_j: vec![1.0; qp.groups.len()],
             energy_scratch: vec![0.0; qp.len()],
+            num_nodes,
+            min_j: (f64::INFINITY, usize::MAX),
         }
+    }
+
+    /// Bytes of the scratch arrays.
+    pub fn scratch_bytes(&self) -> usize {
+        use std::mem::size_of_val;
+        size_of_val(self.slot_forces.as_slice())
+            + size_of_val(self.point_j.as_slice())
+            + size_of_val(self.node_j.as_slice())
+            + size_of_val(self.node_anp_inv_weight.as_slice())
+            + size_of_val(self.group_j.as_slice())
+            + size_of_val(self.energy_scratch.as_slice())
     }
 
     /// The averaged J's the modified points need (ANP nodal averages, group means).
@@ -150,18 +194,23 @@ impl<M: Material> Forces<M> {
         p: usize,
         u: &[Vector3<f64>],
     ) -> (Matrix3<f64>, f64) {
-        let f = deformation_gradient(qp, p, u);
+        self.modified(qp, p, deformation_gradient(qp, p, u))
+    }
+
+    /// (F used for the stress, its J) from the plain F of point `p` (see `stress_gradient`).
+    #[inline(always)]
+    fn modified(&self, qp: &QuadraturePoints, p: usize, f: Matrix3<f64>) -> (Matrix3<f64>, f64) {
         let j = f.determinant();
         match qp.kinds[p] {
             PointKind::Anp => {
                 let r = qp.slots(p);
                 let n = r.len() as f64;
                 let j_avg: f64 = r.map(|s| self.node_j[qp.nodes[s] as usize]).sum::<f64>() / n;
-                ((j_avg / j).cbrt() * f, j_avg)
+                (cbrt(j_avg / j) * f, j_avg)
             }
             PointKind::MeanDilatation(g) => {
                 let j_avg = self.group_j[g as usize];
-                ((j_avg / j).cbrt() * f, j_avg)
+                (cbrt(j_avg / j) * f, j_avg)
             }
             _ => (f, j),
         }
@@ -175,69 +224,143 @@ impl<M: Material> Forces<M> {
         u: &[Vector3<f64>],
         out: &mut [Vector3<f64>],
     ) {
+        self.compute_slots(qp, slots, u);
+        let this = &*self;
+        out.par_iter_mut()
+            .with_min_len(CHUNK)
+            .enumerate()
+            .for_each(|(n, o)| *o = this.node_force(slots, n));
+    }
+
+    /// The point stage of [`Self::compute`]: every point's share of its nodes' forces (slot
+    /// forces), its J, and the smallest J ([`Self::min_j`]). Nodal forces then follow from
+    /// [`Self::node_force`], which the integrator fuses with its update.
+    pub fn compute_slots(&mut self, qp: &QuadraturePoints, slots: &NodeSlots, u: &[Vector3<f64>]) {
+        // The kernel reads u unchecked: every slot's node id is below num_nodes (Self::new).
+        assert!(
+            u.len() >= self.num_nodes && qp.nodes.len() == self.slot_forces.len(),
+            "force evaluation on {} nodes and {} slots; built for {} and {}",
+            u.len(),
+            qp.nodes.len(),
+            self.num_nodes,
+            self.slot_forces.len()
+        );
         self.averages(qp, slots, u);
         let sf = SharedMut(self.slot_forces.as_mut_ptr());
         let pj = SharedMut(self.point_j.as_mut_ptr());
         let this = &*self;
-        (0..qp.len())
+        self.min_j = (0..qp.len())
             .into_par_iter()
             .with_min_len(CHUNK)
-            .for_each(|p| {
-                let (f, j) = this.stress_gradient(qp, p, u);
-                let s = this.material.pk2_stress(&f, j);
-                let pw = (f * s) * qp.weights[p];
-                let r = qp.slots(p);
-                let base = r.start;
-                // SAFETY: point p writes only its own slots offsets[p]..offsets[p+1] and entry p.
-                unsafe {
-                    *pj.get().add(p) = j;
-                    for sl in r {
-                        *sf.get().add(sl) = pw * qp.dphi[sl];
+            .map(|p| {
+                let (a, b) = (qp.offsets[p], qp.offsets[p + 1]);
+                // SAFETY: point p writes only its own slots a..b and entry p; ids < u.len().
+                let j = unsafe {
+                    match b - a {
+                        8 => this.point_fixed::<8>(qp, p, a, u, sf),
+                        4 => this.point_fixed::<4>(qp, p, a, u, sf),
+                        _ => this.point_any(qp, p, a, b, u, sf),
                     }
-                    if let PointKind::Hourglass(h) = qp.kinds[p] {
-                        let hg = &qp.hourglass[h as usize];
-                        let ids = &qp.nodes[base..base + 8];
-                        // Gather once: the 8x8 product then runs on registers, not 64 indirect loads.
-                        let ul: [Vector3<f64>; 8] = std::array::from_fn(|b| u[ids[b] as usize]);
-                        for a in 0..8 {
-                            let mut acc = Vector3::zeros();
-                            for (b, ub) in ul.iter().enumerate() {
-                                acc += ub * hg[(a, b)];
-                            }
-                            *sf.get().add(base + a) += acc;
-                        }
-                    }
-                }
-            });
-        let slot_forces = &self.slot_forces;
-        out.par_iter_mut()
-            .with_min_len(CHUNK)
-            .enumerate()
-            .for_each(|(n, o)| {
-                let mut acc = Vector3::zeros();
-                for i in slots.range(n) {
-                    acc += slot_forces[slots.slots[i] as usize];
-                }
-                *o = acc;
-            });
+                };
+                unsafe { *pj.get().add(p) = j };
+                (j, p)
+            })
+            .reduce(|| (f64::INFINITY, usize::MAX), min_by_j);
     }
 
-    /// Smallest det F over the points of the last evaluation, and the point that has it.
-    pub fn min_j(&self) -> (f64, usize) {
-        self.point_j
-            .par_iter()
-            .enumerate()
-            .map(|(p, &j)| (j, p))
-            .reduce(
-                || (f64::INFINITY, usize::MAX),
-                |a, b| {
-                    if b.0 < a.0 || (b.0 == a.0 && b.1 < a.1) {
-                        b
-                    } else {
-                        a
+    /// Internal force on node `n` from the last [`Self::compute_slots`]: its slots summed in
+    /// a fixed order, N.
+    #[inline(always)]
+    pub fn node_force(&self, slots: &NodeSlots, n: usize) -> Vector3<f64> {
+        let mut acc = Vector3::zeros();
+        for &s in &slots.slots[slots.range(n)] {
+            acc += self.slot_forces[s as usize];
+        }
+        acc
+    }
+
+    /// Point with exactly N support nodes (hexahedra, tetrahedra, nearest-8 MLS): the loops
+    /// unroll and the slot slices are checked once. Returns the J used for the stress.
+    ///
+    /// # Safety
+    /// Slots a..a+N belong to point p alone, and every node id is below `u.len()`.
+    #[inline(always)]
+    unsafe fn point_fixed<const N: usize>(
+        &self,
+        qp: &QuadraturePoints,
+        p: usize,
+        a: usize,
+        u: &[Vector3<f64>],
+        sf: SharedMut<Vector3<f64>>,
+    ) -> f64 {
+        let ids = &qp.nodes[a..a + N];
+        let d = &qp.dphi[a..a + N];
+        let ul: [Vector3<f64>; N] = std::array::from_fn(|k| *u.get_unchecked(ids[k] as usize));
+        let mut f = Matrix3::identity();
+        for k in 0..N {
+            f += ul[k] * d[k].transpose();
+        }
+        let (f, j) = self.modified(qp, p, f);
+        let pk = self.material.first_pk_stress(&f, j) * qp.weights[p];
+        let out = sf.get().add(a);
+        for (k, dk) in d.iter().enumerate() {
+            *out.add(k) = pk * dk;
+        }
+        if N == 8 {
+            if let PointKind::Hourglass(h) = qp.kinds[p] {
+                // HG u by columns: HG is stored column-major, so each column is 8 contiguous
+                // values and the row loop runs as packed multiply-adds per component.
+                let hg = qp.hourglass[h as usize].as_slice();
+                let (mut fx, mut fy, mut fz) = ([0.0f64; 8], [0.0f64; 8], [0.0f64; 8]);
+                for (c, uc) in ul.iter().enumerate() {
+                    let col = &hg[8 * c..8 * c + 8];
+                    for r in 0..8 {
+                        fx[r] += col[r] * uc.x;
+                        fy[r] += col[r] * uc.y;
+                        fz[r] += col[r] * uc.z;
                     }
-                },
-            )
+                }
+                for r in 0..8 {
+                    *out.add(r) += Vector3::new(fx[r], fy[r], fz[r]);
+                }
+            }
+        }
+        j
+    }
+
+    /// Point with any number of support nodes (hourglass points always have 8: fixed path).
+    ///
+    /// # Safety
+    /// As [`Self::point_fixed`] for slots a..b.
+    #[inline(always)]
+    unsafe fn point_any(
+        &self,
+        qp: &QuadraturePoints,
+        p: usize,
+        a: usize,
+        b: usize,
+        u: &[Vector3<f64>],
+        sf: SharedMut<Vector3<f64>>,
+    ) -> f64 {
+        let ids = &qp.nodes[a..b];
+        let d = &qp.dphi[a..b];
+        let mut f = Matrix3::identity();
+        for (&id, dk) in ids.iter().zip(d) {
+            f += *u.get_unchecked(id as usize) * dk.transpose();
+        }
+        let (f, j) = self.modified(qp, p, f);
+        let pk = self.material.first_pk_stress(&f, j) * qp.weights[p];
+        let out = sf.get().add(a);
+        for (k, dk) in d.iter().enumerate() {
+            *out.add(k) = pk * dk;
+        }
+        j
+    }
+
+    /// Smallest det F over the points of the last evaluation, and the point that has it
+    /// (the lowest index among equals).
+    pub fn min_j(&self) -> (f64, usize) {
+        self.min_j
     }
 
     /// Strain energy sum_p w_p W(F_p) + sum_hex u^T HG u / 2, J. Deterministic (fixed-order sum).

@@ -242,7 +242,20 @@ pub fn auto_load_steps(length: f64, mu: f64, density: f64, dt: f64) -> usize {
 
 /// Runs the model to the end of the dynamic interval or to relaxation convergence.
 /// Fails with a clear message when the solution diverges or a point inverts.
+///
+/// The loop runs on a worker of the current rayon pool (the global one when called from
+/// outside a pool): its parallel loops then fork through the worker's own queue, which
+/// allocates nothing, instead of injecting jobs from outside, which allocates a queue block
+/// every 63 jobs. The time loop allocates nothing per step (tests/allocation.rs).
 pub fn run<M: Material>(model: &mut Model<M>, s: &Settings) -> Result<RunOutput> {
+    if rayon::current_thread_index().is_some() {
+        run_on_worker(model, s)
+    } else {
+        rayon::scope(|_| run_on_worker(model, s))
+    }
+}
+
+fn run_on_worker<M: Material>(model: &mut Model<M>, s: &Settings) -> Result<RunOutput> {
     let start = Instant::now();
     let n = model.nodes.len();
     let c = model.forces.material.wave_speed();
@@ -588,7 +601,7 @@ pub fn run<M: Material>(model: &mut Model<M>, s: &Settings) -> Result<RunOutput>
         step += 1;
         if step.is_multiple_of(64) {
             pb.set_position(step as u64);
-            if !dynamic {
+            if !dynamic && s.progress {
                 pb.set_message(format!("error estimate {err_est:.2e} m, r = {r:.5}"));
             }
         }

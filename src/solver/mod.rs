@@ -119,6 +119,29 @@ impl<M: Material> Model<M> {
         Ok(())
     }
 
+    /// Bytes of the arrays the time loop touches: the points and their slots, the node -> slot
+    /// map, masses and positions, the force evaluator's scratch and the integrator's seven
+    /// nodal vectors. Leaves out what a corrector holds.
+    pub fn solver_bytes(&self) -> usize {
+        use std::mem::size_of_val;
+        let q = &self.points;
+        let n = self.nodes.len();
+        size_of_val(q.offsets.as_slice())
+            + size_of_val(q.nodes.as_slice())
+            + size_of_val(q.dphi.as_slice())
+            + size_of_val(q.weights.as_slice())
+            + size_of_val(q.kinds.as_slice())
+            + size_of_val(q.hourglass.as_slice())
+            + size_of_val(q.groups.as_slice())
+            + size_of_val(self.slots.offsets.as_slice())
+            + size_of_val(self.slots.slots.as_slice())
+            + size_of_val(self.slots.points.as_slice())
+            + size_of_val(self.mass.as_slice())
+            + size_of_val(self.nodes.as_slice())
+            + self.forces.scratch_bytes()
+            + 7 * n * std::mem::size_of::<Vector3<f64>>()
+    }
+
     /// Sum of internal nodal forces over each boundary's nodes, N: the force each boundary
     /// applies to the body (negative along the axis in compression, as in REFERENCE.md).
     /// Boundaries imposed by a corrector report its constraint force instead.
