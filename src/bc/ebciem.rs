@@ -490,6 +490,11 @@ impl ComponentCorrection {
         self.cond
     }
 
+    /// The nodes the constraint force acts on (the row indices of V), unsorted, with repeats.
+    pub fn forced_nodes(&self) -> impl Iterator<Item = usize> + '_ {
+        self.v.idx.iter().map(|&j| j as usize)
+    }
+
     /// Number of nodes N of the model the correction was built for.
     pub fn num_nodes(&self) -> usize {
         self.num_nodes

@@ -396,9 +396,9 @@ fn run_on_worker<M: Material>(model: &mut Model<M>, s: &Settings) -> Result<RunO
 
     loop {
         let t = step as f64 * dt;
-        model
-            .forces
-            .compute(&model.points, &model.slots, &u, &mut f);
+        // Point stage only: nodal forces are gathered in the update loop below (one pass over
+        // the nodes instead of two), or here on the steps that record them first.
+        model.forces.compute_slots(&model.points, &model.slots, &u);
         let (min_j, p_min) = model.forces.min_j();
         if !(min_j > 0.0) {
             // Where: the centroid of the point's supporting nodes (reference configuration).
@@ -419,7 +419,15 @@ fn run_on_worker<M: Material>(model: &mut Model<M>, s: &Settings) -> Result<RunO
         }
         let at_end =
             (dynamic && step == total_steps) || finish || (!dynamic && step >= total_steps);
-        if step.is_multiple_of(history_every) || at_end {
+        let record = step.is_multiple_of(history_every) || at_end;
+        if record {
+            let (forces, slots) = (&model.forces, &model.slots);
+            f.par_iter_mut()
+                .with_min_len(2048)
+                .enumerate()
+                .for_each(|(i, fi)| *fi = forces.node_force(slots, i));
+        }
+        if record {
             let se = model.forces.strain_energy(&model.points, &model.slots, &u);
             let ke = kinetic(&model.mass, &u, &u_prev, dt);
             if step == 0 {
@@ -471,19 +479,24 @@ fn run_on_worker<M: Material>(model: &mut Model<M>, s: &Settings) -> Result<RunO
             (a, 1.0 + r * r, -r * r)
         };
         // Parallel over nodes; max is order-independent, so the result is thread-count independent.
-        let mass = &model.mass;
-        let (u_cur, u_old, f_cur) = (&u, &u_prev, &f);
+        let (mass, forces, slots) = (&model.mass, &model.forces, &model.slots);
+        let (u_cur, u_old) = (&u, &u_prev);
         let (mut max_du, mut max_u) = u_next
             .par_iter_mut()
+            .zip(f.par_iter_mut())
             .with_min_len(2048)
             .enumerate()
-            .map(|(i, un)| {
+            .map(|(i, (un, fi))| {
+                if !record {
+                    *fi = forces.node_force(slots, i);
+                }
+                let fi = *fi;
                 let inv_m = a / mass[i];
                 let mask = cons.mask[i];
                 let mut mdu = 0.0f64;
                 for k in 0..3 {
                     if !mask[k] {
-                        let v = -inv_m * f_cur[i][k] + b * u_cur[i][k] + cc * u_old[i][k];
+                        let v = -inv_m * fi[k] + b * u_cur[i][k] + cc * u_old[i][k];
                         un[k] = v;
                         mdu = nan_max(mdu, (v - u_cur[i][k]).abs());
                     }
