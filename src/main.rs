@@ -127,6 +127,9 @@ enum Command {
         /// Explicit time steps per run.
         #[arg(long, default_value_t = 2000)]
         steps: usize,
+        /// Runs per thread count; the fastest is reported.
+        #[arg(long, default_value_t = 3)]
+        repeat: usize,
         /// Print the rows as JSON instead of the table.
         #[arg(long)]
         json: bool,
@@ -302,6 +305,7 @@ fn execute(cmd: Command) -> hytled::Result<()> {
             set,
             threads,
             steps,
+            repeat,
             json,
         } => {
             use hytled::bench;
@@ -322,6 +326,7 @@ fn execute(cmd: Command) -> hytled::Result<()> {
             let opts = bench::BenchOptions {
                 steps,
                 threads: threads.unwrap_or_else(bench::default_threads),
+                repeat,
                 progress: true,
             };
             let mut rows = Vec::new();

@@ -32,8 +32,8 @@ pub struct QuadraturePoints {
     /// Integration weights (reference volume), m^3.
     pub weights: Vec<f64>,
     pub kinds: Vec<PointKind>,
-    /// Hourglass matrices of one-point hexahedra, N/m.
-    pub hourglass: Vec<SMatrix<f64, 8, 8>>,
+    /// Scaled hourglass vectors G of one-point hexahedra (HG = G G^T, N/m), sqrt(N/m).
+    pub hourglass: Vec<SMatrix<f64, 8, 4>>,
     /// Point ranges [first, end) of the mean-dilatation groups.
     pub groups: Vec<[u32; 2]>,
 }
@@ -86,7 +86,7 @@ impl QuadraturePoints {
         nodes: &[usize],
         dphi: &[Vector3<f64>; 8],
         w: f64,
-        hg: SMatrix<f64, 8, 8>,
+        hg: SMatrix<f64, 8, 4>,
     ) {
         let idx = self.hourglass.len() as u32;
         self.hourglass.push(hg);

@@ -97,21 +97,23 @@ impl Hex8Reference {
         Ok(Hex8Reference { b, volume })
     }
 
-    /// Hourglass matrix HG = k g g^T (8x8), g = Gamma - B X^T Gamma, with
-    /// k = kappa_hg V (lambda + 2 mu) sum(B_ij^2) / 8 (Joldes et al. 2008). Units N/m.
-    pub fn hourglass_matrix(
+    /// Scaled hourglass vectors G = sqrt(k) g (8x4, sqrt(N/m)) of the hourglass matrix
+    /// HG = k g g^T = G G^T, g = Gamma - B X^T Gamma, k = kappa_hg V (lambda + 2 mu) sum(B_ij^2) / 8
+    /// (Joldes et al. 2008). The kernel applies HG u as G (G^T u): the same operations as the
+    /// 8x8 product from half the stored data (the step streams these from memory).
+    pub fn hourglass_vectors(
         &self,
         x: &[Vector3<f64>; 8],
         kappa_hg: f64,
         lambda_plus_2mu: f64,
-    ) -> SMatrix<f64, 8, 8> {
+    ) -> SMatrix<f64, 8, 4> {
         let gam = gamma();
         let bm = SMatrix::<f64, 8, 3>::from_fn(|a, i| self.b[a][i]);
         let xm = SMatrix::<f64, 8, 3>::from_fn(|a, i| x[a][i]);
         let g = gam - bm * (xm.transpose() * gam);
         let sum_b2: f64 = self.b.iter().map(|v| v.norm_squared()).sum();
         let k = kappa_hg * self.volume * lambda_plus_2mu * sum_b2 / 8.0;
-        g * g.transpose() * k
+        g * k.max(0.0).sqrt()
     }
 }
 
@@ -190,7 +192,8 @@ mod tests {
     fn hourglass_matrix_annihilates_linear_fields() {
         let x = distorted();
         let h = Hex8Reference::new(&x).unwrap();
-        let hg = h.hourglass_matrix(&x, 0.075, 1e5);
+        let gv = h.hourglass_vectors(&x, 0.075, 1e5);
+        let hg = gv * gv.transpose();
         // g^T x = Gamma^T x - Gamma^T x B^T x = 0 for each coordinate column: no force under affine motion.
         for i in 0..3 {
             let col = SMatrix::<f64, 8, 1>::from_fn(|a, _| x[a][i] + 0.3);

@@ -63,7 +63,7 @@ pub fn element_points(
                 let x: [_; 8] = std::array::from_fn(|a| mesh.nodes[ids[a]]);
                 let h = hex8::Hex8Reference::new(&x)
                     .map_err(|volume| Error::InvalidElement { element: e, volume })?;
-                let hg = h.hourglass_matrix(&x, hourglass_coefficient, lambda_plus_2mu);
+                let hg = h.hourglass_vectors(&x, hourglass_coefficient, lambda_plus_2mu);
                 qp.push_hourglass(ids, &h.b, h.volume, hg);
             }
             ElementKind::Tet4 | ElementKind::Tet4Anp => {

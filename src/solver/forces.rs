@@ -308,20 +308,22 @@ impl<M: Material> Forces<M> {
         }
         if N == 8 {
             if let PointKind::Hourglass(h) = qp.kinds[p] {
-                // HG u by columns: HG is stored column-major, so each column is 8 contiguous
-                // values and the row loop runs as packed multiply-adds per component.
-                let hg = qp.hourglass[h as usize].as_slice();
-                let (mut fx, mut fy, mut fz) = ([0.0f64; 8], [0.0f64; 8], [0.0f64; 8]);
-                for (c, uc) in ul.iter().enumerate() {
-                    let col = &hg[8 * c..8 * c + 8];
-                    for r in 0..8 {
-                        fx[r] += col[r] * uc.x;
-                        fy[r] += col[r] * uc.y;
-                        fz[r] += col[r] * uc.z;
+                // HG u = G (G^T u); G is column-major, so each column is 8 contiguous values.
+                let g = qp.hourglass[h as usize].as_slice();
+                let q: [Vector3<f64>; 4] = std::array::from_fn(|m| {
+                    let col = &g[8 * m..8 * m + 8];
+                    let mut acc = Vector3::zeros();
+                    for (r, ur) in ul.iter().enumerate() {
+                        acc += ur * col[r];
                     }
-                }
+                    acc
+                });
                 for r in 0..8 {
-                    *out.add(r) += Vector3::new(fx[r], fy[r], fz[r]);
+                    let mut acc = Vector3::zeros();
+                    for (m, qm) in q.iter().enumerate() {
+                        acc += qm * g[8 * m + r];
+                    }
+                    *out.add(r) += acc;
                 }
             }
         }
@@ -377,13 +379,16 @@ impl<M: Material> Forces<M> {
             let (f, _) = this.stress_gradient(qp, p, u);
             let mut w = qp.weights[p] * this.material.strain_energy(&f);
             if let PointKind::Hourglass(h) = qp.kinds[p] {
-                let hg = &qp.hourglass[h as usize];
+                // u^T HG u / 2 = |G^T u|^2 / 2 over the three components.
+                let g = &qp.hourglass[h as usize];
                 let base = qp.offsets[p];
                 let ids = &qp.nodes[base..base + 8];
-                for a in 0..8 {
-                    for b in 0..8 {
-                        w += 0.5 * hg[(a, b)] * u[ids[a] as usize].dot(&u[ids[b] as usize]);
+                for m in 0..4 {
+                    let mut q = Vector3::zeros();
+                    for a in 0..8 {
+                        q += u[ids[a] as usize] * g[(a, m)];
                     }
+                    w += 0.5 * q.norm_squared();
                 }
             }
             *e = w;
