@@ -26,6 +26,9 @@ use nalgebra::Vector3;
 
 use crate::{Error, Result};
 
+// `ComponentCorrection::correct_component` addresses node j's component c as f64 number 3 j + c.
+const _: () = assert!(std::mem::size_of::<Vector3<f64>>() == 3 * std::mem::size_of::<f64>());
+
 /// One sparse row or column: (node index, value) pairs.
 pub type SparseVec = Vec<(u32, f64)>;
 
@@ -532,23 +535,36 @@ impl ComponentCorrection {
             target.len(),
             self.num_nodes
         );
+        // SAFETY: u holds num_nodes vectors (checked) and is borrowed mutably for the call.
+        unsafe { self.correct_component(u.as_mut_ptr() as *mut f64, target) }
+    }
+
+    /// [`correct`](Self::correct) on raw storage: `u` points at N contiguous `Vector3<f64>`
+    /// (3 f64 each), of which only component [`component`](Self::component) is read and
+    /// written, so the corrections of different components can run at the same time.
+    ///
+    /// # Safety
+    /// `u` must point at N = [`num_nodes`](Self::num_nodes) vectors, and no other thread may
+    /// access this component of them during the call. `target.len()` must be ne.
+    pub unsafe fn correct_component(&mut self, u: *mut f64, target: &[f64]) {
         let Some(factor) = self.factor.as_ref() else {
             return;
         };
         let c = self.component;
+        let at = |j: u32| u.add(3 * j as usize + c);
         for (k, (yk, &t)) in self.y.iter_mut().zip(target).enumerate() {
             let r = self.phi.range(k);
             let interp: f64 = self.phi.idx[r.clone()]
                 .iter()
                 .zip(&self.phi.val[r])
-                .map(|(&j, &p)| p * u[j as usize][c])
+                .map(|(&j, &p)| p * *at(j))
                 .sum();
             *yk = t - interp;
         }
         factor.solve_in_place(&mut self.y, false, MemStack::new(&mut self.mem));
         for (k, &yk) in self.y.iter().enumerate() {
             for p in self.v.range(k) {
-                u[self.v.idx[p] as usize][c] += self.minv_v[p] * yk;
+                *at(self.v.idx[p]) += self.minv_v[p] * yk;
             }
         }
     }

@@ -2,6 +2,7 @@
 //! EBCIEM / SEBCIEM correction (thesis chapter 4) wrapped as a [`Corrector`].
 
 use nalgebra::Vector3;
+use rayon::prelude::*;
 
 use super::discretize::MeshlessBuild;
 use crate::bc::ebciem::{ebciem_columns, ComponentCorrection, SparseVec};
@@ -19,6 +20,18 @@ struct Component {
     /// Columns (indices into the constrained nodes) of each model boundary.
     columns: Vec<Vec<usize>>,
     target: Vec<f64>,
+}
+
+/// The displacement storage shared by the per-component corrections.
+#[derive(Clone, Copy)]
+struct SharedF64(*mut f64);
+unsafe impl Send for SharedF64 {}
+unsafe impl Sync for SharedF64 {}
+impl SharedF64 {
+    /// The pointer; a method so closures capture the whole (Send + Sync) wrapper.
+    fn get(self) -> *mut f64 {
+        self.0
+    }
 }
 
 /// EBCIEM / SEBCIEM for every constrained component of the meshless boundaries.
@@ -240,11 +253,24 @@ impl Corrector for MeshlessCorrector {
         for &j in &self.forced {
             self.nodal[j as usize] = Vector3::zeros();
         }
-        for c in self.comps.iter_mut() {
+        assert!(
+            u.len() == self.nodal.len(),
+            "MeshlessCorrector::correct: {} displacements for {} nodes",
+            u.len(),
+            self.nodal.len()
+        );
+        // The components (x, y, z) are independent (each reads and writes its own component
+        // of u through its own factor), so they run in parallel with the same result.
+        let base = SharedF64(u.as_mut_ptr() as *mut f64);
+        self.comps.par_iter_mut().for_each(|c| {
             for (k, t) in c.target.iter_mut().enumerate() {
                 *t = c.amplitude[k] * c.curve[k].value(tau);
             }
-            c.corr.correct(u, &c.target);
+            // SAFETY: u has N vectors (asserted) and is borrowed mutably here; the components
+            // of `comps` are distinct (one per axis, `new`), so no two tasks touch the same f64.
+            unsafe { c.corr.correct_component(base.get(), &c.target) };
+        });
+        for c in &self.comps {
             c.corr.add_nodal_forces(&mut self.nodal, alpha);
         }
     }
