@@ -246,7 +246,9 @@ pub fn auto_load_steps(length: f64, mu: f64, density: f64, dt: f64) -> usize {
 /// The loop runs on a worker of the current rayon pool (the global one when called from
 /// outside a pool): its parallel loops then fork through the worker's own queue, which
 /// allocates nothing, instead of injecting jobs from outside, which allocates a queue block
-/// every 63 jobs. The time loop allocates nothing per step (tests/allocation.rs).
+/// every 63 jobs. The time loop allocates only when it records: a history row (a fixed number
+/// per dynamic run) and, in relaxation, a frequency estimate every `estimate_interval` steps;
+/// the steps between allocate nothing (tests/allocation.rs).
 pub fn run<M: Material>(model: &mut Model<M>, s: &Settings) -> Result<RunOutput> {
     if rayon::current_thread_index().is_some() {
         run_on_worker(model, s)
