@@ -141,14 +141,11 @@ pub fn run_case(case: &BenchCase, opts: &BenchOptions) -> Result<Vec<BenchRow>> 
         let (mut row, u) = pool.install(|| time_once(case, opts.steps, t))?;
         for _ in 1..opts.repeat.max(1) {
             let (r, _) = pool.install(|| time_once(case, opts.steps, t))?;
+            let preprocess_s = row.preprocess_s.min(r.preprocess_s);
             if r.solve_s < row.solve_s {
-                row = BenchRow {
-                    preprocess_s: row.preprocess_s.min(r.preprocess_s),
-                    ..r
-                };
-            } else {
-                row.preprocess_s = row.preprocess_s.min(r.preprocess_s);
+                row = r;
             }
+            row.preprocess_s = preprocess_s;
         }
         let identical = match &first_u {
             None => {

@@ -47,6 +47,21 @@ fn cbrt(x: f64) -> f64 {
     x * (r * r)
 }
 
+/// Hourglass mode amplitudes G^T u (4 vectors) of a hexahedron with scaled hourglass vectors
+/// `g` (8x4, column-major) and nodal displacements `u(a)`, a = 0..8.
+#[inline(always)]
+fn hourglass_modes(g: &[f64], u: impl Fn(usize) -> Vector3<f64>) -> [Vector3<f64>; 4] {
+    let ul: [Vector3<f64>; 8] = std::array::from_fn(u);
+    std::array::from_fn(|m| {
+        let col = &g[8 * m..8 * m + 8];
+        let mut acc = Vector3::zeros();
+        for (r, ur) in ul.iter().enumerate() {
+            acc += ur * col[r];
+        }
+        acc
+    })
+}
+
 /// Internal-force evaluator with its preallocated scratch space (no allocation per call).
 pub struct Forces<M: Material> {
     pub material: M,
@@ -69,10 +84,11 @@ pub struct Forces<M: Material> {
 }
 
 /// The smaller J of two (J, point) pairs, the lower point among equals: associative and
-/// commutative, so the parallel reduction gives the same pair for any thread count.
+/// commutative, so the parallel reduction gives the same pair for any thread count. A NaN J
+/// never wins (NaN displacements are the divergence detector's to report).
 #[inline]
 fn min_by_j(a: (f64, usize), b: (f64, usize)) -> (f64, usize) {
-    if b.0 < a.0 || (b.0 == a.0 && b.1 < a.1) || a.0.is_nan() && !b.0.is_nan() {
+    if b.0 < a.0 || (b.0 == a.0 && b.1 < a.1) {
         b
     } else {
         a
@@ -225,11 +241,15 @@ impl<M: Material> Forces<M> {
         out: &mut [Vector3<f64>],
     ) {
         self.compute_slots(qp, slots, u);
-        let this = &*self;
+        self.gather(slots, out);
+    }
+
+    /// Nodal forces from the last [`Self::compute_slots`] into `out`, N. Parallel over nodes.
+    pub fn gather(&self, slots: &NodeSlots, out: &mut [Vector3<f64>]) {
         out.par_iter_mut()
             .with_min_len(CHUNK)
             .enumerate()
-            .for_each(|(n, o)| *o = this.node_force(slots, n));
+            .for_each(|(n, o)| *o = self.node_force(slots, n));
     }
 
     /// The point stage of [`Self::compute`]: every point's share of its nodes' forces (slot
@@ -300,24 +320,13 @@ impl<M: Material> Forces<M> {
         for k in 0..N {
             f += ul[k] * d[k].transpose();
         }
-        let (f, j) = self.modified(qp, p, f);
-        let pk = self.material.first_pk_stress(&f, j) * qp.weights[p];
-        let out = sf.get().add(a);
-        for (k, dk) in d.iter().enumerate() {
-            *out.add(k) = pk * dk;
-        }
+        let j = self.stress_to_slots(qp, p, a, f, d, sf);
         if N == 8 {
             if let PointKind::Hourglass(h) = qp.kinds[p] {
                 // HG u = G (G^T u); G is column-major, so each column is 8 contiguous values.
                 let g = qp.hourglass[h as usize].as_slice();
-                let q: [Vector3<f64>; 4] = std::array::from_fn(|m| {
-                    let col = &g[8 * m..8 * m + 8];
-                    let mut acc = Vector3::zeros();
-                    for (r, ur) in ul.iter().enumerate() {
-                        acc += ur * col[r];
-                    }
-                    acc
-                });
+                let q = hourglass_modes(g, |r| ul[r]);
+                let out = sf.get().add(a);
                 for r in 0..8 {
                     let mut acc = Vector3::zeros();
                     for (m, qm) in q.iter().enumerate() {
@@ -344,12 +353,30 @@ impl<M: Material> Forces<M> {
         u: &[Vector3<f64>],
         sf: SharedMut<Vector3<f64>>,
     ) -> f64 {
-        let ids = &qp.nodes[a..b];
         let d = &qp.dphi[a..b];
         let mut f = Matrix3::identity();
-        for (&id, dk) in ids.iter().zip(d) {
+        for (&id, dk) in qp.nodes[a..b].iter().zip(d) {
             f += *u.get_unchecked(id as usize) * dk.transpose();
         }
+        self.stress_to_slots(qp, p, a, f, d, sf)
+    }
+
+    /// From the plain F of point `p` (slots from `a`, derivatives `d`): the stress (ANP /
+    /// mean-dilatation modified) and the slot forces w P dphi_k. Returns the J used for the
+    /// stress.
+    ///
+    /// # Safety
+    /// As [`Self::point_fixed`]: the point's slots belong to it alone.
+    #[inline(always)]
+    unsafe fn stress_to_slots(
+        &self,
+        qp: &QuadraturePoints,
+        p: usize,
+        a: usize,
+        f: Matrix3<f64>,
+        d: &[Vector3<f64>],
+        sf: SharedMut<Vector3<f64>>,
+    ) -> f64 {
         let (f, j) = self.modified(qp, p, f);
         let pk = self.material.first_pk_stress(&f, j) * qp.weights[p];
         let out = sf.get().add(a);
@@ -380,16 +407,11 @@ impl<M: Material> Forces<M> {
             let mut w = qp.weights[p] * this.material.strain_energy(&f);
             if let PointKind::Hourglass(h) = qp.kinds[p] {
                 // u^T HG u / 2 = |G^T u|^2 / 2 over the three components.
-                let g = &qp.hourglass[h as usize];
                 let base = qp.offsets[p];
                 let ids = &qp.nodes[base..base + 8];
-                for m in 0..4 {
-                    let mut q = Vector3::zeros();
-                    for a in 0..8 {
-                        q += u[ids[a] as usize] * g[(a, m)];
-                    }
-                    w += 0.5 * q.norm_squared();
-                }
+                let q =
+                    hourglass_modes(qp.hourglass[h as usize].as_slice(), |a| u[ids[a] as usize]);
+                w += 0.5 * q.iter().map(|qm| qm.norm_squared()).sum::<f64>();
             }
             *e = w;
         });

@@ -423,13 +423,7 @@ fn run_on_worker<M: Material>(model: &mut Model<M>, s: &Settings) -> Result<RunO
             (dynamic && step == total_steps) || finish || (!dynamic && step >= total_steps);
         let record = step.is_multiple_of(history_every) || at_end;
         if record {
-            let (forces, slots) = (&model.forces, &model.slots);
-            f.par_iter_mut()
-                .with_min_len(2048)
-                .enumerate()
-                .for_each(|(i, fi)| *fi = forces.node_force(slots, i));
-        }
-        if record {
+            model.forces.gather(&model.slots, &mut f);
             let se = model.forces.strain_energy(&model.points, &model.slots, &u);
             let ke = kinetic(&model.mass, &u, &u_prev, dt);
             if step == 0 {
