@@ -16,6 +16,26 @@ pub trait Material: Send + Sync + Clone {
     fn first_pk_stress(&self, f: &Matrix3<f64>, j: f64) -> Matrix3<f64> {
         f * self.pk2_stress(f, j)
     }
+    /// [`first_pk_stress`](Self::first_pk_stress) at L points at once, lanes last:
+    /// `f[3 r + c][l]` is F_rc of lane l, `j[l]` its det F; returns P in the same layout, Pa.
+    /// Kernels evaluate blocks of points through it so that the compiler can keep the lanes
+    /// in SIMD registers; the default evaluates lane by lane.
+    #[inline(always)]
+    fn first_pk_stress_lanes<const L: usize>(
+        &self,
+        f: &[[f64; L]; 9],
+        j: &[f64; L],
+    ) -> [[f64; L]; 9] {
+        let mut out = [[0.0; L]; 9];
+        for l in 0..L {
+            let fl = Matrix3::from_fn(|r, c| f[3 * r + c][l]);
+            let p = self.first_pk_stress(&fl, j[l]);
+            for (i, o) in out.iter_mut().enumerate() {
+                o[l] = p[(i / 3, i % 3)];
+            }
+        }
+        out
+    }
     /// Dilatational (P-) wave speed in the reference configuration, m/s. Sets the stable step.
     fn wave_speed(&self) -> f64;
     /// Mass density, kg/m^3.
@@ -61,16 +81,29 @@ impl NeoHookean {
 /// negative, NaN, inf, subnormal) go to the library routine.
 #[inline(always)]
 pub fn inv_cbrt(x: f64) -> f64 {
-    if !(f64::MIN_POSITIVE..1e300).contains(&x) {
-        return x.cbrt().recip();
-    }
-    let mut y = f64::from_bits(0x553e_f0ff_289d_d796u64.wrapping_sub(x.to_bits() / 3));
+    inv_cbrt_lanes([x])[0]
+}
+
+/// [`inv_cbrt`] of L values at once: the Newton steps run lane-parallel (SIMD), the rare
+/// values outside its range are patched afterwards. Each lane gets exactly `inv_cbrt`'s value.
+#[inline(always)]
+pub fn inv_cbrt_lanes<const L: usize>(x: [f64; L]) -> [f64; L] {
+    let mut y: [f64; L] = std::array::from_fn(|l| {
+        f64::from_bits(0x553e_f0ff_289d_d796u64.wrapping_sub(x[l].to_bits() / 3))
+    });
     // y (4 - x y^3) / 3 = (4/3) y - (x/3) (y^2)^2: four dependent multiplies per step instead
     // of six (the chain's latency, not its operation count, is what a point waits for).
-    let x3 = x * (1.0 / 3.0);
+    let x3: [f64; L] = std::array::from_fn(|l| x[l] * (1.0 / 3.0));
     for _ in 0..4 {
-        let y2 = y * y;
-        y = (4.0 / 3.0) * y - x3 * (y2 * y2);
+        for l in 0..L {
+            let y2 = y[l] * y[l];
+            y[l] = (4.0 / 3.0) * y[l] - x3[l] * (y2 * y2);
+        }
+    }
+    for l in 0..L {
+        if !(f64::MIN_POSITIVE..1e300).contains(&x[l]) {
+            y[l] = x[l].cbrt().recip();
+        }
     }
     y
 }
@@ -167,6 +200,47 @@ impl Material for NeoHookean {
         let tr_c = f.norm_squared();
         let b = (self.kappa * j * (j - 1.0) - mu_j * tr_c * (1.0 / 3.0)) / j;
         f * mu_j + cof * b
+    }
+
+    /// The lane form of [`first_pk_stress`](Material::first_pk_stress) above, same formula.
+    #[inline(always)]
+    fn first_pk_stress_lanes<const L: usize>(
+        &self,
+        f: &[[f64; L]; 9],
+        j: &[f64; L],
+    ) -> [[f64; L]; 9] {
+        // Row-major F: f[3 r + c]; cof(F)_rc = (-1)^(r+c) minor_rc.
+        let m = |i: usize, l: usize| f[i][l];
+        let mut cof = [[0.0; L]; 9];
+        for l in 0..L {
+            cof[0][l] = m(4, l) * m(8, l) - m(5, l) * m(7, l);
+            cof[1][l] = m(5, l) * m(6, l) - m(3, l) * m(8, l);
+            cof[2][l] = m(3, l) * m(7, l) - m(4, l) * m(6, l);
+            cof[3][l] = m(2, l) * m(7, l) - m(1, l) * m(8, l);
+            cof[4][l] = m(0, l) * m(8, l) - m(2, l) * m(6, l);
+            cof[5][l] = m(1, l) * m(6, l) - m(0, l) * m(7, l);
+            cof[6][l] = m(1, l) * m(5, l) - m(2, l) * m(4, l);
+            cof[7][l] = m(2, l) * m(3, l) - m(0, l) * m(5, l);
+            cof[8][l] = m(0, l) * m(4, l) - m(1, l) * m(3, l);
+        }
+        let r = inv_cbrt_lanes(*j);
+        let mut mu_j = [0.0; L];
+        let mut b = [0.0; L];
+        for l in 0..L {
+            mu_j[l] = self.mu * (r[l] * r[l]);
+            let mut tr_c = 0.0;
+            for fi in f.iter() {
+                tr_c += fi[l] * fi[l];
+            }
+            b[l] = (self.kappa * j[l] * (j[l] - 1.0) - mu_j[l] * tr_c * (1.0 / 3.0)) / j[l];
+        }
+        let mut out = [[0.0; L]; 9];
+        for i in 0..9 {
+            for l in 0..L {
+                out[i][l] = f[i][l] * mu_j[l] + cof[i][l] * b[l];
+            }
+        }
+        out
     }
 
     fn wave_speed(&self) -> f64 {
