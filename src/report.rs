@@ -78,6 +78,42 @@ pub struct MeshlessInfo {
     pub support_rule: String,
     /// Exact volume of the scene's shape, m^3 (compare with `mesh.volume`, the sum of weights).
     pub exact_volume: f64,
+    /// What adaptive integration did (`integration = "adaptive"` only).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub adaptive: Option<AdaptiveInfo>,
+}
+
+/// What adaptive integration (thesis chapter 5) did to the background tets' points.
+#[derive(Debug, Clone, Serialize, PartialEq)]
+pub struct AdaptiveInfo {
+    /// Relative tolerance on the less-smooth integrand per cell.
+    pub tolerance: f64,
+    /// Children per split (2, 4 or 8).
+    pub subdivision: usize,
+    pub max_level: usize,
+    /// Points of the base rule alone (cells x rule points) and after refinement.
+    pub points_before: usize,
+    pub points_after: usize,
+    /// Deepest level reached.
+    pub deepest_level: usize,
+    /// Leaf cells per level 0..=max_level.
+    pub leaves_per_level: Vec<usize>,
+}
+
+impl AdaptiveInfo {
+    /// One line for text reports.
+    pub fn line(&self) -> String {
+        format!(
+            "adaptive, tolerance {}, {} children per split, max level {}: {} -> {} points, deepest level {}, leaf cells per level {:?}",
+            self.tolerance,
+            self.subdivision,
+            self.max_level,
+            self.points_before,
+            self.points_after,
+            self.deepest_level,
+            self.leaves_per_level
+        )
+    }
 }
 
 /// How the coupled FE + meshless discretization was made.
@@ -98,6 +134,9 @@ pub struct CoupledInfo {
     pub meshless_points: usize,
     pub basis: String,
     pub support_rule: String,
+    /// What adaptive integration of the interior tets did (`integration = "adaptive"` only).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub adaptive: Option<AdaptiveInfo>,
 }
 
 /// Everything a run reports. Units: SI (m, kg, s, N, Pa, J).
@@ -186,6 +225,9 @@ impl Summary {
                 self.removed_nodes.unwrap_or(0),
                 self.bc_method.as_deref().unwrap_or("-")
             );
+        }
+        if let Some(a) = self.coupled.as_ref().and_then(|c| c.adaptive.as_ref()) {
+            let _ = writeln!(s, "interior points  {}", a.line());
         }
         if let Some(a) = self.mesh.min_dihedral_deg {
             let _ = writeln!(

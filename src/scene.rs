@@ -259,6 +259,18 @@ pub enum IntegrationKind {
     Tets,
     /// A regular background grid, one point per cell, `point_ratio` points per node (Horton 2010).
     Grid,
+    /// Background tetrahedra refined adaptively (thesis chapter 5, Joldes et al. 2015): each
+    /// tet's `tet_rule` estimate of the "less smooth" integrand (thesis eq. 5.5) is compared
+    /// with the sum over its `subdivision` children; cells differing by more than `tolerance`
+    /// are refined, to at most `max_level` levels.
+    Adaptive,
+}
+
+impl IntegrationKind {
+    /// True when the points come from background tetrahedra (plain or adaptive).
+    pub fn uses_tets(self) -> bool {
+        matches!(self, IntegrationKind::Tets | IntegrationKind::Adaptive)
+    }
 }
 
 /// Support-domain rule of the meshless shape functions.
@@ -408,6 +420,18 @@ pub struct Discretization {
     /// Grid integration: integration points per node (default 2, Horton 2010 sect. 3.2).
     #[serde(default = "default_point_ratio")]
     pub point_ratio: f64,
+    /// Adaptive integration: relative accuracy of the less-smooth integrand per cell (default
+    /// 0.001).
+    #[serde(default = "default_adaptive_tolerance")]
+    pub tolerance: f64,
+    /// Adaptive integration: children per split, 2 (longest-edge bisection, default), 4 (three
+    /// edge midpoints) or 8 (all six edge midpoints).
+    #[serde(default = "default_subdivision")]
+    pub subdivision: usize,
+    /// Adaptive integration: deepest refinement level (default 3; at most 18, 9 or 6 for
+    /// subdivision 2, 4 or 8).
+    #[serde(default = "default_max_level")]
+    pub max_level: usize,
     #[serde(default)]
     pub support: SupportKind,
     /// Radius rule: influence radius / mean neighbour distance (default 1.6 linear, 2.0 quadratic).
@@ -444,6 +468,18 @@ pub struct Discretization {
     /// (default true; false = plain full integration).
     #[serde(default = "default_true")]
     pub mean_dilatation: bool,
+}
+
+fn default_adaptive_tolerance() -> f64 {
+    0.001
+}
+
+fn default_subdivision() -> usize {
+    2
+}
+
+fn default_max_level() -> usize {
+    3
 }
 
 fn default_true() -> bool {
@@ -508,6 +544,9 @@ impl Default for Discretization {
             interface_scale: default_interface_scale(),
             mean_dilatation: true,
             point_ratio: default_point_ratio(),
+            tolerance: default_adaptive_tolerance(),
+            subdivision: default_subdivision(),
+            max_level: default_max_level(),
             support: SupportKind::Radius,
             dilatation: None,
             support_nodes: None,
@@ -1094,6 +1133,25 @@ fn validate(s: &Scene) -> std::result::Result<(), String> {
         return Err(format!(
             "discretization.point_ratio = {}: must be positive (integration points per node)",
             d.point_ratio
+        ));
+    }
+    if !(d.tolerance > 0.0 && d.tolerance.is_finite()) {
+        return Err(format!(
+            "discretization.tolerance = {}: must be a positive relative accuracy (e.g. 0.001)",
+            d.tolerance
+        ));
+    }
+    if ![2, 4, 8].contains(&d.subdivision) {
+        return Err(format!(
+            "discretization.subdivision = {}: use 2 (longest-edge bisection), 4 (three edge midpoints) or 8 (all six)",
+            d.subdivision
+        ));
+    }
+    let deepest = crate::meshless::adaptive::max_level_for(d.subdivision);
+    if d.max_level > deepest {
+        return Err(format!(
+            "discretization.max_level = {}: at most {deepest} with subdivision = {} (a cell may split into at most 2^18 leaves)",
+            d.max_level, d.subdivision
         ));
     }
     if !(d.mu >= 0.0) || !(d.min_rcond > 0.0 && d.min_rcond < 1.0) {

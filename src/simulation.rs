@@ -596,6 +596,11 @@ fn prepare_coupled(scene: &Scene) -> Result<Prepared> {
                 ))
             },
         )?,
+        adaptive: if d.integration == crate::scene::IntegrationKind::Adaptive {
+            Some(discretize::adaptive_settings(scene)?)
+        } else {
+            None
+        },
     };
     let min_dihedral = quality::min_dihedral_angle(&mesh);
     let mixed = input.is_some() && d.cloud == crate::scene::CloudKind::File;
@@ -943,6 +948,7 @@ pub fn summarize(scene: &Scene, prep: &Prepared, out: &RunOutput, total_seconds:
             basis: basis_long(scene),
             support_rule: m.support.describe(),
             exact_volume: m.exact_volume,
+            adaptive: m.adaptive.clone(),
         }),
         coupled: prep.coupled.as_ref().map(|c| {
             use crate::coupling::{CellRole, NodeRole};
@@ -959,6 +965,7 @@ pub fn summarize(scene: &Scene, prep: &Prepared, out: &RunOutput, total_seconds:
                 meshless_points: c.meshless_points,
                 basis: basis_long(scene),
                 support_rule: c.support.describe(),
+                adaptive: c.adaptive.clone(),
             }
         }),
         warnings: prep.warnings.clone(),
@@ -987,6 +994,48 @@ fn basis_long(scene: &Scene) -> String {
 /// One meshless VTU frame: the background vertices as points with the interpolated
 /// displacement, and the background tets as cells carrying the mean stress, von Mises stress
 /// and J of their integration points (one vertex cell per point when there are no tets).
+/// The integration points of a meshless discretization as VTK vertices with their weight
+/// (m^3), refinement level (adaptive integration) and background tet, for inspection.
+fn write_integration_points(path: &Path, m: &MeshlessBuild, format: VtuFormat) -> Result<()> {
+    let n = m.positions.len();
+    let conn: Vec<usize> = (0..n).collect();
+    let offsets: Vec<usize> = (1..=n).collect();
+    let types = vec![1u8; n];
+    let level: Vec<f64> = (0..n)
+        .map(|p| m.point_level.get(p).map_or(0.0, |&l| l as f64))
+        .collect();
+    let owner: Vec<f64> = m
+        .owner
+        .iter()
+        .map(|&e| if e == usize::MAX { -1.0 } else { e as f64 })
+        .collect();
+    let piece = vtu::Piece {
+        points: &m.positions,
+        connectivity: &conn,
+        offsets: &offsets,
+        types: &types,
+        point_data: vec![
+            DataArray {
+                name: "weight_m3",
+                components: 1,
+                values: &m.points.weights,
+            },
+            DataArray {
+                name: "level",
+                components: 1,
+                values: &level,
+            },
+            DataArray {
+                name: "background_tet",
+                components: 1,
+                values: &owner,
+            },
+        ],
+        cell_data: Vec::new(),
+    };
+    vtu::write_vtu(path, &piece, format)
+}
+
 fn write_meshless_frame(
     path: &Path,
     points: &[Vector3<f64>],
@@ -1242,6 +1291,13 @@ pub fn write_outputs(
         series.push((*t, file));
     }
     vtu::write_pvd(&dir.join(format!("{name}.pvd")), &series)?;
+    if let Some(m) = prep.meshless.as_ref().filter(|m| m.adaptive.is_some()) {
+        write_integration_points(
+            &dir.join(format!("{name}_integration_points.vtu")),
+            m,
+            format,
+        )?;
+    }
 
     let mut header = vec!["step".to_string(), "time_s".to_string()];
     for b in &prep.model.boundaries {

@@ -7,7 +7,7 @@
 # default all cores), JOBS (sweeps run at once, default 1; with JOBS > 1 give each sweep its own
 # cores, e.g. JOBS=4 THREADS=2 on 8 cores, or the wall times of study 1 compete).
 # Studies (a study name runs all its jobs): timestep incompressibility large-deformation
-# irregular spin speed-accuracy fe-layers.
+# irregular spin speed-accuracy fe-layers adaptive.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 H=${HYTLED:-target/release/hytled}
@@ -122,10 +122,22 @@ speed-accuracy-cube() {
     --vary discretization.size=0.05,0.025,0.02,0.0125 --out studies/speed-accuracy/cube-compression
 }
 
+# Issue 8: adaptive integration of the meshless cylinder over the tolerance (MLS and MMLS,
+# radius supports, EBCIEM; base rule 4 points per tet, bisection, up to 3 levels).
+adaptive-compression() { adaptive_cylinder cylinder-compression; }
+adaptive-extension() { adaptive_cylinder cylinder-extension; }
+adaptive-shear() { adaptive_cylinder cylinder-shear; }
+adaptive_cylinder() {
+  sweep cases/$1.toml --set solver.mode=relaxation --set "$CYL4" \
+    --set discretization.integration=adaptive --preset "$MLS" --preset "$MMLS" \
+    --vary discretization.tolerance=0.5,0.1,0.05,0.01,0.005 --out studies/adaptive/$1
+}
+
 ALL=(speed-accuracy-compression speed-accuracy-extension speed-accuracy-shear speed-accuracy-dynamic
   speed-accuracy-cube timestep-cube timestep-cylinder incompressibility-cube
   incompressibility-cylinder large-deformation irregular-jitter irregular-halton
-  irregular-point-ratio spin fe-layers-compression fe-layers-extension fe-layers-shear)
+  irregular-point-ratio spin fe-layers-compression fe-layers-extension fe-layers-shear
+  adaptive-compression adaptive-extension adaptive-shear)
 
 if [ "${1:-}" = --list ]; then printf '%s\n' "${ALL[@]}"; exit 0; fi
 # A study name stands for its jobs.

@@ -46,6 +46,9 @@ pub struct CoupledSettings {
     pub mean_dilatation: bool,
     /// Integration points per interior background tet (1, 4 or 5).
     pub tet_rule: crate::meshless::integration::TetRule,
+    /// Adaptive integration of the interior tets (thesis chapter 5) instead of `tet_rule`
+    /// alone; its base rule is `tet_rule`.
+    pub adaptive: Option<crate::meshless::adaptive::AdaptiveSettings>,
 }
 
 /// A built coupled discretization over a mesh whose vertices are all nodes.
@@ -72,6 +75,8 @@ pub struct CoupledBuild {
     pub transition_points: usize,
     pub meshless_points: usize,
     pub warnings: Vec<String>,
+    /// What adaptive integration of the interior did (None without it).
+    pub adaptive: Option<crate::report::AdaptiveInfo>,
 }
 
 /// Shape-function values at a point: global node ids and phi.
@@ -419,6 +424,7 @@ fn assemble(
         .map(|&e| transition_cell(&fe_mesh, e, &regions.node, &support, &mls_nodes, &s.mls))
         .collect::<Result<_>>()?;
 
+    let mut adaptive_info = None;
     // Interior: MLS at the background-tet points.
     // Interior hexahedra: 2x2x2 Gauss points; interior tets: the tet rule.
     let (pos, w, tet_owner) = if interior.shape == ElementShape::Hex8 {
@@ -439,12 +445,27 @@ fn assemble(
         }
         out
     } else {
-        crate::meshless::integration::tet_points(&interior, s.tet_rule).map_err(|e| match e {
+        let bad_tet = |e| {
+            match e {
             Error::InvalidElement { element, volume } => Error::Input(format!(
                 "coupled: interior background tet {element} has non-positive volume {volume:.6e} m^3"
             )),
             e => e,
-        })?
+        }
+        };
+        match &s.adaptive {
+            Some(a) => {
+                let (pts, info) = crate::meshless::discretize::adaptive_tet_points(
+                    a, &interior, &support, &s.mls,
+                )
+                .map_err(bad_tet)?;
+                adaptive_info = Some(info);
+                (pts.positions, pts.weights, pts.owner)
+            }
+            None => {
+                crate::meshless::integration::tet_points(&interior, s.tet_rule).map_err(bad_tet)?
+            }
+        }
     };
     let ml_qp = build_points(&support, &s.mls, &pos, &w)?;
 
@@ -521,5 +542,6 @@ fn assemble(
         support,
         mls: s.mls,
         warnings,
+        adaptive: adaptive_info,
     })
 }

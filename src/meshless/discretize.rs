@@ -3,6 +3,7 @@
 
 use nalgebra::Vector3;
 
+use super::adaptive::{self, AdaptiveSettings};
 use super::integration::{self, TetRule};
 use super::mls::{self, MlsSettings};
 use super::points::{build_points, shape_at, support_counts, support_statistics};
@@ -11,6 +12,7 @@ use super::{cloud, points::ShapeAt};
 use crate::geometry::domain::Domain;
 use crate::geometry::{ElementShape, Mesh};
 use crate::quadrature::QuadraturePoints;
+use crate::report::AdaptiveInfo;
 use crate::scene::{self, CloudKind, ElementName, Geometry, IntegrationKind, Scene, SupportKind};
 use crate::{Error, Result};
 
@@ -37,6 +39,10 @@ pub struct MeshlessBuild {
     pub cloud: String,
     pub integration: String,
     pub warnings: Vec<String>,
+    /// What adaptive integration did (None for other integration kinds).
+    pub adaptive: Option<AdaptiveInfo>,
+    /// Refinement level of each integration point (adaptive integration; empty otherwise).
+    pub point_level: Vec<u8>,
 }
 
 impl MeshlessBuild {
@@ -178,8 +184,8 @@ pub fn generated_cloud(scene: &Scene) -> Result<(Vec<Vector3<f64>>, String, f64)
 fn nodes_and_tets(scene: &Scene) -> Result<(Mesh, String)> {
     let d = &scene.discretization;
     // Tets integrate, and their boundary faces carry the EBCIEM boundary integrals.
-    let tets_wanted = d.integration == IntegrationKind::Tets
-        || d.bc_method.resolve(d.support) == scene::BcMethod::Ebciem;
+    let tets_wanted =
+        d.integration.uses_tets() || d.bc_method.resolve(d.support) == scene::BcMethod::Ebciem;
     let (nodes, name) = match d.cloud {
         CloudKind::Mesh => {
             let mut s = scene.clone();
@@ -289,6 +295,51 @@ pub fn delaunay(_nodes: &[Vector3<f64>]) -> Result<Vec<usize>> {
 /// Given the field nodes, the ones that carry a boundary condition or a probe.
 pub type ProtectedNodes<'a> = dyn Fn(&[Vector3<f64>]) -> Result<Vec<usize>> + 'a;
 
+/// The scene's adaptive-integration settings: `tolerance`, `tet_rule` (the base rule),
+/// `subdivision`, `max_level`.
+pub fn adaptive_settings(scene: &Scene) -> Result<AdaptiveSettings> {
+    let d = &scene.discretization;
+    let rule = TetRule::from_points(d.tet_rule()).ok_or_else(|| {
+        Error::Input(format!(
+            "discretization.tet_rule = {}: use 1, 4 or 5",
+            d.tet_rule()
+        ))
+    })?;
+    Ok(AdaptiveSettings {
+        tolerance: d.tolerance,
+        rule,
+        subdivision: d.subdivision,
+        max_level: d.max_level,
+    })
+}
+
+/// Adaptive integration points (thesis chapter 5) of the tet mesh `tets` for the shape functions
+/// of `support`, driven by the less-smooth integrand of thesis eq. 5.5, with the report of what
+/// the refinement did. Serves meshless scenes and coupled interiors.
+pub fn adaptive_tet_points(
+    settings: &AdaptiveSettings,
+    tets: &Mesh,
+    support: &Support,
+    mls: &MlsSettings,
+) -> Result<(adaptive::AdaptivePoints, AdaptiveInfo)> {
+    let a = adaptive::adaptive_points(tets, settings, |x| {
+        let sh = shape_at(support, mls, x, true, &|| {
+            "adaptive-integration trial point".to_string()
+        })?;
+        Ok(adaptive::less_smooth(&sh.dphi))
+    })?;
+    let info = AdaptiveInfo {
+        tolerance: settings.tolerance,
+        subdivision: settings.subdivision,
+        max_level: settings.max_level,
+        points_before: a.points_before,
+        points_after: a.positions.len(),
+        deepest_level: a.deepest_level(),
+        leaves_per_level: a.leaves_per_level.clone(),
+    };
+    Ok((a, info))
+}
+
 /// Builds the meshless discretization. `protected(nodes)` returns the nodes that carry a
 /// boundary condition or a probe: removing one of those is an error.
 pub fn build(scene: &Scene, protected: &ProtectedNodes) -> Result<MeshlessBuild> {
@@ -297,14 +348,38 @@ pub fn build(scene: &Scene, protected: &ProtectedNodes) -> Result<MeshlessBuild>
     let mls = mls_settings(scene);
     let rule = support_rule(scene);
 
+    let tets: Vec<[usize; 4]> = background
+        .cells
+        .chunks_exact(4)
+        .map(|c| [c[0], c[1], c[2], c[3]])
+        .collect();
+    let full = Support::new(
+        background.nodes.clone(),
+        rule,
+        (!tets.is_empty()).then_some(tets.as_slice()),
+    )?;
+    let rule_t = TetRule::from_points(d.tet_rule()).ok_or_else(|| {
+        Error::Input(format!(
+            "discretization.tet_rule = {}: use 1, 4 or 5",
+            d.tet_rule()
+        ))
+    })?;
+    let mut adaptive_info = None;
+    let mut point_level = Vec::new();
     let (positions, weights, owner, integration_name) = match d.integration {
+        IntegrationKind::Adaptive => {
+            let (a, info) =
+                adaptive_tet_points(&adaptive_settings(scene)?, &background, &full, &mls)?;
+            let name = format!(
+                "{} background tets, {}",
+                background.num_cells(),
+                info.line()
+            );
+            adaptive_info = Some(info);
+            point_level = a.level;
+            (a.positions, a.weights, a.owner, name)
+        }
         IntegrationKind::Tets => {
-            let rule_t = TetRule::from_points(d.tet_rule()).ok_or_else(|| {
-                Error::Input(format!(
-                    "discretization.tet_rule = {}: use 1, 4 or 5",
-                    d.tet_rule()
-                ))
-            })?;
             let (p, w, o) = integration::tet_points(&background, rule_t)?;
             let name = format!(
                 "{} background tets x {} points",
@@ -329,16 +404,6 @@ pub fn build(scene: &Scene, protected: &ProtectedNodes) -> Result<MeshlessBuild>
     let mut keep: Vec<usize> = (0..background.nodes.len()).collect();
     let mut removed_total = 0usize;
     let mut warnings = Vec::new();
-    let tets: Vec<[usize; 4]> = background
-        .cells
-        .chunks_exact(4)
-        .map(|c| [c[0], c[1], c[2], c[3]])
-        .collect();
-    let full = Support::new(
-        background.nodes.clone(),
-        rule,
-        (!tets.is_empty()).then_some(tets.as_slice()),
-    )?;
     for _round in 0..4 {
         let nodes: Vec<Vector3<f64>> = keep.iter().map(|&i| background.nodes[i]).collect();
         let support = full.subset(&keep)?;
@@ -373,6 +438,8 @@ pub fn build(scene: &Scene, protected: &ProtectedNodes) -> Result<MeshlessBuild>
                 cloud: cloud_name,
                 integration: integration_name,
                 warnings,
+                adaptive: adaptive_info,
+                point_level,
             });
         }
         let guarded = protected(&nodes)?;

@@ -57,7 +57,7 @@ impl TetRule {
     }
 
     /// Barycentric coordinates and weight fractions (of the tet volume) of the rule.
-    fn table(self) -> &'static [([f64; 4], f64)] {
+    pub(crate) fn table(self) -> &'static [([f64; 4], f64)] {
         const A: f64 = 0.585_410_196_624_968_5;
         const B: f64 = 0.138_196_601_125_010_5;
         const Q: f64 = 0.25;
@@ -93,9 +93,30 @@ impl TetRule {
 /// non-positive volume ([`Error::InvalidElement`] naming the tet).
 #[allow(clippy::type_complexity)] // the tuple is the documented API
 pub fn tet_points(mesh: &Mesh, rule: TetRule) -> Result<(Vec<Vector3<f64>>, Vec<f64>, Vec<usize>)> {
+    let tets = checked_tets(mesh, "tetrahedral integration points")?;
+    let n = tets.len() * rule.points();
+    let mut pos = Vec::with_capacity(n);
+    let mut w = Vec::with_capacity(n);
+    let mut owner = Vec::with_capacity(n);
+    for (e, (x, volume)) in tets.iter().enumerate() {
+        for (bary, frac) in rule.table() {
+            pos.push(x[0] * bary[0] + x[1] * bary[1] + x[2] * bary[2] + x[3] * bary[3]);
+            w.push(frac * volume);
+            owner.push(e);
+        }
+    }
+    Ok((pos, w, owner))
+}
+
+/// The vertices (m) and volume (m^3) of every tet of `mesh`, for `what` (named in errors).
+///
+/// Errors when the mesh is not a Tet4 mesh, a cell refers to a missing node, or a tet has
+/// non-positive volume ([`Error::InvalidElement`] naming the tet).
+#[allow(clippy::type_complexity)] // vertices with their volume
+pub(crate) fn checked_tets(mesh: &Mesh, what: &str) -> Result<Vec<([Vector3<f64>; 4], f64)>> {
     if mesh.shape != ElementShape::Tet4 {
         return Err(Error::Input(format!(
-            "tetrahedral integration points need a Tet4 background mesh, got a {:?} mesh",
+            "{what} need a Tet4 background mesh, got a {:?} mesh",
             mesh.shape
         )));
     }
@@ -105,31 +126,24 @@ pub fn tet_points(mesh: &Mesh, rule: TetRule) -> Result<(Vec<Vector3<f64>>, Vec<
             mesh.cells.len()
         )));
     }
-    let n = mesh.num_cells() * rule.points();
-    let mut pos = Vec::with_capacity(n);
-    let mut w = Vec::with_capacity(n);
-    let mut owner = Vec::with_capacity(n);
-    for e in 0..mesh.num_cells() {
-        let mut x = [Vector3::zeros(); 4];
-        for (xi, &i) in x.iter_mut().zip(mesh.cell(e)) {
-            *xi = *mesh.nodes.get(i).ok_or_else(|| {
-                Error::Input(format!(
-                    "tet {e} refers to node {i}, but the mesh has {} nodes",
-                    mesh.nodes.len()
-                ))
-            })?;
-        }
-        let volume = tet_signed_volume(&x[0], &x[1], &x[2], &x[3]);
-        if !(volume > 0.0) {
-            return Err(Error::InvalidElement { element: e, volume });
-        }
-        for (bary, frac) in rule.table() {
-            pos.push(x[0] * bary[0] + x[1] * bary[1] + x[2] * bary[2] + x[3] * bary[3]);
-            w.push(frac * volume);
-            owner.push(e);
-        }
-    }
-    Ok((pos, w, owner))
+    (0..mesh.num_cells())
+        .map(|e| {
+            let mut x = [Vector3::zeros(); 4];
+            for (xi, &i) in x.iter_mut().zip(mesh.cell(e)) {
+                *xi = *mesh.nodes.get(i).ok_or_else(|| {
+                    Error::Input(format!(
+                        "tet {e} refers to node {i}, but the mesh has {} nodes",
+                        mesh.nodes.len()
+                    ))
+                })?;
+            }
+            let volume = tet_signed_volume(&x[0], &x[1], &x[2], &x[3]);
+            if !(volume > 0.0) {
+                return Err(Error::InvalidElement { element: e, volume });
+            }
+            Ok((x, volume))
+        })
+        .collect()
 }
 
 /// Regular background grid that does not conform to the geometry (Horton et al. 2010 sect.

@@ -5,6 +5,7 @@
 //! node ids, dphi/dX, weight), so the force kernel, mass lumping, stable step and integrator
 //! serve it unchanged.
 
+pub mod adaptive;
 pub mod cloud;
 pub mod discretize;
 pub mod essential;
