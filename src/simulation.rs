@@ -994,23 +994,31 @@ fn basis_long(scene: &Scene) -> String {
 /// One meshless VTU frame: the background vertices as points with the interpolated
 /// displacement, and the background tets as cells carrying the mean stress, von Mises stress
 /// and J of their integration points (one vertex cell per point when there are no tets).
-/// The integration points of a meshless discretization as VTK vertices with their weight
-/// (m^3), refinement level (adaptive integration) and background tet, for inspection.
-fn write_integration_points(path: &Path, m: &MeshlessBuild, format: VtuFormat) -> Result<()> {
-    let n = m.positions.len();
+/// Integration points as VTK vertices with their weight (m^3), refinement level (adaptive
+/// integration) and background tet (-1 for none), for inspection.
+fn write_integration_points(
+    path: &Path,
+    positions: &[Vector3<f64>],
+    weights: &[f64],
+    levels: &[u8],
+    owner: &[usize],
+    format: VtuFormat,
+) -> Result<()> {
+    let n = positions.len();
     let conn: Vec<usize> = (0..n).collect();
     let offsets: Vec<usize> = (1..=n).collect();
     let types = vec![1u8; n];
     let level: Vec<f64> = (0..n)
-        .map(|p| m.point_level.get(p).map_or(0.0, |&l| l as f64))
+        .map(|p| levels.get(p).map_or(0.0, |&l| l as f64))
         .collect();
-    let owner: Vec<f64> = m
-        .owner
-        .iter()
-        .map(|&e| if e == usize::MAX { -1.0 } else { e as f64 })
+    let owner: Vec<f64> = (0..n)
+        .map(|p| match owner.get(p) {
+            Some(&e) if e != usize::MAX => e as f64,
+            _ => -1.0,
+        })
         .collect();
     let piece = vtu::Piece {
-        points: &m.positions,
+        points: positions,
         connectivity: &conn,
         offsets: &offsets,
         types: &types,
@@ -1018,7 +1026,7 @@ fn write_integration_points(path: &Path, m: &MeshlessBuild, format: VtuFormat) -
             DataArray {
                 name: "weight_m3",
                 components: 1,
-                values: &m.points.weights,
+                values: &weights[..n.min(weights.len())],
             },
             DataArray {
                 name: "level",
@@ -1291,10 +1299,35 @@ pub fn write_outputs(
         series.push((*t, file));
     }
     vtu::write_pvd(&dir.join(format!("{name}.pvd")), &series)?;
+    let points_file = dir.join(format!("{name}_integration_points.vtu"));
     if let Some(m) = prep.meshless.as_ref().filter(|m| m.adaptive.is_some()) {
         write_integration_points(
-            &dir.join(format!("{name}_integration_points.vtu")),
-            m,
+            &points_file,
+            &m.positions,
+            &m.points.weights,
+            &m.point_level,
+            &m.owner,
+            format,
+        )?;
+    }
+    if let Some((c, (pos, levels))) = prep
+        .coupled
+        .as_ref()
+        .and_then(|c| c.adaptive_points.as_ref().map(|a| (c, a)))
+    {
+        // The interior's points are the last ones; their owners are offset by the FE cells.
+        let first = c.points.len() - pos.len();
+        let fe_cells = c.fe_mesh.num_cells();
+        let owner: Vec<usize> = c.owner[first..]
+            .iter()
+            .map(|&e| e.saturating_sub(fe_cells))
+            .collect();
+        write_integration_points(
+            &points_file,
+            pos,
+            &c.points.weights[first..],
+            levels,
+            &owner,
             format,
         )?;
     }

@@ -188,14 +188,30 @@ fn coupled_interior_refines_adaptively() {
         "discretization.integration=adaptive",
         "discretization.tolerance=0.001",
     ]);
-    let adaptive = prepare(&scene("cube-compression", &o)).unwrap();
-    let (cp, ca) = (plain.coupled.unwrap(), adaptive.coupled.unwrap());
+    let sc = scene("cube-compression", &o);
+    let mut adaptive = prepare(&sc).unwrap();
+    let (cp, ca) = (
+        plain.coupled.as_ref().unwrap(),
+        adaptive.coupled.as_ref().unwrap(),
+    );
     let info = ca.adaptive.clone().expect("adaptive report");
     assert_eq!(info.points_before, cp.meshless_points);
     assert_eq!(info.points_after, ca.meshless_points);
     assert!(info.points_after > info.points_before, "{info:?}");
     let w = |p: &hytled::quadrature::QuadraturePoints| p.weights.iter().sum::<f64>();
     assert!((w(&ca.points) - w(&cp.points)).abs() < 1e-12 * w(&cp.points));
+    // The summary's text and the interior points' VTU.
+    let out = solver::run(&mut adaptive.model, &settings(&sc, false)).unwrap();
+    let sum = simulation::summarize(&sc, &adaptive, &out, 0.0);
+    assert!(
+        sum.table().contains("interior points  adaptive"),
+        "{}",
+        sum.table()
+    );
+    let dir = std::env::temp_dir().join("hytled-adaptive-coupled-vtu");
+    simulation::write_outputs(&dir, &sc, &mut adaptive, &out, &sum, Default::default()).unwrap();
+    let vtu = std::fs::read_to_string(dir.join("cube-compression_integration_points.vtu")).unwrap();
+    assert!(vtu.contains(&format!("NumberOfPoints=\"{}\"", info.points_after)));
 }
 
 #[test]

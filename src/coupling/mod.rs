@@ -77,6 +77,9 @@ pub struct CoupledBuild {
     pub warnings: Vec<String>,
     /// What adaptive integration of the interior did (None without it).
     pub adaptive: Option<crate::report::AdaptiveInfo>,
+    /// Adaptive integration: the interior points' positions (m) and refinement levels, in the
+    /// order of the last `meshless_points` quadrature points.
+    pub adaptive_points: Option<(Vec<Vector3<f64>>, Vec<u8>)>,
 }
 
 /// Shape-function values at a point: global node ids and phi.
@@ -425,6 +428,7 @@ fn assemble(
         .collect::<Result<_>>()?;
 
     let mut adaptive_info = None;
+    let mut adaptive_points = None;
     // Interior: MLS at the background-tet points.
     // Interior hexahedra: 2x2x2 Gauss points; interior tets: the tet rule.
     let (pos, w, tet_owner) = if interior.shape == ElementShape::Hex8 {
@@ -460,6 +464,7 @@ fn assemble(
                 )
                 .map_err(bad_tet)?;
                 adaptive_info = Some(info);
+                adaptive_points = Some((pts.positions.clone(), pts.level));
                 (pts.positions, pts.weights, pts.owner)
             }
             None => {
@@ -543,5 +548,6 @@ fn assemble(
         mls: s.mls,
         warnings,
         adaptive: adaptive_info,
+        adaptive_points,
     })
 }
