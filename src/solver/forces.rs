@@ -4,6 +4,11 @@
 //!
 //! Assembly is gather-style: each point writes only its own slots, then each node sums its
 //! slots in a fixed order, so forces are bitwise identical for any number of threads.
+//!
+//! Runs of four points of one kind (hexahedra, standard 8- and 4-node points) are evaluated
+//! together with the points in the innermost index (SIMD lanes; AVX2 where the CPU has it),
+//! which gives each point exactly the operations it gets alone: the forces do not depend on
+//! the blocking or the instruction set either.
 
 use nalgebra::{Matrix3, Vector3};
 use rayon::prelude::*;
@@ -168,7 +173,7 @@ fn work_items(qp: &QuadraturePoints, blocks: bool) -> (Vec<Item>, Lanes) {
             && p + LANES <= n
             && modes[p..p + LANES].iter().all(|&x| x == m);
         let count = if block { LANES } else { 1 };
-        let lane = lanes.data.len() as u32;
+        let lane = u32::try_from(lanes.data.len()).expect("lane data beyond u32 entries");
         if block {
             let a0 = qp.offsets[p];
             let nn = qp.offsets[p + 1] - a0;
