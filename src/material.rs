@@ -204,6 +204,7 @@ impl Material for NeoHookean {
 
     /// The lane form of [`first_pk_stress`](Material::first_pk_stress) above, same formula.
     #[inline(always)]
+    #[allow(clippy::needless_range_loop)] // index loops over lanes are what vectorizes
     fn first_pk_stress_lanes<const L: usize>(
         &self,
         f: &[[f64; L]; 9],

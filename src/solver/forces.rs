@@ -518,6 +518,7 @@ impl<M: Material> Forces<M> {
     /// # Safety
     /// The points' slots belong to them alone, and every node id is below `u.len()`.
     #[inline(always)]
+    #[allow(clippy::needless_range_loop)] // index loops over lanes are what vectorizes
     unsafe fn lanes<const N: usize, const L: usize, const HG: bool>(
         &self,
         qp: &QuadraturePoints,
@@ -533,7 +534,9 @@ impl<M: Material> Forces<M> {
         // point (L = 1) reads its own slots, which are already in that order.
         let mut own_d = [[[0.0; L]; 3]; N];
         let mut own_g = [[[0.0; L]; 8]; 4];
-        let (dl, gl): (&[[[f64; L]; 3]; N], &[[[f64; L]; 8]; 4]) = if L == LANES {
+        type Dphi<const N: usize, const L: usize> = [[[f64; L]; 3]; N];
+        type HourglassG<const L: usize> = [[[f64; L]; 8]; 4];
+        let (dl, gl): (&Dphi<N, L>, &HourglassG<L>) = if L == LANES {
             let base = self.lanes.data.as_ptr().add(lane as usize) as *const f64;
             // G follows dphi only in hexahedron blocks; other blocks never form its reference.
             let g = if HG {
@@ -798,6 +801,7 @@ mod tests {
     /// hexahedra), with S from `pk2_stress` and F from nalgebra, and the three evaluation
     /// orders against each other bitwise.
     #[test]
+    #[allow(clippy::needless_range_loop)] // p indexes the points' J, slots and kinds together
     fn lane_blocks_match_single_points_bitwise_and_the_reference_formula() {
         let mat = NeoHookean::from_young_poisson(3000.0, 0.49, 1000.0);
         let hex = box_hex(Vector3::zeros(), Vector3::new(0.1, 0.07, 0.05), [5, 3, 3]).unwrap();
@@ -850,7 +854,7 @@ mod tests {
                 "{kind:?}: relative force difference {worst:e}"
             );
             // 45 hexahedra and 54 tetrahedra: full blocks and single points both run.
-            assert!(qp.len() % LANES != 0 && qp.len() > LANES);
+            assert!(!qp.len().is_multiple_of(LANES) && qp.len() > LANES);
         }
     }
 }
