@@ -235,3 +235,24 @@ fn bad_adaptive_settings_are_scene_errors() {
         assert!(e.contains(key), "{set}: {e}");
     }
 }
+
+/// A hexahedral coupled interior keeps its Gauss points and says so.
+#[test]
+fn adaptive_on_a_hexahedral_coupled_interior_is_a_warning() {
+    let p = prepare(&scene(
+        "cube-compression",
+        &[
+            "discretization.method=coupled",
+            "discretization.element=hex8",
+            "discretization.integration=adaptive",
+        ],
+    ))
+    .unwrap();
+    let c = p.coupled.unwrap();
+    assert!(c.adaptive.is_none());
+    assert!(
+        c.warnings.iter().any(|w| w.contains("hexahedral")),
+        "{:?}",
+        c.warnings
+    );
+}

@@ -431,6 +431,14 @@ fn assemble(
     let mut adaptive_points = None;
     // Interior: MLS at the background-tet points.
     // Interior hexahedra: 2x2x2 Gauss points; interior tets: the tet rule.
+    if interior.shape == ElementShape::Hex8 && s.adaptive.is_some() {
+        warnings.push(
+            "integration = 'adaptive' refines background tetrahedra; this coupled interior is \
+             hexahedral and keeps its 2x2x2 Gauss points (use element = 'tet4' or 'tet4-anp' \
+             for an adaptive interior)"
+                .into(),
+        );
+    }
     let (pos, w, tet_owner) = if interior.shape == ElementShape::Hex8 {
         let g = gauss(ElementShape::Hex8);
         let mut out = (Vec::new(), Vec::new(), Vec::new());
