@@ -588,14 +588,7 @@ fn prepare_coupled(scene: &Scene) -> Result<Prepared> {
         rule: discretize::support_rule(scene),
         interface_scale: d.interface_scale,
         mean_dilatation: d.mean_dilatation,
-        tet_rule: crate::meshless::integration::TetRule::from_points(d.tet_rule()).ok_or_else(
-            || {
-                Error::Input(format!(
-                    "discretization.tet_rule = {}: use 1, 4 or 5",
-                    d.tet_rule()
-                ))
-            },
-        )?,
+        tet_rule: discretize::tet_rule(scene)?,
         adaptive: if d.integration == crate::scene::IntegrationKind::Adaptive {
             Some(discretize::adaptive_settings(scene)?)
         } else {
@@ -994,6 +987,12 @@ fn basis_long(scene: &Scene) -> String {
 /// One meshless VTU frame: the background vertices as points with the interpolated
 /// displacement, and the background tets as cells carrying the mean stress, von Mises stress
 /// and J of their integration points (one vertex cell per point when there are no tets).
+/// VTU cells making each of `n` points a VTK vertex (type 1), so ParaView draws them:
+/// (connectivity, offsets, types).
+fn vertex_cells(n: usize) -> (Vec<usize>, Vec<usize>, Vec<u8>) {
+    ((0..n).collect(), (1..=n).collect(), vec![1u8; n])
+}
+
 /// Integration points as VTK vertices with their weight (m^3), refinement level (adaptive
 /// integration) and background tet (-1 for none), for inspection.
 fn write_integration_points(
@@ -1005,9 +1004,7 @@ fn write_integration_points(
     format: VtuFormat,
 ) -> Result<()> {
     let n = positions.len();
-    let conn: Vec<usize> = (0..n).collect();
-    let offsets: Vec<usize> = (1..=n).collect();
-    let types = vec![1u8; n];
+    let (conn, offsets, types) = vertex_cells(n);
     let level: Vec<f64> = (0..n)
         .map(|p| levels.get(p).map_or(0.0, |&l| l as f64))
         .collect();
@@ -1026,7 +1023,7 @@ fn write_integration_points(
             DataArray {
                 name: "weight_m3",
                 components: 1,
-                values: &weights[..n.min(weights.len())],
+                values: weights,
             },
             DataArray {
                 name: "level",
@@ -1055,10 +1052,7 @@ fn write_meshless_frame(
 ) -> Result<()> {
     let ncell = types.len();
     if ncell == 0 {
-        let n = points.len();
-        let conn: Vec<usize> = (0..n).collect();
-        let offsets: Vec<usize> = (1..=n).collect();
-        let types = vec![1u8; n];
+        let (conn, offsets, types) = vertex_cells(points.len());
         let piece = vtu::Piece {
             points,
             connectivity: &conn,

@@ -295,19 +295,20 @@ pub fn delaunay(_nodes: &[Vector3<f64>]) -> Result<Vec<usize>> {
 /// Given the field nodes, the ones that carry a boundary condition or a probe.
 pub type ProtectedNodes<'a> = dyn Fn(&[Vector3<f64>]) -> Result<Vec<usize>> + 'a;
 
+/// The scene's rule per background tet (`tet_rule`: 1, 4 or 5 points).
+pub fn tet_rule(scene: &Scene) -> Result<TetRule> {
+    let n = scene.discretization.tet_rule();
+    TetRule::from_points(n)
+        .ok_or_else(|| Error::Input(format!("discretization.tet_rule = {n}: use 1, 4 or 5")))
+}
+
 /// The scene's adaptive-integration settings: `tolerance`, `tet_rule` (the base rule),
 /// `subdivision`, `max_level`.
 pub fn adaptive_settings(scene: &Scene) -> Result<AdaptiveSettings> {
     let d = &scene.discretization;
-    let rule = TetRule::from_points(d.tet_rule()).ok_or_else(|| {
-        Error::Input(format!(
-            "discretization.tet_rule = {}: use 1, 4 or 5",
-            d.tet_rule()
-        ))
-    })?;
     Ok(AdaptiveSettings {
         tolerance: d.tolerance,
-        rule,
+        rule: tet_rule(scene)?,
         subdivision: d.subdivision,
         max_level: d.max_level,
     })
@@ -358,12 +359,6 @@ pub fn build(scene: &Scene, protected: &ProtectedNodes) -> Result<MeshlessBuild>
         rule,
         (!tets.is_empty()).then_some(tets.as_slice()),
     )?;
-    let rule_t = TetRule::from_points(d.tet_rule()).ok_or_else(|| {
-        Error::Input(format!(
-            "discretization.tet_rule = {}: use 1, 4 or 5",
-            d.tet_rule()
-        ))
-    })?;
     let mut adaptive_info = None;
     let mut point_level = Vec::new();
     let (positions, weights, owner, integration_name) = match d.integration {
@@ -380,7 +375,7 @@ pub fn build(scene: &Scene, protected: &ProtectedNodes) -> Result<MeshlessBuild>
             (a.positions, a.weights, a.owner, name)
         }
         IntegrationKind::Tets => {
-            let (p, w, o) = integration::tet_points(&background, rule_t)?;
+            let (p, w, o) = integration::tet_points(&background, tet_rule(scene)?)?;
             let name = format!(
                 "{} background tets x {} points",
                 background.num_cells(),

@@ -72,16 +72,8 @@ struct Item {
     first: u32,
     count: u8,
     mode: Mode,
-    /// Blocks: first entry of the block's lane-ordered data in `Lanes::data`.
+    /// Blocks: first entry of the block's data in `Forces::lane_data`.
     lane: u32,
-}
-
-/// Lane-ordered copies of the blocks' constant data, so the kernel reads them as vectors:
-/// per block dphi as [k][c][lane] (N x 3 entries) and, for hexahedra, G as [m][r][lane]
-/// (4 x 8 entries), then the weights [lane].
-#[derive(Debug, Default)]
-struct Lanes {
-    data: Vec<[f64; LANES]>,
 }
 
 /// Deformation gradient F = I + sum_a u_a (x) dphi_a at one point.
@@ -139,7 +131,10 @@ pub struct Forces<M: Material> {
     min_j: (f64, usize),
     /// The points in evaluation order, grouped into lane blocks where possible.
     items: Vec<Item>,
-    lanes: Lanes,
+    /// Lane-ordered copies of the blocks' constant data, so the kernel reads them as vectors:
+    /// per block dphi as [k][c][lane] (N x 3 entries), then for hexahedra G as [m][r][lane]
+    /// (4 x 8 entries).
+    lane_data: Vec<[f64; LANES]>,
     /// The CPU has AVX2: blocks run through [`Self::item_avx2`].
     simd: bool,
 }
@@ -156,7 +151,7 @@ fn point_mode(qp: &QuadraturePoints, p: usize) -> Mode {
 
 /// Work items covering every point once in order: `LANES` consecutive points of one lane mode
 /// become a block, the rest single points.
-fn work_items(qp: &QuadraturePoints, blocks: bool) -> (Vec<Item>, Lanes) {
+fn work_items(qp: &QuadraturePoints, blocks: bool) -> (Vec<Item>, Vec<[f64; LANES]>) {
     let n = qp.len();
     assert!(
         n < u32::MAX as usize,
@@ -164,7 +159,7 @@ fn work_items(qp: &QuadraturePoints, blocks: bool) -> (Vec<Item>, Lanes) {
     );
     let modes: Vec<Mode> = (0..n).map(|p| point_mode(qp, p)).collect();
     let mut items = Vec::with_capacity(n / LANES + 1);
-    let mut lanes = Lanes::default();
+    let mut lanes = Vec::new();
     let mut p = 0;
     while p < n {
         let m = modes[p];
@@ -173,15 +168,13 @@ fn work_items(qp: &QuadraturePoints, blocks: bool) -> (Vec<Item>, Lanes) {
             && p + LANES <= n
             && modes[p..p + LANES].iter().all(|&x| x == m);
         let count = if block { LANES } else { 1 };
-        let lane = u32::try_from(lanes.data.len()).expect("lane data beyond u32 entries");
+        let lane = u32::try_from(lanes.len()).expect("lane data beyond u32 entries");
         if block {
             let a0 = qp.offsets[p];
             let nn = qp.offsets[p + 1] - a0;
             for k in 0..nn {
                 for c in 0..3 {
-                    lanes
-                        .data
-                        .push(std::array::from_fn(|l| qp.dphi[a0 + l * nn + k][c]));
+                    lanes.push(std::array::from_fn(|l| qp.dphi[a0 + l * nn + k][c]));
                 }
             }
             if m == Mode::Hourglass8 {
@@ -193,7 +186,7 @@ fn work_items(qp: &QuadraturePoints, blocks: bool) -> (Vec<Item>, Lanes) {
                     .collect();
                 for mm in 0..4 {
                     for r in 0..8 {
-                        lanes.data.push(std::array::from_fn(|l| g[l][8 * mm + r]));
+                        lanes.push(std::array::from_fn(|l| g[l][8 * mm + r]));
                     }
                 }
             }
@@ -246,7 +239,7 @@ impl<M: Material> Forces<M> {
                 *iw = if w > 0.0 { 1.0 / w } else { 0.0 };
             }
         }
-        let (items, lanes) = work_items(qp, true);
+        let (items, lane_data) = work_items(qp, true);
         Forces {
             material,
             slot_forces: vec![Vector3::zeros(); qp.nodes.len()],
@@ -259,7 +252,7 @@ impl<M: Material> Forces<M> {
             num_nodes,
             min_j: (f64::INFINITY, usize::MAX),
             items,
-            lanes,
+            lane_data,
             simd: simd_available(),
         }
     }
@@ -273,7 +266,7 @@ impl<M: Material> Forces<M> {
             + size_of_val(self.node_anp_inv_weight.as_slice())
             + size_of_val(self.group_j.as_slice())
             + size_of_val(self.energy_scratch.as_slice())
-            + size_of_val(self.lanes.data.as_slice())
+            + size_of_val(self.lane_data.as_slice())
             + size_of_val(self.items.as_slice())
     }
 
@@ -484,8 +477,9 @@ impl<M: Material> Forces<M> {
         acc
     }
 
-    /// Point with exactly N support nodes (hexahedra, tetrahedra, nearest-8 MLS): the loops
-    /// unroll and the slot slices are checked once. Returns the J used for the stress.
+    /// Point with exactly N support nodes that the lane kernel does not take (ANP tetrahedra,
+    /// 8-node mean-dilatation points): the loops unroll and the slot slices are checked once.
+    /// Returns the J used for the stress.
     ///
     /// # Safety
     /// Slots a..a+N belong to point p alone, and every node id is below `u.len()`.
@@ -537,7 +531,7 @@ impl<M: Material> Forces<M> {
         type Dphi<const N: usize, const L: usize> = [[[f64; L]; 3]; N];
         type HourglassG<const L: usize> = [[[f64; L]; 8]; 4];
         let (dl, gl): (&Dphi<N, L>, &HourglassG<L>) = if L == LANES {
-            let base = self.lanes.data.as_ptr().add(lane as usize) as *const f64;
+            let base = self.lane_data.as_ptr().add(lane as usize) as *const f64;
             // G follows dphi only in hexahedron blocks; other blocks never form its reference.
             let g = if HG {
                 &*(base.add(N * 3 * L) as *const [[[f64; L]; 8]; 4])
@@ -789,7 +783,7 @@ mod tests {
         let mut out = Vec::new();
         for (blocks, simd) in [(true, simd_available()), (true, false), (false, false)] {
             let mut f = Forces::new(mat, qp, &slots, n);
-            (f.items, f.lanes) = work_items(qp, blocks);
+            (f.items, f.lane_data) = work_items(qp, blocks);
             f.simd = simd;
             f.compute_slots(qp, &slots, u);
             out.push((f.slot_forces.clone(), f.point_j.clone()));
