@@ -1220,7 +1220,7 @@ pub fn write_outputs(
     let mut series = Vec::new();
     for (k, (t, u)) in out.frames.iter().enumerate() {
         let model = &mut prep.model;
-        let (sig, vm, jac) = model.forces.stress_fields(&model.points, &model.slots, u);
+        let (sig, vm, jac) = model.stress_fields(u);
         let file = format!("{name}_{k:04}.vtu");
         let path = dir.join(&file);
         let cells: Option<(&[Vector3<f64>], (Vec<usize>, Vec<usize>, Vec<u8>), &[usize])> =

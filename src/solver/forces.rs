@@ -2,8 +2,10 @@
 //! (Miller et al. 2007): F = I + sum_a u_a (x) dphi_a, S = S(F), f_a = w F S dphi_a, plus the
 //! hourglass force HG u for one-point hexahedra and the averaged pressure of ANP tetrahedra.
 //!
-//! Assembly is gather-style: each point writes only its own slots, then each node sums its
-//! slots in a fixed order, so forces are bitwise identical for any number of threads.
+//! Assembly is chunked (see [`super::chunks`]): the points are cut once into chunks of nearby
+//! points; each chunk sums its points' forces, point by point, into a buffer of its own, and
+//! each node then sums its entries over the chunks in chunk order. The partition does not
+//! depend on the thread count, so forces are bitwise identical for any number of threads.
 //!
 //! Runs of four points of one kind (hexahedra, standard 8- and 4-node points) are evaluated
 //! together with the points in the innermost index (SIMD lanes; AVX2 where the CPU has it),
@@ -13,6 +15,7 @@
 use nalgebra::{Matrix3, Vector3};
 use rayon::prelude::*;
 
+use super::chunks::{self, Buffers};
 use crate::material::{inv_cbrt, Material};
 use crate::quadrature::{NodeSlots, PointKind, QuadraturePoints};
 
@@ -30,8 +33,16 @@ impl<T> SharedMut<T> {
     }
 }
 
-/// Points per rayon task: large enough to amortise scheduling, small enough to balance.
+/// Points per rayon task in the per-point and per-node loops outside the force chunks.
 const CHUNK: usize = 256;
+
+/// Force chunks hold about 1/`CHUNKS` of the slots, but at least `MIN_CHUNK_SLOTS` (so that a
+/// chunk's work dwarfs its scheduling and the nodes it shares with other chunks) and at most
+/// `MAX_CHUNK_SLOTS` (so that its buffer, about one entry per 20-40 slots, stays in L1/L2).
+/// Fixed by the discretization alone: the sums do not depend on the thread count.
+const CHUNKS: usize = 64;
+const MIN_CHUNK_SLOTS: usize = 1024;
+const MAX_CHUNK_SLOTS: usize = 16384;
 
 /// Points evaluated together by the lane kernel: four f64 lanes fill an AVX register and two
 /// SSE registers, and four independent points hide the latency of each point's dependent
@@ -76,6 +87,13 @@ struct Item {
     lane: u32,
 }
 
+/// A chunk: its work items `items[first..end]` and its buffer entries `first..end`.
+#[derive(Debug, Clone, Copy)]
+struct Chunk {
+    items: [u32; 2],
+    buf: [u32; 2],
+}
+
 /// Deformation gradient F = I + sum_a u_a (x) dphi_a at one point.
 #[inline(always)]
 pub fn deformation_gradient(qp: &QuadraturePoints, p: usize, u: &[Vector3<f64>]) -> Matrix3<f64> {
@@ -113,7 +131,12 @@ fn hourglass_modes(g: &[f64], u: impl Fn(usize) -> Vector3<f64>) -> [Vector3<f64
 /// Internal-force evaluator with its preallocated scratch space (no allocation per call).
 pub struct Forces<M: Material> {
     pub material: M,
-    slot_forces: Vec<Vector3<f64>>,
+    /// The chunks in evaluation order.
+    chunks: Vec<Chunk>,
+    /// Where each slot adds its force, and each node's entries.
+    buffers: Buffers,
+    /// The chunks' force buffers (one entry per node a chunk reaches), N.
+    chunk_forces: Vec<Vector3<f64>>,
     /// det F at each point from the last evaluation (after ANP averaging for ANP points).
     pub point_j: Vec<f64>,
     /// Volume-weighted average J at nodes (ANP only).
@@ -127,9 +150,12 @@ pub struct Forces<M: Material> {
     energy_scratch: Vec<f64>,
     /// Nodes the evaluator was built for (every slot's node id is below it).
     num_nodes: usize,
+    /// Slots the evaluator was built for.
+    num_slots: usize,
     /// (smallest J, its point) of the last evaluation.
     min_j: (f64, usize),
-    /// The points in evaluation order, grouped into lane blocks where possible.
+    /// The points in evaluation order (chunk by chunk), grouped into lane blocks where
+    /// possible.
     items: Vec<Item>,
     /// Lane-ordered copies of the blocks' constant data, so the kernel reads them as vectors:
     /// per block dphi as [k][c][lane] (N x 3 entries), then for hexahedra G as [m][r][lane]
@@ -149,57 +175,93 @@ fn point_mode(qp: &QuadraturePoints, p: usize) -> Mode {
     }
 }
 
-/// Work items covering every point once in order: `LANES` consecutive points of one lane mode
-/// become a block, the rest single points.
-fn work_items(qp: &QuadraturePoints, blocks: bool) -> (Vec<Item>, Vec<[f64; LANES]>) {
+/// The evaluation plan: work items, lane data, chunks and their buffers.
+struct Plan {
+    items: Vec<Item>,
+    lane_data: Vec<[f64; LANES]>,
+    chunks: Vec<Chunk>,
+    buffers: Buffers,
+}
+
+/// Work items covering every point once in order, cut into chunks of consecutive points
+/// (about `qp.nodes.len() / CHUNKS` slots each). Within a chunk, `LANES` consecutive points of
+/// one lane mode become a block (when `blocks`), the rest single points. The chunks do not
+/// depend on `blocks`, and a chunk adds its points' forces point by point, so neither do the
+/// forces.
+fn plan(qp: &QuadraturePoints, num_nodes: usize, blocks: bool) -> Plan {
     let n = qp.len();
     assert!(
         n < u32::MAX as usize,
         "{n} quadrature points exceed the u32 point ids"
     );
     let modes: Vec<Mode> = (0..n).map(|p| point_mode(qp, p)).collect();
+    let target = (qp.nodes.len() / CHUNKS).clamp(MIN_CHUNK_SLOTS, MAX_CHUNK_SLOTS);
+    let mut ranges: Vec<[u32; 2]> = Vec::new();
+    let mut first = 0;
+    for p in 0..n {
+        if qp.offsets[p + 1] - qp.offsets[first] >= target || p + 1 == n {
+            ranges.push([first as u32, p as u32 + 1]);
+            first = p + 1;
+        }
+    }
     let mut items = Vec::with_capacity(n / LANES + 1);
     let mut lanes = Vec::new();
-    let mut p = 0;
-    while p < n {
-        let m = modes[p];
-        let block = blocks
-            && m != Mode::Other
-            && p + LANES <= n
-            && modes[p..p + LANES].iter().all(|&x| x == m);
-        let count = if block { LANES } else { 1 };
-        let lane = u32::try_from(lanes.len()).expect("lane data beyond u32 entries");
-        if block {
-            let a0 = qp.offsets[p];
-            let nn = qp.offsets[p + 1] - a0;
-            for k in 0..nn {
-                for c in 0..3 {
-                    lanes.push(std::array::from_fn(|l| qp.dphi[a0 + l * nn + k][c]));
+    let mut chunk_items = Vec::with_capacity(ranges.len());
+    for &[c0, c1] in &ranges {
+        let (mut p, end) = (c0 as usize, c1 as usize);
+        let first_item = items.len() as u32;
+        while p < end {
+            let m = modes[p];
+            let block = blocks
+                && m != Mode::Other
+                && p + LANES <= end
+                && modes[p..p + LANES].iter().all(|&x| x == m);
+            let count = if block { LANES } else { 1 };
+            let lane = u32::try_from(lanes.len()).expect("lane data beyond u32 entries");
+            if block {
+                let a0 = qp.offsets[p];
+                let nn = qp.offsets[p + 1] - a0;
+                for k in 0..nn {
+                    for c in 0..3 {
+                        lanes.push(std::array::from_fn(|l| qp.dphi[a0 + l * nn + k][c]));
+                    }
                 }
-            }
-            if m == Mode::Hourglass8 {
-                let g: Vec<&[f64]> = (0..LANES)
-                    .map(|l| match qp.kinds[p + l] {
-                        PointKind::Hourglass(h) => qp.hourglass[h as usize].as_slice(),
-                        _ => unreachable!("hourglass block of other points"),
-                    })
-                    .collect();
-                for mm in 0..4 {
-                    for r in 0..8 {
-                        lanes.push(std::array::from_fn(|l| g[l][8 * mm + r]));
+                if m == Mode::Hourglass8 {
+                    let g: Vec<&[f64]> = (0..LANES)
+                        .map(|l| match qp.kinds[p + l] {
+                            PointKind::Hourglass(h) => qp.hourglass[h as usize].as_slice(),
+                            _ => unreachable!("hourglass block of other points"),
+                        })
+                        .collect();
+                    for mm in 0..4 {
+                        for r in 0..8 {
+                            lanes.push(std::array::from_fn(|l| g[l][8 * mm + r]));
+                        }
                     }
                 }
             }
+            items.push(Item {
+                first: p as u32,
+                count: count as u8,
+                mode: m,
+                lane,
+            });
+            p += count;
         }
-        items.push(Item {
-            first: p as u32,
-            count: count as u8,
-            mode: m,
-            lane,
-        });
-        p += count;
+        chunk_items.push([first_item, items.len() as u32]);
     }
-    (items, lanes)
+    let buffers = chunks::buffers(qp, &ranges, num_nodes);
+    let chunks = chunk_items
+        .into_iter()
+        .zip(&buffers.ranges)
+        .map(|(items, &buf)| Chunk { items, buf })
+        .collect();
+    Plan {
+        items,
+        lane_data: lanes,
+        chunks,
+        buffers,
+    }
 }
 
 /// The smaller J of two (J, point) pairs, the lower point among equals: associative and
@@ -215,7 +277,9 @@ fn min_by_j(a: (f64, usize), b: (f64, usize)) -> (f64, usize) {
 }
 
 impl<M: Material> Forces<M> {
-    /// Prepares scratch space for `qp` on `num_nodes` nodes.
+    /// Prepares the evaluation plan and scratch space for `qp` on `num_nodes` nodes. The
+    /// points are taken in their order, which should be spatially coherent
+    /// ([`Model::new`](super::Model::new) sorts them along a Morton curve).
     ///
     /// # Panics
     /// When a point refers to a node id at or above `num_nodes` (discretizations validate ids
@@ -239,10 +303,12 @@ impl<M: Material> Forces<M> {
                 *iw = if w > 0.0 { 1.0 / w } else { 0.0 };
             }
         }
-        let (items, lane_data) = work_items(qp, true);
+        let plan = plan(qp, num_nodes, true);
         Forces {
             material,
-            slot_forces: vec![Vector3::zeros(); qp.nodes.len()],
+            chunks: plan.chunks,
+            chunk_forces: vec![Vector3::zeros(); plan.buffers.len],
+            buffers: plan.buffers,
             point_j: vec![1.0; qp.len()],
             node_j: vec![1.0; if has_anp { num_nodes } else { 0 }],
             node_anp_inv_weight: inv_w,
@@ -250,17 +316,24 @@ impl<M: Material> Forces<M> {
             group_j: vec![1.0; qp.groups.len()],
             energy_scratch: vec![0.0; qp.len()],
             num_nodes,
+            num_slots: qp.nodes.len(),
             min_j: (f64::INFINITY, usize::MAX),
-            items,
-            lane_data,
+            items: plan.items,
+            lane_data: plan.lane_data,
             simd: simd_available(),
         }
     }
 
-    /// Bytes of the scratch arrays and the lane-ordered copies of the blocks' data.
+    /// Bytes of the scratch arrays, the chunk buffers and maps, and the lane-ordered copies of
+    /// the blocks' data.
     pub fn scratch_bytes(&self) -> usize {
         use std::mem::size_of_val;
-        size_of_val(self.slot_forces.as_slice())
+        size_of_val(self.chunk_forces.as_slice())
+            + size_of_val(self.chunks.as_slice())
+            + size_of_val(self.buffers.slot_entry.as_slice())
+            + size_of_val(self.buffers.ranges.as_slice())
+            + size_of_val(self.buffers.offsets.as_slice())
+            + size_of_val(self.buffers.entries.as_slice())
             + size_of_val(self.point_j.as_slice())
             + size_of_val(self.node_j.as_slice())
             + size_of_val(self.node_anp_inv_weight.as_slice())
@@ -365,81 +438,128 @@ impl<M: Material> Forces<M> {
         u: &[Vector3<f64>],
         out: &mut [Vector3<f64>],
     ) {
-        self.compute_slots(qp, slots, u);
-        self.gather(slots, out);
+        self.compute_points(qp, slots, u);
+        self.gather(out);
     }
 
-    /// Nodal forces from the last [`Self::compute_slots`] into `out`, N. Parallel over nodes.
-    pub fn gather(&self, slots: &NodeSlots, out: &mut [Vector3<f64>]) {
+    /// Nodal forces from the last [`Self::compute_points`] into `out`, N. Parallel over nodes.
+    pub fn gather(&self, out: &mut [Vector3<f64>]) {
         out.par_iter_mut()
             .with_min_len(CHUNK)
             .enumerate()
-            .for_each(|(n, o)| *o = self.node_force(slots, n));
+            .for_each(|(n, o)| *o = self.node_force(n));
     }
 
-    /// The point stage of [`Self::compute`]: every point's share of its nodes' forces (slot
-    /// forces), its J, and the smallest J ([`Self::min_j`]). Nodal forces then follow from
+    /// The point stage of [`Self::compute`]: every chunk's forces on its nodes, every point's
+    /// J, and the smallest J ([`Self::min_j`]). Nodal forces then follow from
     /// [`Self::node_force`], which the integrator fuses with its update.
-    pub fn compute_slots(&mut self, qp: &QuadraturePoints, slots: &NodeSlots, u: &[Vector3<f64>]) {
+    pub fn compute_points(&mut self, qp: &QuadraturePoints, slots: &NodeSlots, u: &[Vector3<f64>]) {
         // The kernel reads u unchecked: every slot's node id is below num_nodes (Self::new).
         assert!(
-            u.len() >= self.num_nodes && qp.nodes.len() == self.slot_forces.len(),
+            u.len() >= self.num_nodes && qp.nodes.len() == self.num_slots,
             "force evaluation on {} nodes and {} slots; built for {} and {}",
             u.len(),
             qp.nodes.len(),
             self.num_nodes,
-            self.slot_forces.len()
+            self.num_slots
         );
         self.averages(qp, slots, u);
-        let sf = SharedMut(self.slot_forces.as_mut_ptr());
+        let cf = SharedMut(self.chunk_forces.as_mut_ptr());
         let pj = SharedMut(self.point_j.as_mut_ptr());
         let this = &*self;
         self.min_j = self
-            .items
+            .chunks
             .par_iter()
-            .with_min_len(CHUNK / LANES)
-            .map(|it| {
-                // SAFETY: an item writes only its own points' slots and J entries, and every
-                // node id is below u.len() (checked above and in Self::new); `simd` was set
-                // only where the CPU has AVX2.
+            .map(|ch| {
+                // SAFETY: a chunk writes only its own buffer entries and its points' J
+                // entries, and every node id is below u.len() (checked above and in
+                // Self::new); `simd` was set only where the CPU has AVX2.
                 unsafe {
                     #[cfg(target_arch = "x86_64")]
                     if this.simd {
-                        return this.item_avx2(qp, it, u, sf, pj);
+                        return this.chunk_avx2(qp, ch, u, cf, pj);
                     }
-                    this.item(qp, it, u, sf, pj)
+                    this.chunk(qp, ch, u, cf, pj)
                 }
             })
             .reduce(|| (f64::INFINITY, usize::MAX), min_by_j);
     }
 
-    /// One work item: its points' slot forces and J's; returns their smallest (J, point).
+    /// One chunk: clears its buffer, then adds its items' forces into it in order; returns
+    /// the smallest (J, point) of its points.
     ///
     /// # Safety
-    /// The item's points' slots belong to it alone, and every node id is below `u.len()`.
+    /// The chunk's buffer entries and points belong to it alone, and every node id is below
+    /// `u.len()`.
+    #[inline(always)]
+    unsafe fn chunk(
+        &self,
+        qp: &QuadraturePoints,
+        ch: &Chunk,
+        u: &[Vector3<f64>],
+        cf: SharedMut<Vector3<f64>>,
+        pj: SharedMut<f64>,
+    ) -> (f64, usize) {
+        for e in ch.buf[0] as usize..ch.buf[1] as usize {
+            *cf.get().add(e) = Vector3::zeros();
+        }
+        let mut best = (f64::INFINITY, usize::MAX);
+        for it in self
+            .items
+            .get_unchecked(ch.items[0] as usize..ch.items[1] as usize)
+        {
+            best = min_by_j(best, self.item(qp, it, u, cf, pj));
+        }
+        best
+    }
+
+    /// [`Self::chunk`] compiled for AVX2, so the four lanes of a block fill one register. Rust
+    /// never fuses a multiply and an add on its own, so every lane computes exactly the
+    /// operations of the SSE2 path: the forces are bitwise the same on either.
+    ///
+    /// # Safety
+    /// As [`Self::chunk`], and the CPU must support AVX2.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    unsafe fn chunk_avx2(
+        &self,
+        qp: &QuadraturePoints,
+        ch: &Chunk,
+        u: &[Vector3<f64>],
+        cf: SharedMut<Vector3<f64>>,
+        pj: SharedMut<f64>,
+    ) -> (f64, usize) {
+        self.chunk(qp, ch, u, cf, pj)
+    }
+
+    /// One work item: adds its points' forces into the chunk buffer and writes their J's;
+    /// returns their smallest (J, point).
+    ///
+    /// # Safety
+    /// As [`Self::chunk`] for the item's chunk.
     #[inline(always)]
     unsafe fn item(
         &self,
         qp: &QuadraturePoints,
         it: &Item,
         u: &[Vector3<f64>],
-        sf: SharedMut<Vector3<f64>>,
+        cf: SharedMut<Vector3<f64>>,
         pj: SharedMut<f64>,
     ) -> (f64, usize) {
         let p = it.first as usize;
         match (it.mode, it.count as usize) {
-            (Mode::Plain8, LANES) => self.lanes::<8, LANES, false>(qp, p, it.lane, u, sf, pj),
-            (Mode::Plain8, _) => self.lanes::<8, 1, false>(qp, p, 0, u, sf, pj),
-            (Mode::Plain4, LANES) => self.lanes::<4, LANES, false>(qp, p, it.lane, u, sf, pj),
-            (Mode::Plain4, _) => self.lanes::<4, 1, false>(qp, p, 0, u, sf, pj),
-            (Mode::Hourglass8, LANES) => self.lanes::<8, LANES, true>(qp, p, it.lane, u, sf, pj),
-            (Mode::Hourglass8, _) => self.lanes::<8, 1, true>(qp, p, 0, u, sf, pj),
+            (Mode::Plain8, LANES) => self.lanes::<8, LANES, false>(qp, p, it.lane, u, cf, pj),
+            (Mode::Plain8, _) => self.lanes::<8, 1, false>(qp, p, 0, u, cf, pj),
+            (Mode::Plain4, LANES) => self.lanes::<4, LANES, false>(qp, p, it.lane, u, cf, pj),
+            (Mode::Plain4, _) => self.lanes::<4, 1, false>(qp, p, 0, u, cf, pj),
+            (Mode::Hourglass8, LANES) => self.lanes::<8, LANES, true>(qp, p, it.lane, u, cf, pj),
+            (Mode::Hourglass8, _) => self.lanes::<8, 1, true>(qp, p, 0, u, cf, pj),
             (Mode::Other, _) => {
                 let (a, b) = (qp.offsets[p], qp.offsets[p + 1]);
                 let j = match b - a {
-                    8 => self.point_fixed::<8>(qp, p, a, u, sf),
-                    4 => self.point_fixed::<4>(qp, p, a, u, sf),
-                    _ => self.point_any(qp, p, a, b, u, sf),
+                    8 => self.point_fixed::<8>(qp, p, a, u, cf),
+                    4 => self.point_fixed::<4>(qp, p, a, u, cf),
+                    _ => self.point_any(qp, p, a, b, u, cf),
                 };
                 *pj.get().add(p) = j;
                 (j, p)
@@ -447,32 +567,14 @@ impl<M: Material> Forces<M> {
         }
     }
 
-    /// [`Self::item`] compiled for AVX2, so the four lanes of a block fill one register. Rust
-    /// never fuses a multiply and an add on its own, so every lane computes exactly the
-    /// operations of the SSE2 path: the forces are bitwise the same on either.
-    ///
-    /// # Safety
-    /// As [`Self::item`], and the CPU must support AVX2.
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx2")]
-    unsafe fn item_avx2(
-        &self,
-        qp: &QuadraturePoints,
-        it: &Item,
-        u: &[Vector3<f64>],
-        sf: SharedMut<Vector3<f64>>,
-        pj: SharedMut<f64>,
-    ) -> (f64, usize) {
-        self.item(qp, it, u, sf, pj)
-    }
-
-    /// Internal force on node `n` from the last [`Self::compute_slots`]: its slots summed in
-    /// a fixed order, N.
+    /// Internal force on node `n` from the last [`Self::compute_points`]: its chunk entries
+    /// summed in chunk order, N.
     #[inline(always)]
-    pub fn node_force(&self, slots: &NodeSlots, n: usize) -> Vector3<f64> {
+    pub fn node_force(&self, n: usize) -> Vector3<f64> {
+        let b = &self.buffers;
         let mut acc = Vector3::zeros();
-        for &s in &slots.slots[slots.range(n)] {
-            acc += self.slot_forces[s as usize];
+        for &e in &b.entries[b.offsets[n] as usize..b.offsets[n + 1] as usize] {
+            acc += self.chunk_forces[e as usize];
         }
         acc
     }
@@ -490,7 +592,7 @@ impl<M: Material> Forces<M> {
         p: usize,
         a: usize,
         u: &[Vector3<f64>],
-        sf: SharedMut<Vector3<f64>>,
+        cf: SharedMut<Vector3<f64>>,
     ) -> f64 {
         let ids = &qp.nodes[a..a + N];
         let d = &qp.dphi[a..a + N];
@@ -499,7 +601,7 @@ impl<M: Material> Forces<M> {
         for k in 0..N {
             f += ul[k] * d[k].transpose();
         }
-        self.stress_to_slots(qp, p, a, f, d, sf)
+        self.stress_to_slots(qp, p, a, f, d, cf)
     }
 
     /// L consecutive points `p0..p0 + L` of N support nodes each (slots contiguous from
@@ -519,7 +621,7 @@ impl<M: Material> Forces<M> {
         p0: usize,
         lane: u32,
         u: &[Vector3<f64>],
-        sf: SharedMut<Vector3<f64>>,
+        cf: SharedMut<Vector3<f64>>,
         pj: SharedMut<f64>,
     ) -> (f64, usize) {
         let a0 = *qp.offsets.get_unchecked(p0);
@@ -605,8 +707,9 @@ impl<M: Material> Forces<M> {
                 }
             }
         }
-        // Slot forces w P dphi_k (+ sum_m G_km q_m for hexahedra).
-        let slots = sf.get().add(a0);
+        // Slot forces w P dphi_k (+ sum_m G_km q_m for hexahedra), added to the chunk buffer
+        // point by point as a single point would.
+        let mut out = [[[0.0; 3]; N]; L];
         for k in 0..N {
             let mut o = [[0.0; L]; 3];
             for r in 0..3 {
@@ -629,7 +732,16 @@ impl<M: Material> Forces<M> {
                 }
             }
             for l in 0..L {
-                *slots.add(l * N + k) = Vector3::new(o[0][l], o[1][l], o[2][l]);
+                out[l][k] = [o[0][l], o[1][l], o[2][l]];
+            }
+        }
+        let entries = self.buffers.slot_entry.as_ptr().add(a0);
+        for (l, ol) in out.iter().enumerate() {
+            for (k, o) in ol.iter().enumerate() {
+                let t = &mut *cf.get().add(*entries.add(l * N + k) as usize);
+                t.x += o[0];
+                t.y += o[1];
+                t.z += o[2];
             }
         }
         let mut best = (f64::INFINITY, usize::MAX);
@@ -652,14 +764,14 @@ impl<M: Material> Forces<M> {
         a: usize,
         b: usize,
         u: &[Vector3<f64>],
-        sf: SharedMut<Vector3<f64>>,
+        cf: SharedMut<Vector3<f64>>,
     ) -> f64 {
         let d = &qp.dphi[a..b];
         let mut f = Matrix3::identity();
         for (&id, dk) in qp.nodes[a..b].iter().zip(d) {
             f += *u.get_unchecked(id as usize) * dk.transpose();
         }
-        self.stress_to_slots(qp, p, a, f, d, sf)
+        self.stress_to_slots(qp, p, a, f, d, cf)
     }
 
     /// From the plain F of point `p` (slots from `a`, derivatives `d`): the stress (ANP /
@@ -676,13 +788,13 @@ impl<M: Material> Forces<M> {
         a: usize,
         f: Matrix3<f64>,
         d: &[Vector3<f64>],
-        sf: SharedMut<Vector3<f64>>,
+        cf: SharedMut<Vector3<f64>>,
     ) -> f64 {
         let (f, j) = self.modified(qp, p, f);
         let pk = self.material.first_pk_stress(&f, j) * qp.weights[p];
-        let out = sf.get().add(a);
-        for (k, dk) in d.iter().enumerate() {
-            *out.add(k) = pk * dk;
+        let entries = &self.buffers.slot_entry[a..a + d.len()];
+        for (dk, &e) in d.iter().zip(entries) {
+            *cf.get().add(e as usize) += pk * dk;
         }
         j
     }
@@ -771,22 +883,24 @@ mod tests {
             .collect()
     }
 
-    /// Slot forces and J's with lane blocks (AVX2 where present), without AVX2, and point by
+    /// Nodal forces and J's with lane blocks (AVX2 where present), without AVX2, and point by
     /// point.
     fn three_ways(
         qp: &QuadraturePoints,
-        n: usize,
+        nodes: &[Vector3<f64>],
         u: &[Vector3<f64>],
     ) -> Vec<(Vec<Vector3<f64>>, Vec<f64>)> {
         let mat = NeoHookean::from_young_poisson(3000.0, 0.49, 1000.0);
-        let slots = NodeSlots::new(qp, n);
+        let slots = NodeSlots::new(qp, nodes.len());
         let mut out = Vec::new();
         for (blocks, simd) in [(true, simd_available()), (true, false), (false, false)] {
-            let mut f = Forces::new(mat, qp, &slots, n);
-            (f.items, f.lane_data) = work_items(qp, blocks);
+            let mut f = Forces::new(mat, qp, &slots, nodes.len());
+            let plan = plan(qp, nodes.len(), blocks);
+            (f.items, f.lane_data, f.chunks) = (plan.items, plan.lane_data, plan.chunks);
             f.simd = simd;
-            f.compute_slots(qp, &slots, u);
-            out.push((f.slot_forces.clone(), f.point_j.clone()));
+            let mut nodal = vec![Vector3::zeros(); nodes.len()];
+            f.compute(qp, &slots, u, &mut nodal);
+            out.push((nodal, f.point_j.clone()));
         }
         out
     }
@@ -810,17 +924,17 @@ mod tests {
                 // Standard 8-node points (the nearest-8 MLS path).
                 qp.kinds.iter_mut().for_each(|k| *k = PointKind::Standard);
             }
-            let n = mesh.nodes.len();
             let u = field(&mesh.nodes);
-            let runs = three_ways(&qp, n, &u);
+            let runs = three_ways(&qp, &mesh.nodes, &u);
             for r in &runs[1..] {
                 assert!(
                     r.0 == runs[0].0 && r.1 == runs[0].1,
                     "{kind:?}: evaluation orders differ"
                 );
             }
-            let (sf, pj) = &runs[0];
-            let mut worst = 0.0f64;
+            let (nodal, pj) = &runs[0];
+            let mut want_nodal = vec![Vector3::zeros(); mesh.nodes.len()];
+            let mut scale = 0.0f64;
             for p in 0..qp.len() {
                 let f = deformation_gradient(&qp, p, &u);
                 let j = f.determinant();
@@ -838,11 +952,16 @@ mod tests {
                         }
                     }
                 }
-                let scale = want.iter().map(|v| v.norm()).fold(0.0, f64::max);
                 for (k, w) in want.iter().enumerate() {
-                    worst = worst.max((sf[r.start + k] - w).norm() / scale);
+                    want_nodal[qp.nodes[r.start + k] as usize] += w;
+                    scale = scale.max(w.norm());
                 }
             }
+            let worst = nodal
+                .iter()
+                .zip(&want_nodal)
+                .map(|(g, w)| (g - w).norm() / scale)
+                .fold(0.0, f64::max);
             assert!(
                 worst < 1e-12,
                 "{kind:?}: relative force difference {worst:e}"

@@ -221,7 +221,10 @@ pub fn stable_step<M: Material>(model: &Model<M>) -> (f64, Critical) {
     if dt_node > dt_point {
         (dt_node, Critical::Node(crit_node))
     } else {
-        (dt_point, Critical::Point(crit_point))
+        (
+            dt_point,
+            Critical::Point(model.point_ids[crit_point] as usize),
+        )
     }
 }
 
@@ -400,7 +403,7 @@ fn run_on_worker<M: Material>(model: &mut Model<M>, s: &Settings) -> Result<RunO
         let t = step as f64 * dt;
         // Point stage only: nodal forces are gathered in the update loop below (one pass over
         // the nodes instead of two), or here on the steps that record them first.
-        model.forces.compute_slots(&model.points, &model.slots, &u);
+        model.forces.compute_points(&model.points, &model.slots, &u);
         let (min_j, p_min) = model.forces.min_j();
         if !(min_j > 0.0) {
             // Where: the centroid of the point's supporting nodes (reference configuration).
@@ -410,8 +413,9 @@ fn run_on_worker<M: Material>(model: &mut Model<M>, s: &Settings) -> Result<RunO
                 .map(|k| model.nodes[model.points.nodes[k] as usize])
                 .sum::<Vector3<f64>>()
                 / sl.len().max(1) as f64;
+            let id = model.point_ids[p_min];
             return Err(Error::Unstable(format!(
-                "integration point {p_min} near ({:.4e}, {:.4e}, {:.4e}) m inverted (J = {min_j:.4}) at step {step}, t = {t:.6} s \
+                "integration point {id} near ({:.4e}, {:.4e}, {:.4e}) m inverted (J = {min_j:.4}) at step {step}, t = {t:.6} s \
                  (dt = {dt:.4e} s, {:.3} x the critical estimate {dt_crit:.4e} s; one-point FE meshes number points as their elements). \
                  The load is too large or fast for this discretization, or the step too large: reduce solver.dt_factor \
                  (large compression shortens the elements below the undeformed estimate), refine, or use a slower load",
@@ -423,7 +427,7 @@ fn run_on_worker<M: Material>(model: &mut Model<M>, s: &Settings) -> Result<RunO
             (dynamic && step == total_steps) || finish || (!dynamic && step >= total_steps);
         let record = step.is_multiple_of(history_every) || at_end;
         if record {
-            model.forces.gather(&model.slots, &mut f);
+            model.forces.gather(&mut f);
             let se = model.forces.strain_energy(&model.points, &model.slots, &u);
             let ke = kinetic(&model.mass, &u, &u_prev, dt);
             if step == 0 {
@@ -475,7 +479,7 @@ fn run_on_worker<M: Material>(model: &mut Model<M>, s: &Settings) -> Result<RunO
             (a, 1.0 + r * r, -r * r)
         };
         // Parallel over nodes; max is order-independent, so the result is thread-count independent.
-        let (mass, forces, slots) = (&model.mass, &model.forces, &model.slots);
+        let (mass, forces) = (&model.mass, &model.forces);
         let (u_cur, u_old) = (&u, &u_prev);
         let (mut max_du, mut max_u) = u_next
             .par_iter_mut()
@@ -484,7 +488,7 @@ fn run_on_worker<M: Material>(model: &mut Model<M>, s: &Settings) -> Result<RunO
             .enumerate()
             .map(|(i, (un, fi))| {
                 if !record {
-                    *fi = forces.node_force(slots, i);
+                    *fi = forces.node_force(i);
                 }
                 let fi = *fi;
                 let inv_m = a / mass[i];

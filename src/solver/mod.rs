@@ -1,8 +1,10 @@
 //! The one explicit integrator shared by every discretization: central differences for dynamics,
 //! adaptive dynamic relaxation for steady state, the stable step, energies and reactions.
 
+pub mod chunks;
 pub mod forces;
 pub mod integrate;
+pub mod order;
 pub mod timestep;
 
 use nalgebra::Vector3;
@@ -35,7 +37,11 @@ pub trait Corrector: Send {
 pub struct Model<M: Material> {
     /// Reference node coordinates, m.
     pub nodes: Vec<Vector3<f64>>,
+    /// The discretization's points in Morton order ([`order::spatial_order`]).
     pub points: QuadraturePoints,
+    /// Per point of `points`: its id in the discretization (element or integration point id,
+    /// as messages and outputs give it).
+    pub point_ids: Vec<u32>,
     pub slots: NodeSlots,
     /// Lumped nodal masses, kg.
     pub mass: Vec<f64>,
@@ -49,7 +55,7 @@ pub struct Model<M: Material> {
 }
 
 impl<M: Material> Model<M> {
-    /// Assembles the model. Masses: each point's mass rho w is split evenly among its support
+    /// Assembles the model; the points are stored in Morton order (see [`order`]). Masses: each point's mass rho w is split evenly among its support
     /// nodes (for FE elements this is the usual element-mass lumping). A node that carries no
     /// mass is an error naming it.
     pub fn new(
@@ -59,6 +65,7 @@ impl<M: Material> Model<M> {
         boundaries: Vec<Boundary>,
     ) -> Result<Self> {
         let n = nodes.len();
+        let (points, point_ids) = order::spatial_order(points, &nodes);
         let slots = NodeSlots::new(&points, n);
         let rho = material.density();
         let mass: Vec<f64> = (0..n)
@@ -84,6 +91,7 @@ impl<M: Material> Model<M> {
         Ok(Model {
             nodes,
             points,
+            point_ids,
             slots,
             mass,
             boundaries,
@@ -133,6 +141,7 @@ impl<M: Material> Model<M> {
             + size_of_val(q.kinds.as_slice())
             + size_of_val(q.hourglass.as_slice())
             + size_of_val(q.groups.as_slice())
+            + size_of_val(self.point_ids.as_slice())
             + size_of_val(self.slots.offsets.as_slice())
             + size_of_val(self.slots.slots.as_slice())
             + size_of_val(self.slots.points.as_slice())
@@ -140,6 +149,21 @@ impl<M: Material> Model<M> {
             + size_of_val(self.nodes.as_slice())
             + self.forces.scratch_bytes()
             + 7 * n * std::mem::size_of::<Vector3<f64>>()
+    }
+
+    /// Per point in the discretization's order (element order for FE meshes): Cauchy stress
+    /// (Pa, row-major 9 values), von Mises stress (Pa) and J at displacements `u` (m).
+    pub fn stress_fields(&mut self, u: &[Vector3<f64>]) -> (Vec<f64>, Vec<f64>, Vec<f64>) {
+        let (sig, vm, jac) = self.forces.stress_fields(&self.points, &self.slots, u);
+        let n = self.points.len();
+        let (mut s, mut v, mut j) = (vec![0.0; 9 * n], vec![0.0; n], vec![0.0; n]);
+        for (q, &p) in self.point_ids.iter().enumerate() {
+            let p = p as usize;
+            s[9 * p..9 * p + 9].copy_from_slice(&sig[9 * q..9 * q + 9]);
+            v[p] = vm[q];
+            j[p] = jac[q];
+        }
+        (s, v, j)
     }
 
     /// Sum of internal nodal forces over each boundary's nodes, N: the force each boundary

@@ -1,0 +1,99 @@
+//! Chunked force assembly: the points (in space-filling-curve order, see [`super::order`]) are
+//! cut, once and for all, into chunks of consecutive, hence nearby, points;
+//! each chunk sums its points' forces into a small buffer of its own with one entry per node it
+//! reaches, and each node then sums its entries over the chunks in chunk order.
+//!
+//! The partition depends on the discretization only, never on the thread count, so the sums
+//! are bitwise the same on any number of threads. Against one force per slot gathered node by
+//! node, the chunk buffers are far smaller (on the 21,218-node brain with 29-node supports,
+//! about one entry per 20 slots), they stay in cache while a chunk runs, and the nodal sums
+//! read a few entries per node instead of every slot in scattered order.
+
+use crate::quadrature::QuadraturePoints;
+
+/// Where each slot's force goes: its node's entry in its chunk's buffer, and per node the
+/// entries to sum, in chunk order.
+#[derive(Debug, Clone, Default)]
+pub struct Buffers {
+    /// Per slot (indexed like `QuadraturePoints::nodes`): the buffer entry it adds into.
+    pub slot_entry: Vec<u32>,
+    /// Per chunk, its buffer's entry range [first, end).
+    pub ranges: Vec<[u32; 2]>,
+    /// Entries in all buffers.
+    pub len: usize,
+    /// Per node n, `entries[offsets[n]..offsets[n + 1]]` are its entries in chunk order.
+    pub offsets: Vec<u32>,
+    pub entries: Vec<u32>,
+}
+
+/// Builds the buffers for chunks of consecutive points (`chunks[c]` = [first, end)), each
+/// node's entry in a chunk numbered by its first appearance there.
+///
+/// # Panics
+/// When the entries exceed u32 ids (about 4e9; the slots would not fit in memory first).
+pub fn buffers(qp: &QuadraturePoints, chunks: &[[u32; 2]], num_nodes: usize) -> Buffers {
+    let mut slot_entry = vec![0u32; qp.nodes.len()];
+    // Per node: the chunk it was last seen in (+1) and its entry there.
+    let mut seen = vec![(0u32, 0u32); num_nodes];
+    let mut owner: Vec<u32> = Vec::new();
+    let mut ranges = Vec::with_capacity(chunks.len());
+    for (c, &[p0, p1]) in chunks.iter().enumerate() {
+        let stamp = u32::try_from(c + 1).expect("chunk count beyond u32");
+        let first = owner.len() as u32;
+        for p in p0 as usize..p1 as usize {
+            for s in qp.slots(p) {
+                let n = qp.nodes[s] as usize;
+                if seen[n].0 != stamp {
+                    let e = u32::try_from(owner.len()).expect("buffer entries beyond u32");
+                    seen[n] = (stamp, e);
+                    owner.push(n as u32);
+                }
+                slot_entry[s] = seen[n].1;
+            }
+        }
+        ranges.push([first, owner.len() as u32]);
+    }
+    // Counting sort of the entries by node keeps them in chunk order within each node.
+    let mut offsets = vec![0u32; num_nodes + 1];
+    for &n in &owner {
+        offsets[n as usize + 1] += 1;
+    }
+    for i in 0..num_nodes {
+        offsets[i + 1] += offsets[i];
+    }
+    let mut fill = offsets.clone();
+    let mut entries = vec![0u32; owner.len()];
+    for (e, &n) in owner.iter().enumerate() {
+        entries[fill[n as usize] as usize] = e as u32;
+        fill[n as usize] += 1;
+    }
+    Buffers {
+        slot_entry,
+        ranges,
+        len: owner.len(),
+        offsets,
+        entries,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::Vector3;
+
+    #[test]
+    fn every_slot_adds_into_its_own_nodes_entry_of_its_chunk() {
+        let mut qp = QuadraturePoints::with_capacity(3, 9);
+        let d = [Vector3::zeros(); 3];
+        qp.push(&[0, 1, 2], &d, 1.0, crate::quadrature::PointKind::Standard);
+        qp.push(&[2, 3, 1], &d, 1.0, crate::quadrature::PointKind::Standard);
+        qp.push(&[3, 4, 0], &d, 1.0, crate::quadrature::PointKind::Standard);
+        let b = buffers(&qp, &[[0, 2], [2, 3]], 5);
+        // Chunk 0 reaches nodes 0, 1, 2, 3; chunk 1 nodes 3, 4, 0.
+        assert_eq!(b.ranges, vec![[0, 4], [4, 7]]);
+        assert_eq!(b.slot_entry, vec![0, 1, 2, 2, 3, 1, 4, 5, 6]);
+        assert_eq!(b.offsets, vec![0, 2, 3, 4, 6, 7]);
+        assert_eq!(b.entries, vec![0, 6, 1, 2, 3, 4, 5]);
+        assert_eq!(b.len, 7);
+    }
+}
