@@ -53,9 +53,22 @@ pub fn buffers(qp: &QuadraturePoints, chunks: &[[u32; 2]], num_nodes: usize) -> 
         }
         ranges.push([first, owner.len() as u32]);
     }
-    // Counting sort of the entries by node keeps them in chunk order within each node.
+    let (offsets, entries) = by_node(&owner, num_nodes);
+    Buffers {
+        slot_entry,
+        ranges,
+        len: owner.len(),
+        offsets,
+        entries,
+    }
+}
+
+/// Entries grouped by node (`owner[e]` = the node of entry e): per node n,
+/// `entries[offsets[n]..offsets[n + 1]]` in increasing entry order (a counting sort, so chunk
+/// order is kept).
+fn by_node(owner: &[u32], num_nodes: usize) -> (Vec<u32>, Vec<u32>) {
     let mut offsets = vec![0u32; num_nodes + 1];
-    for &n in &owner {
+    for &n in owner {
         offsets[n as usize + 1] += 1;
     }
     for i in 0..num_nodes {
@@ -67,13 +80,7 @@ pub fn buffers(qp: &QuadraturePoints, chunks: &[[u32; 2]], num_nodes: usize) -> 
         entries[fill[n as usize] as usize] = e as u32;
         fill[n as usize] += 1;
     }
-    Buffers {
-        slot_entry,
-        ranges,
-        len: owner.len(),
-        offsets,
-        entries,
-    }
+    (offsets, entries)
 }
 
 #[cfg(test)]
