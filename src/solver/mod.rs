@@ -183,3 +183,49 @@ impl<M: Material> Model<M> {
             .collect()
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::fe::{element_points, ElementKind};
+    use crate::geometry::shapes::box_hex;
+    use crate::material::NeoHookean;
+
+    /// The model stores its points in Morton order but reports per-point results under the
+    /// discretization's ids: each element's stress equals that of its own point evaluated in
+    /// the mesh's order, and the masses are those of the unsorted points.
+    #[test]
+    fn sorted_points_report_under_the_discretizations_ids() {
+        let mesh = box_hex(Vector3::zeros(), Vector3::new(0.1, 0.06, 0.04), [5, 3, 2]).unwrap();
+        let mat = NeoHookean::from_young_poisson(3000.0, 0.45, 1000.0);
+        let qp = element_points(&mesh, ElementKind::Hex8, 0.05, 1e5).unwrap();
+        let mut model = Model::new(mesh.nodes.clone(), qp.clone(), mat, Vec::new()).unwrap();
+        assert_ne!(
+            model.point_ids,
+            (0..qp.len() as u32).collect::<Vec<_>>(),
+            "the mesher's order should differ from the Morton order"
+        );
+        // A field whose strain varies from element to element.
+        let u: Vec<Vector3<f64>> = mesh
+            .nodes
+            .iter()
+            .map(|x| Vector3::new(0.3 * x.x * x.x, 0.1 * x.x * x.y, -0.2 * x.z * (x.x + 0.05)))
+            .collect();
+        let (sig, vm, jac) = model.stress_fields(&u);
+        let slots = NodeSlots::new(&qp, mesh.nodes.len());
+        let mut plain = Forces::new(mat, &qp, &slots, mesh.nodes.len());
+        let (sig0, vm0, jac0) = plain.stress_fields(&qp, &slots, &u);
+        assert!(
+            sig == sig0 && vm == vm0 && jac == jac0,
+            "per-point results moved"
+        );
+        let distinct = jac0.windows(2).filter(|w| w[0] != w[1]).count();
+        assert!(
+            distinct > qp.len() / 2,
+            "the test field must tell elements apart"
+        );
+        let m0: f64 = qp.weights.iter().sum::<f64>() * 1000.0;
+        let m: f64 = model.mass.iter().sum();
+        assert!((m - m0).abs() < 1e-12 * m0);
+    }
+}
