@@ -40,7 +40,7 @@ const CHUNK: usize = 256;
 
 /// Force chunks hold about 1/`CHUNKS` of the slots, but at least `MIN_CHUNK_SLOTS` (so that a
 /// chunk's work dwarfs its scheduling and the nodes it shares with other chunks) and at most
-/// `MAX_CHUNK_SLOTS` (so that its buffer, about one entry per 20-40 slots, stays in L1/L2).
+/// `MAX_CHUNK_SLOTS` (so that its buffer, one entry per node it reaches, stays in L1/L2).
 /// Fixed by the discretization alone: the sums do not depend on the thread count.
 const CHUNKS: usize = 64;
 const MIN_CHUNK_SLOTS: usize = 1024;
