@@ -52,12 +52,6 @@ impl Mesh {
 
     /// Axis-aligned bounding box (min, max) of the nodes.
     pub fn bounding_box(&self) -> (Vector3<f64>, Vector3<f64>) {
-        let mut lo = Vector3::repeat(f64::INFINITY);
-        let mut hi = Vector3::repeat(f64::NEG_INFINITY);
-        for p in &self.nodes {
-            lo = lo.inf(p);
-            hi = hi.sup(p);
-        }
-        (lo, hi)
+        super::select::bounds(&self.nodes)
     }
 }

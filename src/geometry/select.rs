@@ -195,7 +195,8 @@ impl Selection {
     }
 }
 
-fn bounds(nodes: &[Vector3<f64>]) -> (Vector3<f64>, Vector3<f64>) {
+/// Axis-aligned bounding box (min, max) of `nodes`, m; (+inf, -inf) when empty.
+pub fn bounds(nodes: &[Vector3<f64>]) -> (Vector3<f64>, Vector3<f64>) {
     let mut lo = Vector3::repeat(f64::INFINITY);
     let mut hi = Vector3::repeat(f64::NEG_INFINITY);
     for p in nodes {

@@ -19,10 +19,9 @@ pub struct Buffers {
     pub slot_entry: Vec<u32>,
     /// Per chunk, its buffer's entry range [first, end).
     pub ranges: Vec<[u32; 2]>,
-    /// Entries in all buffers.
-    pub len: usize,
     /// Per node n, `entries[offsets[n]..offsets[n + 1]]` are its entries in chunk order.
     pub offsets: Vec<u32>,
+    /// Every entry of every buffer once (so `entries.len()` is the buffers' total length).
     pub entries: Vec<u32>,
 }
 
@@ -57,7 +56,6 @@ pub fn buffers(qp: &QuadraturePoints, chunks: &[[u32; 2]], num_nodes: usize) -> 
     Buffers {
         slot_entry,
         ranges,
-        len: owner.len(),
         offsets,
         entries,
     }
@@ -101,6 +99,9 @@ mod tests {
         assert_eq!(b.slot_entry, vec![0, 1, 2, 2, 3, 1, 4, 5, 6]);
         assert_eq!(b.offsets, vec![0, 2, 3, 4, 6, 7]);
         assert_eq!(b.entries, vec![0, 6, 1, 2, 3, 4, 5]);
-        assert_eq!(b.len, 7);
+        assert_eq!(
+            b.ranges.last().map(|r| r[1] as usize),
+            Some(b.entries.len())
+        );
     }
 }

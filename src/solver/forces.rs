@@ -156,8 +156,6 @@ pub struct Forces<M: Material> {
     energy_scratch: Vec<f64>,
     /// Nodes the evaluator was built for (every slot's node id is below it).
     num_nodes: usize,
-    /// Slots the evaluator was built for.
-    num_slots: usize,
     /// (smallest J, its point) of the last evaluation.
     min_j: (f64, usize),
     /// The points in evaluation order (chunk by chunk), grouped into lane blocks where
@@ -312,7 +310,7 @@ impl<M: Material> Forces<M> {
         Forces {
             material,
             chunks: plan.chunks,
-            chunk_forces: vec![Vector3::zeros(); plan.buffers.len],
+            chunk_forces: vec![Vector3::zeros(); plan.buffers.entries.len()],
             buffers: plan.buffers,
             point_j: vec![1.0; qp.len()],
             node_j: vec![1.0; if has_anp { num_nodes } else { 0 }],
@@ -321,7 +319,6 @@ impl<M: Material> Forces<M> {
             group_j: vec![1.0; qp.groups.len()],
             energy_scratch: vec![0.0; qp.len()],
             num_nodes,
-            num_slots: qp.nodes.len(),
             min_j: (f64::INFINITY, usize::MAX),
             items: plan.items,
             lane_data: plan.lane_data,
@@ -461,12 +458,12 @@ impl<M: Material> Forces<M> {
     pub fn compute_points(&mut self, qp: &QuadraturePoints, slots: &NodeSlots, u: &[Vector3<f64>]) {
         // The kernel reads u unchecked: every slot's node id is below num_nodes (Self::new).
         assert!(
-            u.len() >= self.num_nodes && qp.nodes.len() == self.num_slots,
+            u.len() >= self.num_nodes && qp.nodes.len() == self.buffers.slot_entry.len(),
             "force evaluation on {} nodes and {} slots; built for {} and {}",
             u.len(),
             qp.nodes.len(),
             self.num_nodes,
-            self.num_slots
+            self.buffers.slot_entry.len()
         );
         self.averages(qp, slots, u);
         let cf = SharedMut(self.chunk_forces.as_mut_ptr());

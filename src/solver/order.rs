@@ -61,11 +61,7 @@ pub fn spatial_order(qp: QuadraturePoints, nodes: &[Vector3<f64>]) -> (Quadratur
     if nodes.is_empty() {
         return (qp, (0..n as u32).collect());
     }
-    let (mut lo, mut hi) = (nodes[0], nodes[0]);
-    for x in nodes {
-        lo = lo.inf(x);
-        hi = hi.sup(x);
-    }
+    let (lo, hi) = crate::geometry::select::bounds(nodes);
     let size = hi - lo;
     let mut keyed: Vec<(u64, usize)> = units
         .iter()
