@@ -481,7 +481,7 @@ impl<M: Material> Forces<M> {
                     if this.simd {
                         return this.chunk_avx2(qp, ch, u, cf, pj);
                     }
-                    this.chunk(qp, ch, u, cf, pj)
+                    this.chunk::<false>(qp, ch, u, cf, pj)
                 }
             })
             .reduce(|| (f64::INFINITY, usize::MAX), min_by_j);
@@ -494,7 +494,7 @@ impl<M: Material> Forces<M> {
     /// The chunk's buffer entries and points belong to it alone, and every node id is below
     /// `u.len()`.
     #[inline(always)]
-    unsafe fn chunk(
+    unsafe fn chunk<const AVX: bool>(
         &self,
         qp: &QuadraturePoints,
         ch: &Chunk,
@@ -510,7 +510,7 @@ impl<M: Material> Forces<M> {
             .items
             .get_unchecked(ch.items[0] as usize..ch.items[1] as usize)
         {
-            best = min_by_j(best, self.item(qp, it, u, cf, pj));
+            best = min_by_j(best, self.item::<AVX>(qp, it, u, cf, pj));
         }
         best
     }
@@ -531,7 +531,7 @@ impl<M: Material> Forces<M> {
         cf: SharedMut<Vector3<f64>>,
         pj: SharedMut<f64>,
     ) -> (f64, usize) {
-        self.chunk(qp, ch, u, cf, pj)
+        self.chunk::<true>(qp, ch, u, cf, pj)
     }
 
     /// One work item: adds its points' forces into the chunk buffer and writes their J's;
@@ -540,7 +540,7 @@ impl<M: Material> Forces<M> {
     /// # Safety
     /// As [`Self::chunk`] for the item's chunk.
     #[inline(always)]
-    unsafe fn item(
+    unsafe fn item<const AVX: bool>(
         &self,
         qp: &QuadraturePoints,
         it: &Item,
@@ -550,12 +550,14 @@ impl<M: Material> Forces<M> {
     ) -> (f64, usize) {
         let p = it.first as usize;
         match (it.mode, it.count as usize) {
-            (Mode::Plain8, LANES) => self.lanes::<8, LANES, false>(qp, p, it.lane, u, cf, pj),
-            (Mode::Plain8, _) => self.lanes::<8, 1, false>(qp, p, 0, u, cf, pj),
-            (Mode::Plain4, LANES) => self.lanes::<4, LANES, false>(qp, p, it.lane, u, cf, pj),
-            (Mode::Plain4, _) => self.lanes::<4, 1, false>(qp, p, 0, u, cf, pj),
-            (Mode::Hourglass8, LANES) => self.lanes::<8, LANES, true>(qp, p, it.lane, u, cf, pj),
-            (Mode::Hourglass8, _) => self.lanes::<8, 1, true>(qp, p, 0, u, cf, pj),
+            (Mode::Plain8, LANES) => self.lanes::<8, LANES, false, AVX>(qp, p, it.lane, u, cf, pj),
+            (Mode::Plain8, _) => self.lanes::<8, 1, false, AVX>(qp, p, 0, u, cf, pj),
+            (Mode::Plain4, LANES) => self.lanes::<4, LANES, false, AVX>(qp, p, it.lane, u, cf, pj),
+            (Mode::Plain4, _) => self.lanes::<4, 1, false, AVX>(qp, p, 0, u, cf, pj),
+            (Mode::Hourglass8, LANES) => {
+                self.lanes::<8, LANES, true, AVX>(qp, p, it.lane, u, cf, pj)
+            }
+            (Mode::Hourglass8, _) => self.lanes::<8, 1, true, AVX>(qp, p, 0, u, cf, pj),
             (Mode::Other, _) => {
                 let (a, b) = (qp.offsets[p], qp.offsets[p + 1]);
                 let j = match b - a {
@@ -619,7 +621,7 @@ impl<M: Material> Forces<M> {
     /// `u.len()`.
     #[inline(always)]
     #[allow(clippy::needless_range_loop)] // index loops over lanes are what vectorizes
-    unsafe fn lanes<const N: usize, const L: usize, const HG: bool>(
+    unsafe fn lanes<const N: usize, const L: usize, const HG: bool, const AVX: bool>(
         &self,
         qp: &QuadraturePoints,
         p0: usize,
@@ -715,6 +717,20 @@ impl<M: Material> Forces<M> {
         // slot by slot, the four points of a slot in turn (measured faster than point by point
         // through a transposed copy: hex8 cylinder 0.46 -> 0.44 ms per step on one thread).
         let entries = self.buffers.slot_entry.as_ptr().add(a0);
+        #[cfg(target_arch = "x86_64")]
+        if AVX && L == LANES {
+            // SAFETY: AVX is set only under chunk_avx2 (the CPU has AVX2), L == 4 makes the
+            // casts exact, and the entries are the block's own (see Safety).
+            super::lanes_avx2::slot_forces::<N, HG>(
+                &*(pk.as_ptr() as *const [[f64; 4]; 9]),
+                &*(dl as *const Dphi<N, L> as *const [[[f64; 4]; 3]; N]),
+                &*(gl as *const HourglassG<L> as *const [[[f64; 4]; 8]; 4]),
+                &*(q.as_ptr() as *const [[[f64; 4]; 3]; 4]),
+                entries,
+                cf.get(),
+            );
+            return Self::block_j(p0, &j, pj);
+        }
         for k in 0..N {
             let mut o = [[0.0; L]; 3];
             for r in 0..3 {
@@ -743,6 +759,15 @@ impl<M: Material> Forces<M> {
                 t.z += o[2][l];
             }
         }
+        Self::block_j(p0, &j, pj)
+    }
+
+    /// Writes the J's of the points `p0..p0 + L` and returns their smallest (J, point).
+    ///
+    /// # Safety
+    /// The points' J entries belong to the caller alone.
+    #[inline(always)]
+    unsafe fn block_j<const L: usize>(p0: usize, j: &[f64; L], pj: SharedMut<f64>) -> (f64, usize) {
         let mut best = (f64::INFINITY, usize::MAX);
         for l in 0..L {
             *pj.get().add(p0 + l) = j[l];

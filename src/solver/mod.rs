@@ -4,6 +4,8 @@
 pub mod chunks;
 pub mod forces;
 pub mod integrate;
+#[cfg(target_arch = "x86_64")]
+mod lanes_avx2;
 pub mod order;
 pub mod timestep;
 
