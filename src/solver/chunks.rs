@@ -23,6 +23,16 @@ pub struct Buffers {
     pub offsets: Vec<u32>,
     /// Every entry of every buffer once (so `entries.len()` is the buffers' total length).
     pub entries: Vec<u32>,
+    /// Per node: its first entry in chunk order, or `entries.len()` for a node no point
+    /// reaches (the force buffer keeps one zero entry past the chunks' for it).
+    pub first: Vec<u32>,
+    /// The entries after each node's first, as (node, entry), node by node and in chunk order
+    /// within a node: node n's are `extras[extra_start[n]..extra_start[n + 1]]`. With `first`,
+    /// the nodal sums run as two loops of fixed shape instead of one loop per node whose length
+    /// the branch predictor cannot guess.
+    pub extras: Vec<[u32; 2]>,
+    /// Per node n (and n = num_nodes), where its extras start.
+    pub extra_start: Vec<u32>,
 }
 
 /// Builds the buffers for chunks of consecutive points (`chunks[c]` = [first, end)), each
@@ -53,11 +63,25 @@ pub fn buffers(qp: &QuadraturePoints, chunks: &[[u32; 2]], num_nodes: usize) -> 
         ranges.push([first, owner.len() as u32]);
     }
     let (offsets, entries) = by_node(&owner, num_nodes);
+    let none = entries.len() as u32;
+    let mut first = Vec::with_capacity(num_nodes);
+    let mut extras = Vec::with_capacity(entries.len().saturating_sub(num_nodes));
+    let mut extra_start = Vec::with_capacity(num_nodes + 1);
+    for n in 0..num_nodes {
+        let own = &entries[offsets[n] as usize..offsets[n + 1] as usize];
+        extra_start.push(extras.len() as u32);
+        first.push(own.first().copied().unwrap_or(none));
+        extras.extend(own.iter().skip(1).map(|&e| [n as u32, e]));
+    }
+    extra_start.push(extras.len() as u32);
     Buffers {
         slot_entry,
         ranges,
         offsets,
         entries,
+        first,
+        extras,
+        extra_start,
     }
 }
 
@@ -99,6 +123,14 @@ mod tests {
         assert_eq!(b.slot_entry, vec![0, 1, 2, 2, 3, 1, 4, 5, 6]);
         assert_eq!(b.offsets, vec![0, 2, 3, 4, 6, 7]);
         assert_eq!(b.entries, vec![0, 6, 1, 2, 3, 4, 5]);
+        // First entries, then the rest node by node: the same order as `entries`.
+        assert_eq!(b.first, vec![0, 1, 2, 3, 5]);
+        assert_eq!(b.extras, vec![[0, 6], [3, 4]]);
+        assert_eq!(b.extra_start, vec![0, 1, 1, 1, 2, 2]);
+        // A node no point reaches gets the zero entry past the buffers.
+        let b = buffers(&qp, &[[0, 3]], 6);
+        assert_eq!(b.first[5], b.entries.len() as u32);
+        assert_eq!(b.extra_start, vec![0; 7]);
         assert_eq!(
             b.ranges.last().map(|r| r[1] as usize),
             Some(b.entries.len())

@@ -54,6 +54,8 @@ const MAX_CHUNK_SLOTS: usize = 65536;
 /// SSE registers, and four independent points hide the latency of each point's dependent
 /// chain (F, det F, the cube-root Newton steps, the division by J).
 const LANES: usize = 4;
+/// Nodes per task of the nodal sums and the integrator's update ([`Forces::node_forces`]).
+pub const NODE_BLOCK: usize = 1024;
 
 /// Whether the lane kernels may use AVX2 (`HYTLED_NO_AVX2` set in the environment turns it
 /// off, e.g. to compare the two paths).
@@ -310,7 +312,8 @@ impl<M: Material> Forces<M> {
         Forces {
             material,
             chunks: plan.chunks,
-            chunk_forces: vec![Vector3::zeros(); plan.buffers.entries.len()],
+            // One more entry, always zero: the `first` entry of nodes no point reaches.
+            chunk_forces: vec![Vector3::zeros(); plan.buffers.entries.len() + 1],
             buffers: plan.buffers,
             point_j: vec![1.0; qp.len()],
             node_j: vec![1.0; if has_anp { num_nodes } else { 0 }],
@@ -336,6 +339,9 @@ impl<M: Material> Forces<M> {
             + size_of_val(self.buffers.ranges.as_slice())
             + size_of_val(self.buffers.offsets.as_slice())
             + size_of_val(self.buffers.entries.as_slice())
+            + size_of_val(self.buffers.first.as_slice())
+            + size_of_val(self.buffers.extras.as_slice())
+            + size_of_val(self.buffers.extra_start.as_slice())
             + size_of_val(self.point_j.as_slice())
             + size_of_val(self.node_j.as_slice())
             + size_of_val(self.node_anp_inv_weight.as_slice())
@@ -446,10 +452,30 @@ impl<M: Material> Forces<M> {
 
     /// Nodal forces from the last [`Self::compute_points`] into `out`, N. Parallel over nodes.
     pub fn gather(&self, out: &mut [Vector3<f64>]) {
-        out.par_iter_mut()
-            .with_min_len(CHUNK)
+        out.par_chunks_mut(NODE_BLOCK)
             .enumerate()
-            .for_each(|(n, o)| *o = self.node_force(n));
+            .for_each(|(b, o)| self.node_forces(b * NODE_BLOCK, o));
+    }
+
+    /// Nodal forces of the nodes `n0..n0 + out.len()` from the last [`Self::compute_points`]
+    /// into `out`, N: bitwise the sums of [`Self::node_force`] (zero, the first entry, then the
+    /// others in chunk order), as two loops of fixed shape (see `Buffers::extras`).
+    ///
+    /// # Panics
+    /// If the nodes run past the model's.
+    #[inline]
+    pub fn node_forces(&self, n0: usize, out: &mut [Vector3<f64>]) {
+        let b = &self.buffers;
+        let cf = &self.chunk_forces;
+        let n1 = n0 + out.len();
+        for (o, &e) in out.iter_mut().zip(&b.first[n0..n1]) {
+            *o = Vector3::zeros();
+            *o += cf[e as usize];
+        }
+        let extras = &b.extras[b.extra_start[n0] as usize..b.extra_start[n1] as usize];
+        for &[n, e] in extras {
+            out[n as usize - n0] += cf[e as usize];
+        }
     }
 
     /// The point stage of [`Self::compute`]: every chunk's forces on its nodes, every point's

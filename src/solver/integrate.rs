@@ -10,6 +10,7 @@ use nalgebra::Vector3;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
+use super::forces::NODE_BLOCK;
 use super::timestep::critical_time_step;
 use super::Model;
 use crate::material::Material;
@@ -482,26 +483,33 @@ fn run_on_worker<M: Material>(model: &mut Model<M>, s: &Settings) -> Result<RunO
         let (mass, forces) = (&model.mass, &model.forces);
         let (u_cur, u_old) = (&u, &u_prev);
         let (mut max_du, mut max_u) = u_next
-            .par_iter_mut()
-            .zip(f.par_iter_mut())
-            .with_min_len(2048)
+            .par_chunks_mut(NODE_BLOCK)
+            .zip(f.par_chunks_mut(NODE_BLOCK))
             .enumerate()
-            .map(|(i, (un, fi))| {
+            .map(|(blk, (un_b, f_b))| {
+                let n0 = blk * NODE_BLOCK;
                 if !record {
-                    *fi = forces.node_force(i);
+                    forces.node_forces(n0, f_b);
                 }
-                let fi = *fi;
-                let inv_m = a / mass[i];
-                let mask = cons.mask[i];
-                let mut mdu = 0.0f64;
-                for k in 0..3 {
-                    if !mask[k] {
-                        let v = -inv_m * fi[k] + b * u_cur[i][k] + cc * u_old[i][k];
-                        un[k] = v;
-                        mdu = nan_max(mdu, (v - u_cur[i][k]).abs());
+                let mut acc = (0.0f64, 0.0f64);
+                for (j, (un, fi)) in un_b.iter_mut().zip(f_b.iter()).enumerate() {
+                    let i = n0 + j;
+                    let inv_m = a / mass[i];
+                    let mask = cons.mask[i];
+                    let mut mdu = 0.0f64;
+                    for k in 0..3 {
+                        if !mask[k] {
+                            let v = -inv_m * fi[k] + b * u_cur[i][k] + cc * u_old[i][k];
+                            un[k] = v;
+                            mdu = nan_max(mdu, (v - u_cur[i][k]).abs());
+                        }
                     }
+                    acc = (
+                        nan_max(acc.0, mdu),
+                        nan_max(acc.1, nan_max(un.x.abs(), nan_max(un.y.abs(), un.z.abs()))),
+                    );
                 }
-                (mdu, nan_max(un.x.abs(), nan_max(un.y.abs(), un.z.abs())))
+                acc
             })
             .reduce(|| (0.0, 0.0), |x, y| (nan_max(x.0, y.0), nan_max(x.1, y.1)));
         prescribe(&mut u_next, load_frac(step + 1));
