@@ -44,6 +44,11 @@ pub struct MeshlessCorrector {
     /// The nodes any constraint force reaches, ascending: the only entries of `nodal` that are
     /// ever non-zero, so each step clears and sums these alone instead of all N.
     forced: Vec<u32>,
+    /// All components (2 or 3) share one system (SEBCIEM with every component constrained on
+    /// the same nodes): one solve with a column per component serves them all.
+    shared: bool,
+    /// Right-hand sides of the shared solve, ne x components (empty unless `shared`).
+    rhs: Vec<f64>,
 }
 
 /// What building the corrector found worth a warning.
@@ -184,6 +189,15 @@ impl MeshlessCorrector {
             .collect();
         forced.sort_unstable();
         forced.dedup();
+        let shared = comps.len() >= 2
+            && comps[1..]
+                .iter()
+                .all(|c| c.corr.same_system(&comps[0].corr));
+        let rhs = if shared {
+            vec![0.0; comps[0].target.len() * comps.len()]
+        } else {
+            Vec::new()
+        };
         Ok((
             MeshlessCorrector {
                 comps,
@@ -191,6 +205,8 @@ impl MeshlessCorrector {
                 num_boundaries: boundaries.len(),
                 nodal: vec![Vector3::zeros(); n],
                 forced,
+                shared,
+                rhs,
             },
             CorrectorReport { lumped_nodes },
         ))
@@ -262,14 +278,41 @@ impl Corrector for MeshlessCorrector {
         // The components (x, y, z) are independent (each reads and writes its own component
         // of u through its own factor), so they run in parallel with the same result.
         let base = SharedF64(u.as_mut_ptr() as *mut f64);
-        self.comps.par_iter_mut().for_each(|c| {
-            for (k, t) in c.target.iter_mut().enumerate() {
-                *t = c.amplitude[k] * c.curve[k].value(tau);
+        if self.shared {
+            for c in self.comps.iter_mut() {
+                for (k, t) in c.target.iter_mut().enumerate() {
+                    *t = c.amplitude[k] * c.curve[k].value(tau);
+                }
             }
-            // SAFETY: u has N vectors (asserted) and is borrowed mutably here; the components
-            // of `comps` are distinct (one per axis, `new`), so no two tasks touch the same f64.
-            unsafe { c.corr.correct_component(base.get(), &c.target) };
-        });
+            // SAFETY: as below; `shared` was set only when every component has the first
+            // one's system.
+            unsafe {
+                match &mut self.comps[..] {
+                    [a, b] => ComponentCorrection::solve_shared(
+                        &mut [&mut a.corr, &mut b.corr],
+                        base.get(),
+                        &[&a.target, &b.target],
+                        &mut self.rhs,
+                    ),
+                    [a, b, c] => ComponentCorrection::solve_shared(
+                        &mut [&mut a.corr, &mut b.corr, &mut c.corr],
+                        base.get(),
+                        &[&a.target, &b.target, &c.target],
+                        &mut self.rhs,
+                    ),
+                    _ => unreachable!("shared needs 2 or 3 components"),
+                }
+            }
+        } else {
+            self.comps.par_iter_mut().for_each(|c| {
+                for (k, t) in c.target.iter_mut().enumerate() {
+                    *t = c.amplitude[k] * c.curve[k].value(tau);
+                }
+                // SAFETY: u has N vectors (asserted) and is borrowed mutably here; the components
+                // of `comps` are distinct (one per axis, `new`), so no two tasks touch the same f64.
+                unsafe { c.corr.correct_component(base.get(), &c.target) };
+            });
+        }
         for c in &self.comps {
             c.corr.add_nodal_forces(&mut self.nodal, alpha);
         }
