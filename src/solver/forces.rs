@@ -587,9 +587,9 @@ impl<M: Material> Forces<M> {
             (Mode::Other, _) => {
                 let (a, b) = (qp.offsets[p], qp.offsets[p + 1]);
                 let j = match b - a {
-                    8 => self.point_fixed::<8>(qp, p, a, u, cf),
-                    4 => self.point_fixed::<4>(qp, p, a, u, cf),
-                    _ => self.point_any(qp, p, a, b, u, cf),
+                    8 => self.point_fixed::<8, AVX>(qp, p, a, u, cf),
+                    4 => self.point_fixed::<4, AVX>(qp, p, a, u, cf),
+                    _ => self.point_any::<AVX>(qp, p, a, b, u, cf),
                 };
                 *pj.get().add(p) = j;
                 (j, p)
@@ -617,7 +617,7 @@ impl<M: Material> Forces<M> {
     /// The chunk buffer of point p belongs to the caller alone, and every node id is below
     /// `u.len()`.
     #[inline(always)]
-    unsafe fn point_fixed<const N: usize>(
+    unsafe fn point_fixed<const N: usize, const AVX: bool>(
         &self,
         qp: &QuadraturePoints,
         p: usize,
@@ -632,7 +632,7 @@ impl<M: Material> Forces<M> {
         for k in 0..N {
             f += ul[k] * d[k].transpose();
         }
-        self.stress_to_chunk(qp, p, a, f, d, cf)
+        self.stress_to_chunk::<AVX>(qp, p, a, f, d, cf)
     }
 
     /// L consecutive points `p0..p0 + L` of N support nodes each (slots contiguous from
@@ -807,7 +807,7 @@ impl<M: Material> Forces<M> {
     /// # Safety
     /// As [`Self::point_fixed`] for slots a..b.
     #[inline(always)]
-    unsafe fn point_any(
+    unsafe fn point_any<const AVX: bool>(
         &self,
         qp: &QuadraturePoints,
         p: usize,
@@ -817,11 +817,18 @@ impl<M: Material> Forces<M> {
         cf: SharedMut<Vector3<f64>>,
     ) -> f64 {
         let d = &qp.dphi[a..b];
+        let ids = &qp.nodes[a..b];
+        #[cfg(target_arch = "x86_64")]
+        if AVX {
+            // SAFETY: AVX is set only under chunk_avx2; ids are below u.len() (see Safety).
+            let f = super::lanes_avx2::any_gradient(ids, d, u.as_ptr());
+            return self.stress_to_chunk::<AVX>(qp, p, a, f, d, cf);
+        }
         let mut f = Matrix3::identity();
-        for (&id, dk) in qp.nodes[a..b].iter().zip(d) {
+        for (&id, dk) in ids.iter().zip(d) {
             f += *u.get_unchecked(id as usize) * dk.transpose();
         }
-        self.stress_to_chunk(qp, p, a, f, d, cf)
+        self.stress_to_chunk::<AVX>(qp, p, a, f, d, cf)
     }
 
     /// From the plain F of point `p` (slots from `a`, derivatives `d`): the stress (ANP /
@@ -831,7 +838,7 @@ impl<M: Material> Forces<M> {
     /// # Safety
     /// As [`Self::point_fixed`]: the point's chunk buffer belongs to the caller alone.
     #[inline(always)]
-    unsafe fn stress_to_chunk(
+    unsafe fn stress_to_chunk<const AVX: bool>(
         &self,
         qp: &QuadraturePoints,
         p: usize,
@@ -843,8 +850,16 @@ impl<M: Material> Forces<M> {
         let (f, j) = self.modified(qp, p, f);
         let pk = self.material.first_pk_stress(&f, j) * qp.weights[p];
         let entries = &self.buffers.slot_entry[a..a + d.len()];
+        #[cfg(target_arch = "x86_64")]
+        if AVX {
+            // SAFETY: AVX is set only under chunk_avx2; the entries are the point's own.
+            super::lanes_avx2::any_forces(&pk, d, entries, cf.get());
+            return j;
+        }
+        // Column by column, the association lanes_avx2::any_forces repeats.
+        let (c0, c1, c2) = (pk.column(0), pk.column(1), pk.column(2));
         for (dk, &e) in d.iter().zip(entries) {
-            *cf.get().add(e as usize) += pk * dk;
+            *cf.get().add(e as usize) += c0 * dk.x + c1 * dk.y + c2 * dk.z;
         }
         j
     }
@@ -1032,5 +1047,53 @@ mod tests {
             // 45 hexahedra and 54 tetrahedra: full blocks and single points both run.
             assert!(!qp.len().is_multiple_of(LANES) && qp.len() > LANES);
         }
+    }
+
+    /// Points with 5 to 31 support nodes (the MLS and transition points' path), with AVX2
+    /// against without bitwise, and against the textbook formula f_k = w F S dphi_k.
+    #[test]
+    fn any_size_points_match_without_avx2_and_the_reference_formula() {
+        let mat = NeoHookean::from_young_poisson(3000.0, 0.49, 1000.0);
+        let mesh = box_hex(Vector3::zeros(), Vector3::new(0.1, 0.07, 0.05), [5, 3, 3]).unwrap();
+        let n = mesh.nodes.len();
+        let mut qp = QuadraturePoints::with_capacity(40, 800);
+        for p in 0..40usize {
+            let size = 5 + (p * 11) % 27;
+            let ids: Vec<usize> = (0..size).map(|k| (p * 17 + k * 5) % n).collect();
+            let d: Vec<Vector3<f64>> = (0..size)
+                .map(|k| {
+                    let s = (p * 31 + k * 7) as f64;
+                    Vector3::new((0.7 * s).sin(), (1.3 * s).cos(), (0.37 * s).sin() - 0.2) * 20.0
+                })
+                .collect();
+            qp.push(&ids, &d, 1e-6 * (1.0 + (p % 3) as f64), PointKind::Standard);
+        }
+        let u: Vec<Vector3<f64>> = field(&mesh.nodes).iter().map(|v| v * 0.05).collect();
+        let runs = three_ways(&qp, &mesh.nodes, &u);
+        assert!(
+            runs[1].0 == runs[0].0 && runs[1].1 == runs[0].1,
+            "any-size points: AVX2 and SSE2 differ"
+        );
+        let mut want = vec![Vector3::zeros(); n];
+        let mut scale = 0.0f64;
+        for p in 0..qp.len() {
+            let f = deformation_gradient(&qp, p, &u);
+            let j = f.determinant();
+            assert!(j > 0.5, "test field inverts point {p}: J = {j}");
+            assert!((runs[0].1[p] - j).abs() < 1e-14, "J at {p}");
+            let pk: Matrix3<f64> = f * mat.pk2_stress(&f, j) * qp.weights[p];
+            for s in qp.slots(p) {
+                let fk = pk * qp.dphi[s];
+                want[qp.nodes[s] as usize] += fk;
+                scale = scale.max(fk.norm());
+            }
+        }
+        let worst = runs[0]
+            .0
+            .iter()
+            .zip(&want)
+            .map(|(g, w)| (g - w).norm() / scale)
+            .fold(0.0, f64::max);
+        assert!(worst < 1e-12, "relative force difference {worst:e}");
     }
 }
