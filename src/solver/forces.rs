@@ -795,9 +795,9 @@ impl<M: Material> Forces<M> {
     #[inline(always)]
     unsafe fn block_j<const L: usize>(p0: usize, j: &[f64; L], pj: SharedMut<f64>) -> (f64, usize) {
         let mut best = (f64::INFINITY, usize::MAX);
-        for l in 0..L {
-            *pj.get().add(p0 + l) = j[l];
-            best = min_by_j(best, (j[l], p0 + l));
+        for (l, &jl) in j.iter().enumerate() {
+            *pj.get().add(p0 + l) = jl;
+            best = min_by_j(best, (jl, p0 + l));
         }
         best
     }

@@ -28,6 +28,7 @@ use nalgebra::{Matrix3, Vector3};
 /// below the buffer's length, and the entries belong to the caller alone.
 #[target_feature(enable = "avx2")]
 #[inline]
+#[allow(clippy::needless_range_loop)] // k indexes dl, gl (through kk) and the entries together
 pub(super) unsafe fn slot_forces<const N: usize, const HG: bool>(
     pk: &[[f64; 4]; 9],
     dl: &[[[f64; 4]; 3]; N],
