@@ -597,21 +597,18 @@ impl ComponentCorrection {
     ) {
         let k = comps.len();
         assert!(k <= MAX_SHARED && targets.len() == k);
-        let Some((lead, _)) = comps.split_first() else {
+        let Some(ne) = comps.first().map(|c| c.nodes.len()) else {
             return;
         };
-        let ne = lead.nodes.len();
-        if lead.factor.is_none() {
-            return;
-        }
         let rhs = &mut rhs[..ne * k];
         for ((c, t), r) in comps.iter().zip(targets).zip(rhs.chunks_exact_mut(ne)) {
             c.residual(u, t, r);
         }
-        let (lead, _) = comps.split_first_mut().expect("k >= 1");
-        if let Some(factor) = lead.factor.as_ref() {
-            factor.solve_columns(rhs, k, false, MemStack::new(&mut lead.mem));
-        }
+        let lead = &mut *comps[0];
+        let Some(factor) = lead.factor.as_ref() else {
+            return;
+        };
+        factor.solve_columns(rhs, k, false, MemStack::new(&mut lead.mem));
         for (c, r) in comps.iter_mut().zip(rhs.chunks_exact(ne)) {
             c.y.copy_from_slice(r);
             c.apply(u);

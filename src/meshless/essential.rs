@@ -278,12 +278,12 @@ impl Corrector for MeshlessCorrector {
         // The components (x, y, z) are independent (each reads and writes its own component
         // of u through its own factor), so they run in parallel with the same result.
         let base = SharedF64(u.as_mut_ptr() as *mut f64);
-        if self.shared {
-            for c in self.comps.iter_mut() {
-                for (k, t) in c.target.iter_mut().enumerate() {
-                    *t = c.amplitude[k] * c.curve[k].value(tau);
-                }
+        for c in self.comps.iter_mut() {
+            for (k, t) in c.target.iter_mut().enumerate() {
+                *t = c.amplitude[k] * c.curve[k].value(tau);
             }
+        }
+        if self.shared {
             // SAFETY: as below; `shared` was set only when every component has the first
             // one's system.
             unsafe {
@@ -305,9 +305,6 @@ impl Corrector for MeshlessCorrector {
             }
         } else {
             self.comps.par_iter_mut().for_each(|c| {
-                for (k, t) in c.target.iter_mut().enumerate() {
-                    *t = c.amplitude[k] * c.curve[k].value(tau);
-                }
                 // SAFETY: u has N vectors (asserted) and is borrowed mutably here; the components
                 // of `comps` are distinct (one per axis, `new`), so no two tasks touch the same f64.
                 unsafe { c.corr.correct_component(base.get(), &c.target) };

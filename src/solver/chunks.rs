@@ -17,13 +17,10 @@ use crate::quadrature::QuadraturePoints;
 pub struct Buffers {
     /// Per slot (indexed like `QuadraturePoints::nodes`): the buffer entry it adds into.
     pub slot_entry: Vec<u32>,
-    /// Per chunk, its buffer's entry range [first, end).
+    /// Per chunk, its buffer's entry range [first, end); the last end is the buffers' total
+    /// length ([`Buffers::len`]).
     pub ranges: Vec<[u32; 2]>,
-    /// Per node n, `entries[offsets[n]..offsets[n + 1]]` are its entries in chunk order.
-    pub offsets: Vec<u32>,
-    /// Every entry of every buffer once (so `entries.len()` is the buffers' total length).
-    pub entries: Vec<u32>,
-    /// Per node: its first entry in chunk order, or `entries.len()` for a node no point
+    /// Per node: its first entry in chunk order, or [`Buffers::len`] for a node no point
     /// reaches (the force buffer keeps one zero entry past the chunks' for it).
     pub first: Vec<u32>,
     /// The entries after each node's first, as (node, entry), node by node and in chunk order
@@ -63,7 +60,7 @@ pub fn buffers(qp: &QuadraturePoints, chunks: &[[u32; 2]], num_nodes: usize) -> 
         ranges.push([first, owner.len() as u32]);
     }
     let (offsets, entries) = by_node(&owner, num_nodes);
-    let none = entries.len() as u32;
+    let none = owner.len() as u32;
     let mut first = Vec::with_capacity(num_nodes);
     let mut extras = Vec::with_capacity(entries.len().saturating_sub(num_nodes));
     let mut extra_start = Vec::with_capacity(num_nodes + 1);
@@ -77,11 +74,21 @@ pub fn buffers(qp: &QuadraturePoints, chunks: &[[u32; 2]], num_nodes: usize) -> 
     Buffers {
         slot_entry,
         ranges,
-        offsets,
-        entries,
         first,
         extras,
         extra_start,
+    }
+}
+
+impl Buffers {
+    /// Entries of all chunk buffers together.
+    pub fn len(&self) -> usize {
+        self.ranges.last().map_or(0, |r| r[1] as usize)
+    }
+
+    /// Whether no chunk reaches any node.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
     }
 }
 
@@ -121,19 +128,15 @@ mod tests {
         // Chunk 0 reaches nodes 0, 1, 2, 3; chunk 1 nodes 3, 4, 0.
         assert_eq!(b.ranges, vec![[0, 4], [4, 7]]);
         assert_eq!(b.slot_entry, vec![0, 1, 2, 2, 3, 1, 4, 5, 6]);
-        assert_eq!(b.offsets, vec![0, 2, 3, 4, 6, 7]);
-        assert_eq!(b.entries, vec![0, 6, 1, 2, 3, 4, 5]);
-        // First entries, then the rest node by node: the same order as `entries`.
+        assert_eq!(b.len(), 7);
+        // Node 0: entries 0 and 6, node 1: 1, node 2: 2, node 3: 3 and 4, node 4: 5 (chunk
+        // order), as first entries and then the rest node by node.
         assert_eq!(b.first, vec![0, 1, 2, 3, 5]);
         assert_eq!(b.extras, vec![[0, 6], [3, 4]]);
         assert_eq!(b.extra_start, vec![0, 1, 1, 1, 2, 2]);
         // A node no point reaches gets the zero entry past the buffers.
         let b = buffers(&qp, &[[0, 3]], 6);
-        assert_eq!(b.first[5], b.entries.len() as u32);
+        assert_eq!(b.first[5], b.len() as u32);
         assert_eq!(b.extra_start, vec![0; 7]);
-        assert_eq!(
-            b.ranges.last().map(|r| r[1] as usize),
-            Some(b.entries.len())
-        );
     }
 }

@@ -313,7 +313,7 @@ impl<M: Material> Forces<M> {
             material,
             chunks: plan.chunks,
             // One more entry, always zero: the `first` entry of nodes no point reaches.
-            chunk_forces: vec![Vector3::zeros(); plan.buffers.entries.len() + 1],
+            chunk_forces: vec![Vector3::zeros(); plan.buffers.len() + 1],
             buffers: plan.buffers,
             point_j: vec![1.0; qp.len()],
             node_j: vec![1.0; if has_anp { num_nodes } else { 0 }],
@@ -337,8 +337,6 @@ impl<M: Material> Forces<M> {
             + size_of_val(self.chunks.as_slice())
             + size_of_val(self.buffers.slot_entry.as_slice())
             + size_of_val(self.buffers.ranges.as_slice())
-            + size_of_val(self.buffers.offsets.as_slice())
-            + size_of_val(self.buffers.entries.as_slice())
             + size_of_val(self.buffers.first.as_slice())
             + size_of_val(self.buffers.extras.as_slice())
             + size_of_val(self.buffers.extra_start.as_slice())
@@ -458,8 +456,8 @@ impl<M: Material> Forces<M> {
     }
 
     /// Nodal forces of the nodes `n0..n0 + out.len()` from the last [`Self::compute_points`]
-    /// into `out`, N: bitwise the sums of [`Self::node_force`] (zero, the first entry, then the
-    /// others in chunk order), as two loops of fixed shape (see `Buffers::extras`).
+    /// into `out`, N: each node's chunk entries summed in chunk order (from zero: the first
+    /// entry, then the others), as two loops of fixed shape (see `Buffers::extras`).
     ///
     /// # Panics
     /// If the nodes run past the model's.
@@ -480,7 +478,7 @@ impl<M: Material> Forces<M> {
 
     /// The point stage of [`Self::compute`]: every chunk's forces on its nodes, every point's
     /// J, and the smallest J ([`Self::min_j`]). Nodal forces then follow from
-    /// [`Self::node_force`], which the integrator fuses with its update.
+    /// [`Self::node_forces`], which the integrator fuses with its update.
     pub fn compute_points(&mut self, qp: &QuadraturePoints, slots: &NodeSlots, u: &[Vector3<f64>]) {
         // The kernel reads u unchecked: every slot's node id is below num_nodes (Self::new).
         assert!(
@@ -595,18 +593,6 @@ impl<M: Material> Forces<M> {
                 (j, p)
             }
         }
-    }
-
-    /// Internal force on node `n` from the last [`Self::compute_points`]: its chunk entries
-    /// summed in chunk order, N.
-    #[inline(always)]
-    pub fn node_force(&self, n: usize) -> Vector3<f64> {
-        let b = &self.buffers;
-        let mut acc = Vector3::zeros();
-        for &e in &b.entries[b.offsets[n] as usize..b.offsets[n + 1] as usize] {
-            acc += self.chunk_forces[e as usize];
-        }
-        acc
     }
 
     /// Point with exactly N support nodes that the lane kernel does not take (ANP tetrahedra,
