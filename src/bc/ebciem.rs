@@ -39,6 +39,19 @@ const MAX_CONDITION: f64 = 1e12;
 
 const AXIS: [&str; 3] = ["x", "y", "z"];
 
+/// f64 storage handed to parallel tasks that touch disjoint entries (one component each).
+#[derive(Clone, Copy)]
+struct RawF64(*mut f64);
+// SAFETY: only the callers of `solve_shared` share it, each task with its own component.
+unsafe impl Send for RawF64 {}
+unsafe impl Sync for RawF64 {}
+impl RawF64 {
+    /// The pointer; a method so closures capture the whole (Send + Sync) wrapper.
+    fn get(self) -> *mut f64 {
+        self.0
+    }
+}
+
 /// Sorts by node id and sums duplicate entries, so equal inputs give bitwise equal outputs
 /// whatever order the entries came in (the stable sort keeps the summation order of duplicates
 /// the input order, which is itself deterministic).
@@ -581,11 +594,15 @@ impl ComponentCorrection {
     /// with the first one's factor, then each update. faer's sparse solve costs mostly per
     /// column of the factors (18 us for one right-hand side of the 418 constrained nodes of the
     /// meshless cylinder), so the columns together take little more than one. `rhs` is scratch
-    /// of ne x (number of components).
+    /// of ne x (number of components). The update also adds each component's constraint
+    /// forces `(V y)_j / alpha` (N) into `nodal` (N vectors, as `u`), with the same arithmetic
+    /// as [`Self::add_nodal_forces`]. Residuals and updates run one task per component (each
+    /// touches only its own component), so the result does not depend on the thread count.
     ///
     /// # Safety
     /// As [`Self::correct_component`] for each of `comps`, which constrain distinct components
-    /// and share the first one's system (the caller checks [`Self::same_system`] once).
+    /// and share the first one's system (the caller checks [`Self::same_system`] once);
+    /// `nodal` must point at N vectors that no other thread accesses during the call.
     ///
     /// # Panics
     /// If there are more than MAX_SHARED components, or `targets` or `rhs` do not fit.
@@ -594,25 +611,36 @@ impl ComponentCorrection {
         u: *mut f64,
         targets: &[&[f64]],
         rhs: &mut [f64],
+        nodal: *mut f64,
+        alpha: f64,
     ) {
+        use rayon::prelude::*;
         let k = comps.len();
         assert!(k <= MAX_SHARED && targets.len() == k);
         let Some(ne) = comps.first().map(|c| c.nodes.len()) else {
             return;
         };
         let rhs = &mut rhs[..ne * k];
-        for ((c, t), r) in comps.iter().zip(targets).zip(rhs.chunks_exact_mut(ne)) {
-            c.residual(u, t, r);
-        }
+        let (u, nodal) = (RawF64(u), RawF64(nodal));
+        comps
+            .par_iter_mut()
+            .zip(targets.par_iter())
+            .zip(rhs.par_chunks_exact_mut(ne))
+            // SAFETY: reads only (the caller's contract).
+            .for_each(|((c, t), r)| unsafe { c.residual(u.get(), t, r) });
         let lead = &mut *comps[0];
         let Some(factor) = lead.factor.as_ref() else {
             return;
         };
         factor.solve_columns(rhs, k, false, MemStack::new(&mut lead.mem));
-        for (c, r) in comps.iter_mut().zip(rhs.chunks_exact(ne)) {
-            c.y.copy_from_slice(r);
-            c.apply(u);
-        }
+        comps
+            .par_iter_mut()
+            .zip(rhs.par_chunks_exact(ne))
+            .for_each(|(c, r)| {
+                c.y.copy_from_slice(r);
+                // SAFETY: each task writes only its own component of u and nodal.
+                unsafe { c.apply_with_forces(u.get(), nodal.get(), alpha) };
+            });
     }
 
     /// `out[k] = target[k] - sum_j Phi_kj u_j` for this component (m).
@@ -641,6 +669,22 @@ impl ComponentCorrection {
         for (k, &yk) in self.y.iter().enumerate() {
             for p in self.v.range(k) {
                 *u.add(3 * self.v.idx[p] as usize + c) += self.minv_v[p] * yk;
+            }
+        }
+    }
+
+    /// [`Self::apply`] fused with [`Self::add_nodal_forces`] into `nodal` (one pass over V).
+    ///
+    /// # Safety
+    /// As [`Self::correct_component`] for `u` and for `nodal` (N vectors).
+    unsafe fn apply_with_forces(&self, u: *mut f64, nodal: *mut f64, alpha: f64) {
+        let c = self.component;
+        for (k, &yk) in self.y.iter().enumerate() {
+            let f = yk / alpha;
+            for p in self.v.range(k) {
+                let j = 3 * self.v.idx[p] as usize + c;
+                *u.add(j) += self.minv_v[p] * yk;
+                *nodal.add(j) += self.v.val[p] * f;
             }
         }
     }
@@ -1247,15 +1291,26 @@ mod tests {
             .collect();
         let mut shared = u_pred.clone();
         let mut rhs = vec![0.0; 3 * face.len()];
-        // SAFETY: `shared` holds n vectors, borrowed mutably; x, y, z share one system.
+        let mut nodal = vec![Vector3::zeros(); n];
+        let alpha = 2.5e-7;
+        // SAFETY: `shared` and `nodal` hold n vectors, borrowed mutably; x, y, z share one system.
         unsafe {
             ComponentCorrection::solve_shared(
                 &mut [&mut x, &mut y, &mut z],
                 shared.as_mut_ptr() as *mut f64,
                 &[&targets[0], &targets[1], &targets[2]],
                 &mut rhs,
+                nodal.as_mut_ptr() as *mut f64,
+                alpha,
             )
         };
+        // The fused update adds the same constraint forces as add_nodal_forces, bitwise.
+        let mut want = vec![Vector3::zeros(); n];
+        for c in [&x, &y, &z] {
+            c.add_nodal_forces(&mut want, alpha);
+        }
+        assert!(want.iter().any(|f| f.norm() > 0.0));
+        assert_eq!(nodal, want);
         let scale = y_separate
             .iter()
             .flatten()

@@ -284,8 +284,9 @@ impl Corrector for MeshlessCorrector {
             }
         }
         if self.shared {
+            let nodal = self.nodal.as_mut_ptr() as *mut f64;
             // SAFETY: as below; `shared` was set only when every component has the first
-            // one's system.
+            // one's system; `nodal` has N vectors (asserted) and is borrowed mutably here.
             unsafe {
                 match &mut self.comps[..] {
                     [a, b] => ComponentCorrection::solve_shared(
@@ -293,12 +294,16 @@ impl Corrector for MeshlessCorrector {
                         base.get(),
                         &[&a.target, &b.target],
                         &mut self.rhs,
+                        nodal,
+                        alpha,
                     ),
                     [a, b, c] => ComponentCorrection::solve_shared(
                         &mut [&mut a.corr, &mut b.corr, &mut c.corr],
                         base.get(),
                         &[&a.target, &b.target, &c.target],
                         &mut self.rhs,
+                        nodal,
+                        alpha,
                     ),
                     _ => unreachable!("shared needs 2 or 3 components"),
                 }
@@ -309,9 +314,9 @@ impl Corrector for MeshlessCorrector {
                 // of `comps` are distinct (one per axis, `new`), so no two tasks touch the same f64.
                 unsafe { c.corr.correct_component(base.get(), &c.target) };
             });
-        }
-        for c in &self.comps {
-            c.corr.add_nodal_forces(&mut self.nodal, alpha);
+            for c in &self.comps {
+                c.corr.add_nodal_forces(&mut self.nodal, alpha);
+            }
         }
     }
 
@@ -335,6 +340,11 @@ impl Corrector for MeshlessCorrector {
                 self.nodal[j].dot(&(u_next[j] - u_prev[j])) * 0.5
             })
             .sum()
+    }
+
+    fn touched(&self) -> &[u32] {
+        // The correction adds M^-1 V y, which reaches exactly the row nodes of V.
+        &self.forced
     }
 }
 

@@ -32,6 +32,10 @@ pub trait Corrector: Send {
     /// Work (J) of the last correction's constraint forces over the increment
     /// (u_next - u_prev) / 2 (central difference, as for directly prescribed DOFs).
     fn work(&self, u_next: &[Vector3<f64>], u_prev: &[Vector3<f64>]) -> f64;
+    /// The nodes whose displacements [`Self::correct`] may change, ascending. The time loop
+    /// measures the step's change on these after the correction and on all others during
+    /// its update, so it needs no second pass over every node.
+    fn touched(&self) -> &[u32];
 }
 
 /// Everything the time loop needs: reference nodes, quadrature points, lumped masses,
