@@ -39,19 +39,6 @@ const MAX_CONDITION: f64 = 1e12;
 
 const AXIS: [&str; 3] = ["x", "y", "z"];
 
-/// f64 storage handed to parallel tasks that touch disjoint entries (one component each).
-#[derive(Clone, Copy)]
-struct RawF64(*mut f64);
-// SAFETY: only the callers of `solve_shared` share it, each task with its own component.
-unsafe impl Send for RawF64 {}
-unsafe impl Sync for RawF64 {}
-impl RawF64 {
-    /// The pointer; a method so closures capture the whole (Send + Sync) wrapper.
-    fn get(self) -> *mut f64 {
-        self.0
-    }
-}
-
 /// Sorts by node id and sums duplicate entries, so equal inputs give bitwise equal outputs
 /// whatever order the entries came in (the stable sort keeps the summation order of duplicates
 /// the input order, which is itself deterministic).
@@ -596,8 +583,9 @@ impl ComponentCorrection {
     /// meshless cylinder), so the columns together take little more than one. `rhs` is scratch
     /// of ne x (number of components). The update also adds each component's constraint
     /// forces `(V y)_j / alpha` (N) into `nodal` (N vectors, as `u`), with the same arithmetic
-    /// as [`Self::add_nodal_forces`]. Residuals and updates run one task per component (each
-    /// touches only its own component), so the result does not depend on the thread count.
+    /// as [`Self::add_nodal_forces`]. All on the calling thread: one task per component ran
+    /// slower on two threads (they wrote the x, y and z of the same nodes, one cache line,
+    /// from both cores), and the time loop keeps its second thread spinning meanwhile.
     ///
     /// # Safety
     /// As [`Self::correct_component`] for each of `comps`, which constrain distinct components
@@ -614,33 +602,24 @@ impl ComponentCorrection {
         nodal: *mut f64,
         alpha: f64,
     ) {
-        use rayon::prelude::*;
         let k = comps.len();
         assert!(k <= MAX_SHARED && targets.len() == k);
         let Some(ne) = comps.first().map(|c| c.nodes.len()) else {
             return;
         };
         let rhs = &mut rhs[..ne * k];
-        let (u, nodal) = (RawF64(u), RawF64(nodal));
-        comps
-            .par_iter_mut()
-            .zip(targets.par_iter())
-            .zip(rhs.par_chunks_exact_mut(ne))
-            // SAFETY: reads only (the caller's contract).
-            .for_each(|((c, t), r)| unsafe { c.residual(u.get(), t, r) });
+        for ((c, t), r) in comps.iter().zip(targets).zip(rhs.chunks_exact_mut(ne)) {
+            c.residual(u, t, r);
+        }
         let lead = &mut *comps[0];
         let Some(factor) = lead.factor.as_ref() else {
             return;
         };
         factor.solve_columns(rhs, k, false, MemStack::new(&mut lead.mem));
-        comps
-            .par_iter_mut()
-            .zip(rhs.par_chunks_exact(ne))
-            .for_each(|(c, r)| {
-                c.y.copy_from_slice(r);
-                // SAFETY: each task writes only its own component of u and nodal.
-                unsafe { c.apply_with_forces(u.get(), nodal.get(), alpha) };
-            });
+        for (c, r) in comps.iter_mut().zip(rhs.chunks_exact(ne)) {
+            c.y.copy_from_slice(r);
+            c.apply_with_forces(u, nodal, alpha);
+        }
     }
 
     /// `out[k] = target[k] - sum_j Phi_kj u_j` for this component (m).
