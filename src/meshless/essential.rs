@@ -378,4 +378,72 @@ mod tests {
         assert_eq!(essential_triangles(&tris, &b, 2, 7), vec![[0, 1, 2]]);
         assert!(essential_triangles(&tris, &b, 1, 7).is_empty());
     }
+
+    #[test]
+    fn correction_changes_only_the_nodes_it_reports_as_touched() {
+        // 4 x 4 x 6 lattice, spacing 1 m; Shepard shape functions of radius 1.5 m, so the two
+        // middle layers lie outside every constrained node's support.
+        let nodes: Vec<Vector3<f64>> = (0..6)
+            .flat_map(|z| (0..4).flat_map(move |y| (0..4).map(move |x| (x, y, z))))
+            .map(|(x, y, z)| Vector3::new(x as f64, y as f64, z as f64))
+            .collect();
+        let shape = |x: &Vector3<f64>| -> Result<SparseVec> {
+            let w: Vec<(u32, f64)> = nodes
+                .iter()
+                .enumerate()
+                .filter_map(|(j, p)| {
+                    let d = (p - x).norm() / 1.5;
+                    (d < 1.0).then_some((j as u32, (1.0 - d) * (1.0 - d)))
+                })
+                .collect();
+            let sum: f64 = w.iter().map(|e| e.1).sum();
+            Ok(w.into_iter().map(|(j, v)| (j, v / sum)).collect())
+        };
+        let on = |z: f64| -> Vec<usize> { (0..nodes.len()).filter(|&i| nodes[i].z == z).collect() };
+        let b = [
+            Boundary {
+                name: "bottom".into(),
+                nodes: on(0.0),
+                components: [Some(0.0); 3],
+                curve: LoadCurve::Smooth,
+            },
+            boundary("top", on(5.0), Some(-0.1)),
+        ];
+        let mass = vec![1.0; nodes.len()];
+        let (mut corr, _) =
+            MeshlessCorrector::from_parts(&nodes, &[], &shape, &b, &mass, BcMethod::Sebciem)
+                .unwrap();
+        let touched = corr.touched().to_vec();
+        assert!(
+            touched.windows(2).all(|w| w[0] < w[1]),
+            "ascending, no repeats"
+        );
+        let mut seed = 12345u64;
+        let u0: Vec<Vector3<f64>> = (0..nodes.len())
+            .map(|_| {
+                let mut r = || {
+                    seed = seed
+                        .wrapping_mul(6364136223846793005)
+                        .wrapping_add(1442695040888963407);
+                    (seed >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+                };
+                Vector3::new(r(), r(), r()) * 1e-3
+            })
+            .collect();
+        let mut u = u0.clone();
+        corr.correct(&mut u, 1.0, 1e-6);
+        let mut moved = 0;
+        for (i, (a, b)) in u.iter().zip(&u0).enumerate() {
+            if touched.binary_search(&(i as u32)).is_ok() {
+                moved += usize::from(a != b);
+            } else {
+                assert_eq!(a, b, "node {i} changed but is not reported as touched");
+            }
+        }
+        assert!(
+            moved > 0 && touched.len() < nodes.len(),
+            "{moved} moved, {} touched",
+            touched.len()
+        );
+    }
 }

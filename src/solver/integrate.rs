@@ -681,8 +681,6 @@ fn run_on_worker<M: Material>(model: &mut Model<M>, s: &Settings) -> Result<RunO
     })
 }
 
-/// max that propagates NaN (f64::max drops it), so divergence cannot hide.
-#[inline]
 /// Runs `f` on this thread while, with more than one thread in the pool, another worker
 /// spins until it returns. A worker idle for a few tens of microseconds goes to sleep, and
 /// waking it costs about as much again on a virtual machine: serial parts of a step as long
@@ -709,6 +707,8 @@ fn keep_warm<R: Send>(f: impl FnOnce() -> R + Send) -> R {
     r
 }
 
+/// max that propagates NaN (f64::max drops it), so divergence cannot hide.
+#[inline]
 fn nan_max(a: f64, b: f64) -> f64 {
     if a.is_nan() || b.is_nan() {
         f64::NAN
