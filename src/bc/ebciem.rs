@@ -17,12 +17,10 @@
 //! sparse products and one pair of triangular solves. `M^-1 V A^-1` is never formed: it would be
 //! dense N x ne.
 
-use faer::dyn_stack::{MemBuffer, MemStack, StackReq};
-use faer::sparse::linalg::lu::{factorize_symbolic_lu, NumericLu, SymbolicLu};
-use faer::sparse::linalg::LuError;
 use faer::sparse::{SparseColMat, Triplet};
-use faer::{Conj, MatMut, Par};
 use nalgebra::Vector3;
+
+use super::sparse_lu::{FactorError, SparseLu, LANES};
 
 use crate::{Error, Result};
 
@@ -87,42 +85,7 @@ impl Compressed {
 
 /// Components one solve can serve together ([`ComponentCorrection::solve_shared`]): x, y, z.
 pub const MAX_SHARED: usize = 3;
-
-/// The sparse LU factors of `A = Phi M^-1 V`, with the column permutation chosen by faer.
-#[derive(Debug)]
-struct Factor {
-    symbolic: SymbolicLu<usize>,
-    numeric: NumericLu<usize, f64>,
-}
-
-impl Factor {
-    /// Solves `A x = rhs` (or `A^T x = rhs`) in place; `stack` must hold
-    /// [`Factor::solve_scratch`].
-    fn solve_in_place(&self, rhs: &mut [f64], transpose: bool, stack: &mut MemStack) {
-        self.solve_columns(rhs, 1, transpose, stack);
-    }
-
-    /// Solves `A X = R` (or `A^T X = R`) in place for the `k` columns of `rhs` (column-major,
-    /// `rhs.len()` a multiple of k, at most [`MAX_SHARED`] columns).
-    fn solve_columns(&self, rhs: &mut [f64], k: usize, transpose: bool, stack: &mut MemStack) {
-        let n = rhs.len() / k;
-        let lu = faer::sparse::linalg::lu::LuRef::new_unchecked(&self.symbolic, &self.numeric);
-        let rhs = MatMut::from_column_major_slice_mut(rhs, n, k);
-        if transpose {
-            lu.solve_transpose_in_place_with_conj(Conj::No, rhs, Par::Seq, stack);
-        } else {
-            lu.solve_in_place_with_conj(Conj::No, rhs, Par::Seq, stack);
-        }
-    }
-
-    fn solve_scratch(&self) -> StackReq {
-        self.symbolic
-            .solve_in_place_scratch::<f64>(MAX_SHARED, Par::Seq)
-            .or(self
-                .symbolic
-                .solve_transpose_in_place_scratch::<f64>(MAX_SHARED, Par::Seq))
-    }
-}
+const _: () = assert!(MAX_SHARED <= LANES);
 
 /// The essential-boundary correction of one displacement component (thesis eq. 4.21-4.24),
 /// with `A = Phi M^-1 V` factored once at construction.
@@ -142,9 +105,9 @@ pub struct ComponentCorrection {
     /// Column sums `s_k = sum_j V_jk` (dimensionless for SEBCIEM, m^2 for EBCIEM).
     col_sum: Vec<f64>,
     /// `None` when no node is constrained in this component.
-    factor: Option<Factor>,
-    /// Solve scratch, allocated once so `correct` does not allocate.
-    mem: MemBuffer,
+    factor: Option<SparseLu>,
+    /// Solve scratch (ne rows), allocated once so `correct` does not allocate.
+    work: Vec<[f64; LANES]>,
     /// Multipliers `y = A^-1 (u_bar - Phi u_pred)` of the last `correct` (zero before).
     y: Vec<f64>,
     /// Estimated 1-norm condition number of A (0 when ne = 0).
@@ -274,7 +237,7 @@ impl ComponentCorrection {
             minv_v,
             col_sum,
             factor: None,
-            mem: MemBuffer::new(StackReq::EMPTY),
+            work: Vec::new(),
             y: vec![0.0; ne],
             cond: 0.0,
         };
@@ -367,47 +330,19 @@ impl ComponentCorrection {
                     "essential boundary correction: cannot assemble Phi M^-1 V: {e:?}"
                 ))
             })?;
-        let symbolic = factorize_symbolic_lu(a.symbolic(), Default::default()).map_err(|e| {
-            Error::Input(format!(
-                "essential boundary correction: LU analysis of Phi M^-1 V failed: {e:?}"
-            ))
-        })?;
-        let mut numeric = NumericLu::<usize, f64>::new();
-        {
-            let req = symbolic.factorize_numeric_lu_scratch::<f64>(Par::Seq, Default::default());
-            let mut mem = MemBuffer::try_new(req).map_err(|_| {
-                Error::Input(format!(
-                    "essential boundary correction: out of memory factoring a {ne} x {ne} matrix"
-                ))
-            })?;
-            match symbolic.factorize_numeric_lu(
-                &mut numeric,
-                a.as_ref(),
-                Par::Seq,
-                MemStack::new(&mut mem),
-                Default::default(),
-            ) {
-                Ok(_) => {}
-                Err(LuError::SymbolicSingular { index }) => {
-                    return Err(singular(format!(
-                        "structurally: no pivot at elimination step {index}"
-                    )));
-                }
-                Err(e) => {
-                    return Err(Error::Input(format!(
-                        "essential boundary correction: LU factorization failed: {e:?}"
-                    )));
-                }
-            }
-        }
-        let factor = Factor { symbolic, numeric };
-        let mem = MemBuffer::try_new(factor.solve_scratch()).map_err(|_| {
-            Error::Input(format!(
-                "essential boundary correction: out of memory for a {ne} x {ne} solve"
-            ))
+        let factor = SparseLu::factor(a.as_ref()).map_err(|e| match e {
+            FactorError::StructurallySingular(index) => singular(format!(
+                "structurally: no pivot at elimination step {index}"
+            )),
+            FactorError::OutOfMemory => Error::Input(format!(
+                "essential boundary correction: out of memory factoring a {ne} x {ne} matrix"
+            )),
+            FactorError::Other(e) => Error::Input(format!(
+                "essential boundary correction: LU factorization of Phi M^-1 V failed: {e}"
+            )),
         })?;
         self.factor = Some(factor);
-        self.mem = mem;
+        self.work = vec![[0.0; LANES]; ne];
 
         // faer does not report numerically zero pivots (it divides by them), so estimate the
         // condition number and reject what cannot be trusted.
@@ -430,14 +365,15 @@ impl ComponentCorrection {
         let Some(factor) = self.factor.as_ref() else {
             return 0.0;
         };
-        let stack = MemStack::new(&mut self.mem);
+        let work = &mut self.work;
+        let mut scratch = vec![0.0; ne];
         let norm1 = |x: &[f64]| x.iter().map(|v| v.abs()).sum::<f64>();
         let mut x = vec![1.0 / ne as f64; ne];
         let mut z = vec![0.0; ne];
         let mut est = 0.0f64;
         let mut last_unit = 0usize;
         for iter in 0..5 {
-            factor.solve_in_place(&mut x, false, stack);
+            factor.solve(&mut x, 1, work);
             let new_est = norm1(&x);
             if !new_est.is_finite() {
                 return f64::INFINITY;
@@ -449,7 +385,7 @@ impl ComponentCorrection {
             for (zi, &xi) in z.iter_mut().zip(&x) {
                 *zi = if xi >= 0.0 { 1.0 } else { -1.0 };
             }
-            factor.solve_in_place(&mut z, true, stack);
+            factor.solve_transpose(&mut z, &mut scratch);
             // Stop when no unit vector promises a larger estimate: z^T x for the current unit
             // vector x = e_j is z_j.
             let (jmax, zmax) = z
@@ -478,7 +414,7 @@ impl ComponentCorrection {
             let s = if i % 2 == 0 { 1.0 } else { -1.0 };
             *xi = s * (1.0 + i as f64 / denom);
         }
-        factor.solve_in_place(&mut x, false, stack);
+        factor.solve(&mut x, 1, work);
         let alt = 2.0 * norm1(&x) / (3.0 * ne as f64);
         if !alt.is_finite() {
             return f64::INFINITY;
@@ -561,7 +497,7 @@ impl ComponentCorrection {
         };
         let mut y = std::mem::take(&mut self.y);
         self.residual(u, target, &mut y);
-        factor.solve_in_place(&mut y, false, MemStack::new(&mut self.mem));
+        factor.solve(&mut y, 1, &mut self.work);
         self.y = y;
         self.apply(u);
     }
@@ -577,15 +513,16 @@ impl ComponentCorrection {
     }
 
     /// [`Self::correct_component`] of up to [`MAX_SHARED`] components with the same system
-    /// ([`Self::same_system`]): the residuals of all of them, one solve of as many columns
-    /// with the first one's factor, then each update. faer's sparse solve costs mostly per
-    /// column of the factors (18 us for one right-hand side of the 418 constrained nodes of the
-    /// meshless cylinder), so the columns together take little more than one. `rhs` is scratch
-    /// of ne x (number of components). The update also adds each component's constraint
-    /// forces `(V y)_j / alpha` (N) into `nodal` (N vectors, as `u`), with the same arithmetic
-    /// as [`Self::add_nodal_forces`]. All on the calling thread: one task per component ran
-    /// slower on two threads (they wrote the x, y and z of the same nodes, one cache line,
-    /// from both cores), and the time loop keeps its second thread spinning meanwhile.
+    /// ([`Self::same_system`]): the residuals of all of them in one pass over Phi, one solve
+    /// of as many columns with the first one's factor (the columns ride in the lanes of one
+    /// substitution), then the updates in one pass over V. Each value is computed with the
+    /// operations, in the order, of the separate corrections, so the results are bitwise
+    /// theirs. `rhs` is scratch of ne x (number of components). The update also adds each
+    /// component's constraint forces `(V y)_j / alpha` (N) into `nodal` (N vectors, as `u`),
+    /// with the arithmetic of [`Self::add_nodal_forces`]. All on the calling thread: one task
+    /// per component ran slower on two threads (they wrote the x, y and z of the same nodes,
+    /// one cache line, from both cores), and the time loop keeps its second thread spinning
+    /// meanwhile.
     ///
     /// # Safety
     /// As [`Self::correct_component`] for each of `comps`, which constrain distinct components
@@ -607,18 +544,50 @@ impl ComponentCorrection {
         let Some(ne) = comps.first().map(|c| c.nodes.len()) else {
             return;
         };
+        assert!(targets.iter().all(|t| t.len() == ne));
         let rhs = &mut rhs[..ne * k];
-        for ((c, t), r) in comps.iter().zip(targets).zip(rhs.chunks_exact_mut(ne)) {
-            c.residual(u, t, r);
+        let mut axes = [0usize; MAX_SHARED];
+        for (a, c) in axes.iter_mut().zip(comps.iter()) {
+            *a = c.component;
         }
+        let axes = &axes[..k];
         let lead = &mut *comps[0];
+        for row in 0..ne {
+            let r = lead.phi.range(row);
+            let mut interp = [-0.0; MAX_SHARED];
+            for (&j, &p) in lead.phi.idx[r.clone()].iter().zip(&lead.phi.val[r]) {
+                let uj = u.add(3 * j as usize);
+                for (s, &c) in interp.iter_mut().zip(axes) {
+                    *s += p * *uj.add(c);
+                }
+            }
+            for (ci, t) in targets.iter().enumerate() {
+                rhs[ci * ne + row] = t[row] - interp[ci];
+            }
+        }
         let Some(factor) = lead.factor.as_ref() else {
             return;
         };
-        factor.solve_columns(rhs, k, false, MemStack::new(&mut lead.mem));
+        factor.solve(rhs, k, &mut lead.work);
         for (c, r) in comps.iter_mut().zip(rhs.chunks_exact(ne)) {
             c.y.copy_from_slice(r);
-            c.apply_with_forces(u, nodal, alpha);
+        }
+        let lead = &*comps[0];
+        for row in 0..ne {
+            let mut y = [0.0; MAX_SHARED];
+            let mut f = [0.0; MAX_SHARED];
+            for ci in 0..k {
+                y[ci] = rhs[ci * ne + row];
+                f[ci] = y[ci] / alpha;
+            }
+            for p in lead.v.range(row) {
+                let j = 3 * lead.v.idx[p] as usize;
+                let (m, v) = (lead.minv_v[p], lead.v.val[p]);
+                for (ci, &c) in axes.iter().enumerate() {
+                    *u.add(j + c) += m * y[ci];
+                    *nodal.add(j + c) += v * f[ci];
+                }
+            }
         }
     }
 
@@ -630,11 +599,11 @@ impl ComponentCorrection {
         let c = self.component;
         for (k, (o, &t)) in out.iter_mut().zip(target).enumerate() {
             let r = self.phi.range(k);
-            let interp: f64 = self.phi.idx[r.clone()]
+            // From -0.0, like `Iterator::sum`, and in the order of `solve_shared`.
+            let interp = self.phi.idx[r.clone()]
                 .iter()
                 .zip(&self.phi.val[r])
-                .map(|(&j, &p)| p * *u.add(3 * j as usize + c))
-                .sum();
+                .fold(-0.0, |s, (&j, &p)| s + p * *u.add(3 * j as usize + c));
             *o = t - interp;
         }
     }
@@ -648,22 +617,6 @@ impl ComponentCorrection {
         for (k, &yk) in self.y.iter().enumerate() {
             for p in self.v.range(k) {
                 *u.add(3 * self.v.idx[p] as usize + c) += self.minv_v[p] * yk;
-            }
-        }
-    }
-
-    /// [`Self::apply`] fused with [`Self::add_nodal_forces`] into `nodal` (one pass over V).
-    ///
-    /// # Safety
-    /// As [`Self::correct_component`] for `u` and for `nodal` (N vectors).
-    unsafe fn apply_with_forces(&self, u: *mut f64, nodal: *mut f64, alpha: f64) {
-        let c = self.component;
-        for (k, &yk) in self.y.iter().enumerate() {
-            let f = yk / alpha;
-            for p in self.v.range(k) {
-                let j = 3 * self.v.idx[p] as usize + c;
-                *u.add(j) += self.minv_v[p] * yk;
-                *nodal.add(j) += self.v.val[p] * f;
             }
         }
     }
@@ -1290,23 +1243,11 @@ mod tests {
         }
         assert!(want.iter().any(|f| f.norm() > 0.0));
         assert_eq!(nodal, want);
-        let scale = y_separate
-            .iter()
-            .flatten()
-            .fold(0.0f64, |m, v| m.max(v.abs()));
+        // The lanes of one substitution do what separate solves do: bitwise the same.
         for (c, want) in [&x, &y, &z].iter().zip(&y_separate) {
-            for (a, b) in c.multipliers().iter().zip(want) {
-                assert!((a - b).abs() <= 1e-13 * scale, "multiplier {a} vs {b}");
-            }
+            assert_eq!(c.multipliers(), &want[..]);
         }
-        let mut err = 0.0f64;
-        for (a, b) in shared.iter().zip(&separate) {
-            err = err.max((a - b).norm());
-        }
-        assert!(
-            err < 1e-15,
-            "shared and separate corrections differ by {err:e} m"
-        );
+        assert_eq!(shared, separate);
         // And the shared correction imposes the targets.
         let all = EssentialCorrection::new(vec![x, y, z]).unwrap();
         assert!(all.max_imposition_error(&shared, &targets) < 1e-12);

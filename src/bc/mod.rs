@@ -4,6 +4,7 @@
 use serde::{Deserialize, Serialize};
 
 pub mod ebciem;
+pub mod sparse_lu;
 
 use crate::{Error, Result};
 

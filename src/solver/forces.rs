@@ -59,7 +59,7 @@ pub const NODE_BLOCK: usize = 1024;
 
 /// Whether the lane kernels may use AVX2 (`HYTLED_NO_AVX2` set in the environment turns it
 /// off, e.g. to compare the two paths).
-fn simd_available() -> bool {
+pub(crate) fn simd_available() -> bool {
     #[cfg(target_arch = "x86_64")]
     {
         std::env::var_os("HYTLED_NO_AVX2").is_none() && std::arch::is_x86_feature_detected!("avx2")
