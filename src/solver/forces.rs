@@ -54,8 +54,10 @@ const MAX_CHUNK_SLOTS: usize = 65536;
 /// SSE registers, and four independent points hide the latency of each point's dependent
 /// chain (F, det F, the cube-root Newton steps, the division by J).
 const LANES: usize = 4;
-/// Nodes per task of the nodal sums and the integrator's update ([`Forces::node_forces`]).
-pub const NODE_BLOCK: usize = 1024;
+/// Nodes per task of the nodal sums and the integrator's update ([`Forces::node_forces`]);
+/// small enough that the two ends of the update loop (`two_ended`) meet near the middle
+/// (the 4,389-node cylinder has 18 blocks; with 1,024 nodes it had 5).
+pub const NODE_BLOCK: usize = 256;
 
 /// Whether the lane kernels may use AVX2 (`HYTLED_NO_AVX2` set in the environment turns it
 /// off, e.g. to compare the two paths).
@@ -493,10 +495,11 @@ impl<M: Material> Forces<M> {
         let cf = SharedMut(self.chunk_forces.as_mut_ptr());
         let pj = SharedMut(self.point_j.as_mut_ptr());
         let this = &*self;
-        self.min_j = self
-            .chunks
-            .par_iter()
-            .map(|ch| {
+        self.min_j = super::two_ended::for_each_item(
+            this.chunks.len(),
+            (f64::INFINITY, usize::MAX),
+            |c| {
+                let ch = &this.chunks[c];
                 // SAFETY: a chunk writes only its own buffer entries and its points' J
                 // entries, and every node id is below u.len() (checked above and in
                 // Self::new); `simd` was set only where the CPU has AVX2.
@@ -507,8 +510,9 @@ impl<M: Material> Forces<M> {
                     }
                     this.chunk::<false>(qp, ch, u, cf, pj)
                 }
-            })
-            .reduce(|| (f64::INFINITY, usize::MAX), min_by_j);
+            },
+            min_by_j,
+        );
     }
 
     /// One chunk: clears its buffer, then adds its items' forces into it in order; returns

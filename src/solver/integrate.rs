@@ -7,7 +7,6 @@ use std::time::Instant;
 
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use nalgebra::Vector3;
-use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::sync::atomic::{AtomicBool, Ordering};
 
@@ -499,15 +498,26 @@ fn run_on_worker<M: Material>(model: &mut Model<M>, s: &Settings) -> Result<RunO
             let a = 0.25 * ((1.0 + r) * dt).powi(2);
             (a, 1.0 + r * r, -r * r)
         };
-        // Parallel over nodes; max is order-independent, so the result is thread-count independent.
+        // Parallel over node blocks, from both ends as the point stage (`two_ended`); max is
+        // order-independent, so the result is thread-count independent.
         let (mass, forces) = (&model.mass, &model.forces);
         let (u_cur, u_old) = (&u, &u_prev);
-        let (mut max_du, mut max_u) = u_next
-            .par_chunks_mut(NODE_BLOCK)
-            .zip(f.par_chunks_mut(NODE_BLOCK))
-            .enumerate()
-            .map(|(blk, (un_b, f_b))| {
+        let un_all = SharedVec(u_next.as_mut_ptr());
+        let f_all = SharedVec(f.as_mut_ptr());
+        let (mut max_du, mut max_u) = super::two_ended::for_each_item(
+            n.div_ceil(NODE_BLOCK),
+            (0.0f64, 0.0f64),
+            |blk| {
                 let n0 = blk * NODE_BLOCK;
+                let len = NODE_BLOCK.min(n - n0);
+                // SAFETY: u_next and f hold n vectors and are borrowed mutably for the loop;
+                // block blk is nodes n0..n0 + len, which no other item touches.
+                let (un_b, f_b) = unsafe {
+                    (
+                        std::slice::from_raw_parts_mut(un_all.get().add(n0), len),
+                        std::slice::from_raw_parts_mut(f_all.get().add(n0), len),
+                    )
+                };
                 if !record {
                     forces.node_forces(n0, f_b);
                 }
@@ -532,11 +542,12 @@ fn run_on_worker<M: Material>(model: &mut Model<M>, s: &Settings) -> Result<RunO
                     }
                 }
                 acc
-            })
-            .reduce(|| (0.0, 0.0), |x, y| (nan_max(x.0, y.0), nan_max(x.1, y.1)));
+            },
+            |x, y| (nan_max(x.0, y.0), nan_max(x.1, y.1)),
+        );
         prescribe(&mut u_next, load_frac(step + 1));
         if let Some(corr) = model.corrector.as_mut() {
-            keep_warm(|| corr.correct(&mut u_next, load_frac(step + 1), a));
+            corr.correct(&mut u_next, load_frac(step + 1), a);
             external_work += corr.work(&u_next, &u_prev);
             // The predictor's change includes the part the correction takes back (it never
             // vanishes next to a constrained boundary), so measure the corrected change.
@@ -685,8 +696,9 @@ fn run_on_worker<M: Material>(model: &mut Model<M>, s: &Settings) -> Result<RunO
 /// spins until it returns. A worker idle for a few tens of microseconds goes to sleep, and
 /// waking it costs about as much again on a virtual machine: serial parts of a step as long
 /// as the SEBCIEM solve (about 50 us on the meshless cylinder) otherwise made the next
-/// parallel loop wait for its second thread.
-fn keep_warm<R: Send>(f: impl FnOnce() -> R + Send) -> R {
+/// parallel loop wait for its second thread. [`super::Corrector::correct`] runs its serial
+/// parts through this.
+pub fn keep_warm<R: Send>(f: impl FnOnce() -> R + Send) -> R {
     if rayon::current_num_threads() < 2 {
         return f();
     }
@@ -705,6 +717,18 @@ fn keep_warm<R: Send>(f: impl FnOnce() -> R + Send) -> R {
         },
     );
     r
+}
+
+/// Mutable storage shared by the tasks of a loop whose items touch disjoint parts of it.
+#[derive(Clone, Copy)]
+struct SharedVec(*mut Vector3<f64>);
+unsafe impl Send for SharedVec {}
+unsafe impl Sync for SharedVec {}
+impl SharedVec {
+    /// The pointer; a method so closures capture the whole (Send + Sync) wrapper.
+    fn get(self) -> *mut Vector3<f64> {
+        self.0
+    }
 }
 
 /// max that propagates NaN (f64::max drops it), so divergence cannot hide.

@@ -8,6 +8,7 @@ pub mod integrate;
 mod lanes_avx2;
 pub mod order;
 pub mod timestep;
+mod two_ended;
 
 use nalgebra::Vector3;
 
@@ -16,7 +17,7 @@ use crate::material::Material;
 use crate::quadrature::{NodeSlots, QuadraturePoints};
 use crate::Result;
 pub use forces::Forces;
-pub use integrate::{run, Mode, RunOutput, Settings};
+pub use integrate::{keep_warm, run, Mode, RunOutput, Settings};
 
 /// Essential conditions imposed by correcting the explicit predictor each step (meshless
 /// EBCIEM / SEBCIEM, thesis eq. 4.21-4.24), for boundaries whose shape functions are not
@@ -25,7 +26,9 @@ pub trait Corrector: Send {
     /// Corrects the predicted displacements `u` (nodal parameters of all nodes, m) so that
     /// the interpolated field takes the prescribed values at load fraction `tau` (0..1, each
     /// boundary's curve applied to it). `alpha` is the force coefficient of the update
-    /// u = alpha M^-1 F + ..., s^2 (central differences: dt^2 / (1 + c dt / 2)).
+    /// u = alpha M^-1 F + ..., s^2 (central differences: dt^2 / (1 + c dt / 2)). Called on
+    /// the time loop's thread pool: parallel where its work splits, and serial parts through
+    /// [`keep_warm`] so the other workers do not fall asleep.
     fn correct(&mut self, u: &mut [Vector3<f64>], tau: f64, alpha: f64);
     /// Force (N) that model boundary `b` applied to the body in the last correction.
     fn reaction(&self, b: usize) -> Vector3<f64>;
