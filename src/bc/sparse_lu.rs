@@ -477,6 +477,23 @@ mod tests {
     }
 
     #[test]
+    fn avx2_and_portable_builds_give_bitwise_equal_solutions() {
+        let a = matrix(80, 5, false);
+        let mut lu = SparseLu::factor(sparse(&a).as_ref()).unwrap();
+        let rhs: Vec<f64> = (0..3 * 80).map(|i| ((i * 13) % 17) as f64 - 8.0).collect();
+        let mut work = vec![[0.0; LANES]; 80];
+        let mut solve = |lu: &SparseLu| {
+            let mut x = rhs.clone();
+            lu.solve(&mut x, 3, &mut work);
+            x
+        };
+        let with = solve(&lu);
+        lu.avx2 = false;
+        let without = solve(&lu);
+        assert_eq!(with, without);
+    }
+
+    #[test]
     fn structurally_singular_matrix_is_an_error() {
         let a = vec![
             vec![1.0, 2.0, 0.0],
