@@ -92,6 +92,7 @@ const _: () = assert!(MAX_SHARED <= LANES);
 ///
 /// Works for SEBCIEM (`V = Phi^T`, eq. 4.30; see [`ComponentCorrection::sebciem`]) and EBCIEM
 /// (`V` from the boundary integral of eq. 4.12; see [`ebciem_columns`]).
+#[derive(Clone)]
 pub struct ComponentCorrection {
     component: usize,
     nodes: Vec<usize>,
@@ -500,6 +501,23 @@ impl ComponentCorrection {
         factor.solve(&mut y, 1, &mut self.work);
         self.y = y;
         self.apply(u);
+    }
+
+    /// This correction for displacement component `component` (0 = x, 1 = y, 2 = z) instead:
+    /// the same constrained nodes, Phi, V and factors, without factoring A again (the brain's
+    /// 2,186 constrained nodes took 0.16 s per factorization).
+    ///
+    /// # Panics
+    /// If `component` is not 0-2 (a caller bug).
+    pub fn for_component(&self, component: usize) -> Self {
+        assert!(
+            component <= 2,
+            "ComponentCorrection::for_component({component})"
+        );
+        let mut c = self.clone();
+        c.component = component;
+        c.y.fill(0.0);
+        c
     }
 
     /// Whether `other` has the same system `A = Phi M^-1 V`: the same constrained nodes, Phi

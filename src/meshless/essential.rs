@@ -34,6 +34,10 @@ impl SharedF64 {
     }
 }
 
+/// The inputs of a factored system (constrained nodes, rows of Phi, columns of V) and the
+/// index of the component that holds it.
+type BuiltSystem = (Vec<usize>, Vec<SparseVec>, Vec<SparseVec>, usize);
+
 /// Corrections solved together: the components (x, y, z) of one group of constrained nodes
 /// that share one system (SEBCIEM with every component constrained on the same nodes; one
 /// solve with a column per component serves them), or a single component.
@@ -161,8 +165,10 @@ impl MeshlessCorrector {
         method: BcMethod,
     ) -> Result<(Self, CorrectorReport)> {
         let n = nodes_x.len();
-        let mut comps = Vec::new();
+        let mut comps: Vec<Component> = Vec::new();
         let mut lumped_nodes = 0;
+        // The inputs of each system factored so far, and the component that holds it.
+        let mut built: Vec<BuiltSystem> = Vec::new();
         for c in 0..3 {
             // Constrained nodes of this component, first boundary wins (conflicts were checked
             // by the direct constraints of the same boundaries).
@@ -228,13 +234,28 @@ impl MeshlessCorrector {
                     columns[owner[nodes[m]]].push(k);
                 }
                 let ne = members.len();
-                let corr = ComponentCorrection::new(
-                    c,
-                    members.iter().map(|&m| nodes[m]).collect(),
-                    members.iter().map(|&m| phi_rows[m].clone()).collect(),
-                    members.iter().map(|&m| v_cols[m].clone()).collect(),
-                    mass,
-                )?;
+                let g_nodes: Vec<usize> = members.iter().map(|&m| nodes[m]).collect();
+                let g_phi: Vec<SparseVec> = members.iter().map(|&m| phi_rows[m].clone()).collect();
+                let g_v: Vec<SparseVec> = members.iter().map(|&m| v_cols[m].clone()).collect();
+                // SEBCIEM constrains x, y and z of a boundary with one system: factor it once.
+                let same = built
+                    .iter()
+                    .find(|(n, p, v, _)| *n == g_nodes && *p == g_phi && *v == g_v)
+                    .map(|b| b.3);
+                let corr = match same {
+                    Some(k) => comps[k].corr.for_component(c),
+                    None => {
+                        let corr = ComponentCorrection::new(
+                            c,
+                            g_nodes.clone(),
+                            g_phi.clone(),
+                            g_v.clone(),
+                            mass,
+                        )?;
+                        built.push((g_nodes, g_phi, g_v, comps.len()));
+                        corr
+                    }
+                };
                 comps.push(Component {
                     corr,
                     amplitude: members.iter().map(|&m| amplitude[m]).collect(),
