@@ -237,7 +237,7 @@ impl MeshlessCorrector {
                 let g_nodes: Vec<usize> = members.iter().map(|&m| nodes[m]).collect();
                 let g_phi: Vec<SparseVec> = members.iter().map(|&m| phi_rows[m].clone()).collect();
                 let g_v: Vec<SparseVec> = members.iter().map(|&m| v_cols[m].clone()).collect();
-                // SEBCIEM constrains x, y and z of a boundary with one system: factor it once.
+                // x, y and z of a boundary share one system (SEBCIEM and EBCIEM): factor it once.
                 let same = built
                     .iter()
                     .find(|(n, p, v, _)| *n == g_nodes && *p == g_phi && *v == g_v)
