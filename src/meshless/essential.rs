@@ -499,6 +499,21 @@ mod tests {
         (nodes, shape)
     }
 
+    /// The lattice's bottom layer fixed in x, y, z and its top layer moved in z (-0.1 m) and
+    /// held in x.
+    fn faces(nodes: &[Vector3<f64>]) -> [Boundary; 2] {
+        let on = |z: f64| -> Vec<usize> { (0..nodes.len()).filter(|&i| nodes[i].z == z).collect() };
+        [
+            Boundary {
+                name: "bottom".into(),
+                nodes: on(0.0),
+                components: [Some(0.0); 3],
+                curve: LoadCurve::Smooth,
+            },
+            boundary("top", on(5.0), Some(-0.1)),
+        ]
+    }
+
     fn random_field(n: usize, mut seed: u64) -> Vec<Vector3<f64>> {
         let mut r = || {
             seed = seed
@@ -524,17 +539,9 @@ mod tests {
     #[test]
     fn grouped_correction_matches_one_system_on_any_thread_count() {
         let (nodes, shape) = lattice();
+        // x and z have two groups each.
+        let b = faces(&nodes);
         let on = |z: f64| -> Vec<usize> { (0..nodes.len()).filter(|&i| nodes[i].z == z).collect() };
-        // Bottom fixed in x, y, z; top moved in z and held in x: x and z have two groups each.
-        let b = [
-            Boundary {
-                name: "bottom".into(),
-                nodes: on(0.0),
-                components: [Some(0.0); 3],
-                curve: LoadCurve::Smooth,
-            },
-            boundary("top", on(5.0), Some(-0.1)),
-        ];
         let mass: Vec<f64> = (0..nodes.len()).map(|i| 1.0 + 0.01 * i as f64).collect();
         let u0 = random_field(nodes.len(), 99);
         let run = |threads: usize| {
@@ -628,16 +635,7 @@ mod tests {
     fn correction_changes_only_the_nodes_it_reports_as_touched() {
         // The two middle layers lie outside every constrained node's support.
         let (nodes, shape) = lattice();
-        let on = |z: f64| -> Vec<usize> { (0..nodes.len()).filter(|&i| nodes[i].z == z).collect() };
-        let b = [
-            Boundary {
-                name: "bottom".into(),
-                nodes: on(0.0),
-                components: [Some(0.0); 3],
-                curve: LoadCurve::Smooth,
-            },
-            boundary("top", on(5.0), Some(-0.1)),
-        ];
+        let b = faces(&nodes);
         let mass = vec![1.0; nodes.len()];
         let (mut corr, _) =
             MeshlessCorrector::from_parts(&nodes, &[], &shape, &b, &mass, BcMethod::Sebciem)
