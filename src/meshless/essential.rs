@@ -9,7 +9,7 @@ use crate::bc::ebciem::{ebciem_columns, ComponentCorrection, SparseVec};
 use crate::bc::{Boundary, LoadCurve};
 use crate::geometry::quality;
 use crate::scene::BcMethod;
-use crate::solver::{keep_warm, Corrector};
+use crate::solver::{keep_warm, Corrector, SharedMut};
 use crate::Result;
 
 /// One component's correction with its prescribed values.
@@ -20,18 +20,6 @@ struct Component {
     /// Columns (indices into the constrained nodes) of each model boundary.
     columns: Vec<Vec<usize>>,
     target: Vec<f64>,
-}
-
-/// The displacement storage shared by the per-component corrections.
-#[derive(Clone, Copy)]
-struct SharedF64(*mut f64);
-unsafe impl Send for SharedF64 {}
-unsafe impl Sync for SharedF64 {}
-impl SharedF64 {
-    /// The pointer; a method so closures capture the whole (Send + Sync) wrapper.
-    fn get(self) -> *mut f64 {
-        self.0
-    }
 }
 
 /// The inputs of a factored system (constrained nodes, rows of Phi, columns of V) and the
@@ -408,8 +396,8 @@ impl Corrector for MeshlessCorrector {
             u.len(),
             self.nodal.len()
         );
-        let base = SharedF64(u.as_mut_ptr() as *mut f64);
-        let nodal = SharedF64(self.nodal.as_mut_ptr() as *mut f64);
+        let base = SharedMut(u.as_mut_ptr() as *mut f64);
+        let nodal = SharedMut(self.nodal.as_mut_ptr() as *mut f64);
         // SAFETY: u and nodal hold N vectors (asserted, `new`) and are borrowed mutably here.
         // Items write disjoint f64s: items of different components write different components,
         // and items of one component are different groups, whose rows of Phi and columns of V

@@ -18,22 +18,9 @@ use nalgebra::{Matrix3, Vector3};
 use rayon::prelude::*;
 
 use super::chunks::{self, Buffers};
+use super::SharedMut;
 use crate::material::{inv_cbrt, Material};
 use crate::quadrature::{NodeSlots, PointKind, QuadraturePoints};
-
-/// A raw pointer that may cross threads: each parallel task writes a disjoint index range.
-#[derive(Clone, Copy)]
-struct SharedMut<T>(*mut T);
-unsafe impl<T> Send for SharedMut<T> {}
-unsafe impl<T> Sync for SharedMut<T> {}
-
-impl<T> SharedMut<T> {
-    /// The pointer; a method so closures capture the whole (Send + Sync) wrapper.
-    #[inline(always)]
-    fn get(self) -> *mut T {
-        self.0
-    }
-}
 
 /// Points per rayon task in the per-point and per-node loops outside the force chunks.
 const CHUNK: usize = 256;

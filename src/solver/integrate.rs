@@ -12,7 +12,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 
 use super::forces::NODE_BLOCK;
 use super::timestep::critical_time_step;
-use super::Model;
+use super::{Model, SharedMut};
 use crate::material::Material;
 use crate::{Error, Result};
 
@@ -502,8 +502,8 @@ fn run_on_worker<M: Material>(model: &mut Model<M>, s: &Settings) -> Result<RunO
         // order-independent, so the result is thread-count independent.
         let (mass, forces) = (&model.mass, &model.forces);
         let (u_cur, u_old) = (&u, &u_prev);
-        let un_all = SharedVec(u_next.as_mut_ptr());
-        let f_all = SharedVec(f.as_mut_ptr());
+        let un_all = SharedMut(u_next.as_mut_ptr());
+        let f_all = SharedMut(f.as_mut_ptr());
         let (mut max_du, mut max_u) = super::two_ended::for_each_item(
             n.div_ceil(NODE_BLOCK),
             (0.0f64, 0.0f64),
@@ -717,18 +717,6 @@ pub fn keep_warm<R: Send>(f: impl FnOnce() -> R + Send) -> R {
         },
     );
     r
-}
-
-/// Mutable storage shared by the tasks of a loop whose items touch disjoint parts of it.
-#[derive(Clone, Copy)]
-struct SharedVec(*mut Vector3<f64>);
-unsafe impl Send for SharedVec {}
-unsafe impl Sync for SharedVec {}
-impl SharedVec {
-    /// The pointer; a method so closures capture the whole (Send + Sync) wrapper.
-    fn get(self) -> *mut Vector3<f64> {
-        self.0
-    }
 }
 
 /// max that propagates NaN (f64::max drops it), so divergence cannot hide.

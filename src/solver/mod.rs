@@ -19,6 +19,20 @@ use crate::Result;
 pub use forces::Forces;
 pub use integrate::{keep_warm, run, Mode, RunOutput, Settings};
 
+/// A raw pointer that may cross threads: each parallel task writes a disjoint index range.
+#[derive(Clone, Copy)]
+pub(crate) struct SharedMut<T>(pub(crate) *mut T);
+unsafe impl<T> Send for SharedMut<T> {}
+unsafe impl<T> Sync for SharedMut<T> {}
+
+impl<T> SharedMut<T> {
+    /// The pointer; a method so closures capture the whole (Send + Sync) wrapper.
+    #[inline(always)]
+    pub(crate) fn get(self) -> *mut T {
+        self.0
+    }
+}
+
 /// Essential conditions imposed by correcting the explicit predictor each step (meshless
 /// EBCIEM / SEBCIEM, thesis eq. 4.21-4.24), for boundaries whose shape functions are not
 /// interpolating.
