@@ -499,14 +499,14 @@ fn execute(cmd: Command) -> hytled::Result<()> {
                 let (fe_path, cloud_path) = (&paths[0], &paths[1]);
                 let (n_fe, n_cloud) = hytled::coupling::regions::write_split_inputs(
                     &mesh,
-                    sc.discretization.fe_layers,
+                    sc.discretization.fe_layers(),
                     fe_path,
                     cloud_path,
                 )?;
                 println!(
                     "{}: FE layer ({} layer(s)), {n_fe} nodes; {}: {n_cloud} interior nodes",
                     fe_path.display(),
-                    sc.discretization.fe_layers,
+                    sc.discretization.fe_layers(),
                     cloud_path.display()
                 );
             }

@@ -375,11 +375,85 @@ fn name_file_element(e: Error, input: Option<&MeshInput>) -> Error {
 
 /// Meshes the scene, builds the quadrature points, masses, constraints and probes.
 pub fn prepare(scene: &Scene) -> Result<Prepared> {
-    match scene.discretization.method {
-        Method::Meshless => return prepare_meshless(scene),
-        Method::Coupled => return prepare_coupled(scene),
-        Method::Fe => {}
+    let mut p = match scene.discretization.method {
+        Method::Meshless => prepare_meshless(scene)?,
+        Method::Coupled => prepare_coupled(scene)?,
+        Method::Fe => prepare_fe(scene)?,
+    };
+    if let Some(w) = locking_warning(scene, &p) {
+        p.warnings.push(w);
     }
+    Ok(p)
+}
+
+/// Bulk-to-shear ratio kappa / mu (1,000: nu = 0.4995) from which the discretizations below
+/// are reported as locking. On the bonded cylinder in compression at nu = 0.4999 (kappa / mu
+/// = 5,000; relaxation) the reaction was, in N, at [4, 2, 8] / [8, 4, 20] divisions: hex8
+/// with the shear-scaled hourglass 7.14 / 7.06, tet4-anp 8.16 / 7.44, coupled 7.27 / -,
+/// MMLS with one point per tet 8.32 / -; locking: tet4 102.9 at [4, 2, 8], hex8 with the
+/// (lambda + 2 mu)-scaled hourglass 19.0 / 10.0, MLS with four points per tet 10.03 at
+/// [4, 2, 8] (at nu = 0.499, kappa / mu = 500, all of these were within 8 % of tet4-anp).
+const LOCKING_KAPPA_OVER_MU: f64 = 1000.0;
+
+/// Meshless points per free displacement component above which the meshless part locks
+/// near incompressibility: MLS with four points per tet (6 per free component at [4, 2, 8])
+/// locked, MMLS with one (1.5) did not; see [`LOCKING_KAPPA_OVER_MU`].
+const LOCKING_POINTS_PER_DOF: f64 = 3.0;
+
+/// A warning when the discretization is known to lock at the material's kappa / mu: plain
+/// tet4 elements, hexahedra whose hourglass stiffness scales with lambda, or more meshless
+/// points per free DOF than [`LOCKING_POINTS_PER_DOF`]. Names the element and the setting to
+/// change (points per constraint as in Hughes, The Finite Element Method, sect. 4.3).
+fn locking_warning(scene: &Scene, p: &Prepared) -> Option<String> {
+    let m = &p.model.forces.material;
+    let ratio = m.kappa / m.mu;
+    if !(ratio >= LOCKING_KAPPA_OVER_MU) {
+        return None;
+    }
+    let d = &scene.discretization;
+    let nu = (3.0 * m.kappa - 2.0 * m.mu) / (2.0 * (3.0 * m.kappa + m.mu));
+    let head = format!("nu = {nu:.5} (kappa / mu = {ratio:.0}): possible volumetric locking:");
+    let fe_used = d.method != Method::Meshless;
+    if fe_used && d.element == crate::scene::ElementName::Tet4 {
+        return Some(format!(
+            "{head} plain tet4 elements impose one volumetric constraint each and lock \
+             (cylinder at nu = 0.4999: 14x the tet4-anp reaction); set discretization.element = 'tet4-anp'"
+        ));
+    }
+    if fe_used
+        && d.element == crate::scene::ElementName::Hex8
+        && d.hourglass_modulus == crate::scene::HourglassModulus::PWave
+    {
+        return Some(format!(
+            "{head} hex8 hourglass stiffness scaled by lambda + 2 mu grows with kappa and resists volume change \
+             (cylinder at nu = 0.4999: reaction 1.4-2.7x hex8's with the shear scaling); \
+             set discretization.hourglass_modulus = 'shear'"
+        ));
+    }
+    let (mls_points, free) = match (&p.meshless, &p.coupled) {
+        (Some(_), _) => (p.model.points.len(), free_dofs(p)),
+        (_, Some(c)) => (c.meshless_points, 3 * c.mls_nodes.len()),
+        _ => return None,
+    };
+    let per_dof = mls_points as f64 / free.max(1) as f64;
+    if per_dof > LOCKING_POINTS_PER_DOF {
+        return Some(format!(
+            "{head} {mls_points} meshless integration points on {free} free displacement components \
+             ({per_dof:.1} per component) over-constrain the volume (MLS with 4 points per tet: 23 % above \
+             tet4-anp on the cylinder at nu = 0.4999); use fewer points: discretization.tet_rule = 1 \
+             (or integration = 'grid' with point_ratio <= 2)"
+        ));
+    }
+    None
+}
+
+/// Displacement components not prescribed directly.
+fn free_dofs(p: &Prepared) -> usize {
+    3 * p.model.nodes.len() - p.model.constraints.dofs.len()
+}
+
+/// FE branch of [`prepare`].
+fn prepare_fe(scene: &Scene) -> Result<Prepared> {
     let t0 = Instant::now();
     let input = load_mesh_input(scene)?;
     let mut warnings = Vec::new();
@@ -387,13 +461,9 @@ pub fn prepare(scene: &Scene) -> Result<Prepared> {
     let mat = material(scene);
     let kind: ElementKind = scene.discretization.element.into();
     let (lambda, mu) = mat.lame();
-    let points = fe::element_points(
-        &mesh,
-        kind,
-        scene.discretization.hourglass,
-        lambda + 2.0 * mu,
-    )
-    .map_err(|e| name_file_element(e, input.as_ref()))?;
+    let (kappa_hg, modulus) = scene.discretization.hourglass_scale(lambda, mu);
+    let points = fe::element_points(&mesh, kind, kappa_hg, modulus)
+        .map_err(|e| name_file_element(e, input.as_ref()))?;
     let bnd = boundaries(scene, &mesh.nodes, input.as_ref())?;
     let probes = scene
         .probes
@@ -579,15 +649,46 @@ fn prepare_coupled(scene: &Scene) -> Result<Prepared> {
     let kind: ElementKind = scene.discretization.element.into();
     let (lambda, mu) = mat.lame();
     let d = &scene.discretization;
+    let mixed = input.is_some() && d.cloud == crate::scene::CloudKind::File;
+    let generated = matches!(
+        d.cloud,
+        crate::scene::CloudKind::Lattice | crate::scene::CloudKind::Halton
+    );
+    let fe_region = match d.fe_region() {
+        crate::scene::FeRegionKind::Surface => coupling::FeRegion::Surface,
+        crate::scene::FeRegionKind::Essential if mixed || generated => {
+            return Err(Error::Input(
+                "discretization.fe_region = 'essential' places the FE layer within the scene's mesh; \
+                 with cloud = 'file', 'lattice' or 'halton' the FE layer is the given shell: use fe_region = 'surface'"
+                    .into(),
+            ))
+        }
+        crate::scene::FeRegionKind::Essential => {
+            let bnd = boundaries(scene, &mesh.nodes, input.as_ref())?;
+            let mut nodes: Vec<usize> = bnd
+                .iter()
+                .filter(|b| b.components.iter().any(|c| c.is_some()))
+                .flat_map(|b| b.nodes.iter().cloned())
+                .collect();
+            nodes.sort_unstable();
+            nodes.dedup();
+            coupling::FeRegion::Around(nodes)
+        }
+    };
     let settings = coupling::CoupledSettings {
-        fe_layers: d.fe_layers,
+        fe_layers: d.fe_layers(),
+        fe_region,
         element: kind,
-        hourglass: d.hourglass,
-        lambda_plus_2mu: lambda + 2.0 * mu,
+        hourglass: d.hourglass_scale(lambda, mu).0,
+        hourglass_modulus: d.hourglass_scale(lambda, mu).1,
         mls: discretize::mls_settings(scene),
         rule: discretize::support_rule(scene),
         interface_scale: d.interface_scale,
         mean_dilatation: d.mean_dilatation,
+        transition_rule: match d.transition_rule() {
+            crate::scene::TransitionRuleKind::Full => coupling::TransitionRule::Full,
+            crate::scene::TransitionRuleKind::Interior => coupling::TransitionRule::Interior,
+        },
         tet_rule: discretize::tet_rule(scene)?,
         adaptive: if d.integration == crate::scene::IntegrationKind::Adaptive {
             Some(discretize::adaptive_settings(scene)?)
@@ -596,7 +697,6 @@ fn prepare_coupled(scene: &Scene) -> Result<Prepared> {
         },
     };
     let min_dihedral = quality::min_dihedral_angle(&mesh);
-    let mixed = input.is_some() && d.cloud == crate::scene::CloudKind::File;
     let tets = |p: &[Vector3<f64>]| -> Result<Vec<[usize; 4]>> {
         Ok(discretize::delaunay(p)?
             .chunks_exact(4)
@@ -612,14 +712,11 @@ fn prepare_coupled(scene: &Scene) -> Result<Prepared> {
         };
         let cloud = crate::meshless::cloud::read_cloud(&path)?;
         coupling::mixed::build(mesh, &cloud, 0.0, &settings, &tets).map(|(b, _)| b)
-    } else if matches!(
-        d.cloud,
-        crate::scene::CloudKind::Lattice | crate::scene::CloudKind::Halton
-    ) {
+    } else if generated {
         // A generated interior: the outer fe_layers of the mesh stay FE, the generator's nodes
         // fill the cavity (those within half a spacing of the inner surface dropped).
         let (cloud, _, h) = discretize::generated_cloud(scene)?;
-        let (shell, _) = coupling::regions::split_inputs(&mesh, d.fe_layers)?;
+        let (shell, _) = coupling::regions::split_inputs(&mesh, d.fe_layers())?;
         coupling::mixed::build(shell, &cloud, 0.5 * h, &settings, &tets).map(|(b, _)| b)
     } else {
         coupling::build(mesh, &settings)
@@ -691,6 +788,7 @@ fn prepare_coupled(scene: &Scene) -> Result<Prepared> {
         })
         .collect::<Result<Vec<_>>>()?;
     let mut model = Model::new(build.nodes.clone(), build.points.clone(), mat, bnd.clone())?;
+    model.set_lumped_volumes(&build.lumped_volume)?;
     if let Some(method) = bc_method {
         let tris: Vec<[usize; 3]> = if method == BcMethod::Ebciem {
             let mut faces = quality::boundary_faces(&build.fe_mesh)
@@ -946,7 +1044,7 @@ pub fn summarize(scene: &Scene, prep: &Prepared, out: &RunOutput, total_seconds:
         coupled: prep.coupled.as_ref().map(|c| {
             use crate::coupling::{CellRole, NodeRole};
             CoupledInfo {
-                fe_layers: scene.discretization.fe_layers,
+                fe_layers: scene.discretization.fe_layers(),
                 fe_cells: c.regions.cells(CellRole::Fe),
                 transition_cells: c.regions.cells(CellRole::Transition),
                 meshless_cells: c.interior.num_cells(),

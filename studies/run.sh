@@ -7,7 +7,7 @@
 # default all cores), JOBS (sweeps run at once, default 1; with JOBS > 1 give each sweep its own
 # cores, e.g. JOBS=4 THREADS=2 on 8 cores, or the wall times of study 1 compete).
 # Studies (a study name runs all its jobs): timestep incompressibility large-deformation
-# irregular spin speed-accuracy fe-layers adaptive.
+# irregular spin speed-accuracy fe-layers adaptive tets.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 H=${HYTLED:-target/release/hytled}
@@ -133,11 +133,46 @@ adaptive_cylinder() {
     --vary discretization.tolerance=0.5,0.1,0.05,0.01,0.005 --out studies/adaptive/$1
 }
 
+# Issue 21: the three cylinder cases on unstructured tets against the SfePy reference
+# (REFERENCE.md): a Gmsh series (meshes/make_gmsh_cylinders.py: 1,982 / 4,208 / 8,743 /
+# 17,917 nodes) and a TetGen series (mesher = "tetgen", size 12 / 9 / 7 mm: 2,697 / 4,386 /
+# 8,314 nodes); fe tet4-anp, meshless MLS and MMLS (one point per tet, radius supports,
+# EBCIEM), coupled with the unstructured-tet defaults (one FE layer around the essential
+# faces, one point per transition tet, linear MLS) and with an MMLS interior.
+MLS1='mls=discretization.method=meshless;discretization.basis=linear;discretization.tet_rule=1'
+MMLS1='mmls=discretization.method=meshless;discretization.basis=quadratic;discretization.tet_rule=1'
+COUPLED_TET='coupled=discretization.method=coupled'
+COUPLED_MMLS='coupled-mmls=discretization.method=coupled;discretization.basis=quadratic'
+GMSH='geometry.mesh=../meshes/cylinder-gmsh-h75.msh,../meshes/cylinder-gmsh-h57.msh,../meshes/cylinder-gmsh-h43.msh,../meshes/cylinder-gmsh-h33.msh'
+tets-gmsh-compression() { tets_gmsh compression; }
+tets-gmsh-extension() { tets_gmsh extension; }
+tets-gmsh-shear() { tets_gmsh shear; }
+tets_gmsh() {
+  sweep cases/tet-cylinder-$1.toml --preset "$FE_ANP" --preset "$MLS1" --preset "$MMLS1" \
+    --preset "$COUPLED_TET" --preset "$COUPLED_MMLS" --vary "$GMSH" --out studies/tets/gmsh-$1
+}
+# The TetGen series meshes the built-in cylinder; its references are set to SfePy's.
+tets-tetgen-compression() { tets_tetgen compression z -6.92 0.00699; }
+tets-tetgen-extension() { tets_tetgen extension z 4.664 -0.005083; }
+tets-tetgen-shear() { tets_tetgen shear x 1.115 0.009506; }
+tets_tetgen() {
+  sweep cases/cylinder-$1.toml --set solver.mode=relaxation --set discretization.mesher=tetgen \
+    --set discretization.element=tet4-anp --set "references.force.quantity=reaction.top.$2" \
+    --set "references.force.value=$3" --set "references.probe_ux.value=$4" \
+    --set 'references.force.source=SfePy (REFERENCE.md)' \
+    --set 'references.probe_ux.source=SfePy (REFERENCE.md)' \
+    --preset "$FE_ANP" --preset "$MLS1" --preset "$MMLS1" --preset "$COUPLED_TET" \
+    --preset "$COUPLED_MMLS" --vary discretization.size=0.012,0.009,0.007 \
+    --out studies/tets/tetgen-$1
+}
+
 ALL=(speed-accuracy-compression speed-accuracy-extension speed-accuracy-shear speed-accuracy-dynamic
   speed-accuracy-cube timestep-cube timestep-cylinder incompressibility-cube
   incompressibility-cylinder large-deformation irregular-jitter irregular-halton
   irregular-point-ratio spin fe-layers-compression fe-layers-extension fe-layers-shear
-  adaptive-compression adaptive-extension adaptive-shear)
+  adaptive-compression adaptive-extension adaptive-shear
+  tets-gmsh-compression tets-gmsh-extension tets-gmsh-shear
+  tets-tetgen-compression tets-tetgen-extension tets-tetgen-shear)
 
 if [ "${1:-}" = --list ]; then printf '%s\n' "${ALL[@]}"; exit 0; fi
 # A study name stands for its jobs.

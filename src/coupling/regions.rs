@@ -48,14 +48,38 @@ impl Regions {
     }
 }
 
-/// Node depth: 0 on the boundary surface, else 1 + the smallest depth of a node sharing a
-/// cell with it (cell-graph distance to the boundary).
-pub fn node_depth(mesh: &Mesh) -> Result<Vec<usize>> {
-    let faces = boundary_faces(mesh).map_err(|e| Error::Input(format!("coupled: {e}")))?;
+/// Where the FE layer of a coupled discretization lies.
+#[derive(Debug, Clone, PartialEq, Eq, Default)]
+pub enum FeRegion {
+    /// Along the whole boundary surface (free surfaces included).
+    #[default]
+    Surface,
+    /// Around these nodes only (those of the essential boundaries: coupled paper sect. 3.2,
+    /// "coupling MLS with FE in the close region of the essential boundary"); the rest of the
+    /// surface is meshless.
+    Around(Vec<usize>),
+}
+
+/// Node depth: 0 on the boundary surface (or, with [`FeRegion::Around`], at its nodes), else
+/// 1 + the smallest depth of a node sharing a cell with it (cell-graph distance); usize::MAX
+/// where no seed is reachable.
+pub fn node_depth(mesh: &Mesh, region: &FeRegion) -> Result<Vec<usize>> {
     let mut depth = vec![usize::MAX; mesh.nodes.len()];
-    for f in &faces {
-        for &i in f {
-            depth[i] = 0;
+    match region {
+        FeRegion::Surface => {
+            let faces = boundary_faces(mesh).map_err(|e| Error::Input(format!("coupled: {e}")))?;
+            for f in &faces {
+                for &i in f {
+                    depth[i] = 0;
+                }
+            }
+        }
+        FeRegion::Around(nodes) => {
+            for &i in nodes {
+                if let Some(d) = depth.get_mut(i) {
+                    *d = 0;
+                }
+            }
         }
     }
     // Relaxation sweeps; the number of sweeps is the depth of the mesh (tens at most).
@@ -81,10 +105,10 @@ pub fn node_depth(mesh: &Mesh) -> Result<Vec<usize>> {
     Ok(depth)
 }
 
-/// The cells with a node within `fe_layers - 1` cell layers of the boundary form the FE
-/// layer (so `fe_layers` = 1 is the cells touching the boundary); the others are meshless.
-/// Errors when the FE layer covers everything or nothing.
-pub fn split(mesh: &Mesh, fe_layers: usize) -> Result<Regions> {
+/// The cells with a node within `fe_layers - 1` cell layers of the boundary (or of the
+/// region's nodes) form the FE layer (so `fe_layers` = 1 is the cells touching it); the others
+/// are meshless. Errors when the FE layer covers everything or nothing.
+pub fn split(mesh: &Mesh, fe_layers: usize, region: &FeRegion) -> Result<Regions> {
     if fe_layers == 0 {
         return Err(Error::Input(
             "discretization.fe_layers = 0: the coupled method needs at least one layer of finite elements on the boundary \
@@ -92,7 +116,16 @@ pub fn split(mesh: &Mesh, fe_layers: usize) -> Result<Regions> {
                 .into(),
         ));
     }
-    let depth = node_depth(mesh)?;
+    if let FeRegion::Around(nodes) = region {
+        if nodes.is_empty() {
+            return Err(Error::Input(
+                "discretization.fe_region = 'essential' but no boundary prescribes a displacement component: \
+                 there is no essential boundary to put finite elements on (use fe_region = 'surface')"
+                    .into(),
+            ));
+        }
+    }
+    let depth = node_depth(mesh, region)?;
     let max_depth = depth
         .iter()
         .cloned()
@@ -185,7 +218,7 @@ mod tests {
             [6, 6, 6],
         )
         .unwrap();
-        let r = split(&mesh, 1).unwrap();
+        let r = split(&mesh, 1, &FeRegion::Surface).unwrap();
         // 6^3 cells: the outer shell (6^3 - 4^3) is FE, all of it touching the 4^3 core.
         assert_eq!(r.cells(CellRole::Meshless), 64);
         assert_eq!(r.cells(CellRole::Transition), 216 - 64);
@@ -193,19 +226,19 @@ mod tests {
         // Interface: the 5^3 - 3^3 shell of nodes at depth 1.
         assert_eq!(r.nodes(NodeRole::Interface), 125 - 27);
         assert_eq!(r.nodes(NodeRole::Meshless), 27);
-        let r = split(&mesh, 2).unwrap();
+        let r = split(&mesh, 2, &FeRegion::Surface).unwrap();
         assert_eq!(r.cells(CellRole::Meshless), 8);
         assert_eq!(r.cells(CellRole::Transition), 64 - 8);
         assert_eq!(r.cells(CellRole::Fe), 216 - 64);
-        assert!(split(&mesh, 3).is_err());
-        assert!(split(&mesh, 0).is_err());
+        assert!(split(&mesh, 3, &FeRegion::Surface).is_err());
+        assert!(split(&mesh, 0, &FeRegion::Surface).is_err());
     }
 }
 
 /// The FE layer of `mesh` as a mesh of its own (unused nodes dropped) and the positions (m) of
 /// the meshless-only nodes: the two inputs of a mixed coupled scene, made from one mesh.
 pub fn split_inputs(mesh: &Mesh, fe_layers: usize) -> Result<(Mesh, Vec<nalgebra::Vector3<f64>>)> {
-    let r = split(mesh, fe_layers)?;
+    let r = split(mesh, fe_layers, &FeRegion::Surface)?;
     let mut map = vec![usize::MAX; mesh.nodes.len()];
     let mut nodes = Vec::new();
     let mut cells = Vec::new();

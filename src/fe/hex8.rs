@@ -98,21 +98,21 @@ impl Hex8Reference {
     }
 
     /// Scaled hourglass vectors G = sqrt(k) g (8x4, sqrt(N/m)) of the hourglass matrix
-    /// HG = k g g^T = G G^T, g = Gamma - B X^T Gamma, k = kappa_hg V (lambda + 2 mu) sum(B_ij^2) / 8
-    /// (Joldes et al. 2008). The kernel applies HG u as G (G^T u): the same operations as the
+    /// HG = k g g^T = G G^T, g = Gamma - B X^T Gamma, k = kappa_hg V M sum(B_ij^2) / 8
+    /// (Joldes et al. 2008, with M = lambda + 2 mu there; the caller picks the modulus M, Pa). The kernel applies HG u as G (G^T u): the same operations as the
     /// 8x8 product from half the stored data (the step streams these from memory).
     pub fn hourglass_vectors(
         &self,
         x: &[Vector3<f64>; 8],
         kappa_hg: f64,
-        lambda_plus_2mu: f64,
+        modulus: f64,
     ) -> SMatrix<f64, 8, 4> {
         let gam = gamma();
         let bm = SMatrix::<f64, 8, 3>::from_fn(|a, i| self.b[a][i]);
         let xm = SMatrix::<f64, 8, 3>::from_fn(|a, i| x[a][i]);
         let g = gam - bm * (xm.transpose() * gam);
         let sum_b2: f64 = self.b.iter().map(|v| v.norm_squared()).sum();
-        let k = kappa_hg * self.volume * lambda_plus_2mu * sum_b2 / 8.0;
+        let k = kappa_hg * self.volume * modulus * sum_b2 / 8.0;
         g * k.max(0.0).sqrt()
     }
 }

@@ -39,13 +39,13 @@ impl ElementKind {
 }
 
 /// Builds one quadrature point per element. `hourglass_coefficient` is kappa_hg (hex8 only) and
-/// `lambda_plus_2mu` the P-wave modulus (Pa) that scales it. Rejects inverted or degenerate
+/// `modulus` the elastic modulus (Pa) that scales it (mu or lambda + 2 mu). Rejects inverted or degenerate
 /// elements with an error naming the element and its volume.
 pub fn element_points(
     mesh: &Mesh,
     kind: ElementKind,
     hourglass_coefficient: f64,
-    lambda_plus_2mu: f64,
+    modulus: f64,
 ) -> Result<QuadraturePoints> {
     if mesh.shape != kind.shape() {
         return Err(Error::Input(format!(
@@ -63,7 +63,7 @@ pub fn element_points(
                 let x: [_; 8] = std::array::from_fn(|a| mesh.nodes[ids[a]]);
                 let h = hex8::Hex8Reference::new(&x)
                     .map_err(|volume| Error::InvalidElement { element: e, volume })?;
-                let hg = h.hourglass_vectors(&x, hourglass_coefficient, lambda_plus_2mu);
+                let hg = h.hourglass_vectors(&x, hourglass_coefficient, modulus);
                 qp.push_hourglass(ids, &h.b, h.volume, hg);
             }
             ElementKind::Tet4 | ElementKind::Tet4Anp => {

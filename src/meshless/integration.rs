@@ -57,7 +57,7 @@ impl TetRule {
     }
 
     /// Barycentric coordinates and weight fractions (of the tet volume) of the rule.
-    pub(crate) fn table(self) -> &'static [([f64; 4], f64)] {
+    pub fn table(self) -> &'static [([f64; 4], f64)] {
         const A: f64 = 0.585_410_196_624_968_5;
         const B: f64 = 0.138_196_601_125_010_5;
         const Q: f64 = 0.25;

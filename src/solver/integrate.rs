@@ -216,6 +216,7 @@ pub fn stable_step<M: Material>(model: &Model<M>) -> (f64, Critical) {
         &model.points,
         &model.slots,
         &model.mass,
+        &model.constraints.mask,
         c,
         model.forces.material.density(),
     );

@@ -125,6 +125,31 @@ impl<M: Material> Model<M> {
         })
     }
 
+    /// Replaces the evenly split lumped masses by `rho V_i` from the lumped volumes `volume`
+    /// (m^3, one per node; see [`crate::coupling::CoupledBuild::lumped_volume`]). Errors
+    /// naming a node whose volume is not positive.
+    pub fn set_lumped_volumes(&mut self, volume: &[f64]) -> Result<()> {
+        if volume.len() != self.mass.len() {
+            return Err(crate::Error::Input(format!(
+                "{} lumped volumes for {} nodes",
+                volume.len(),
+                self.mass.len()
+            )));
+        }
+        if let Some(i) = volume.iter().position(|&v| !(v > 0.0)) {
+            return Err(crate::Error::Input(format!(
+                "node {i} at {:?} m has lumped volume {:.3e} m^3; it needs a positive mass",
+                self.nodes[i].as_slice(),
+                volume[i]
+            )));
+        }
+        let rho = self.forces.material.density();
+        for (m, v) in self.mass.iter_mut().zip(volume) {
+            *m = rho * v;
+        }
+        Ok(())
+    }
+
     /// Hands the boundaries marked in `corrected` to `corrector`: they leave the directly
     /// prescribed DOFs, and their reactions come from the constraint forces.
     pub fn set_corrector(

@@ -1,0 +1,273 @@
+//! Issue 21: the coupled method on unstructured tetrahedral meshes (Gmsh cylinders of
+//! `meshes/make_gmsh_cylinders.py`, SfePy references of REFERENCE.md in
+//! `cases/tet-cylinder-*.toml`), and near-incompressible runs that agree or warn.
+
+mod common;
+use common::*;
+
+use std::path::Path;
+
+use hytled::coupling::NodeRole;
+use hytled::scene;
+use hytled::simulation;
+use hytled::solver::forces::deformation_gradient;
+use nalgebra::{Matrix3, Vector3};
+
+const COARSE: &str = "geometry.mesh=../meshes/cylinder-gmsh-h75.msh";
+
+fn prepared(case: &str, overrides: &[&str]) -> simulation::Prepared {
+    let o: Vec<String> = overrides.iter().map(|s| s.to_string()).collect();
+    let s = scene::load(Path::new(&format!("cases/{case}.toml")), &o).unwrap();
+    simulation::prepare(&s).unwrap()
+}
+
+/// The unstructured-tet defaults put one FE layer around the essential boundaries only: the
+/// FE nodes are exactly the nodes of the two driven / fixed faces, the free lateral surface is
+/// meshless, the blended points still pass the patch test, and the lumped volumes (blended
+/// points shared by |phi|) add up to the integrated volume.
+#[test]
+fn coupled_tet_defaults_put_fe_at_the_essential_faces_only() {
+    let p = prepared(
+        "tet-cylinder-compression",
+        &[COARSE, "discretization.method=coupled"],
+    );
+    let c = p.coupled.as_ref().unwrap();
+    let mut fe = 0;
+    let mut lateral_mls = 0;
+    for (i, r) in c.regions.node.iter().enumerate() {
+        let x = c.nodes[i];
+        let on_face = x.z.abs() < 1e-9 || (x.z - 0.1).abs() < 1e-9;
+        if *r == NodeRole::Fe {
+            assert!(on_face, "FE node {i} at {x:?} is off the essential faces");
+            fe += 1;
+        } else {
+            assert!(!on_face, "face node {i} is an MLS node");
+            if (x.x.hypot(x.y) - 0.05).abs() < 1e-6 {
+                lateral_mls += 1;
+            }
+        }
+    }
+    let faces = p.model.constraints.dofs.len() / 3;
+    assert_eq!(fe, faces, "FE nodes = the constrained face nodes");
+    assert!(lateral_mls > 100, "{lateral_mls} lateral MLS nodes");
+    assert_eq!(
+        c.fe_points, 0,
+        "one layer: every FE cell is a transition cell"
+    );
+    assert_eq!(
+        c.transition_points,
+        c.fe_mesh.num_cells(),
+        "one point per transition tet"
+    );
+    // Patch test through FE, transition and meshless points.
+    let a = Matrix3::new(0.01, -0.02, 0.03, 0.015, -0.01, 0.005, -0.02, 0.01, 0.02);
+    let u: Vec<Vector3<f64>> = p.model.nodes.iter().map(|x| a * x).collect();
+    let qp = &p.model.points;
+    let worst = (0..qp.len())
+        .map(|q| {
+            (deformation_gradient(qp, q, &u) - Matrix3::identity() - a)
+                .abs()
+                .max()
+        })
+        .fold(0.0f64, f64::max);
+    assert!(worst < 1e-9, "|F - (I + A)| = {worst:e}");
+    let total: f64 = c.lumped_volume.iter().sum();
+    assert!(c.lumped_volume.iter().all(|&v| v > 0.0));
+    assert!(
+        (total - qp.total_weight()).abs() < 1e-12 * total,
+        "lumped {total} vs weights {}",
+        qp.total_weight()
+    );
+    // Masses follow the lumped volumes (density 1000 kg/m^3).
+    for (m, v) in p.model.mass.iter().zip(&c.lumped_volume) {
+        assert!((m - 1000.0 * v).abs() <= 1e-12 * m);
+    }
+}
+
+/// Prescribed face nodes no longer set the step: with the FE layer around the driven faces,
+/// the coupled step is not below the pure MMLS step on the same nodes (before the nodal bound
+/// skipped them, 5.4e-5 s against 2.2e-4 s on the 4,208-node mesh).
+#[test]
+fn coupled_tet_step_is_not_set_by_prescribed_nodes() {
+    let coupled = prepared(
+        "tet-cylinder-compression",
+        &[COARSE, "discretization.method=coupled"],
+    );
+    let mmls = prepared(
+        "tet-cylinder-compression",
+        &[
+            COARSE,
+            "discretization.method=meshless",
+            "discretization.basis=quadratic",
+            "discretization.tet_rule=1",
+        ],
+    );
+    let (dc, crit) = hytled::solver::integrate::stable_step(&coupled.model);
+    let (dm, _) = hytled::solver::integrate::stable_step(&mmls.model);
+    println!("coupled dt {dc:e} ({crit:?}), MMLS dt {dm:e}");
+    assert!(dc >= dm, "coupled {dc} s below MMLS {dm} s");
+    if let hytled::solver::integrate::Critical::Node(i) = crit {
+        assert!(!coupled.model.constraints.mask[i].iter().all(|&c| c));
+    }
+}
+
+fn errors(case: &str, overrides: &[&str]) -> (f64, f64) {
+    let mut o = vec!["solver.mode=relaxation"];
+    o.extend_from_slice(overrides);
+    let s = run_case(&format!("cases/{case}.toml"), &o);
+    assert!(s.converged, "{case} {overrides:?} did not converge");
+    let e = (rel_err(&s, "force"), rel_err(&s, "probe_ux"));
+    println!(
+        "{case} {overrides:?}: reaction {:.3} %, probe {:.3} %, {} steps",
+        100.0 * e.0,
+        100.0 * e.1,
+        s.steps
+    );
+    e
+}
+
+/// Issue 21, item 2, on the 4,208-node Gmsh cylinder with default settings: coupled within
+/// 2 % (compression) and 1 % (extension, shear) of the SfePy reference in reaction and probe
+/// u_x, more accurate than fe tet4-anp on the same mesh in every case, and its worst error over
+/// the three cases below MMLS's compression error (MMLS's worst case; one point per tet).
+#[test]
+fn coupled_tet_cylinder_meets_the_reference_targets() {
+    let mut worst = 0.0f64;
+    for (case, tol) in [
+        ("tet-cylinder-compression", 0.02),
+        ("tet-cylinder-extension", 0.01),
+        ("tet-cylinder-shear", 0.01),
+    ] {
+        let c = errors(case, &["discretization.method=coupled"]);
+        let f = errors(case, &["discretization.method=fe"]);
+        assert!(c.0 < tol && c.1 < tol, "{case}: coupled {c:?}");
+        assert!(
+            c.0.max(c.1) < f.0.max(f.1),
+            "{case}: coupled {c:?}, fe {f:?}"
+        );
+        worst = worst.max(c.0.max(c.1));
+    }
+    let m = errors(
+        "tet-cylinder-compression",
+        &[
+            "discretization.method=meshless",
+            "discretization.basis=quadratic",
+            "discretization.tet_rule=1",
+        ],
+    );
+    assert!(worst < m.0.max(m.1), "coupled worst {worst}, MMLS {m:?}");
+}
+
+fn cylinder_0_4999(overrides: &[&str]) -> hytled::report::Summary {
+    let mut o = vec![
+        "solver.mode=relaxation",
+        "material.poisson_ratio=0.4999",
+        "references={}",
+    ];
+    o.extend_from_slice(overrides);
+    run_case("cases/cylinder-compression.toml", &o)
+}
+
+fn locking_warnings(s: &hytled::report::Summary) -> Vec<&String> {
+    s.warnings
+        .iter()
+        .filter(|w| w.contains("locking"))
+        .collect()
+}
+
+/// Issue 21, item 3, at test resolution ([4, 2, 8] cylinder, nu = 0.4999): hex8 (hourglass
+/// scaled by mu) and coupled agree within 10 % without a warning, where the hourglass scaled
+/// by lambda + 2 mu gave 19.0 N against 7.1 N.
+#[test]
+fn near_incompressible_hex8_and_coupled_agree_without_warning() {
+    let hex = cylinder_0_4999(&["discretization.divisions=[4,2,8]"]);
+    let cpl = cylinder_0_4999(&[
+        "discretization.divisions=[4,2,8]",
+        "discretization.method=coupled",
+        "discretization.fe_layers=1",
+    ]);
+    let (fh, fc) = (hex.reactions["top"][2], cpl.reactions["top"][2]);
+    println!("nu 0.4999 [4,2,8]: hex8 {fh:.4} N, coupled {fc:.4} N");
+    assert!(hex.converged && cpl.converged);
+    assert!((fh - fc).abs() < 0.1 * fh.abs(), "hex8 {fh}, coupled {fc}");
+    assert!(locking_warnings(&hex).is_empty() && locking_warnings(&cpl).is_empty());
+}
+
+/// The discretizations that lock at nu = 0.4999 say so, naming the setting to change.
+#[test]
+fn locking_discretizations_warn_and_name_the_fix() {
+    for (extra, key) in [
+        ("discretization.element=tet4", "element = 'tet4-anp'"),
+        (
+            "discretization.hourglass_modulus=p-wave",
+            "hourglass_modulus = 'shear'",
+        ),
+        ("discretization.method=meshless", "tet_rule = 1"),
+    ] {
+        let p = prepared(
+            "cylinder-compression",
+            &[
+                "discretization.divisions=[4,2,8]",
+                "material.poisson_ratio=0.4999",
+                extra,
+            ],
+        );
+        let w: Vec<&String> = p
+            .warnings
+            .iter()
+            .filter(|w| w.contains("locking"))
+            .collect();
+        assert_eq!(w.len(), 1, "{extra}: {:?}", p.warnings);
+        assert!(w[0].contains(key), "{extra}: {}", w[0]);
+        // At nu = 0.49 the same discretizations are calibrated against ABAQUS: no warning.
+        let p = prepared(
+            "cylinder-compression",
+            &["discretization.divisions=[4,2,8]", extra],
+        );
+        assert!(p.warnings.iter().all(|w| !w.contains("locking")), "{extra}");
+    }
+    // Hexahedra with the default (shear) hourglass scaling, tet4-anp and MMLS with one point
+    // per tet do not lock there.
+    for extra in [
+        &["discretization.element=hex8"][..],
+        &["discretization.element=tet4-anp"],
+        &[
+            "discretization.method=meshless",
+            "discretization.basis=quadratic",
+            "discretization.tet_rule=1",
+        ],
+    ] {
+        let mut o = vec![
+            "discretization.divisions=[4,2,8]",
+            "material.poisson_ratio=0.4999",
+        ];
+        o.extend_from_slice(extra);
+        let p = prepared("cylinder-compression", &o);
+        assert!(
+            p.warnings.iter().all(|w| !w.contains("locking")),
+            "{extra:?}: {:?}",
+            p.warnings
+        );
+    }
+}
+
+/// Issue 21, item 3, at the issue's resolution ([8, 4, 20], 4,389 nodes): hex8, tet4-anp and
+/// coupled within 10 % at nu = 0.4999 (measured 7.064, 7.440, 7.170 N). About 2.5 minutes:
+/// `cargo test --release --test tets -- --ignored`.
+#[test]
+#[ignore]
+fn near_incompressible_o_grid_methods_agree() {
+    let f: Vec<f64> = [
+        &["discretization.element=hex8"][..],
+        &["discretization.element=tet4-anp"],
+        &["discretization.method=coupled"],
+    ]
+    .iter()
+    .map(|o| cylinder_0_4999(o).reactions["top"][2])
+    .collect();
+    println!("nu 0.4999 [8,4,20]: hex8, tet4-anp, coupled {f:?} N");
+    let (lo, hi) = f.iter().fold((f64::INFINITY, 0.0f64), |(l, h), &x| {
+        (l.min(x.abs()), h.max(x.abs()))
+    });
+    assert!(hi < 1.1 * lo, "{f:?}");
+}
