@@ -151,6 +151,14 @@ tets_gmsh() {
   sweep cases/tet-cylinder-$1.toml --preset "$FE_ANP" --preset "$MLS1" --preset "$MMLS1" \
     --preset "$COUPLED_TET" --preset "$COUPLED_MMLS" --vary "$GMSH" --out studies/tets/gmsh-$1
 }
+# fe tet4-anp again after its own stable-step bound and lane kernel (the sweeps above ran
+# before them; their other presets do not use ANP points).
+tets-anp-gmsh-compression() { tets_anp_gmsh compression; }
+tets-anp-gmsh-extension() { tets_anp_gmsh extension; }
+tets-anp-gmsh-shear() { tets_anp_gmsh shear; }
+tets_anp_gmsh() {
+  sweep cases/tet-cylinder-$1.toml --preset "$FE_ANP" --vary "$GMSH" --out studies/tets/anp-gmsh-$1
+}
 # The TetGen series meshes the built-in cylinder; its references are set to SfePy's.
 tets-tetgen-compression() { tets_tetgen compression z -6.92 0.00699; }
 tets-tetgen-extension() { tets_tetgen extension z 4.664 -0.005083; }
@@ -165,6 +173,18 @@ tets_tetgen() {
     --preset "$COUPLED_MMLS" --vary discretization.size=0.012,0.009,0.007 \
     --out studies/tets/tetgen-$1
 }
+tets-anp-tetgen-compression() { tets_anp_tetgen compression z -6.92 0.00699; }
+tets-anp-tetgen-extension() { tets_anp_tetgen extension z 4.664 -0.005083; }
+tets-anp-tetgen-shear() { tets_anp_tetgen shear x 1.115 0.009506; }
+tets_anp_tetgen() {
+  sweep cases/cylinder-$1.toml --set solver.mode=relaxation --set discretization.mesher=tetgen \
+    --set discretization.element=tet4-anp --set "references.force.quantity=reaction.top.$2" \
+    --set "references.force.value=$3" --set "references.probe_ux.value=$4" \
+    --set 'references.force.source=SfePy (REFERENCE.md)' \
+    --set 'references.probe_ux.source=SfePy (REFERENCE.md)' \
+    --preset "$FE_ANP" --vary discretization.size=0.012,0.009,0.007 \
+    --out studies/tets/anp-tetgen-$1
+}
 
 ALL=(speed-accuracy-compression speed-accuracy-extension speed-accuracy-shear speed-accuracy-dynamic
   speed-accuracy-cube timestep-cube timestep-cylinder incompressibility-cube
@@ -172,7 +192,9 @@ ALL=(speed-accuracy-compression speed-accuracy-extension speed-accuracy-shear sp
   irregular-point-ratio spin fe-layers-compression fe-layers-extension fe-layers-shear
   adaptive-compression adaptive-extension adaptive-shear
   tets-gmsh-compression tets-gmsh-extension tets-gmsh-shear
-  tets-tetgen-compression tets-tetgen-extension tets-tetgen-shear)
+  tets-tetgen-compression tets-tetgen-extension tets-tetgen-shear
+  tets-anp-gmsh-compression tets-anp-gmsh-extension tets-anp-gmsh-shear
+  tets-anp-tetgen-compression tets-anp-tetgen-extension tets-anp-tetgen-shear)
 
 if [ "${1:-}" = --list ]; then printf '%s\n' "${ALL[@]}"; exit 0; fi
 # A study name stands for its jobs.

@@ -68,7 +68,9 @@ enum Mode {
     Plain4,
     /// One-point hexahedra with their hourglass force.
     Hourglass8,
-    /// Anything else, one point at a time (ANP and mean-dilatation points, other sizes).
+    /// Average-nodal-pressure tetrahedra: F scaled to the averaged J before the stress.
+    Anp4,
+    /// Anything else, one point at a time (mean-dilatation points, other sizes).
     Other,
 }
 
@@ -99,6 +101,20 @@ pub fn deformation_gradient(qp: &QuadraturePoints, p: usize, u: &[Vector3<f64>])
         let ua = &u[qp.nodes[s] as usize];
         let d = &qp.dphi[s];
         f += ua * d.transpose();
+    }
+    f
+}
+
+/// [`deformation_gradient`] of a 4-node point, unrolled: the same operations in the same
+/// order.
+#[inline(always)]
+fn gradient4(qp: &QuadraturePoints, p: usize, u: &[Vector3<f64>]) -> Matrix3<f64> {
+    let a = qp.offsets[p];
+    let ids = &qp.nodes[a..a + 4];
+    let d = &qp.dphi[a..a + 4];
+    let mut f = Matrix3::identity();
+    for k in 0..4 {
+        f += u[ids[k] as usize] * d[k].transpose();
     }
     f
 }
@@ -140,6 +156,12 @@ pub struct Forces<M: Material> {
     node_j: Vec<f64>,
     /// 1 / sum of ANP weights around each node (0 where a node has no ANP point).
     node_anp_inv_weight: Vec<f64>,
+    /// Per node, its ANP points and their weights (compressed rows, slot order): the nodal
+    /// averages read these instead of filtering every slot by kind.
+    anp_offsets: Vec<u32>,
+    anp_points: Vec<(u32, f64)>,
+    /// The ANP points, ascending.
+    anp_list: Vec<u32>,
     has_anp: bool,
     /// Weighted mean J of each mean-dilatation group.
     group_j: Vec<f64>,
@@ -166,6 +188,7 @@ fn point_mode(qp: &QuadraturePoints, p: usize) -> Mode {
         (PointKind::Standard, 8) => Mode::Plain8,
         (PointKind::Standard, 4) => Mode::Plain4,
         (PointKind::Hourglass(_), 8) => Mode::Hourglass8,
+        (PointKind::Anp, 4) => Mode::Anp4,
         _ => Mode::Other,
     }
 }
@@ -297,8 +320,27 @@ impl<M: Material> Forces<M> {
                 *iw = if w > 0.0 { 1.0 / w } else { 0.0 };
             }
         }
+        let mut anp_offsets = vec![0u32];
+        let mut anp_points = Vec::new();
+        if has_anp {
+            for n in 0..num_nodes {
+                for i in slots.range(n) {
+                    let p = slots.points[i] as usize;
+                    if qp.kinds[p] == PointKind::Anp {
+                        anp_points.push((p as u32, qp.weights[p]));
+                    }
+                }
+                anp_offsets.push(anp_points.len() as u32);
+            }
+        }
+        let anp_list = (0..qp.len() as u32)
+            .filter(|&p| qp.kinds[p as usize] == PointKind::Anp)
+            .collect();
         let plan = plan(qp, num_nodes, true);
         Forces {
+            anp_offsets,
+            anp_points,
+            anp_list,
             material,
             chunks: plan.chunks,
             // One more entry, always zero: the `first` entry of nodes no point reaches.
@@ -332,6 +374,9 @@ impl<M: Material> Forces<M> {
             + size_of_val(self.point_j.as_slice())
             + size_of_val(self.node_j.as_slice())
             + size_of_val(self.node_anp_inv_weight.as_slice())
+            + size_of_val(self.anp_offsets.as_slice())
+            + size_of_val(self.anp_points.as_slice())
+            + size_of_val(self.anp_list.as_slice())
             + size_of_val(self.group_j.as_slice())
             + size_of_val(self.energy_scratch.as_slice())
             + size_of_val(self.lane_data.as_slice())
@@ -339,9 +384,9 @@ impl<M: Material> Forces<M> {
     }
 
     /// The averaged J's the modified points need (ANP nodal averages, group means).
-    fn averages(&mut self, qp: &QuadraturePoints, slots: &NodeSlots, u: &[Vector3<f64>]) {
+    fn averages(&mut self, qp: &QuadraturePoints, u: &[Vector3<f64>]) {
         if self.has_anp {
-            self.average_nodal_j(qp, slots, u);
+            self.average_nodal_j(qp, u);
         }
         if !qp.groups.is_empty() {
             self.group_j
@@ -361,20 +406,21 @@ impl<M: Material> Forces<M> {
 
     /// Averaged nodal J for ANP points (Joldes et al. 2009): per node the volume-weighted mean of
     /// the element J's around it. Parallel over points, then over nodes.
-    fn average_nodal_j(&mut self, qp: &QuadraturePoints, slots: &NodeSlots, u: &[Vector3<f64>]) {
+    fn average_nodal_j(&mut self, qp: &QuadraturePoints, u: &[Vector3<f64>]) {
         let pj = SharedMut(self.point_j.as_mut_ptr());
-        (0..qp.len())
-            .into_par_iter()
-            .with_min_len(CHUNK)
-            .for_each(|p| {
-                if qp.kinds[p] == PointKind::Anp {
-                    let j = deformation_gradient(qp, p, u).determinant();
-                    // SAFETY: each p writes only its own entry.
-                    unsafe { *pj.get().add(p) = j };
-                }
-            });
+        self.anp_list.par_iter().with_min_len(CHUNK).for_each(|&p| {
+            let p = p as usize;
+            let j = if qp.offsets[p + 1] - qp.offsets[p] == 4 {
+                gradient4(qp, p, u).determinant()
+            } else {
+                deformation_gradient(qp, p, u).determinant()
+            };
+            // SAFETY: each p writes only its own entry.
+            unsafe { *pj.get().add(p) = j };
+        });
         let point_j = &self.point_j;
         let inv_w = &self.node_anp_inv_weight;
+        let (offsets, points) = (&self.anp_offsets, &self.anp_points);
         self.node_j
             .par_iter_mut()
             .with_min_len(CHUNK)
@@ -382,11 +428,8 @@ impl<M: Material> Forces<M> {
             .for_each(|(n, nj)| {
                 if inv_w[n] > 0.0 {
                     let mut acc = 0.0;
-                    for i in slots.range(n) {
-                        let p = slots.points[i] as usize;
-                        if qp.kinds[p] == PointKind::Anp {
-                            acc += qp.weights[p] * point_j[p];
-                        }
+                    for &(p, w) in &points[offsets[n] as usize..offsets[n + 1] as usize] {
+                        acc += w * point_j[p as usize];
                     }
                     *nj = acc * inv_w[n];
                 }
@@ -471,14 +514,16 @@ impl<M: Material> Forces<M> {
     pub fn compute_points(&mut self, qp: &QuadraturePoints, slots: &NodeSlots, u: &[Vector3<f64>]) {
         // The kernel reads u unchecked: every slot's node id is below num_nodes (Self::new).
         assert!(
-            u.len() >= self.num_nodes && qp.nodes.len() == self.buffers.slot_entry.len(),
+            u.len() >= self.num_nodes
+                && qp.nodes.len() == self.buffers.slot_entry.len()
+                && slots.slots.len() == qp.nodes.len(),
             "force evaluation on {} nodes and {} slots; built for {} and {}",
             u.len(),
             qp.nodes.len(),
             self.num_nodes,
             self.buffers.slot_entry.len()
         );
-        self.averages(qp, slots, u);
+        self.averages(qp, u);
         let cf = SharedMut(self.chunk_forces.as_mut_ptr());
         let pj = SharedMut(self.point_j.as_mut_ptr());
         let this = &*self;
@@ -565,15 +610,22 @@ impl<M: Material> Forces<M> {
     ) -> (f64, usize) {
         let p = it.first as usize;
         match (it.mode, it.count as usize) {
-            (Mode::Plain8, LANES) => self.lanes::<8, LANES, false, AVX>(qp, p, it.lane, u, cf, pj),
-            (Mode::Plain8, _) => self.lanes::<8, 1, false, AVX>(qp, p, 0, u, cf, pj),
-            (Mode::Plain4, LANES) => self.lanes::<4, LANES, false, AVX>(qp, p, it.lane, u, cf, pj),
-            (Mode::Plain4, _) => self.lanes::<4, 1, false, AVX>(qp, p, 0, u, cf, pj),
-            (Mode::Hourglass8, LANES) => {
-                self.lanes::<8, LANES, true, AVX>(qp, p, it.lane, u, cf, pj)
+            (Mode::Plain8, LANES) => {
+                self.lanes::<8, LANES, false, false, AVX>(qp, p, it.lane, u, cf, pj)
             }
-            (Mode::Hourglass8, _) => self.lanes::<8, 1, true, AVX>(qp, p, 0, u, cf, pj),
-            (Mode::Other, _) => {
+            (Mode::Plain8, _) => self.lanes::<8, 1, false, false, AVX>(qp, p, 0, u, cf, pj),
+            (Mode::Plain4, LANES) => {
+                self.lanes::<4, LANES, false, false, AVX>(qp, p, it.lane, u, cf, pj)
+            }
+            (Mode::Anp4, LANES) => {
+                self.lanes::<4, LANES, false, true, AVX>(qp, p, it.lane, u, cf, pj)
+            }
+            (Mode::Plain4, _) => self.lanes::<4, 1, false, false, AVX>(qp, p, 0, u, cf, pj),
+            (Mode::Hourglass8, LANES) => {
+                self.lanes::<8, LANES, true, false, AVX>(qp, p, it.lane, u, cf, pj)
+            }
+            (Mode::Hourglass8, _) => self.lanes::<8, 1, true, false, AVX>(qp, p, 0, u, cf, pj),
+            (Mode::Other, _) | (Mode::Anp4, _) => {
                 let (a, b) = (qp.offsets[p], qp.offsets[p + 1]);
                 let j = match b - a {
                     8 => self.point_fixed::<8, AVX>(qp, p, a, u, cf),
@@ -613,7 +665,7 @@ impl<M: Material> Forces<M> {
     }
 
     /// L consecutive points `p0..p0 + L` of N support nodes each (slots contiguous from
-    /// `offsets[p0]`), Standard kind, or with `HG` one-point hexahedra: F, J, P and the slot
+    /// `offsets[p0]`), Standard kind, with `HG` one-point hexahedra, with `ANP` average-nodal-pressure tetrahedra: F, J, P and the slot
     /// forces w P dphi_k (+ the hourglass force G G^T u) with the lanes innermost, so each
     /// operation runs on all L points at once. L = 1 evaluates single points with the same
     /// operations per point.
@@ -624,7 +676,13 @@ impl<M: Material> Forces<M> {
     /// `u.len()`.
     #[inline(always)]
     #[allow(clippy::needless_range_loop)] // index loops over lanes are what vectorizes
-    unsafe fn lanes<const N: usize, const L: usize, const HG: bool, const AVX: bool>(
+    unsafe fn lanes<
+        const N: usize,
+        const L: usize,
+        const HG: bool,
+        const ANP: bool,
+        const AVX: bool,
+    >(
         &self,
         qp: &QuadraturePoints,
         p0: usize,
@@ -694,6 +752,29 @@ impl<M: Material> Forces<M> {
             let m = |i: usize| f[i][l];
             j[l] = m(0) * (m(4) * m(8) - m(7) * m(5)) - m(1) * (m(3) * m(8) - m(6) * m(5))
                 + m(2) * (m(3) * m(7) - m(6) * m(4));
+        }
+        if ANP {
+            // As Self::modified, lane by lane: F scaled by (J_avg / J)^(1/3), J_avg the mean
+            // of the point's nodal averages, which the stress then takes for J.
+            // The cube roots run lane-parallel: cbrt(x) = x (x^(-1/3))^2 as in `cbrt`.
+            let mut j_avg = [0.0; L];
+            let mut ratio = [0.0; L];
+            for l in 0..L {
+                let mut sum = 0.0;
+                for k in 0..N {
+                    sum += *self.node_j.get_unchecked(*nodes.add(l * N + k) as usize);
+                }
+                j_avg[l] = sum / N as f64;
+                ratio[l] = j_avg[l] / j[l];
+            }
+            let r = crate::material::inv_cbrt_lanes(ratio);
+            let c: [f64; L] = std::array::from_fn(|l| ratio[l] * (r[l] * r[l]));
+            for e in f.iter_mut() {
+                for l in 0..L {
+                    e[l] *= c[l];
+                }
+            }
+            j = j_avg;
         }
         let mut pk = self.material.first_pk_stress_lanes(&f, &j);
         let w: [f64; L] = std::array::from_fn(|l| *qp.weights.get_unchecked(p0 + l));
@@ -854,7 +935,12 @@ impl<M: Material> Forces<M> {
         slots: &NodeSlots,
         u: &[Vector3<f64>],
     ) -> f64 {
-        self.averages(qp, slots, u);
+        debug_assert_eq!(
+            slots.slots.len(),
+            qp.nodes.len(),
+            "node slots of other points"
+        );
+        self.averages(qp, u);
         let mut per_point = std::mem::take(&mut self.energy_scratch);
         let this = &*self;
         per_point.par_iter_mut().enumerate().for_each(|(p, e)| {
@@ -882,7 +968,12 @@ impl<M: Material> Forces<M> {
         slots: &NodeSlots,
         u: &[Vector3<f64>],
     ) -> (Vec<f64>, Vec<f64>, Vec<f64>) {
-        self.averages(qp, slots, u);
+        debug_assert_eq!(
+            slots.slots.len(),
+            qp.nodes.len(),
+            "node slots of other points"
+        );
+        self.averages(qp, u);
         let mut sig = vec![0.0; 9 * qp.len()];
         let mut vm = vec![0.0; qp.len()];
         let mut jj = vec![0.0; qp.len()];
@@ -960,7 +1051,8 @@ mod tests {
         for (mesh, kind, plain) in [
             (hex.clone(), ElementKind::Hex8, false),
             (hex, ElementKind::Hex8, true),
-            (tet, ElementKind::Tet4, false),
+            (tet.clone(), ElementKind::Tet4, false),
+            (tet, ElementKind::Tet4Anp, false),
         ] {
             let mut qp = element_points(&mesh, kind, 0.05, 1e5).unwrap();
             if plain {
@@ -980,9 +1072,28 @@ mod tests {
             let (nodal, pj) = &runs[0];
             let mut want_nodal = vec![Vector3::zeros(); mesh.nodes.len()];
             let mut scale = 0.0f64;
+            // ANP: volume-weighted nodal means of the points' J (Joldes et al. 2009).
+            let (mut vj, mut vw) = (vec![0.0; mesh.nodes.len()], vec![0.0; mesh.nodes.len()]);
             for p in 0..qp.len() {
-                let f = deformation_gradient(&qp, p, &u);
-                let j = f.determinant();
+                let j = deformation_gradient(&qp, p, &u).determinant();
+                for s in qp.slots(p) {
+                    vj[qp.nodes[s] as usize] += qp.weights[p] * j;
+                    vw[qp.nodes[s] as usize] += qp.weights[p];
+                }
+            }
+            for p in 0..qp.len() {
+                let mut f = deformation_gradient(&qp, p, &u);
+                let mut j = f.determinant();
+                if qp.kinds[p] == PointKind::Anp {
+                    let r = qp.slots(p);
+                    let j_avg = r
+                        .clone()
+                        .map(|s| vj[qp.nodes[s] as usize] / vw[qp.nodes[s] as usize])
+                        .sum::<f64>()
+                        / r.len() as f64;
+                    f *= (j_avg / j).cbrt();
+                    j = j_avg;
+                }
                 assert!((pj[p] - j).abs() < 1e-14, "J at {p}");
                 let pk: Matrix3<f64> = f * mat.pk2_stress(&f, j) * qp.weights[p];
                 let r = qp.slots(p);
@@ -1021,7 +1132,8 @@ mod tests {
                 worst < 1e-12,
                 "{kind:?}: relative force difference {worst:e}"
             );
-            // 45 hexahedra and 54 tetrahedra: full blocks and single points both run.
+            // 45 hexahedra and 54 tetrahedra: full blocks and single points both run (ANP
+            // blocks included).
             assert!(!qp.len().is_multiple_of(LANES) && qp.len() > LANES);
         }
     }

@@ -211,6 +211,26 @@ impl std::fmt::Display for Critical {
 /// bound is much tighter where supports are large (meshless about 1.5x, blended points 2-2.4x).
 pub fn stable_step<M: Material>(model: &Model<M>) -> (f64, Critical) {
     let c = model.forces.material.wave_speed();
+    if !model.points.is_empty()
+        && model
+            .points
+            .kinds
+            .iter()
+            .all(|&k| k == crate::quadrature::PointKind::Anp)
+    {
+        // Average nodal pressure: the bound that sees the averaging (timestep::anp_time_step).
+        let (lambda, mu) = model.forces.material.lame();
+        let (dt, node) = super::timestep::anp_time_step(
+            &model.points,
+            &model.slots,
+            &model.mass,
+            &model.constraints.mask,
+            mu,
+            lambda + 2.0 * mu / 3.0,
+            model.forces.material.density(),
+        );
+        return (dt, Critical::Node(node));
+    }
     let (dt_point, crit_point) = critical_time_step(&model.points, c);
     let (dt_node, crit_node) = super::timestep::nodal_time_step(
         &model.points,

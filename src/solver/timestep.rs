@@ -62,6 +62,100 @@ pub fn nodal_time_step(
     best
 }
 
+/// Stable step of a model whose points are all average-nodal-pressure tets (Joldes et al.
+/// 2009), s, and the node that sets it. Linearized at the reference state the ANP stiffness
+/// splits into the points' deviatoric part, with modulus 2 mu, and a volumetric part built
+/// from the nodal averages: with the nodal volumes W_n = sum of V_p over the points at n and
+/// g_n = sum over those points of V_p b_p (b_p the point's divergence row),
+/// K_vol = (kappa / 4) sum_n g_n g_n^T / W_n (the 1/4 is the mean over a tet's four nodes).
+/// By Weyl's inequality lambda_max(M^-1 K) <= lambda_dev + lambda_vol, where
+/// - lambda_dev <= max_p n_p (2 mu / rho) sum_j |b_j|^2 (per point, its mass split evenly);
+/// - lambda_vol = (kappa / 4) lambda_max(S), S = W^-1/2 G M^-1 G^T W^-1/2 (nodes x nodes, the
+///   same nonzero eigenvalues as M^-1 K_vol), bounded by S's largest absolute row sum
+///   (Gershgorin). S keeps the cancellations of the averaged pressure that a per-point bound
+///   with lambda + 2 mu cannot see.
+///
+/// Nodes whose three components are prescribed (`prescribed`) are left out of G (their DOFs are
+/// not integrated). `mu`, `kappa` in Pa, `density` in kg/m^3, masses in kg.
+pub fn anp_time_step(
+    qp: &QuadraturePoints,
+    slots: &crate::quadrature::NodeSlots,
+    mass: &[f64],
+    prescribed: &[[bool; 3]],
+    mu: f64,
+    kappa: f64,
+    density: f64,
+) -> (f64, usize) {
+    let n = mass.len();
+    let fixed = |j: usize| prescribed.get(j).is_some_and(|c| c.iter().all(|&c| c));
+    let lam_dev = (0..qp.len())
+        .map(|p| {
+            let r = qp.slots(p);
+            let sum: f64 = qp.dphi[r.clone()].iter().map(|d| d.norm_squared()).sum();
+            r.len() as f64 * 2.0 * mu / density * sum
+        })
+        .fold(0.0, f64::max);
+    // g_n as sorted (node j, V_p b_pj summed over the points p at n that reach j).
+    let mut w = vec![0.0; n];
+    let g: Vec<Vec<(usize, nalgebra::Vector3<f64>)>> = (0..n)
+        .map(|node| {
+            let mut acc: Vec<(usize, nalgebra::Vector3<f64>)> = Vec::new();
+            for k in slots.range(node) {
+                let p = slots.points[k] as usize;
+                w[node] += qp.weights[p];
+                for s in qp.slots(p) {
+                    let j = qp.nodes[s] as usize;
+                    if fixed(j) {
+                        continue;
+                    }
+                    let v = qp.dphi[s] * qp.weights[p];
+                    match acc.iter_mut().find(|a| a.0 == j) {
+                        Some(a) => a.1 += v,
+                        None => acc.push((j, v)),
+                    }
+                }
+            }
+            acc.sort_unstable_by_key(|a| a.0);
+            acc
+        })
+        .collect();
+    let mut best = (f64::INFINITY, 0);
+    let mut row: Vec<f64> = vec![0.0; n];
+    let mut seen = vec![false; n];
+    let mut touched: Vec<usize> = Vec::new();
+    for a in 0..n {
+        if !(w[a] > 0.0) {
+            continue;
+        }
+        // S_ab = sum_j g_a[j] . g_b[j] / m_j / sqrt(W_a W_b); the b with g_b[j] != 0 are the
+        // nodes that share a point with j, i.e. the entries of g_j.
+        for &(j, ga) in &g[a] {
+            for &(b, _) in &g[j] {
+                if let Ok(k) = g[b].binary_search_by_key(&j, |e| e.0) {
+                    if !seen[b] {
+                        seen[b] = true;
+                        touched.push(b);
+                    }
+                    row[b] += ga.dot(&g[b][k].1) / mass[j];
+                }
+            }
+        }
+        let mut sum = 0.0;
+        for &b in &touched {
+            sum += row[b].abs() / (w[a] * w[b]).sqrt();
+            row[b] = 0.0;
+            seen[b] = false;
+        }
+        touched.clear();
+        let lam = lam_dev + 0.25 * kappa * sum;
+        let dt = 2.0 / lam.sqrt();
+        if dt < best.0 {
+            best = (dt, a);
+        }
+    }
+    best
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
