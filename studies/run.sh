@@ -148,8 +148,7 @@ tets-gmsh-compression() { tets_gmsh compression; }
 tets-gmsh-extension() { tets_gmsh extension; }
 tets-gmsh-shear() { tets_gmsh shear; }
 tets_gmsh() {
-  sweep cases/tet-cylinder-$1.toml --preset "$FE_ANP" --preset "$MLS1" --preset "$MMLS1" \
-    --preset "$COUPLED_TET" --preset "$COUPLED_MMLS" --vary "$GMSH" --out studies/tets/gmsh-$1
+  sweep cases/tet-cylinder-$1.toml "${TET_PRESETS[@]}" --vary "$GMSH" --out studies/tets/gmsh-$1
 }
 # fe tet4-anp again after its own stable-step bound and lane kernel (the sweeps above ran
 # before them; their other presets do not use ANP points).
@@ -160,30 +159,30 @@ tets_anp_gmsh() {
   sweep cases/tet-cylinder-$1.toml --preset "$FE_ANP" --vary "$GMSH" --out studies/tets/anp-gmsh-$1
 }
 # The TetGen series meshes the built-in cylinder; its references are set to SfePy's.
-tets-tetgen-compression() { tets_tetgen compression z -6.92 0.00699; }
-tets-tetgen-extension() { tets_tetgen extension z 4.664 -0.005083; }
-tets-tetgen-shear() { tets_tetgen shear x 1.115 0.009506; }
+tets-tetgen-compression() { tets_tetgen compression tetgen "${TET_PRESETS[@]}"; }
+tets-tetgen-extension() { tets_tetgen extension tetgen "${TET_PRESETS[@]}"; }
+tets-tetgen-shear() { tets_tetgen shear tetgen "${TET_PRESETS[@]}"; }
+tets-anp-tetgen-compression() { tets_tetgen compression anp-tetgen --preset "$FE_ANP"; }
+tets-anp-tetgen-extension() { tets_tetgen extension anp-tetgen --preset "$FE_ANP"; }
+tets-anp-tetgen-shear() { tets_tetgen shear anp-tetgen --preset "$FE_ANP"; }
+TET_PRESETS=(--preset "$FE_ANP" --preset "$MLS1" --preset "$MMLS1" --preset "$COUPLED_TET"
+  --preset "$COUPLED_MMLS")
+# tets_tetgen CASE OUT PRESETS...: SfePy's reaction component, reaction and probe u_x per case.
 tets_tetgen() {
-  sweep cases/cylinder-$1.toml --set solver.mode=relaxation --set discretization.mesher=tetgen \
-    --set discretization.element=tet4-anp --set "references.force.quantity=reaction.top.$2" \
-    --set "references.force.value=$3" --set "references.probe_ux.value=$4" \
+  local refs
+  case $1 in
+    compression) refs=(z -6.92 0.00699) ;;
+    extension) refs=(z 4.664 -0.005083) ;;
+    shear) refs=(x 1.115 0.009506) ;;
+  esac
+  local c=$1 out=$2
+  shift 2
+  sweep cases/cylinder-$c.toml --set solver.mode=relaxation --set discretization.mesher=tetgen \
+    --set discretization.element=tet4-anp --set "references.force.quantity=reaction.top.${refs[0]}" \
+    --set "references.force.value=${refs[1]}" --set "references.probe_ux.value=${refs[2]}" \
     --set 'references.force.source=SfePy (REFERENCE.md)' \
     --set 'references.probe_ux.source=SfePy (REFERENCE.md)' \
-    --preset "$FE_ANP" --preset "$MLS1" --preset "$MMLS1" --preset "$COUPLED_TET" \
-    --preset "$COUPLED_MMLS" --vary discretization.size=0.012,0.009,0.007 \
-    --out studies/tets/tetgen-$1
-}
-tets-anp-tetgen-compression() { tets_anp_tetgen compression z -6.92 0.00699; }
-tets-anp-tetgen-extension() { tets_anp_tetgen extension z 4.664 -0.005083; }
-tets-anp-tetgen-shear() { tets_anp_tetgen shear x 1.115 0.009506; }
-tets_anp_tetgen() {
-  sweep cases/cylinder-$1.toml --set solver.mode=relaxation --set discretization.mesher=tetgen \
-    --set discretization.element=tet4-anp --set "references.force.quantity=reaction.top.$2" \
-    --set "references.force.value=$3" --set "references.probe_ux.value=$4" \
-    --set 'references.force.source=SfePy (REFERENCE.md)' \
-    --set 'references.probe_ux.source=SfePy (REFERENCE.md)' \
-    --preset "$FE_ANP" --vary discretization.size=0.012,0.009,0.007 \
-    --out studies/tets/anp-tetgen-$1
+    "$@" --vary discretization.size=0.012,0.009,0.007 --out studies/tets/$out-$c
 }
 
 ALL=(speed-accuracy-compression speed-accuracy-extension speed-accuracy-shear speed-accuracy-dynamic
