@@ -137,12 +137,13 @@ adaptive_cylinder() {
 # (REFERENCE.md): a Gmsh series (meshes/make_gmsh_cylinders.py: 1,982 / 4,208 / 8,743 /
 # 17,917 nodes) and a TetGen series (mesher = "tetgen", size 12 / 9 / 7 mm: 2,697 / 4,386 /
 # 8,314 nodes); fe tet4-anp, meshless MLS and MMLS (one point per tet, radius supports,
-# EBCIEM), coupled with the unstructured-tet defaults (one FE layer around the essential
-# faces, one point per transition tet, linear MLS) and with an MMLS interior.
+# EBCIEM), coupled with one FE layer around the essential faces (the unstructured-tet
+# default) and one point per transition tet (the default when the study ran; now `full`),
+# linear MLS or an MMLS interior.
 MLS1='mls=discretization.method=meshless;discretization.basis=linear;discretization.tet_rule=1'
 MMLS1='mmls=discretization.method=meshless;discretization.basis=quadratic;discretization.tet_rule=1'
-COUPLED_TET='coupled=discretization.method=coupled'
-COUPLED_MMLS='coupled-mmls=discretization.method=coupled;discretization.basis=quadratic'
+COUPLED_TET='coupled=discretization.method=coupled;discretization.transition_rule=interior'
+COUPLED_MMLS='coupled-mmls=discretization.method=coupled;discretization.basis=quadratic;discretization.transition_rule=interior'
 GMSH='geometry.mesh=../meshes/cylinder-gmsh-h75.msh,../meshes/cylinder-gmsh-h57.msh,../meshes/cylinder-gmsh-h43.msh,../meshes/cylinder-gmsh-h33.msh'
 tets-gmsh-compression() { tets_gmsh compression; }
 tets-gmsh-extension() { tets_gmsh extension; }
@@ -185,6 +186,16 @@ tets_tetgen() {
     "$@" --vary discretization.size=0.012,0.009,0.007 --out studies/tets/$out-$c
 }
 
+# Issue 21, item 5: the brain indentation refined per method (no published reference: the
+# indenter force's convergence is the check). fe tet4-anp, coupled (the scene's pinned
+# surface layer) and meshless MLS, TetGen size 6 / 4.5 / 3.5 mm.
+brain-convergence() {
+  sweep cases/brain-indentation.toml --preset "$FE_ANP" \
+    --preset 'coupled=discretization.method=coupled' \
+    --preset 'meshless=discretization.method=meshless' \
+    --vary discretization.size=0.006,0.0045,0.0035 --out studies/brain-convergence
+}
+
 ALL=(speed-accuracy-compression speed-accuracy-extension speed-accuracy-shear speed-accuracy-dynamic
   speed-accuracy-cube timestep-cube timestep-cylinder incompressibility-cube
   incompressibility-cylinder large-deformation irregular-jitter irregular-halton
@@ -193,7 +204,8 @@ ALL=(speed-accuracy-compression speed-accuracy-extension speed-accuracy-shear sp
   tets-gmsh-compression tets-gmsh-extension tets-gmsh-shear
   tets-tetgen-compression tets-tetgen-extension tets-tetgen-shear
   tets-anp-gmsh-compression tets-anp-gmsh-extension tets-anp-gmsh-shear
-  tets-anp-tetgen-compression tets-anp-tetgen-extension tets-anp-tetgen-shear)
+  tets-anp-tetgen-compression tets-anp-tetgen-extension tets-anp-tetgen-shear
+  brain-convergence)
 
 if [ "${1:-}" = --list ]; then printf '%s\n' "${ALL[@]}"; exit 0; fi
 # A study name stands for its jobs.
