@@ -246,17 +246,6 @@ pub enum HourglassModulus {
     PWave,
 }
 
-impl Discretization {
-    /// (kappa_hg, modulus in Pa) of the hex8 hourglass stiffness for a material with Lame
-    /// parameters `lambda`, `mu` (Pa).
-    pub fn hourglass_scale(&self, lambda: f64, mu: f64) -> (f64, f64) {
-        match self.hourglass_modulus {
-            HourglassModulus::Shear => (self.hourglass.unwrap_or(0.51), mu),
-            HourglassModulus::PWave => (self.hourglass.unwrap_or(0.01), lambda + 2.0 * mu),
-        }
-    }
-}
-
 /// Points of a coupled scene's transition cells.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
 #[serde(rename_all = "lowercase")]
@@ -554,6 +543,15 @@ fn default_seed() -> u64 {
     1
 }
 impl Discretization {
+    /// (kappa_hg, modulus in Pa) of the hex8 hourglass stiffness for a material with Lame
+    /// parameters `lambda`, `mu` (Pa).
+    pub fn hourglass_scale(&self, lambda: f64, mu: f64) -> (f64, f64) {
+        match self.hourglass_modulus {
+            HourglassModulus::Shear => (self.hourglass.unwrap_or(0.51), mu),
+            HourglassModulus::PWave => (self.hourglass.unwrap_or(0.01), lambda + 2.0 * mu),
+        }
+    }
+
     /// A coupled scene on an unstructured tetrahedral mesh whose vertices are the nodes
     /// (element tet4 / tet4-anp, cloud = "mesh"): the FE layer goes around the essential
     /// boundaries only. Measured on the 4,208-node Gmsh cylinder: errors (reaction / probe)

@@ -675,12 +675,13 @@ fn prepare_coupled(scene: &Scene) -> Result<Prepared> {
             coupling::FeRegion::Around(nodes)
         }
     };
+    let (kappa_hg, hourglass_modulus) = d.hourglass_scale(lambda, mu);
     let settings = coupling::CoupledSettings {
         fe_layers: d.fe_layers(),
         fe_region,
         element: kind,
-        hourglass: d.hourglass_scale(lambda, mu).0,
-        hourglass_modulus: d.hourglass_scale(lambda, mu).1,
+        hourglass: kappa_hg,
+        hourglass_modulus,
         mls: discretize::mls_settings(scene),
         rule: discretize::support_rule(scene),
         interface_scale: d.interface_scale,

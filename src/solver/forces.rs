@@ -105,20 +105,6 @@ pub fn deformation_gradient(qp: &QuadraturePoints, p: usize, u: &[Vector3<f64>])
     f
 }
 
-/// [`deformation_gradient`] of a 4-node point, unrolled: the same operations in the same
-/// order.
-#[inline(always)]
-fn gradient4(qp: &QuadraturePoints, p: usize, u: &[Vector3<f64>]) -> Matrix3<f64> {
-    let a = qp.offsets[p];
-    let ids = &qp.nodes[a..a + 4];
-    let d = &qp.dphi[a..a + 4];
-    let mut f = Matrix3::identity();
-    for k in 0..4 {
-        f += u[ids[k] as usize] * d[k].transpose();
-    }
-    f
-}
-
 /// x^(1/3) = x (x^(-1/3))^2 through the fast [`inv_cbrt`].
 #[inline(always)]
 fn cbrt(x: f64) -> f64 {
@@ -308,28 +294,21 @@ impl<M: Material> Forces<M> {
             qp.node_bound().saturating_sub(1)
         );
         let has_anp = qp.kinds.contains(&PointKind::Anp);
+        // Per node, its ANP points and weights in slot order, and 1 / their weight sum.
         let mut inv_w = vec![0.0; num_nodes];
-        if has_anp {
-            for (n, iw) in inv_w.iter_mut().enumerate() {
-                let w: f64 = slots
-                    .range(n)
-                    .map(|i| slots.points[i] as usize)
-                    .filter(|&p| qp.kinds[p] == PointKind::Anp)
-                    .map(|p| qp.weights[p])
-                    .sum();
-                *iw = if w > 0.0 { 1.0 / w } else { 0.0 };
-            }
-        }
         let mut anp_offsets = vec![0u32];
         let mut anp_points = Vec::new();
         if has_anp {
-            for n in 0..num_nodes {
+            for (n, iw) in inv_w.iter_mut().enumerate() {
+                let first = anp_points.len();
                 for i in slots.range(n) {
                     let p = slots.points[i] as usize;
                     if qp.kinds[p] == PointKind::Anp {
                         anp_points.push((p as u32, qp.weights[p]));
                     }
                 }
+                let w: f64 = anp_points[first..].iter().map(|&(_, w)| w).sum();
+                *iw = if w > 0.0 { 1.0 / w } else { 0.0 };
                 anp_offsets.push(anp_points.len() as u32);
             }
         }
@@ -410,11 +389,7 @@ impl<M: Material> Forces<M> {
         let pj = SharedMut(self.point_j.as_mut_ptr());
         self.anp_list.par_iter().with_min_len(CHUNK).for_each(|&p| {
             let p = p as usize;
-            let j = if qp.offsets[p + 1] - qp.offsets[p] == 4 {
-                gradient4(qp, p, u).determinant()
-            } else {
-                deformation_gradient(qp, p, u).determinant()
-            };
+            let j = deformation_gradient(qp, p, u).determinant();
             // SAFETY: each p writes only its own entry.
             unsafe { *pj.get().add(p) = j };
         });
@@ -665,8 +640,9 @@ impl<M: Material> Forces<M> {
     }
 
     /// L consecutive points `p0..p0 + L` of N support nodes each (slots contiguous from
-    /// `offsets[p0]`), Standard kind, with `HG` one-point hexahedra, with `ANP` average-nodal-pressure tetrahedra: F, J, P and the slot
-    /// forces w P dphi_k (+ the hourglass force G G^T u) with the lanes innermost, so each
+    /// `offsets[p0]`), Standard kind, with `HG` one-point hexahedra, with `ANP`
+    /// average-nodal-pressure tetrahedra: F, J, P and the slot forces w P dphi_k (+ the
+    /// hourglass force G G^T u) with the lanes innermost, so each
     /// operation runs on all L points at once. L = 1 evaluates single points with the same
     /// operations per point.
     /// Writes the points' J and returns their smallest (J, point).

@@ -21,6 +21,11 @@ pub fn critical_time_step(qp: &QuadraturePoints, wave_speed: f64) -> (f64, usize
     best
 }
 
+/// Node `i` has all three components prescribed (`prescribed`: per node and component).
+fn fully_prescribed(prescribed: &[[bool; 3]], i: usize) -> bool {
+    prescribed.get(i).is_some_and(|c| c.iter().all(|&c| c))
+}
+
 /// Nodal (block Gershgorin) bound on the stable step, s: with lumped masses m_i (kg) and the
 /// reference stiffness blocks |K_ij| <= sum_p w_p (lambda + 2 mu) |dphi_i| |dphi_j|,
 /// lambda_max(M^-1 K) <= max_i (c^2 rho / m_i) sum_p w_p |dphi_i(p)| sum_j |dphi_j(p)|.
@@ -44,7 +49,7 @@ pub fn nodal_time_step(
         .collect();
     let mut best = (f64::INFINITY, 0);
     for (i, &m) in mass.iter().enumerate() {
-        if prescribed.get(i).is_some_and(|c| c.iter().all(|&c| c)) {
+        if fully_prescribed(prescribed, i) {
             continue;
         }
         let mut row = 0.0;
@@ -87,7 +92,6 @@ pub fn anp_time_step(
     density: f64,
 ) -> (f64, usize) {
     let n = mass.len();
-    let fixed = |j: usize| prescribed.get(j).is_some_and(|c| c.iter().all(|&c| c));
     let lam_dev = (0..qp.len())
         .map(|p| {
             let r = qp.slots(p);
@@ -105,7 +109,7 @@ pub fn anp_time_step(
                 w[node] += qp.weights[p];
                 for s in qp.slots(p) {
                     let j = qp.nodes[s] as usize;
-                    if fixed(j) {
+                    if fully_prescribed(prescribed, j) {
                         continue;
                     }
                     let v = qp.dphi[s] * qp.weights[p];
