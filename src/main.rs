@@ -230,8 +230,9 @@ fn execute(cmd: Command) -> hytled::Result<()> {
         }
         Command::Check { scene, set } => {
             let sc = hytled::scene::load(&scene, &set)?;
-            let prep = simulation::prepare(&sc)?;
-            let (dt, p) = hytled::solver::integrate::stable_step(&prep.model);
+            let mut prep = simulation::prepare(&sc)?;
+            let (dt, p) =
+                hytled::solver::integrate::critical_step(&mut prep.model, sc.solver.time_step);
             for w in &prep.warnings {
                 eprintln!("warning: {w}");
             }

@@ -691,6 +691,7 @@ fn prepare_coupled(scene: &Scene) -> Result<Prepared> {
             crate::scene::TransitionRuleKind::Interior => coupling::TransitionRule::Interior,
         },
         tet_rule: discretize::tet_rule(scene)?,
+        tets_per_point: d.tets_per_point(),
         adaptive: if d.integration == crate::scene::IntegrationKind::Adaptive {
             Some(discretize::adaptive_settings(scene)?)
         } else {
@@ -875,6 +876,7 @@ pub fn settings(scene: &Scene, progress: bool) -> Settings {
         load_time: s.load_time.unwrap_or(s.duration),
         load_steps: s.load_steps,
         dt_factor: s.dt_factor,
+        step_estimate: s.time_step,
         damping: s.damping,
         tolerance: s.tolerance,
         max_steps: s.max_steps,

@@ -159,6 +159,20 @@ tets-anp-gmsh-shear() { tets_anp_gmsh shear; }
 tets_anp_gmsh() {
   sweep cases/tet-cylinder-$1.toml --preset "$FE_ANP" --vary "$GMSH" --out studies/tets/anp-gmsh-$1
 }
+# The Gmsh series again with the global step estimate (solver.time_step = "global", now the
+# default; fe tet4-anp keeps its own bound) and the coupled defaults for unstructured tets that
+# followed the study (one point per transition tet, about three interior tets per point);
+# `coupled-full` is the default the first series ran with (four points per transition tet,
+# one point per interior tet).
+COUPLED_FULL='coupled-full=discretization.method=coupled;discretization.transition_rule=full;discretization.tets_per_point=1'
+tets-global-gmsh-compression() { tets_global compression; }
+tets-global-gmsh-extension() { tets_global extension; }
+tets-global-gmsh-shear() { tets_global shear; }
+tets_global() {
+  sweep cases/tet-cylinder-$1.toml --preset "$FE_ANP" --preset "$MLS1" --preset "$MMLS1" \
+    --preset 'coupled=discretization.method=coupled' --preset "$COUPLED_FULL" --vary "$GMSH" \
+    --out studies/tets/global-gmsh-$1
+}
 # The TetGen series meshes the built-in cylinder; its references are set to SfePy's.
 tets-tetgen-compression() { tets_tetgen compression tetgen "${TET_PRESETS[@]}"; }
 tets-tetgen-extension() { tets_tetgen extension tetgen "${TET_PRESETS[@]}"; }
@@ -205,6 +219,7 @@ ALL=(speed-accuracy-compression speed-accuracy-extension speed-accuracy-shear sp
   tets-tetgen-compression tets-tetgen-extension tets-tetgen-shear
   tets-anp-gmsh-compression tets-anp-gmsh-extension tets-anp-gmsh-shear
   tets-anp-tetgen-compression tets-anp-tetgen-extension tets-anp-tetgen-shear
+  tets-global-gmsh-compression tets-global-gmsh-extension tets-global-gmsh-shear
   brain-convergence)
 
 if [ "${1:-}" = --list ]; then printf '%s\n' "${ALL[@]}"; exit 0; fi

@@ -182,7 +182,10 @@ fn coupled_interior_refines_adaptively() {
         "discretization.size=0.02",
         "solver.max_steps=10",
     ];
-    let plain = prepare(&scene("cube-compression", &base)).unwrap();
+    // One point per interior tet: the adaptive rule's starting points.
+    let mut one = base.to_vec();
+    one.push("discretization.tets_per_point=1");
+    let plain = prepare(&scene("cube-compression", &one)).unwrap();
     let mut o = base.to_vec();
     o.extend([
         "discretization.integration=adaptive",

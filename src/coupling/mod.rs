@@ -53,6 +53,9 @@ pub struct CoupledSettings {
     /// Adaptive integration of the interior tets (thesis chapter 5) instead of `tet_rule`
     /// alone; its base rule is `tet_rule`.
     pub adaptive: Option<crate::meshless::adaptive::AdaptiveSettings>,
+    /// Interior tets merged per integration point (1: `tet_rule` in every tet; see
+    /// [`crate::meshless::integration::cluster_points`]).
+    pub tets_per_point: f64,
 }
 
 /// A built coupled discretization over a mesh whose vertices are all nodes.
@@ -509,7 +512,12 @@ fn assemble(
                 (pts.positions, pts.weights, pts.owner)
             }
             None => {
-                crate::meshless::integration::tet_points(&interior, s.tet_rule).map_err(bad_tet)?
+                use crate::meshless::integration::{cluster_bin, cluster_points, tet_points};
+                let (p, w, o) = tet_points(&interior, s.tet_rule).map_err(bad_tet)?;
+                match cluster_bin(&interior, &w, s.tets_per_point) {
+                    Some(bin) => cluster_points(&p, &w, &o, bin),
+                    None => (p, w, o),
+                }
             }
         }
     };

@@ -376,12 +376,27 @@ pub fn build(scene: &Scene, protected: &ProtectedNodes) -> Result<MeshlessBuild>
         }
         IntegrationKind::Tets => {
             let (p, w, o) = integration::tet_points(&background, tet_rule(scene)?)?;
-            let name = format!(
-                "{} background tets x {} points",
-                background.num_cells(),
-                d.tet_rule()
-            );
-            (p, w, o, name)
+            match integration::cluster_bin(&background, &w, d.tets_per_point()) {
+                Some(bin) => {
+                    let (p, w, o) = integration::cluster_points(&p, &w, &o, bin);
+                    let name = format!(
+                        "{} background tets x {} points merged into {} (about {} tets per point)",
+                        background.num_cells(),
+                        d.tet_rule(),
+                        p.len(),
+                        d.tets_per_point()
+                    );
+                    (p, w, o, name)
+                }
+                None => {
+                    let name = format!(
+                        "{} background tets x {} points",
+                        background.num_cells(),
+                        d.tet_rule()
+                    );
+                    (p, w, o, name)
+                }
+            }
         }
         IntegrationKind::Grid => {
             let dom = need_domain(scene, "integration = 'grid'")?;

@@ -218,6 +218,53 @@ pub fn integrate(
     points.iter().zip(weights).map(|(p, w)| w * f(p)).sum()
 }
 
+/// Merges integration points into about `per_bin` x fewer: the points are binned on a regular
+/// grid of spacing `bin` (m), and each bin becomes one point at its weight-weighted centroid
+/// carrying the bin's total weight. Volume and first moments stay exact, so linear integrands
+/// are integrated exactly, as by the rules merged. Returns (positions m, weights m^3, owner
+/// = the owner of the bin's first point), bins in order of their first point; `bin` not
+/// positive or not finite returns the points unchanged.
+pub fn cluster_points(
+    pos: &[Vector3<f64>],
+    w: &[f64],
+    owner: &[usize],
+    bin: f64,
+) -> (Vec<Vector3<f64>>, Vec<f64>, Vec<usize>) {
+    if pos.is_empty() || !(bin > 0.0 && bin.is_finite()) {
+        return (pos.to_vec(), w.to_vec(), owner.to_vec());
+    }
+    let lo = pos.iter().fold(Vector3::repeat(f64::INFINITY), |l, p| l.inf(p));
+    let key = |p: &Vector3<f64>| -> [i64; 3] {
+        std::array::from_fn(|a| ((p[a] - lo[a]) / bin).floor() as i64)
+    };
+    // The map only finds a point's bin; bins are numbered in the points' order.
+    let mut bins: std::collections::HashMap<[i64; 3], usize> = std::collections::HashMap::new();
+    let (mut cpos, mut cw, mut cown): (Vec<Vector3<f64>>, Vec<f64>, Vec<usize>) =
+        (Vec::new(), Vec::new(), Vec::new());
+    for (i, p) in pos.iter().enumerate() {
+        let b = *bins.entry(key(p)).or_insert_with(|| {
+            cpos.push(Vector3::zeros());
+            cw.push(0.0);
+            cown.push(owner[i]);
+            cw.len() - 1
+        });
+        cpos[b] += p * w[i];
+        cw[b] += w[i];
+    }
+    for (p, &v) in cpos.iter_mut().zip(&cw) {
+        *p /= v;
+    }
+    (cpos, cw, cown)
+}
+
+/// Bin edge (m) that merges about `tets_per_point` tets of `mesh` into one point: the cube
+/// root of that many mean tet volumes. None for 1 or fewer (no merging) or an empty mesh.
+pub fn cluster_bin(mesh: &Mesh, w: &[f64], tets_per_point: f64) -> Option<f64> {
+    let n = mesh.num_cells();
+    (tets_per_point > 1.0 && n > 0)
+        .then(|| (tets_per_point * w.iter().sum::<f64>() / n as f64).cbrt())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -441,5 +488,33 @@ mod tests {
         assert!(grid_points(&d, 100, f64::NAN).is_err());
         let e = grid_points(&d, 10_000_000, 10.0).unwrap_err().to_string();
         assert!(e.contains("limit"), "{e}");
+    }
+
+    /// Merged points keep the volume and the first moments of the tets they replace (linear
+    /// integrands stay exact), one point per bin, about `tets_per_point` times fewer points.
+    #[test]
+    fn clustered_points_keep_volume_and_first_moments() {
+        let mesh = crate::geometry::shapes::box_tet(
+            Vector3::zeros(),
+            Vector3::new(0.1, 0.06, 0.04),
+            [10, 6, 4],
+        )
+        .unwrap();
+        let (p, w, o) = tet_points(&mesh, TetRule::One).unwrap();
+        for k in [2.0, 3.0, 6.0] {
+            let bin = cluster_bin(&mesh, &w, k).unwrap();
+            let (cp, cw, co) = cluster_points(&p, &w, &o, bin);
+            let v0: f64 = w.iter().sum();
+            let v1: f64 = cw.iter().sum();
+            assert!((v1 - v0).abs() < 1e-12 * v0);
+            let m0 = p.iter().zip(&w).fold(Vector3::zeros(), |a, (x, &v)| a + x * v);
+            let m1 = cp.iter().zip(&cw).fold(Vector3::zeros(), |a, (x, &v)| a + x * v);
+            assert!((m1 - m0).norm() < 1e-12 * m0.norm());
+            let ratio = p.len() as f64 / cp.len() as f64;
+            assert!(ratio > 0.5 * k && ratio < 2.0 * k, "{k}: ratio {ratio}");
+            assert!(co.iter().all(|&e| e < mesh.num_cells()));
+            assert!(cw.iter().all(|&v| v > 0.0));
+        }
+        assert!(cluster_bin(&mesh, &w, 1.0).is_none());
     }
 }

@@ -7,6 +7,7 @@ pub mod integrate;
 #[cfg(target_arch = "x86_64")]
 mod lanes_avx2;
 pub mod order;
+pub mod spectrum;
 pub mod timestep;
 mod two_ended;
 
@@ -17,7 +18,7 @@ use crate::material::Material;
 use crate::quadrature::{NodeSlots, QuadraturePoints};
 use crate::Result;
 pub use forces::Forces;
-pub use integrate::{keep_warm, run, Mode, RunOutput, Settings};
+pub use integrate::{keep_warm, run, Mode, RunOutput, Settings, StepEstimate};
 
 /// A raw pointer that may cross threads: each parallel task writes a disjoint index range.
 #[derive(Clone, Copy)]
