@@ -457,7 +457,7 @@ pub struct Discretization {
     pub tet_rule_points: Option<usize>,
     /// Tet integration: background tets merged into one integration point (their total
     /// volume at their centroid, binned on a grid of about this many tets per cell; 1 = one
-    /// rule per tet). Default 3 for a coupled interior on unstructured tets, else 1.
+    /// rule per tet, the default).
     /// Read it through [`Discretization::tets_per_point`].
     #[serde(default, rename = "tets_per_point", skip_serializing_if = "Option::is_none")]
     pub tets_per_point_given: Option<f64>,
@@ -601,23 +601,15 @@ impl Discretization {
         })
     }
 
-    /// Background tets per integration point: as given, else 3 for the tet-integrated
-    /// interior of a coupled scene on unstructured tets and 1 otherwise. Measured on the 4,208-node Gmsh cylinder
-    /// (one-point transition rule; 16,194 interior tets, 3,012 meshless nodes): worst error
-    /// over compression, extension and shear 0.90 % with 3 (5,555 interior points), 0.98 %
-    /// with 2, 1.43 % with 1; with 5 (3,595 points) relaxation found spurious modes (12,120
-    /// steps in compression, 4.7 % off).
+    /// Background tets per integration point: as given, else 1 (one `tet_rule` per tet).
+    /// Merging trades a quadrature error that does not vanish under refinement for fewer
+    /// points. Coupled, 4,208-node Gmsh cylinder (one point per transition tet): worst error
+    /// over compression, extension and shear 1.43 % with 1 (16,194 interior points), 0.90 %
+    /// with 3 (5,555 points, 1.1-1.4x fe tet4-anp's solve against 1.5-1.9x); at 17,917 nodes
+    /// 0.59 % with 1 and 1.61 % with 3 (reactions 0.5-0.8 % softer at every resolution); with
+    /// 5 relaxation finds spurious modes (12,120 steps in compression, 4.7 % off).
     pub fn tets_per_point(&self) -> f64 {
-        self.tets_per_point_given.unwrap_or(
-            if self.method == Method::Coupled
-                && self.unstructured_tets()
-                && self.integration == IntegrationKind::Tets
-            {
-                3.0
-            } else {
-                1.0
-            },
-        )
+        self.tets_per_point_given.unwrap_or(1.0)
     }
 
     /// Points per background tet: `tet_rule` as given, else 4 (meshless) or 1 (coupled).

@@ -161,16 +161,17 @@ tets_anp_gmsh() {
 }
 # The Gmsh series again with the global step estimate (solver.time_step = "global", now the
 # default; fe tet4-anp keeps its own bound) and the coupled defaults for unstructured tets that
-# followed the study (one point per transition tet, about three interior tets per point);
-# `coupled-full` is the default the first series ran with (four points per transition tet,
-# one point per interior tet).
-COUPLED_FULL='coupled-full=discretization.method=coupled;discretization.transition_rule=full;discretization.tets_per_point=1'
+# followed the study (one point per transition tet); `coupled-tpp3` merges about three interior
+# tets into each point; `coupled-full` has four points per transition tet.
+COUPLED_FULL='coupled-full=discretization.method=coupled;discretization.transition_rule=full'
+COUPLED_TPP3='coupled-tpp3=discretization.method=coupled;discretization.tets_per_point=3'
 tets-global-gmsh-compression() { tets_global compression; }
 tets-global-gmsh-extension() { tets_global extension; }
 tets-global-gmsh-shear() { tets_global shear; }
 tets_global() {
   sweep cases/tet-cylinder-$1.toml --preset "$FE_ANP" --preset "$MLS1" --preset "$MMLS1" \
-    --preset 'coupled=discretization.method=coupled' --preset "$COUPLED_FULL" --vary "$GMSH" \
+    --preset 'coupled=discretization.method=coupled' --preset "$COUPLED_TPP3" \
+    --preset "$COUPLED_FULL" --vary "$GMSH" \
     --out studies/tets/global-gmsh-$1
 }
 # The TetGen series meshes the built-in cylinder; its references are set to SfePy's.
@@ -201,13 +202,20 @@ tets_tetgen() {
 }
 
 # Issue 21, item 5: the brain indentation refined per method (no published reference: the
-# indenter force's convergence is the check). fe tet4-anp, coupled (the scene's pinned
-# surface layer) and meshless MLS, TetGen size 6 / 4.5 / 3.5 mm.
+# indenter force's convergence is the check). fe tet4-anp (the scene's default), meshless MLS,
+# coupled with the scene's surface layer (two tet4-anp layers, four points per transition tet)
+# and with the unstructured-tet defaults (one layer around the essential boundaries, one point
+# per transition tet), TetGen size 6 / 4.5 / 3.5 mm; fe alone at 2.5 mm (27,968 nodes).
 brain-convergence() {
   sweep cases/brain-indentation.toml --preset "$FE_ANP" \
-    --preset 'coupled=discretization.method=coupled' \
     --preset 'meshless=discretization.method=meshless' \
+    --preset 'coupled-surface=discretization.method=coupled' \
+    --preset 'coupled-essential=discretization.method=coupled;discretization.fe_region=essential;discretization.fe_layers=1;discretization.transition_rule=interior' \
     --vary discretization.size=0.006,0.0045,0.0035 --out studies/brain-convergence
+}
+brain-convergence-fine() {
+  sweep cases/brain-indentation.toml --preset "$FE_ANP" --vary discretization.size=0.0025 \
+    --out studies/brain-convergence-fine
 }
 
 ALL=(speed-accuracy-compression speed-accuracy-extension speed-accuracy-shear speed-accuracy-dynamic
@@ -220,7 +228,7 @@ ALL=(speed-accuracy-compression speed-accuracy-extension speed-accuracy-shear sp
   tets-anp-gmsh-compression tets-anp-gmsh-extension tets-anp-gmsh-shear
   tets-anp-tetgen-compression tets-anp-tetgen-extension tets-anp-tetgen-shear
   tets-global-gmsh-compression tets-global-gmsh-extension tets-global-gmsh-shear
-  brain-convergence)
+  brain-convergence brain-convergence-fine)
 
 if [ "${1:-}" = --list ]; then printf '%s\n' "${ALL[@]}"; exit 0; fi
 # A study name stands for its jobs.

@@ -169,6 +169,21 @@ fn invalid_values_are_clear_errors() {
         &["references.top_force.quantity=reaction.lid.z"],
     );
     assert!(e.contains("reaction.lid.z"), "{e}");
+    for (sets, want) in [
+        (vec!["discretization.tets_per_point=0.5"], "between 1"),
+        (vec!["discretization.tets_per_point=nan"], "finite"),
+        (
+            vec![
+                "discretization.tets_per_point=3",
+                "discretization.integration=grid",
+            ],
+            "integration = 'tets'",
+        ),
+        (vec!["solver.time_step=exact"], "expected `bounds` or `global`"),
+    ] {
+        let e = parse_err(&cube_text(), &sets);
+        assert!(e.contains(want), "{sets:?}: {e}");
+    }
 }
 
 #[test]

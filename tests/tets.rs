@@ -59,9 +59,7 @@ fn coupled_tet_defaults_put_fe_at_the_essential_faces_only() {
         c.fe_mesh.num_cells(),
         "one point per transition tet"
     );
-    // About three interior tets per meshless point.
-    let ratio = c.interior.num_cells() as f64 / c.meshless_points as f64;
-    assert!((2.0..4.5).contains(&ratio), "{ratio} interior tets per point");
+    assert_eq!(c.meshless_points, c.interior.num_cells(), "one point per interior tet");
     // Patch test through FE, transition and meshless points.
     let a = Matrix3::new(0.01, -0.02, 0.03, 0.015, -0.01, 0.005, -0.02, 0.01, 0.02);
     let u: Vec<Vector3<f64>> = p.model.nodes.iter().map(|x| a * x).collect();
@@ -130,22 +128,22 @@ fn errors(case: &str, overrides: &[&str]) -> (f64, f64) {
 }
 
 /// Issue 21, item 2, on the 4,208-node Gmsh cylinder with default settings: coupled within
-/// 2 % (compression) and 1 % (extension, shear) of the SfePy reference in reaction and probe
-/// u_x, more accurate than fe tet4-anp on the same mesh in every case, and its worst error
-/// over the three cases below the worst of MMLS (one point per tet; its worst case is
-/// compression), the most accurate pure method here.
+/// the tolerances REFERENCE.md gives its SfePy figures (reaction / probe u_x: compression 2 /
+/// 1 %, extension and shear 0.5 / 0.5 %, inside the issue's 2 % and 1 %), more accurate than
+/// fe tet4-anp in every case, and its worst error below the worst of MMLS (one point per tet),
+/// the most accurate pure method here, which misses the compression probe's 1 %.
 #[test]
 fn coupled_tet_cylinder_meets_the_reference_targets() {
     let cases = [
-        ("tet-cylinder-compression", 0.02),
-        ("tet-cylinder-extension", 0.01),
-        ("tet-cylinder-shear", 0.01),
+        ("tet-cylinder-compression", 0.02, 0.01),
+        ("tet-cylinder-extension", 0.005, 0.005),
+        ("tet-cylinder-shear", 0.005, 0.005),
     ];
     let mut worst = 0.0f64;
-    for (case, tol) in cases {
+    for (case, tol_f, tol_u) in cases {
         let c = errors(case, &["discretization.method=coupled"]);
         let f = errors(case, &["discretization.method=fe"]);
-        assert!(c.0 < tol && c.1 < tol, "{case}: coupled {c:?}");
+        assert!(c.0 < tol_f && c.1 < tol_u, "{case}: coupled {c:?}");
         assert!(
             c.0.max(c.1) < f.0.max(f.1),
             "{case}: coupled {c:?}, fe {f:?}"
@@ -160,6 +158,7 @@ fn coupled_tet_cylinder_meets_the_reference_targets() {
             "discretization.tet_rule=1",
         ],
     );
+    assert!(m.1 > 0.01, "MMLS compression probe {m:?}");
     assert!(worst < m.0.max(m.1), "coupled worst {worst}, MMLS {m:?}");
 }
 

@@ -572,7 +572,8 @@ fn assemble(
         owner.push(fe_cells[p]);
     }
     for (b, &e) in blended.iter().zip(&transition_cells) {
-        if s.mean_dilatation {
+        // A one-point cell's mean J is its J: a group would only add a pass per step.
+        if s.mean_dilatation && b.len() > 1 {
             let pts: Vec<_> = b
                 .iter()
                 .map(|(ids, dphi, w, _)| (ids.clone(), dphi.clone(), *w))
