@@ -127,12 +127,22 @@ pub fn run_case(case: &BenchCase, opts: &BenchOptions) -> Result<Vec<BenchRow>> 
     }
     let mut rows: Vec<BenchRow> = Vec::new();
     let mut first_u: Option<Vec<Vector3<f64>>> = None;
+    let cores = std::thread::available_parallelism().map_or(1, |c| c.get());
+    let mut threads: Vec<usize> = Vec::new();
     for &t in &opts.threads {
         if t == 0 {
             return Err(Error::Input(
                 "bench: thread counts must be at least 1".into(),
             ));
         }
+        if t > cores {
+            eprintln!("warning: bench: {t} threads is more than the {cores} cores here; using {cores}");
+        }
+        if !threads.contains(&t.min(cores)) {
+            threads.push(t.min(cores));
+        }
+    }
+    for &t in &threads {
         let pool = rayon::ThreadPoolBuilder::new()
             .num_threads(t)
             .build()

@@ -7,12 +7,22 @@ use std::process::ExitCode;
 use clap::{Parser, Subcommand, ValueEnum};
 
 use hytled::io::vtu::VtuFormat;
+use hytled::error::exit;
 use hytled::simulation::{self, RunOptions};
 
 /// Hybrid TLED finite-element / meshless solver for large soft-tissue deformation. SI units
 /// throughout (m, kg, s, N, Pa, J).
 #[derive(Parser)]
-#[command(name = "hytled", version, about)]
+#[command(
+    name = "hytled",
+    version,
+    about,
+    after_help = "Exit codes: 0 success (a dynamic run completed, a relaxation converged); \
+2 input error (scene, mesh, selection, flag); 3 the solution diverged or a point inverted; \
+4 relaxation not converged within solver.max_steps (the summary is still printed and written); \
+5 a file could not be read or written; 1 anything else. With --json, a failed command prints \
+{\"status\": \"failed\", \"error\", \"exit_code\", \"message\"} on stdout."
+)]
 struct Cli {
     #[command(subcommand)]
     command: Command,
@@ -177,16 +187,53 @@ enum Command {
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
+    let json = match &cli.command {
+        Command::Run { json, .. }
+        | Command::Compare { json, .. }
+        | Command::Sweep { json, .. }
+        | Command::Bench { json, .. } => *json,
+        _ => false,
+    };
     match execute(cli.command) {
-        Ok(()) => ExitCode::SUCCESS,
+        Ok(code) => ExitCode::from(code),
         Err(e) => {
             eprintln!("error: {e}");
-            ExitCode::FAILURE
+            if json {
+                // Scripts reading stdout get an object in every case.
+                let obj = serde_json::json!({
+                    "status": "failed",
+                    "error": e.kind(),
+                    "exit_code": e.exit_code(),
+                    "message": e.to_string(),
+                });
+                println!("{}", serde_json::to_string_pretty(&obj).unwrap_or_default());
+            }
+            ExitCode::from(e.exit_code())
         }
     }
 }
 
-fn execute(cmd: Command) -> hytled::Result<()> {
+/// Starts the global thread pool with `--threads n`: at least 1, at most the machine's cores
+/// (more would only add contention; a warning says so).
+fn start_threads(threads: Option<usize>) -> hytled::Result<()> {
+    let Some(n) = threads else { return Ok(()) };
+    if n == 0 {
+        return Err(hytled::Error::Input("--threads must be at least 1".into()));
+    }
+    let cores = std::thread::available_parallelism().map_or(1, |c| c.get());
+    let n = if n > cores {
+        eprintln!("warning: --threads {n} is more than the {cores} cores here; using {cores}");
+        cores
+    } else {
+        n
+    };
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(n)
+        .build_global()
+        .map_err(|e| hytled::Error::Input(format!("cannot start {n} threads: {e}")))
+}
+
+fn execute(cmd: Command) -> hytled::Result<u8> {
     match cmd {
         Command::Run {
             scene,
@@ -196,15 +243,7 @@ fn execute(cmd: Command) -> hytled::Result<()> {
             threads,
             vtu_format,
         } => {
-            if let Some(n) = threads {
-                if n == 0 {
-                    return Err(hytled::Error::Input("--threads must be at least 1".into()));
-                }
-                rayon::ThreadPoolBuilder::new()
-                    .num_threads(n)
-                    .build_global()
-                    .map_err(|e| hytled::Error::Input(format!("cannot start {n} threads: {e}")))?;
-            }
+            start_threads(threads)?;
             let sc = hytled::scene::load(&scene, &set)?;
             let opts = RunOptions {
                 out: out.clone(),
@@ -226,7 +265,15 @@ fn execute(cmd: Command) -> hytled::Result<()> {
                     println!("outputs written to {}", dir.display());
                 }
             }
-            Ok(())
+            if summary.status == "not converged" {
+                eprintln!(
+                    "error: relaxation did not converge in {} steps (solver.max_steps); the results are \
+                     not in equilibrium: raise solver.max_steps or check the load and the constraints",
+                    summary.steps
+                );
+                return Ok(exit::NOT_CONVERGED);
+            }
+            Ok(exit::SUCCESS)
         }
         Command::Check { scene, set } => {
             let sc = hytled::scene::load(&scene, &set)?;
@@ -272,7 +319,7 @@ fn execute(cmd: Command) -> hytled::Result<()> {
                 "  critical time step {dt:.4e} s (set by {p}); dt = {:.4e} s",
                 dt * sc.solver.dt_factor
             );
-            Ok(())
+            Ok(exit::SUCCESS)
         }
         Command::Convert {
             input,
@@ -299,7 +346,7 @@ fn execute(cmd: Command) -> hytled::Result<()> {
                 m.element_sets.len(),
                 m.face_sets.len()
             );
-            Ok(())
+            Ok(exit::SUCCESS)
         }
         Command::Bench {
             scenes,
@@ -343,7 +390,7 @@ fn execute(cmd: Command) -> hytled::Result<()> {
                 println!("{}", bench::table(&rows));
                 println!("SI units; times are wall-clock seconds on this machine.");
             }
-            Ok(())
+            Ok(exit::SUCCESS)
         }
         Command::Compare {
             scene,
@@ -354,12 +401,7 @@ fn execute(cmd: Command) -> hytled::Result<()> {
             threads,
             vtu_format,
         } => {
-            if let Some(n) = threads {
-                rayon::ThreadPoolBuilder::new()
-                    .num_threads(n.max(1))
-                    .build_global()
-                    .map_err(|e| hytled::Error::Input(format!("--threads {n}: {e}")))?;
-            }
+            start_threads(threads)?;
             let methods = hytled::comparison::parse_methods(&methods)?;
             let opts = hytled::comparison::CompareOptions {
                 out,
@@ -387,7 +429,7 @@ fn execute(cmd: Command) -> hytled::Result<()> {
             if rows.iter().all(|r| r.error.is_some()) {
                 return Err(hytled::Error::Input("compare: every method failed".into()));
             }
-            Ok(())
+            Ok(exit::SUCCESS)
         }
         Command::Sweep {
             scene,
@@ -401,12 +443,7 @@ fn execute(cmd: Command) -> hytled::Result<()> {
             threads,
             vtu_format,
         } => {
-            if let Some(n) = threads {
-                rayon::ThreadPoolBuilder::new()
-                    .num_threads(n.max(1))
-                    .build_global()
-                    .map_err(|e| hytled::Error::Input(format!("--threads {n}: {e}")))?;
-            }
+            start_threads(threads)?;
             if repeat == 0 {
                 return Err(hytled::Error::Input(
                     "--repeat 0: give at least 1 run per combination".into(),
@@ -453,7 +490,7 @@ fn execute(cmd: Command) -> hytled::Result<()> {
             if rows.iter().all(|r| r.error.is_some()) {
                 return Err(hytled::Error::Input("sweep: every run failed".into()));
             }
-            Ok(())
+            Ok(exit::SUCCESS)
         }
         Command::Table { summaries } => {
             let mut vals = Vec::new();
@@ -465,7 +502,7 @@ fn execute(cmd: Command) -> hytled::Result<()> {
                 vals.push(v);
             }
             print!("{}", hytled::report::markdown_table(&vals));
-            Ok(())
+            Ok(exit::SUCCESS)
         }
         Command::Mesh {
             scene,
@@ -511,7 +548,7 @@ fn execute(cmd: Command) -> hytled::Result<()> {
                     cloud_path.display()
                 );
             }
-            Ok(())
+            Ok(exit::SUCCESS)
         }
     }
 }

@@ -160,6 +160,9 @@ pub struct Summary {
     #[serde(skip_serializing_if = "Option::is_none")]
     pub momentum: Option<crate::solver::integrate::Momentum>,
     pub simulated_time: f64,
+    /// `"completed"` (dynamic run to its end), `"converged"` (relaxation) or `"not converged"`
+    /// (relaxation stopped by `solver.max_steps`; `hytled run` exits with code 4).
+    pub status: &'static str,
     pub converged: bool,
     pub threads: usize,
     pub wall_seconds: WallSeconds,
@@ -266,6 +269,7 @@ impl Summary {
                 "  NOT CONVERGED"
             }
         );
+        let _ = writeln!(s, "status           {}", self.status);
         let _ = writeln!(
             s,
             "wall time        {:.3} s (preprocess {:.3} s, solve {:.3} s; {:.3} ms/step, {} threads)",

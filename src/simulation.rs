@@ -996,6 +996,11 @@ pub fn summarize(scene: &Scene, prep: &Prepared, out: &RunOutput, total_seconds:
         dt_factor: out.dt / out.dt_critical,
         steps: out.steps,
         simulated_time: out.simulated_time,
+        status: match (out.load_steps.is_some(), out.converged) {
+            (false, _) => "completed",
+            (true, true) => "converged",
+            (true, false) => "not converged",
+        },
         converged: out.converged,
         threads: rayon::current_num_threads(),
         wall_seconds: WallSeconds {

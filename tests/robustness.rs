@@ -202,7 +202,7 @@ fn cli_reports_errors_without_panicking() {
         .output()
         .unwrap();
     let stderr = String::from_utf8_lossy(&out.stderr);
-    assert_eq!(out.status.code(), Some(1), "{stderr}");
+    assert_eq!(out.status.code(), Some(2), "input errors exit with 2: {stderr}");
     assert!(
         stderr.contains("error:") && stderr.contains("bad.toml") && !stderr.contains("panicked"),
         "{stderr}"
@@ -302,4 +302,85 @@ fn cli_json_summary_has_the_documented_fields_and_outputs_are_written() {
         panic!("not an unstructured grid");
     }
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// Issue 22: exit codes scripts can use (0 success, 2 input, 3 unstable, 4 not converged,
+/// 5 file system), the summary's status, a JSON error object on stdout with --json, and
+/// --threads capped at the cores with a warning.
+#[test]
+fn exit_codes_and_json_status_tell_scripts_what_happened() {
+    let run = |args: &[&str]| {
+        let out = Command::new(env!("CARGO_BIN_EXE_hytled"))
+            .arg("run")
+            .arg(path("cases/cube-compression.toml"))
+            .args(["--set", "discretization.size=0.05"])
+            .args(args)
+            .output()
+            .unwrap();
+        (
+            out.status.code(),
+            String::from_utf8_lossy(&out.stdout).to_string(),
+            String::from_utf8_lossy(&out.stderr).to_string(),
+        )
+    };
+    let json = |s: &str| -> serde_json::Value {
+        serde_json::from_str(s).unwrap_or_else(|e| panic!("not JSON ({e}): {s}"))
+    };
+    // Completed dynamic run.
+    let (code, out, _) = run(&[
+        "--json",
+        "--set",
+        "solver.mode=dynamic",
+        "--set",
+        "solver.duration=0.3",
+    ]);
+    assert_eq!(code, Some(0));
+    assert_eq!(json(&out)["status"], "completed");
+    // Converged relaxation.
+    let (code, out, _) = run(&["--json", "--set", "solver.mode=relaxation"]);
+    assert_eq!(code, Some(0));
+    assert_eq!(json(&out)["status"], "converged");
+    // Relaxation stopped by max_steps: the summary, its status and exit code 4.
+    let (code, out, err) = run(&[
+        "--json",
+        "--set",
+        "solver.mode=relaxation",
+        "--set",
+        "solver.max_steps=30",
+    ]);
+    assert_eq!(code, Some(4), "{err}");
+    let v = json(&out);
+    assert_eq!(v["status"], "not converged");
+    assert_eq!(v["converged"], false);
+    assert!(err.contains("did not converge") && err.contains("max_steps"), "{err}");
+    let (code, out, _) = run(&["--set", "solver.mode=relaxation", "--set", "solver.max_steps=30"]);
+    assert_eq!(code, Some(4));
+    assert!(out.contains("not converged"), "{out}");
+    // Divergence: 3, and a JSON error object on stdout.
+    let (code, out, err) = run(&["--json", "--set", "solver.dt_factor=4"]);
+    assert_eq!(code, Some(3), "{err}");
+    let v = json(&out);
+    assert_eq!(v["status"], "failed");
+    assert_eq!(v["error"], "unstable");
+    assert_eq!(v["exit_code"], 3);
+    assert!(v["message"].as_str().unwrap().contains("dt_factor"));
+    // Input error: 2 (a bad value, and a usage error from clap).
+    let (code, out, _) = run(&["--json", "--set", "material.poisson_ratio=0.7"]);
+    assert_eq!(code, Some(2));
+    assert_eq!(json(&out)["error"], "scene");
+    let (code, _, _) = run(&["--no-such-flag"]);
+    assert_eq!(code, Some(2));
+    // A file that cannot be read: 5.
+    let out = Command::new(env!("CARGO_BIN_EXE_hytled"))
+        .args(["run", "--json", "no/such/scene.toml"])
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(5));
+    assert_eq!(json(&String::from_utf8_lossy(&out.stdout))["error"], "io");
+    // More threads than cores: capped, with a warning, and the run succeeds.
+    let (code, out, err) = run(&["--json", "--threads", "100000"]);
+    assert_eq!(code, Some(0), "{err}");
+    assert!(err.contains("more than the") && err.contains("cores"), "{err}");
+    let cores = std::thread::available_parallelism().map_or(1, |c| c.get());
+    assert_eq!(json(&out)["threads"], cores);
 }
