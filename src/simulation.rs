@@ -896,16 +896,33 @@ pub fn settings(scene: &Scene, progress: bool) -> Settings {
 }
 
 /// Runs a scene end to end and returns its summary; writes outputs when `opts.out` is set.
+///
+/// With `opts.out`, the folder is checked and claimed before anything is computed
+/// ([`crate::io::out_dir::OutDir`]): it then holds exactly this run's files, or after a failure
+/// a summary.json with `"status": "failed"` and the message.
 pub fn run_scene(scene: &Scene, opts: &RunOptions) -> Result<Summary> {
     let t0 = Instant::now();
-    let mut prep = prepare(scene)?;
-    let settings = settings(scene, opts.progress);
-    let out = solver::run(&mut prep.model, &settings)?;
-    let summary = summarize(scene, &prep, &out, t0.elapsed().as_secs_f64());
-    if let Some(dir) = &opts.out {
-        write_outputs(dir, scene, &mut prep, &out, &summary, opts.vtu_format)?;
+    let dir = opts
+        .out
+        .as_deref()
+        .map(crate::io::out_dir::OutDir::open)
+        .transpose()?;
+    let result = (|| {
+        let mut prep = prepare(scene)?;
+        let settings = settings(scene, opts.progress);
+        let out = solver::run(&mut prep.model, &settings)?;
+        let summary = summarize(scene, &prep, &out, t0.elapsed().as_secs_f64());
+        if let Some(d) = &dir {
+            let staging = d.staging()?;
+            write_outputs(&staging, scene, &mut prep, &out, &summary, opts.vtu_format)?;
+            d.commit()?;
+        }
+        Ok(summary)
+    })();
+    if let (Err(e), Some(d)) = (&result, &dir) {
+        d.fail(e);
     }
-    Ok(summary)
+    result
 }
 
 /// "fe", "coupled" or "meshless".

@@ -41,7 +41,19 @@ fn beyond_the_stable_step_is_reported_unstable_for_every_element() {
             err.contains("step") && err.contains("critical estimate") && err.contains("dt_factor"),
             "{el}: {err}"
         );
-        assert!(!dir.exists(), "{el}: an unstable run must write no outputs");
+        // No results, only the failure (issue 22): summary.json with the status and message.
+        let mut names: Vec<String> = std::fs::read_dir(&dir)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().to_string())
+            .collect();
+        names.sort();
+        assert_eq!(names, [".hytled-manifest", "summary.json"], "{el}");
+        let v: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap())
+                .unwrap();
+        assert_eq!(v["status"], "failed", "{el}");
+        assert_eq!(v["message"], err.as_str(), "{el}");
+        let _ = std::fs::remove_dir_all(&dir);
     }
 }
 
@@ -383,4 +395,99 @@ fn exit_codes_and_json_status_tell_scripts_what_happened() {
     assert!(err.contains("more than the") && err.contains("cores"), "{err}");
     let cores = std::thread::available_parallelism().map_or(1, |c| c.get());
     assert_eq!(json(&out)["threads"], cores);
+}
+
+/// Issue 22: an output folder holds exactly one run. A rerun with fewer frames leaves no old
+/// frames; a failed rerun leaves summary.json with "status": "failed" and no earlier results; a
+/// folder with files hytled did not write, or a path that is a file, is refused before any
+/// computing (exit 2).
+#[test]
+fn an_output_folder_holds_exactly_one_run() {
+    let dir = std::env::temp_dir().join(format!("hytled-outfolder-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let run = |args: &[&str]| {
+        Command::new(env!("CARGO_BIN_EXE_hytled"))
+            .arg("run")
+            .arg(path("cases/cube-compression.toml"))
+            .args([
+                "--set",
+                "discretization.size=0.05",
+                "--set",
+                "solver.mode=dynamic",
+                "--set",
+                "solver.duration=0.3",
+                "--out",
+            ])
+            .arg(&dir)
+            .args(args)
+            .output()
+            .unwrap()
+    };
+    let frames = || {
+        let mut v: Vec<String> = std::fs::read_dir(&dir)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().to_string())
+            .filter(|n| n.ends_with(".vtu") && n.starts_with("cube-compression_0"))
+            .collect();
+        v.sort();
+        v
+    };
+    let status = || -> serde_json::Value {
+        serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap()
+    };
+    assert!(run(&["--set", "output.frames=10"]).status.success());
+    assert_eq!(frames().len(), 11);
+    assert_eq!(status()["status"], "completed");
+    assert!(run(&["--set", "output.frames=3"]).status.success());
+    assert_eq!(frames().len(), 4, "{:?}", frames());
+    let pvd = std::fs::read_to_string(dir.join("cube-compression.pvd")).unwrap();
+    assert_eq!(pvd.matches("<DataSet").count(), 4);
+    // A diverging rerun: no stale results, the failure recorded.
+    let out = run(&["--set", "solver.dt_factor=4"]);
+    assert_eq!(out.status.code(), Some(3));
+    assert!(frames().is_empty(), "{:?}", frames());
+    let s = status();
+    assert_eq!(s["status"], "failed");
+    assert!(s["message"].as_str().unwrap().contains("diverged"), "{s}");
+    // Someone else's file: refused before computing, and left alone.
+    std::fs::write(dir.join("notes.txt"), "mine").unwrap();
+    let t = std::time::Instant::now();
+    let out = run(&["--set", "discretization.size=0.01"]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(err.contains("notes.txt") && err.contains("did not write"), "{err}");
+    assert!(t.elapsed().as_secs_f64() < 5.0, "checked before the solve");
+    assert!(dir.join("notes.txt").exists());
+    // A path that is a file.
+    let file = dir.join("notes.txt");
+    let out = Command::new(env!("CARGO_BIN_EXE_hytled"))
+        .arg("run")
+        .arg(path("cases/cube-compression.toml"))
+        .arg("--out")
+        .arg(&file)
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("not a folder"));
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// Issue 22: a dynamic run that would take more than 1e8 steps (here a dt_factor of 1e-12: about
+/// 1e15) is refused at once with the settings to check, unless solver.max_steps allows it.
+#[test]
+fn an_unbounded_dynamic_run_is_refused_before_it_starts() {
+    let sc = scene(&[
+        "solver.mode=dynamic",
+        "solver.dt_factor=1e-12",
+        "discretization.size=0.05",
+    ]);
+    let t = std::time::Instant::now();
+    let e = run_scene(&sc, &RunOptions::default())
+        .expect_err("1e15 steps")
+        .to_string();
+    assert!(t.elapsed().as_secs_f64() < 5.0);
+    assert!(
+        e.contains("steps") && e.contains("dt_factor") && e.contains("max_steps"),
+        "{e}"
+    );
 }

@@ -5,6 +5,7 @@ pub mod inp;
 pub mod mesh_file;
 pub mod model;
 pub mod msh;
+pub mod out_dir;
 pub mod plot;
 pub mod vtk;
 mod vtk_legacy5;

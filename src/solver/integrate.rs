@@ -262,6 +262,10 @@ pub fn stable_step<M: Material>(model: &Model<M>) -> (f64, Critical) {
     }
 }
 
+/// Dynamic runs needing more steps than this are refused unless `max_steps` allows them (a
+/// mistyped dt_factor or density would otherwise run for days without a word).
+const MAX_DYNAMIC_STEPS: f64 = 1e8;
+
 /// Lanczos iterations at most for the global estimate, and its stopping tolerance on the
 /// Ritz residual (relative).
 const LANCZOS_ITERATIONS: usize = 60;
@@ -356,7 +360,16 @@ fn run_on_worker<M: Material>(model: &mut Model<M>, s: &Settings) -> Result<RunO
     };
     let mut dt = s.dt_factor * dt_crit;
     let total_steps = if dynamic {
-        let k = (s.duration / dt).ceil().max(1.0) as usize;
+        let steps = (s.duration / dt).ceil().max(1.0);
+        if !(steps <= MAX_DYNAMIC_STEPS || steps <= s.max_steps as f64) {
+            return Err(Error::Input(format!(
+                "the dynamic run needs {steps:.3e} steps (duration {:.4e} s / dt {dt:.4e} s), more than \
+                 {MAX_DYNAMIC_STEPS:.0e}: check solver.duration, solver.dt_factor ({}) and the material's \
+                 density, or set solver.max_steps to at least that many to run it anyway",
+                s.duration, s.dt_factor
+            )));
+        }
+        let k = steps as usize;
         dt = s.duration / k as f64;
         k
     } else {
