@@ -66,6 +66,10 @@ enum Command {
         /// VTU encoding.
         #[arg(long, value_enum, default_value = "binary")]
         vtu_format: VtuArg,
+        /// Seconds between plain progress lines on stderr (default 10 when stderr is not a
+        /// terminal, e.g. batch jobs and logs; a terminal shows a bar instead).
+        #[arg(long, value_name = "SECONDS")]
+        progress_every: Option<f64>,
     },
     /// Run a scene with each discretization (FE, coupled, meshless) and print one table of
     /// cost and error against the scene's references.
@@ -242,12 +246,20 @@ fn execute(cmd: Command) -> hytled::Result<u8> {
             json,
             threads,
             vtu_format,
+            progress_every,
         } => {
             start_threads(threads)?;
+            if progress_every.is_some_and(|p| !(p >= 0.0 && p.is_finite())) {
+                return Err(hytled::Error::Input(
+                    "--progress-every must be a number of seconds, 0 or more".into(),
+                ));
+            }
             let sc = hytled::scene::load(&scene, &set)?;
             let opts = RunOptions {
                 out: out.clone(),
                 progress: !json && std::io::stderr().is_terminal(),
+                progress_lines: progress_every
+                    .or((!std::io::stderr().is_terminal()).then_some(10.0)),
                 vtu_format: vtu_format.into(),
             };
             let summary = simulation::run_scene(&sc, &opts)?;

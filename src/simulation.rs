@@ -31,6 +31,9 @@ pub struct RunOptions {
     pub out: Option<PathBuf>,
     /// Show a progress bar (on a terminal).
     pub progress: bool,
+    /// Print a plain progress line to stderr about every this many seconds (batch jobs and
+    /// logs, where a bar cannot draw).
+    pub progress_lines: Option<f64>,
     pub vtu_format: VtuFormat,
 }
 
@@ -884,6 +887,7 @@ pub fn settings(scene: &Scene, progress: bool) -> Settings {
         history_rows: scene.output.history_rows,
         frames: scene.output.frames,
         progress,
+        progress_lines: None,
         initial_velocity: None,
         initial_motion: scene.initial.as_ref().map(|i| {
             [
@@ -909,7 +913,8 @@ pub fn run_scene(scene: &Scene, opts: &RunOptions) -> Result<Summary> {
         .transpose()?;
     let result = (|| {
         let mut prep = prepare(scene)?;
-        let settings = settings(scene, opts.progress);
+        let mut settings = settings(scene, opts.progress);
+        settings.progress_lines = opts.progress_lines;
         let out = solver::run(&mut prep.model, &settings)?;
         let summary = summarize(scene, &prep, &out, t0.elapsed().as_secs_f64());
         if let Some(d) = &dir {

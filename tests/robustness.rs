@@ -491,3 +491,25 @@ fn an_unbounded_dynamic_run_is_refused_before_it_starts() {
         "{e}"
     );
 }
+
+/// Issue 22: with stderr not a terminal (here a pipe), progress comes as plain lines
+/// (`--progress-every`, default 10 s there): step, time or load, error estimate, time left.
+#[test]
+fn batch_runs_print_plain_progress_lines() {
+    for (mode, want) in [("dynamic", "left"), ("relaxation", "error estimate")] {
+        let out = Command::new(env!("CARGO_BIN_EXE_hytled"))
+            .arg("run")
+            .arg(path("cases/cube-compression.toml"))
+            .args(["--set", "discretization.size=0.05", "--set"])
+            .arg(format!("solver.mode={mode}"))
+            .args(["--set", "solver.duration=0.5", "--progress-every", "0"])
+            .output()
+            .unwrap();
+        assert!(out.status.success());
+        let err = String::from_utf8_lossy(&out.stderr);
+        let lines: Vec<&str> = err.lines().filter(|l| l.starts_with("progress: ")).collect();
+        assert!(!lines.is_empty(), "{err}");
+        assert!(lines.iter().any(|l| l.contains(want) && l.contains("step")), "{err}");
+        assert!(!err.contains('\r') && !err.contains('\u{1b}'), "no bar control codes: {err}");
+    }
+}

@@ -67,6 +67,8 @@ pub struct Settings {
     /// Output frames wanted (dynamic: equally spaced in time; relaxation: start and end).
     pub frames: usize,
     pub progress: bool,
+    /// Print a plain progress line to stderr about every this many seconds.
+    pub progress_lines: Option<f64>,
     /// Dynamic: initial nodal velocities, m/s (default: at rest).
     pub initial_velocity: Option<Vec<Vector3<f64>>>,
     /// Dynamic: a rigid initial motion (velocity m/s, angular velocity rad/s, centre m), used
@@ -90,6 +92,7 @@ impl Default for Settings {
             history_rows: 200,
             frames: 10,
             progress: false,
+            progress_lines: None,
             initial_velocity: None,
             initial_motion: None,
         }
@@ -495,6 +498,7 @@ fn run_on_worker<M: Material>(model: &mut Model<M>, s: &Settings) -> Result<RunO
     let mut err_est = f64::INFINITY;
     let mut finish = false;
     let mut step = 0usize;
+    let mut last_line = 0.0f64;
     let max_rate = c * dt;
     // With a corrector, the nodes it moves and the prescribed ones change after the update:
     // their step change is measured after the correction (a short serial loop), every other
@@ -746,6 +750,31 @@ fn run_on_worker<M: Material>(model: &mut Model<M>, s: &Settings) -> Result<RunO
             pb.set_position(step as u64);
             if !dynamic && s.progress {
                 pb.set_message(format!("error estimate {err_est:.2e} m, r = {r:.5}"));
+            }
+            if let Some(every) = s.progress_lines {
+                let elapsed = start.elapsed().as_secs_f64();
+                if elapsed >= last_line + every {
+                    last_line = elapsed;
+                    let t = step as f64 * dt;
+                    if dynamic {
+                        let eta = elapsed * (total_steps.saturating_sub(step)) as f64 / step as f64;
+                        eprintln!(
+                            "progress: step {step} of {total_steps} ({:.1} %), t = {t:.4e} s, {elapsed:.0} s elapsed, about {eta:.0} s left",
+                            100.0 * step as f64 / total_steps as f64
+                        );
+                    } else {
+                        let est = if err_est.is_finite() {
+                            format!("error estimate {err_est:.2e} m")
+                        } else {
+                            "no error estimate yet".into()
+                        };
+                        eprintln!(
+                            "progress: relaxation step {step} (load {:.0} %), {est} (tolerance {:.1e} m), {elapsed:.0} s elapsed",
+                            100.0 * load_frac(step).min(1.0),
+                            s.tolerance
+                        );
+                    }
+                }
             }
         }
     }
