@@ -1197,7 +1197,13 @@ fn validate(s: &Scene) -> std::result::Result<(), String> {
                 "discretization.divisions = {div:?}: every division must be at least 1"
             ));
         }
-        let n: f64 = div.iter().map(|&k| k as f64).product();
+        let [a, b, c] = div.map(|k| k as f64);
+        // The cylinder's O-grid has n_inner^2 + 4 n_inner n_radial cells per layer, the box
+        // nx ny nz (tets: 6 per hex, checked at the hex count as the element limit is).
+        let n = match &s.geometry {
+            Geometry::Cylinder { .. } => (a * a + 4.0 * a * b) * c,
+            _ => a * b * c,
+        };
         if n > MAX_ELEMENTS {
             return Err(format!(
                 "discretization.divisions = {div:?} gives {n:.3e} cells, more than the limit of \

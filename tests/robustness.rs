@@ -513,3 +513,46 @@ fn batch_runs_print_plain_progress_lines() {
         assert!(!err.contains('\r') && !err.contains('\u{1b}'), "no bar control codes: {err}");
     }
 }
+
+/// Issue 22: output requests are held to what the run can use: more frames or history rows than
+/// steps are not allocated (1e9 rows run in a few MB), and frames that would not fit in memory
+/// (here a 10 kB limit through HYTLED_MEMORY_LIMIT) are an input error naming output.frames; a
+/// cylinder whose O-grid divisions give 2e11 cells is refused before meshing.
+#[test]
+fn output_requests_and_divisions_are_held_to_the_memory() {
+    let run = |extra: &[&str], limit: Option<&str>| {
+        let mut c = Command::new(env!("CARGO_BIN_EXE_hytled"));
+        c.arg("run")
+            .arg(path("cases/cube-compression.toml"))
+            .args([
+                "--set",
+                "discretization.size=0.05",
+                "--set",
+                "solver.mode=dynamic",
+                "--set",
+                "solver.duration=0.5",
+            ])
+            .args(extra);
+        if let Some(l) = limit {
+            c.env("HYTLED_MEMORY_LIMIT", l);
+        }
+        c.output().unwrap()
+    };
+    let out = run(&["--set", "output.history_rows=1000000000"], None);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let out = run(&["--set", "output.frames=1000000"], None);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let out = run(&["--set", "output.frames=1000000"], Some("10000"));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(err.contains("output.frames") && err.contains("GiB"), "{err}");
+    let out = Command::new(env!("CARGO_BIN_EXE_hytled"))
+        .arg("check")
+        .arg(path("cases/cylinder-compression.toml"))
+        .args(["--set", "discretization.divisions=[100000,4,20]"])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(err.contains("2.000e11 cells"), "{err}");
+}

@@ -265,6 +265,27 @@ pub fn stable_step<M: Material>(model: &Model<M>) -> (f64, Critical) {
     }
 }
 
+const GIB: f64 = 1024.0 * 1024.0 * 1024.0;
+
+/// Memory a run may use, bytes: the system's available memory (Linux: MemAvailable of
+/// /proc/meminfo), or the environment's `HYTLED_MEMORY_LIMIT` (bytes) where that is smaller, for
+/// shared machines; None when neither is known.
+pub fn available_memory() -> Option<f64> {
+    let system = std::fs::read_to_string("/proc/meminfo").ok().and_then(|text| {
+        let line = text.lines().find(|l| l.starts_with("MemAvailable:"))?;
+        let kib: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
+        Some(kib * 1024.0)
+    });
+    let limit = std::env::var("HYTLED_MEMORY_LIMIT")
+        .ok()
+        .and_then(|v| v.trim().parse::<f64>().ok())
+        .filter(|v| *v > 0.0);
+    match (system, limit) {
+        (Some(a), Some(b)) => Some(a.min(b)),
+        (a, b) => a.or(b),
+    }
+}
+
 /// Dynamic runs needing more steps than this are refused unless `max_steps` allows them (a
 /// mistyped dt_factor or density would otherwise run for days without a word).
 const MAX_DYNAMIC_STEPS: f64 = 1e8;
@@ -447,13 +468,29 @@ fn run_on_worker<M: Material>(model: &mut Model<M>, s: &Settings) -> Result<RunO
 
     let (linear_start, angular_start) = momentum(&model.mass, &model.nodes, &u, &u_prev, dt);
 
+    // More frames or rows than steps would only repeat them.
+    let frames_wanted = s.frames.max(1).min(total_steps.max(1));
     let frame_steps: Vec<usize> = if dynamic {
-        (0..=s.frames.max(1))
-            .map(|k| (k * total_steps) / s.frames.max(1))
+        (0..=frames_wanted)
+            .map(|k| (k * total_steps) / frames_wanted)
             .collect()
     } else {
         vec![0]
     };
+    let frame_bytes = (frame_steps.len() + 1) as f64 * n as f64 * 24.0;
+    if let Some(avail) = available_memory() {
+        let need = frame_bytes + model.solver_bytes() as f64;
+        if need > 0.8 * avail {
+            return Err(Error::Input(format!(
+                "the run would hold {:.1} GiB ({} output frames of {n} nodes: {:.1} GiB, and the model), \
+                 more than 80 % of the {:.1} GiB of memory available: lower output.frames",
+                need / GIB,
+                frame_steps.len(),
+                frame_bytes / GIB,
+                avail / GIB
+            )));
+        }
+    }
     // Frame buffers are allocated here so that the loop only copies into them.
     let mut frame_bufs: Vec<Vec<Vector3<f64>>> = (0..frame_steps.len() + usize::from(!dynamic))
         .map(|_| zero.clone())
@@ -464,7 +501,11 @@ fn run_on_worker<M: Material>(model: &mut Model<M>, s: &Settings) -> Result<RunO
     } else {
         s.estimate_interval.max(1)
     };
-    let mut history = Vec::with_capacity(if dynamic { s.history_rows + 2 } else { 1024 });
+    let mut history = Vec::with_capacity(if dynamic {
+        s.history_rows.min(total_steps) + 2
+    } else {
+        1024
+    });
     let mut relaxation = Vec::new();
 
     let pb = if s.progress {
