@@ -12,7 +12,7 @@ pub enum Error {
     #[error("{0}")]
     Input(String),
     /// An element or integration point with non-positive volume.
-    #[error("element {element} has non-positive volume {volume:.6e} m^3 (inverted or degenerate); check its node order and coordinates")]
+    #[error("element {element} is inverted or degenerate: volume {volume:.6e} m^3, not positive or below 1e-12 of its size cubed; check its node order and coordinates (a node far from the others makes a needle)")]
     InvalidElement { element: usize, volume: f64 },
     /// The explicit integrator diverged.
     #[error("{0}")]

@@ -258,8 +258,13 @@ impl Summary {
         }
         let _ = writeln!(
             s,
-            "steps            {} (t = {:.4} s){}{}",
+            "steps            {} ({} = {:.4} s){}{}",
             self.steps,
+            if self.load_steps.is_some() {
+                "pseudo-time t"
+            } else {
+                "t"
+            },
             self.simulated_time,
             self.load_steps
                 .map_or(String::new(), |n| format!(", load over the first {n}")),
@@ -289,7 +294,11 @@ impl Summary {
                 r.error_estimate
             );
         }
-        let _ = writeln!(s, "reactions (N)");
+        let _ = writeln!(
+            s,
+            "reactions (N)    {:>13} {:>13} {:>13}",
+            "x", "y", "z"
+        );
         for (k, v) in &self.reactions {
             let _ = writeln!(
                 s,
@@ -298,7 +307,11 @@ impl Summary {
             );
         }
         if !self.probes.is_empty() {
-            let _ = writeln!(s, "probes (m)");
+            let _ = writeln!(
+                s,
+                "probes (m)       {:>13} {:>13} {:>13}",
+                "u_x", "u_y", "u_z"
+            );
             for (k, p) in &self.probes {
                 let d = p.displacement;
                 let _ = writeln!(
@@ -309,10 +322,12 @@ impl Summary {
             }
         }
         let e = &self.energy;
-        let balance = e
-            .balance_error
-            .map(|b| format!(", balance error {:.4} %", 100.0 * b))
-            .unwrap_or_default();
+        let balance = match (e.balance_error, self.load_steps.is_some()) {
+            (Some(b), _) => format!(", balance error {:.4} %", 100.0 * b),
+            // Relaxation's damping takes the rest of the external work: no balance to check.
+            (None, true) => ", the difference is what relaxation's damping absorbed".into(),
+            (None, false) => String::new(),
+        };
         let _ = writeln!(
             s,
             "energy (J)       external work {:.6e}, strain {:.6e}, kinetic {:.6e}{balance}",
@@ -351,22 +366,23 @@ pub fn markdown_table(summaries: &[serde_json::Value]) -> String {
                     .find(|c| c["quantity"].as_str().is_some_and(|x| x.starts_with(q)))
             })
         };
-        let (computed, value, err) = pick("reaction")
-            .map(|c| {
-                (
-                    c["computed"].as_f64().unwrap_or(f64::NAN),
-                    c["value"].as_f64().unwrap_or(f64::NAN),
-                    c["relative_error"].as_f64().unwrap_or(f64::NAN),
-                )
-            })
-            .unwrap_or((f64::NAN, f64::NAN, f64::NAN));
+        // A scene without a reaction reference shows "-", not NaN.
+        let num = |c: Option<&serde_json::Value>, key: &str, f: &dyn Fn(f64) -> String| {
+            c.and_then(|c| c[key].as_f64())
+                .map(f)
+                .unwrap_or_else(|| "-".into())
+        };
+        let r = pick("reaction");
+        let computed = num(r, "computed", &|x| format!("{x:.4}"));
+        let value = num(r, "value", &|x| format!("{x:.4}"));
+        let err = num(r, "relative_error", &|x| format!("{:.2} %", 100.0 * x));
         let perr = pick("probe")
             .and_then(|c| c["relative_error"].as_f64())
             .map(|e| format!("{:.2} %", 100.0 * e))
             .unwrap_or_else(|| "-".into());
         let _ = writeln!(
             s,
-            "| {} | {} | {} | {} | {} | {} | {} | {:.4} | {:.4} | {:.2} % | {} | {:.3e} | {} | {:.2} |",
+            "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {:.3e} | {} | {:.2} |",
             v["scene"].as_str().unwrap_or("?"),
             v["method"].as_str().unwrap_or("?"),
             v["element"].as_str().unwrap_or("?"),
@@ -376,7 +392,7 @@ pub fn markdown_table(summaries: &[serde_json::Value]) -> String {
             v["integration_points"],
             computed,
             value,
-            100.0 * err,
+            err,
             perr,
             v["dt"].as_f64().unwrap_or(f64::NAN),
             v["steps"],

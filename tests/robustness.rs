@@ -167,6 +167,17 @@ fn inverted_element_is_an_error_naming_it() {
         .expect_err("inverted")
         .to_string();
     assert!(e.contains("element 3") && e.contains("volume"), "{e}");
+    assert!(e.contains("inverted or degenerate"), "{e}");
+    // A node 1e6 m away: a positive but needle-thin volume, not called "non-positive".
+    let mut tets =
+        hytled::geometry::shapes::box_tet(nalgebra::Vector3::zeros(), nalgebra::Vector3::repeat(0.1), [1, 1, 1])
+            .unwrap();
+    let far = tets.cells[0];
+    tets.nodes[far].x = 1e6;
+    let e = hytled::fe::element_points(&tets, hytled::fe::ElementKind::Tet4, 0.01, 1e5)
+        .expect_err("needle")
+        .to_string();
+    assert!(!e.contains("non-positive") && e.contains("far from the others"), "{e}");
 }
 
 #[test]
@@ -555,4 +566,24 @@ fn output_requests_and_divisions_are_held_to_the_memory() {
     let err = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(2), "{err}");
     assert!(err.contains("2.000e11 cells"), "{err}");
+}
+
+/// Issue 22, readability: reaction and probe columns are labelled, relaxation's time is called a
+/// pseudo-time and its energy difference is put down to damping, and `hytled table` shows "-"
+/// (not NaN) for a scene without references.
+#[test]
+fn summaries_and_tables_are_labelled() {
+    let sc = scene(&["discretization.size=0.05", "solver.mode=relaxation"]);
+    let s = run_scene(&sc, &RunOptions::default()).unwrap();
+    let t = s.table();
+    let line = |start: &str| t.lines().find(|l| l.starts_with(start)).unwrap_or("").to_string();
+    let r = line("reactions (N)");
+    assert!(r.split_whitespace().skip(2).eq(["x", "y", "z"]), "{t}");
+    assert!(line("probes (m)").contains("u_x"), "{t}");
+    assert!(line("steps").contains("pseudo-time"), "{t}");
+    assert!(line("energy (J)").contains("damping"), "{t}");
+    let mut v = serde_json::to_value(&s).unwrap();
+    v["reference"] = serde_json::json!({});
+    let md = hytled::report::markdown_table(&[v]);
+    assert!(!md.contains("NaN") && md.contains("| - | - | - |"), "{md}");
 }
