@@ -386,6 +386,19 @@ pub fn prepare(scene: &Scene) -> Result<Prepared> {
     if let Some(w) = locking_warning(scene, &p) {
         p.warnings.push(w);
     }
+    let free = crate::bc::free_parts(p.model.nodes.len(), &p.model.points, &p.model.boundaries);
+    if let Some(&(count, node)) = free.first() {
+        let x = p.model.nodes[node];
+        p.warnings.push(format!(
+            "{} part(s) of the body are held by no boundary (the largest: {count} nodes, node {node} at \
+             ({:.4e}, {:.4e}, {:.4e}) m): they can move as rigid bodies, and relaxation cannot settle them \
+             if anything pushes them; select some of their nodes in a boundary or remove them",
+            free.len(),
+            x.x,
+            x.y,
+            x.z
+        ));
+    }
     Ok(p)
 }
 

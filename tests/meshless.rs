@@ -460,6 +460,7 @@ fn meshless_vtu_frames_carry_interpolated_displacement_and_read_back() {
         out: Some(dir.clone()),
         progress: false,
         vtu_format: hytled::io::vtu::VtuFormat::Ascii,
+        ..Default::default()
     };
     let s = hytled::simulation::run_scene(&sc, &opts).unwrap();
     let vtk =

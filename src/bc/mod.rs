@@ -114,6 +114,75 @@ impl Constraints {
     }
 }
 
+/// Parts of the body that no essential boundary holds: the nodes are joined when a quadrature
+/// point couples them (elements, MLS supports, blended points alike), and a part with no node in
+/// a boundary that prescribes a component can move as a rigid body (in relaxation it never
+/// settles if anything pushes it). Returns (nodes in the part, its lowest node) per such part,
+/// largest first; empty when every part is held or no boundary prescribes anything (a free
+/// body, as in a dynamic spin, is then the whole model and not reported).
+pub fn free_parts(
+    num_nodes: usize,
+    points: &crate::quadrature::QuadraturePoints,
+    boundaries: &[Boundary],
+) -> Vec<(usize, usize)> {
+    let held: Vec<&Boundary> = boundaries
+        .iter()
+        .filter(|b| b.components.iter().any(|c| c.is_some()))
+        .collect();
+    if held.is_empty() || num_nodes == 0 {
+        return Vec::new();
+    }
+    let mut parent: Vec<u32> = (0..num_nodes as u32).collect();
+    fn find(parent: &mut [u32], mut i: u32) -> u32 {
+        while parent[i as usize] != i {
+            let g = parent[parent[i as usize] as usize];
+            parent[i as usize] = g;
+            i = g;
+        }
+        i
+    }
+    for p in 0..points.len() {
+        let ids = &points.nodes[points.slots(p)];
+        if let Some((&first, rest)) = ids.split_first() {
+            let a = find(&mut parent, first);
+            for &j in rest {
+                let b = find(&mut parent, j);
+                if a != b {
+                    parent[b as usize] = a;
+                }
+            }
+        }
+    }
+    let mut is_held = vec![false; num_nodes];
+    for b in &held {
+        for &n in &b.nodes {
+            if n < num_nodes {
+                let r = find(&mut parent, n as u32) as usize;
+                is_held[r] = true;
+            }
+        }
+    }
+    // Per root: node count and lowest node; nodes no point uses are not a part.
+    let mut used = vec![false; num_nodes];
+    for &j in &points.nodes {
+        used[j as usize] = true;
+    }
+    let mut parts: std::collections::BTreeMap<u32, (usize, usize)> = Default::default();
+    for i in 0..num_nodes {
+        if !used[i] {
+            continue;
+        }
+        let r = find(&mut parent, i as u32);
+        if !is_held[r as usize] {
+            let e = parts.entry(r).or_insert((0, i));
+            e.0 += 1;
+        }
+    }
+    let mut v: Vec<(usize, usize)> = parts.into_values().collect();
+    v.sort_by(|a, b| b.0.cmp(&a.0).then(a.1.cmp(&b.1)));
+    v
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -167,5 +236,31 @@ mod tests {
                 .len(),
             2
         );
+    }
+
+    /// Two separate blocks, a boundary on one: the other is reported as free; with a boundary on
+    /// each, or none at all, nothing is.
+    #[test]
+    fn a_part_no_boundary_holds_is_found() {
+        use crate::fe::{element_points, ElementKind};
+        use crate::geometry::shapes::box_hex;
+        use nalgebra::Vector3;
+        let a = box_hex(Vector3::zeros(), Vector3::repeat(0.1), [2, 2, 2]).unwrap();
+        let b = box_hex(Vector3::new(1.0, 0.0, 0.0), Vector3::new(1.1, 0.1, 0.1), [1, 1, 1]).unwrap();
+        let na = a.nodes.len();
+        let mut mesh = a.clone();
+        mesh.nodes.extend(b.nodes.iter().cloned());
+        mesh.cells.extend(b.cells.iter().map(|&i| i + na));
+        let qp = element_points(&mesh, ElementKind::Hex8, 0.05, 1e5).unwrap();
+        let fix = |nodes: Vec<usize>| Boundary {
+            name: "fix".into(),
+            nodes,
+            components: [Some(0.0); 3],
+            curve: LoadCurve::default(),
+        };
+        let parts = free_parts(mesh.nodes.len(), &qp, &[fix(vec![0])]);
+        assert_eq!(parts, vec![(8, na)]);
+        assert!(free_parts(mesh.nodes.len(), &qp, &[fix(vec![0, na + 3])]).is_empty());
+        assert!(free_parts(mesh.nodes.len(), &qp, &[]).is_empty());
     }
 }
