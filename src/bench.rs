@@ -136,7 +136,9 @@ pub fn run_case(case: &BenchCase, opts: &BenchOptions) -> Result<Vec<BenchRow>> 
             ));
         }
         if t > cores {
-            eprintln!("warning: bench: {t} threads is more than the {cores} cores here; using {cores}");
+            eprintln!(
+                "warning: bench: {t} threads is more than the {cores} cores here; using {cores}"
+            );
         }
         if !threads.contains(&t.min(cores)) {
             threads.push(t.min(cores));

@@ -6,8 +6,8 @@ use std::process::ExitCode;
 
 use clap::{Parser, Subcommand, ValueEnum};
 
-use hytled::io::vtu::VtuFormat;
 use hytled::error::exit;
+use hytled::io::vtu::VtuFormat;
 use hytled::simulation::{self, RunOptions};
 
 /// Hybrid TLED finite-element / meshless solver for large soft-tissue deformation. SI units

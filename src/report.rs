@@ -294,11 +294,7 @@ impl Summary {
                 r.error_estimate
             );
         }
-        let _ = writeln!(
-            s,
-            "reactions (N)    {:>13} {:>13} {:>13}",
-            "x", "y", "z"
-        );
+        let _ = writeln!(s, "reactions (N)    {:>13} {:>13} {:>13}", "x", "y", "z");
         for (k, v) in &self.reactions {
             let _ = writeln!(
                 s,

@@ -459,7 +459,11 @@ pub struct Discretization {
     /// volume at their centroid, binned on a grid of about this many tets per cell; 1 = one
     /// rule per tet, the default).
     /// Read it through [`Discretization::tets_per_point`].
-    #[serde(default, rename = "tets_per_point", skip_serializing_if = "Option::is_none")]
+    #[serde(
+        default,
+        rename = "tets_per_point",
+        skip_serializing_if = "Option::is_none"
+    )]
     pub tets_per_point_given: Option<f64>,
     /// Grid integration: integration points per node (default 2, Horton 2010 sect. 3.2).
     #[serde(default = "default_point_ratio")]
@@ -594,11 +598,12 @@ impl Discretization {
     /// brain indentation force fell to 0.0431 N (3,520 nodes) against 0.0496 N with the full
     /// rule and about 0.051 N refined; such scenes set `transition_rule = "full"`.
     pub fn transition_rule(&self) -> TransitionRuleKind {
-        self.transition_rule_given.unwrap_or(if self.unstructured_tets() {
-            TransitionRuleKind::Interior
-        } else {
-            TransitionRuleKind::Full
-        })
+        self.transition_rule_given
+            .unwrap_or(if self.unstructured_tets() {
+                TransitionRuleKind::Interior
+            } else {
+                TransitionRuleKind::Full
+            })
     }
 
     /// Background tets per integration point: as given, else 1 (one `tet_rule` per tet).

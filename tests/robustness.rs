@@ -169,15 +169,21 @@ fn inverted_element_is_an_error_naming_it() {
     assert!(e.contains("element 3") && e.contains("volume"), "{e}");
     assert!(e.contains("inverted or degenerate"), "{e}");
     // A node 1e6 m away: a positive but needle-thin volume, not called "non-positive".
-    let mut tets =
-        hytled::geometry::shapes::box_tet(nalgebra::Vector3::zeros(), nalgebra::Vector3::repeat(0.1), [1, 1, 1])
-            .unwrap();
+    let mut tets = hytled::geometry::shapes::box_tet(
+        nalgebra::Vector3::zeros(),
+        nalgebra::Vector3::repeat(0.1),
+        [1, 1, 1],
+    )
+    .unwrap();
     let far = tets.cells[0];
     tets.nodes[far].x = 1e6;
     let e = hytled::fe::element_points(&tets, hytled::fe::ElementKind::Tet4, 0.01, 1e5)
         .expect_err("needle")
         .to_string();
-    assert!(!e.contains("non-positive") && e.contains("far from the others"), "{e}");
+    assert!(
+        !e.contains("non-positive") && e.contains("far from the others"),
+        "{e}"
+    );
 }
 
 #[test]
@@ -202,7 +208,10 @@ fn invalid_values_are_clear_errors() {
             ],
             "integration = 'tets'",
         ),
-        (vec!["solver.time_step=exact"], "expected `bounds` or `global`"),
+        (
+            vec!["solver.time_step=exact"],
+            "expected `bounds` or `global`",
+        ),
     ] {
         let e = parse_err(&cube_text(), &sets);
         assert!(e.contains(want), "{sets:?}: {e}");
@@ -225,7 +234,11 @@ fn cli_reports_errors_without_panicking() {
         .output()
         .unwrap();
     let stderr = String::from_utf8_lossy(&out.stderr);
-    assert_eq!(out.status.code(), Some(2), "input errors exit with 2: {stderr}");
+    assert_eq!(
+        out.status.code(),
+        Some(2),
+        "input errors exit with 2: {stderr}"
+    );
     assert!(
         stderr.contains("error:") && stderr.contains("bad.toml") && !stderr.contains("panicked"),
         "{stderr}"
@@ -375,8 +388,16 @@ fn exit_codes_and_json_status_tell_scripts_what_happened() {
     let v = json(&out);
     assert_eq!(v["status"], "not converged");
     assert_eq!(v["converged"], false);
-    assert!(err.contains("did not converge") && err.contains("max_steps"), "{err}");
-    let (code, out, _) = run(&["--set", "solver.mode=relaxation", "--set", "solver.max_steps=30"]);
+    assert!(
+        err.contains("did not converge") && err.contains("max_steps"),
+        "{err}"
+    );
+    let (code, out, _) = run(&[
+        "--set",
+        "solver.mode=relaxation",
+        "--set",
+        "solver.max_steps=30",
+    ]);
     assert_eq!(code, Some(4));
     assert!(out.contains("not converged"), "{out}");
     // Divergence: 3, and a JSON error object on stdout.
@@ -403,7 +424,10 @@ fn exit_codes_and_json_status_tell_scripts_what_happened() {
     // More threads than cores: capped, with a warning, and the run succeeds.
     let (code, out, err) = run(&["--json", "--threads", "100000"]);
     assert_eq!(code, Some(0), "{err}");
-    assert!(err.contains("more than the") && err.contains("cores"), "{err}");
+    assert!(
+        err.contains("more than the") && err.contains("cores"),
+        "{err}"
+    );
     let cores = std::thread::available_parallelism().map_or(1, |c| c.get());
     assert_eq!(json(&out)["threads"], cores);
 }
@@ -466,7 +490,10 @@ fn an_output_folder_holds_exactly_one_run() {
     let out = run(&["--set", "discretization.size=0.01"]);
     let err = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(2), "{err}");
-    assert!(err.contains("notes.txt") && err.contains("did not write"), "{err}");
+    assert!(
+        err.contains("notes.txt") && err.contains("did not write"),
+        "{err}"
+    );
     assert!(t.elapsed().as_secs_f64() < 5.0, "checked before the solve");
     assert!(dir.join("notes.txt").exists());
     // A path that is a file.
@@ -518,10 +545,19 @@ fn batch_runs_print_plain_progress_lines() {
             .unwrap();
         assert!(out.status.success());
         let err = String::from_utf8_lossy(&out.stderr);
-        let lines: Vec<&str> = err.lines().filter(|l| l.starts_with("progress: ")).collect();
+        let lines: Vec<&str> = err
+            .lines()
+            .filter(|l| l.starts_with("progress: "))
+            .collect();
         assert!(!lines.is_empty(), "{err}");
-        assert!(lines.iter().any(|l| l.contains(want) && l.contains("step")), "{err}");
-        assert!(!err.contains('\r') && !err.contains('\u{1b}'), "no bar control codes: {err}");
+        assert!(
+            lines.iter().any(|l| l.contains(want) && l.contains("step")),
+            "{err}"
+        );
+        assert!(
+            !err.contains('\r') && !err.contains('\u{1b}'),
+            "no bar control codes: {err}"
+        );
     }
 }
 
@@ -550,13 +586,24 @@ fn output_requests_and_divisions_are_held_to_the_memory() {
         c.output().unwrap()
     };
     let out = run(&["--set", "output.history_rows=1000000000"], None);
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let out = run(&["--set", "output.frames=1000000"], None);
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let out = run(&["--set", "output.frames=1000000"], Some("10000"));
     let err = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(2), "{err}");
-    assert!(err.contains("output.frames") && err.contains("GiB"), "{err}");
+    assert!(
+        err.contains("output.frames") && err.contains("GiB"),
+        "{err}"
+    );
     let out = Command::new(env!("CARGO_BIN_EXE_hytled"))
         .arg("check")
         .arg(path("cases/cylinder-compression.toml"))
@@ -576,7 +623,12 @@ fn summaries_and_tables_are_labelled() {
     let sc = scene(&["discretization.size=0.05", "solver.mode=relaxation"]);
     let s = run_scene(&sc, &RunOptions::default()).unwrap();
     let t = s.table();
-    let line = |start: &str| t.lines().find(|l| l.starts_with(start)).unwrap_or("").to_string();
+    let line = |start: &str| {
+        t.lines()
+            .find(|l| l.starts_with(start))
+            .unwrap_or("")
+            .to_string()
+    };
     let r = line("reactions (N)");
     assert!(r.split_whitespace().skip(2).eq(["x", "y", "z"]), "{t}");
     assert!(line("probes (m)").contains("u_x"), "{t}");

@@ -59,7 +59,11 @@ fn coupled_tet_defaults_put_fe_at_the_essential_faces_only() {
         c.fe_mesh.num_cells(),
         "one point per transition tet"
     );
-    assert_eq!(c.meshless_points, c.interior.num_cells(), "one point per interior tet");
+    assert_eq!(
+        c.meshless_points,
+        c.interior.num_cells(),
+        "one point per interior tet"
+    );
     // Patch test through FE, transition and meshless points.
     let a = Matrix3::new(0.01, -0.02, 0.03, 0.015, -0.01, 0.005, -0.02, 0.01, 0.02);
     let u: Vec<Vector3<f64>> = p.model.nodes.iter().map(|x| a * x).collect();

@@ -168,10 +168,7 @@ pub fn free_parts(
         used[j as usize] = true;
     }
     let mut parts: std::collections::BTreeMap<u32, (usize, usize)> = Default::default();
-    for i in 0..num_nodes {
-        if !used[i] {
-            continue;
-        }
+    for (i, _) in used.iter().enumerate().filter(|(_, &u)| u) {
         let r = find(&mut parent, i as u32);
         if !is_held[r as usize] {
             let e = parts.entry(r).or_insert((0, i));
@@ -246,7 +243,12 @@ mod tests {
         use crate::geometry::shapes::box_hex;
         use nalgebra::Vector3;
         let a = box_hex(Vector3::zeros(), Vector3::repeat(0.1), [2, 2, 2]).unwrap();
-        let b = box_hex(Vector3::new(1.0, 0.0, 0.0), Vector3::new(1.1, 0.1, 0.1), [1, 1, 1]).unwrap();
+        let b = box_hex(
+            Vector3::new(1.0, 0.0, 0.0),
+            Vector3::new(1.1, 0.1, 0.1),
+            [1, 1, 1],
+        )
+        .unwrap();
         let na = a.nodes.len();
         let mut mesh = a.clone();
         mesh.nodes.extend(b.nodes.iter().cloned());

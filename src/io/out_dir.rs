@@ -85,7 +85,11 @@ impl OutDir {
                 dir.display(),
                 foreign.len(),
                 shown.join(", "),
-                if foreign.len() > shown.len() { ", ..." } else { "" }
+                if foreign.len() > shown.len() {
+                    ", ..."
+                } else {
+                    ""
+                }
             )));
         }
         let staging = dir.join(STAGING);
@@ -210,7 +214,10 @@ mod tests {
         std::fs::create_dir_all(&d).unwrap();
         std::fs::write(d.join("thesis.tex"), "mine").unwrap();
         let e = OutDir::open(&d).unwrap_err().to_string();
-        assert!(e.contains("thesis.tex") && e.contains("did not write"), "{e}");
+        assert!(
+            e.contains("thesis.tex") && e.contains("did not write"),
+            "{e}"
+        );
         assert!(d.join("thesis.tex").exists(), "nothing removed");
         let f = d.join("thesis.tex");
         let e = OutDir::open(&f).unwrap_err().to_string();

@@ -233,7 +233,9 @@ pub fn cluster_points(
     if pos.is_empty() || !(bin > 0.0 && bin.is_finite()) {
         return (pos.to_vec(), w.to_vec(), owner.to_vec());
     }
-    let lo = pos.iter().fold(Vector3::repeat(f64::INFINITY), |l, p| l.inf(p));
+    let lo = pos
+        .iter()
+        .fold(Vector3::repeat(f64::INFINITY), |l, p| l.inf(p));
     let key = |p: &Vector3<f64>| -> [i64; 3] {
         std::array::from_fn(|a| ((p[a] - lo[a]) / bin).floor() as i64)
     };
@@ -507,8 +509,14 @@ mod tests {
             let v0: f64 = w.iter().sum();
             let v1: f64 = cw.iter().sum();
             assert!((v1 - v0).abs() < 1e-12 * v0);
-            let m0 = p.iter().zip(&w).fold(Vector3::zeros(), |a, (x, &v)| a + x * v);
-            let m1 = cp.iter().zip(&cw).fold(Vector3::zeros(), |a, (x, &v)| a + x * v);
+            let m0 = p
+                .iter()
+                .zip(&w)
+                .fold(Vector3::zeros(), |a, (x, &v)| a + x * v);
+            let m1 = cp
+                .iter()
+                .zip(&cw)
+                .fold(Vector3::zeros(), |a, (x, &v)| a + x * v);
             assert!((m1 - m0).norm() < 1e-12 * m0.norm());
             let ratio = p.len() as f64 / cp.len() as f64;
             assert!(ratio > 0.5 * k && ratio < 2.0 * k, "{k}: ratio {ratio}");

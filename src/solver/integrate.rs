@@ -271,11 +271,13 @@ const GIB: f64 = 1024.0 * 1024.0 * 1024.0;
 /// /proc/meminfo), or the environment's `HYTLED_MEMORY_LIMIT` (bytes) where that is smaller, for
 /// shared machines; None when neither is known.
 pub fn available_memory() -> Option<f64> {
-    let system = std::fs::read_to_string("/proc/meminfo").ok().and_then(|text| {
-        let line = text.lines().find(|l| l.starts_with("MemAvailable:"))?;
-        let kib: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
-        Some(kib * 1024.0)
-    });
+    let system = std::fs::read_to_string("/proc/meminfo")
+        .ok()
+        .and_then(|text| {
+            let line = text.lines().find(|l| l.starts_with("MemAvailable:"))?;
+            let kib: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
+            Some(kib * 1024.0)
+        });
     let limit = std::env::var("HYTLED_MEMORY_LIMIT")
         .ok()
         .and_then(|v| v.trim().parse::<f64>().ok())

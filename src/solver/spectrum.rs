@@ -121,7 +121,9 @@ pub fn largest_eigenvalue<M: Material>(
         for i in 0..n {
             u[i] = v[i] * (eps * inv_sqrt_m[i]);
         }
-        model.forces.compute(&model.points, &model.slots, &u, &mut f);
+        model
+            .forces
+            .compute(&model.points, &model.slots, &u, &mut f);
         let mut w: Vec<Vector3<f64>> = (0..n)
             .map(|i| {
                 let y = f[i] * (inv_sqrt_m[i] / eps);
