@@ -216,7 +216,16 @@ fn columns(rows: &[CompareRow]) -> (Vec<String>, Vec<Vec<String>>) {
     let refs: Vec<String> = first
         .map(|s| s.reference.keys().cloned().collect())
         .unwrap_or_default();
-    head.extend(reactions.iter().map(|r| format!("reaction {r} z (N)")));
+    let comps: Vec<(usize, &str)> = reactions
+        .iter()
+        .map(|r| crate::report::reaction_component(first, r))
+        .collect();
+    head.extend(
+        reactions
+            .iter()
+            .zip(&comps)
+            .map(|(r, (_, a))| format!("reaction {r} {a} (N)")),
+    );
     head.extend(probes.iter().map(|p| format!("probe {p} (m)")));
     head.extend(refs.iter().map(|r| format!("error {r} (%)")));
     head.extend(["energy balance error (%)", "peak memory (MiB)", "status"].map(String::from));
@@ -232,11 +241,11 @@ fn columns(rows: &[CompareRow]) -> (Vec<String>, Vec<Vec<String>>) {
                         c.push(s.steps.to_string());
                         c.push(format!("{:.2}", s.wall_seconds.preprocess));
                         c.push(format!("{:.2}", s.wall_seconds.solve));
-                        for name in &reactions {
+                        for (name, &(k, _)) in reactions.iter().zip(&comps) {
                             c.push(
                                 s.reactions
                                     .get(name)
-                                    .map_or("-".into(), |v| format!("{:.5e}", v[2])),
+                                    .map_or("-".into(), |v| format!("{:.5e}", v[k])),
                             );
                         }
                         for name in &probes {

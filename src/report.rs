@@ -139,6 +139,23 @@ pub struct CoupledInfo {
     pub adaptive: Option<AdaptiveInfo>,
 }
 
+/// The reaction component tables show for `boundary`: the one a reference of the run names
+/// (`reaction.BOUNDARY.x|y|z`), else z. Returns (index, "x" | "y" | "z").
+pub fn reaction_component(summary: Option<&Summary>, boundary: &str) -> (usize, &'static str) {
+    summary
+        .and_then(|s| {
+            s.reference.values().find_map(|c| {
+                let p: Vec<&str> = c.quantity.split('.').collect();
+                (p.len() == 3 && p[0] == "reaction" && p[1] == boundary).then(|| match p[2] {
+                    "x" => (0, "x"),
+                    "y" => (1, "y"),
+                    _ => (2, "z"),
+                })
+            })
+        })
+        .unwrap_or((2, "z"))
+}
+
 /// Everything a run reports. Units: SI (m, kg, s, N, Pa, J).
 #[derive(Debug, Clone, Serialize)]
 pub struct Summary {

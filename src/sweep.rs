@@ -621,7 +621,17 @@ pub fn table(varies: &[Vary], rows: &[SweepRow]) -> String {
     let mut head: Vec<String> = vec!["run".into()];
     head.extend(varies.iter().map(|v| v.key.clone()));
     head.extend(["method", "nodes", "points", "dt (s)", "steps", "total (s)"].map(String::from));
-    head.extend(reactions.iter().map(|r| format!("reaction {r} z (N)")));
+    let first = rows.iter().find_map(|r| r.summary.as_ref());
+    let comps: Vec<(usize, &str)> = reactions
+        .iter()
+        .map(|r| crate::report::reaction_component(first, r))
+        .collect();
+    head.extend(
+        reactions
+            .iter()
+            .zip(&comps)
+            .map(|(r, (_, a))| format!("reaction {r} {a} (N)")),
+    );
     let spins = rows.iter().any(|r| {
         r.summary
             .as_ref()
@@ -660,10 +670,10 @@ pub fn table(varies: &[Vary], rows: &[SweepRow]) -> String {
                     x.steps.to_string(),
                     format!("{:.2}", x.wall_seconds.total),
                 ]);
-                c.extend(reactions.iter().map(|n| {
+                c.extend(reactions.iter().zip(&comps).map(|(n, &(k, _))| {
                     x.reactions
                         .get(n)
-                        .map_or("-".into(), |v| format!("{:.5e}", v[2]))
+                        .map_or("-".into(), |v| format!("{:.5e}", v[k]))
                 }));
                 if spins {
                     c.push(

@@ -89,3 +89,27 @@ fn unknown_method_is_an_error_naming_the_known_ones() {
         "{e}"
     );
 }
+
+/// Issue 22: the table shows the reaction component the scene's reference names (shear:
+/// reaction.top.x), not always z.
+#[test]
+fn compare_table_shows_the_referenced_reaction_component() {
+    let methods = comparison::parse_methods("fe").unwrap();
+    let rows = comparison::run_compare(
+        Path::new("cases/cylinder-shear.toml"),
+        &[
+            "discretization.divisions=[2,1,4]".to_string(),
+            "solver.mode=relaxation".to_string(),
+        ],
+        &methods,
+        &CompareOptions::default(),
+    )
+    .unwrap();
+    let s = rows[0].summary.as_ref().unwrap();
+    let md = comparison::table(&rows);
+    assert!(md.contains("reaction top x (N)"), "{md}");
+    assert!(
+        md.contains(&format!("{:.5e}", s.reactions["top"][0])),
+        "{md}"
+    );
+}
