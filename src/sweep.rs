@@ -403,6 +403,22 @@ pub fn convergence_order(points: &[(f64, f64)]) -> Option<f64> {
     (hi - lo > 1.2f64.ln() && sxx > 0.0).then(|| sxy / sxx)
 }
 
+/// Largest relative error below which a fitted order says nothing: the errors are at the
+/// solver's tolerance or round-off, not discretization error.
+const NOISE_ERROR: f64 = 1e-5;
+
+/// What a fitted order `p` over `points` (spacing, relative error) can be trusted for.
+pub fn order_remark(points: &[(f64, f64)], p: f64) -> &'static str {
+    let max = points.iter().map(|x| x.1).fold(0.0f64, f64::max);
+    if max < NOISE_ERROR {
+        "errors below 0.001 %: solver tolerance or round-off, not a convergence order"
+    } else if p < 0.0 {
+        "errors grow under refinement"
+    } else {
+        ""
+    }
+}
+
 /// Per curve: (name, [(spacing m, error)], [(wall s, error)]) of the rows with an error.
 #[allow(clippy::type_complexity)]
 fn curves(rows: &[SweepRow]) -> Vec<(String, Vec<(f64, f64)>, Vec<(f64, f64)>)> {
@@ -703,13 +719,14 @@ pub fn table(varies: &[Vary], rows: &[SweepRow]) -> String {
     let orders: Vec<String> = curves
         .iter()
         .filter_map(|(n, hs, _)| {
-            convergence_order(hs).map(|p| format!("| {n} | {} | {p:.2} |", hs.len()))
+            convergence_order(hs)
+                .map(|p| format!("| {n} | {} | {p:.2} | {} |", hs.len(), order_remark(hs, p)))
         })
         .collect();
     if !orders.is_empty() {
         s.push_str(
             "\nObserved convergence order p (error ~ h^p, least squares over the runs; \
-             h = (volume / nodes)^(1/3)):\n\n| series | runs | p |\n|---|---|---|\n",
+             h = (volume / nodes)^(1/3)):\n\n| series | runs | p | remark |\n|---|---|---|---|\n",
         );
         s.push_str(&(orders.join("\n") + "\n"));
     }
@@ -877,6 +894,9 @@ pub fn write_outputs(
     let labels: Vec<String> = curves
         .iter()
         .map(|(n, hs, _)| match convergence_order(hs) {
+            Some(p) if order_remark(hs, p).starts_with("errors below") => {
+                format!("{n} (at round-off)")
+            }
             Some(p) => format!("{n} (p = {p:.2})"),
             None => n.clone(),
         })
@@ -981,5 +1001,12 @@ mod tests {
         assert!(convergence_order(&pts[..1]).is_none());
         assert!(convergence_order(&[(0.1, 1.0), (0.1, 2.0)]).is_none());
         assert!(convergence_order(&[(0.1, 1.0), (0.105, 2.0)]).is_none());
+        // Round-off-level errors fit a meaningless order, and say so.
+        let noise = [(0.1, 3e-9), (0.05, 2e-8), (0.025, 9e-7)];
+        let p = convergence_order(&noise).unwrap();
+        assert!(p < 0.0);
+        assert!(order_remark(&noise, p).contains("not a convergence order"));
+        assert!(order_remark(&[(0.1, 0.02), (0.05, 0.03)], -0.5).contains("grow"));
+        assert_eq!(order_remark(&pts, 2.0), "");
     }
 }

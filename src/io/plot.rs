@@ -177,11 +177,13 @@ pub fn log_log_plot(
             .draw_series(
                 dashes
                     .into_iter()
-                    .map(|d| PathElement::new(d, BLACK.stroke_width(1))),
+                    // Wider than the series' 2 px lines, so the front shows where it runs
+                    // along one of them.
+                    .map(|d| PathElement::new(d, BLACK.stroke_width(3))),
             )
             .map_err(|e| fail(e.to_string()))?
             .label("Pareto front")
-            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], BLACK.stroke_width(1)));
+            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], BLACK.stroke_width(3)));
         chart
             .draw_series(
                 p.into_iter()
