@@ -216,16 +216,8 @@ fn columns(rows: &[CompareRow]) -> (Vec<String>, Vec<Vec<String>>) {
     let refs: Vec<String> = first
         .map(|s| s.reference.keys().cloned().collect())
         .unwrap_or_default();
-    let comps: Vec<(usize, &str)> = reactions
-        .iter()
-        .map(|r| crate::report::reaction_component(first, r))
-        .collect();
-    head.extend(
-        reactions
-            .iter()
-            .zip(&comps)
-            .map(|(r, (_, a))| format!("reaction {r} {a} (N)")),
-    );
+    let comps = crate::report::reaction_columns(first, &reactions);
+    head.extend(comps.iter().map(|(_, h)| h.clone()));
     head.extend(probes.iter().map(|p| format!("probe {p} (m)")));
     head.extend(refs.iter().map(|r| format!("error {r} (%)")));
     head.extend(["energy balance error (%)", "peak memory (MiB)", "status"].map(String::from));

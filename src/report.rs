@@ -156,6 +156,18 @@ pub fn reaction_component(summary: Option<&Summary>, boundary: &str) -> (usize, 
         .unwrap_or((2, "z"))
 }
 
+/// Per boundary name: the reaction component tables show ([`reaction_component`] of `first`,
+/// the first successful run) and its column header, "reaction NAME x|y|z (N)".
+pub fn reaction_columns(first: Option<&Summary>, boundaries: &[String]) -> Vec<(usize, String)> {
+    boundaries
+        .iter()
+        .map(|r| {
+            let (k, a) = reaction_component(first, r);
+            (k, format!("reaction {r} {a} (N)"))
+        })
+        .collect()
+}
+
 /// Everything a run reports. Units: SI (m, kg, s, N, Pa, J).
 #[derive(Debug, Clone, Serialize)]
 pub struct Summary {

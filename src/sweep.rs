@@ -638,16 +638,8 @@ pub fn table(varies: &[Vary], rows: &[SweepRow]) -> String {
     head.extend(varies.iter().map(|v| v.key.clone()));
     head.extend(["method", "nodes", "points", "dt (s)", "steps", "total (s)"].map(String::from));
     let first = rows.iter().find_map(|r| r.summary.as_ref());
-    let comps: Vec<(usize, &str)> = reactions
-        .iter()
-        .map(|r| crate::report::reaction_component(first, r))
-        .collect();
-    head.extend(
-        reactions
-            .iter()
-            .zip(&comps)
-            .map(|(r, (_, a))| format!("reaction {r} {a} (N)")),
-    );
+    let comps = crate::report::reaction_columns(first, &reactions);
+    head.extend(comps.iter().map(|(_, h)| h.clone()));
     let spins = rows.iter().any(|r| {
         r.summary
             .as_ref()

@@ -441,18 +441,8 @@ fn an_output_folder_holds_exactly_one_run() {
     let dir = std::env::temp_dir().join(format!("hytled-outfolder-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     let run = |args: &[&str]| {
-        Command::new(env!("CARGO_BIN_EXE_hytled"))
-            .arg("run")
-            .arg(path("cases/cube-compression.toml"))
-            .args([
-                "--set",
-                "discretization.size=0.05",
-                "--set",
-                "solver.mode=dynamic",
-                "--set",
-                "solver.duration=0.3",
-                "--out",
-            ])
+        coarse_dynamic_cube()
+            .arg("--out")
             .arg(&dir)
             .args(args)
             .output()
@@ -568,18 +558,8 @@ fn batch_runs_print_plain_progress_lines() {
 #[test]
 fn output_requests_and_divisions_are_held_to_the_memory() {
     let run = |extra: &[&str], limit: Option<&str>| {
-        let mut c = Command::new(env!("CARGO_BIN_EXE_hytled"));
-        c.arg("run")
-            .arg(path("cases/cube-compression.toml"))
-            .args([
-                "--set",
-                "discretization.size=0.05",
-                "--set",
-                "solver.mode=dynamic",
-                "--set",
-                "solver.duration=0.5",
-            ])
-            .args(extra);
+        let mut c = coarse_dynamic_cube();
+        c.args(extra);
         if let Some(l) = limit {
             c.env("HYTLED_MEMORY_LIMIT", l);
         }
@@ -638,4 +618,18 @@ fn summaries_and_tables_are_labelled() {
     v["reference"] = serde_json::json!({});
     let md = hytled::report::markdown_table(&[v]);
     assert!(!md.contains("NaN") && md.contains("| - | - | - |"), "{md}");
+}
+
+/// `hytled run` on the cube at 27 nodes, dynamic over 0.3 s (about 60 steps).
+fn coarse_dynamic_cube() -> Command {
+    let mut c = Command::new(env!("CARGO_BIN_EXE_hytled"));
+    c.arg("run").arg(path("cases/cube-compression.toml")).args([
+        "--set",
+        "discretization.size=0.05",
+        "--set",
+        "solver.mode=dynamic",
+        "--set",
+        "solver.duration=0.3",
+    ]);
+    c
 }

@@ -109,11 +109,6 @@ impl OutDir {
         })
     }
 
-    /// The folder.
-    pub fn path(&self) -> &Path {
-        &self.dir
-    }
-
     /// A fresh, empty staging folder inside the output folder to write the run's files into.
     pub fn staging(&self) -> Result<PathBuf> {
         let s = self.dir.join(STAGING);
