@@ -928,13 +928,35 @@ pub fn run_scene(scene: &Scene, opts: &RunOptions) -> Result<Summary> {
         let mut prep = prepare(scene)?;
         let mut settings = settings(scene, opts.progress);
         settings.progress_lines = opts.progress_lines;
-        let out = solver::run(&mut prep.model, &settings)?;
+        let Some(d) = &dir else {
+            let out = solver::run(&mut prep.model, &settings)?;
+            return Ok(summarize(scene, &prep, &out, t0.elapsed().as_secs_f64()));
+        };
+        // Frames go to disk as they are produced: a run that fails leaves those before the
+        // failure (OutDir::fail keeps them, with their .pvd) for debugging.
+        let staging = d.staging()?;
+        let name = scene.name.clone().unwrap_or_else(|| "run".into());
+        let Prepared {
+            model,
+            mesh,
+            meshless,
+            coupled,
+            ..
+        } = &mut prep;
+        let mut frames = FrameWriter::new(
+            &staging,
+            &name,
+            mesh,
+            meshless.as_ref(),
+            coupled.as_ref(),
+            opts.vtu_format,
+        )?;
+        let run = solver::run_streaming(model, &settings, &mut |m, t, u| frames.write(m, t, u));
+        frames.write_series()?;
+        let out = run?;
         let summary = summarize(scene, &prep, &out, t0.elapsed().as_secs_f64());
-        if let Some(d) = &dir {
-            let staging = d.staging()?;
-            write_outputs(&staging, scene, &mut prep, &out, &summary, opts.vtu_format)?;
-            d.commit()?;
-        }
+        write_results(&staging, &name, &prep, &out, &summary, opts.vtu_format)?;
+        d.commit()?;
         Ok(summary)
     })();
     if let (Err(e), Some(d)) = (&result, &dir) {
@@ -1324,48 +1346,79 @@ fn write_history_plots(
     )
 }
 
-/// Writes one VTU per frame (displacement; Cauchy stress, von Mises stress and J per element),
-/// a `.pvd` series, `history.csv`, `relaxation.csv` (relaxation runs) and `summary.json`.
-pub fn write_outputs(
-    dir: &Path,
-    scene: &Scene,
-    prep: &mut Prepared,
-    out: &RunOutput,
-    summary: &Summary,
+/// Writes the VTU frames of a run into a folder, one file per frame as the frames come, and
+/// the `.pvd` series that lists them.
+pub struct FrameWriter<'a> {
+    dir: PathBuf,
+    name: String,
+    mesh: &'a Mesh,
+    meshless: Option<&'a MeshlessBuild>,
+    coupled: Option<&'a CoupledBuild>,
+    /// Meshless and coupled: the nodes and shape-function values that give each VTU point's
+    /// displacement (nodal parameters are not displacements).
+    interp: Option<Vec<(Vec<usize>, Vec<f64>)>>,
     format: VtuFormat,
-) -> Result<()> {
-    std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
-    let name = scene.name.clone().unwrap_or_else(|| "run".into());
-    // Meshless: displacement interpolated with the shape functions at the VTU points (nodal
-    // parameters are not displacements); per-tet averages of the integration-point fields.
-    let interp: Option<Vec<(Vec<usize>, Vec<f64>)>> = match (&prep.meshless, &prep.coupled) {
-        (None, Some(c)) => Some(
-            c.vertex_weights()?
-                .into_iter()
-                .map(|w| w.into_iter().unzip())
-                .collect(),
-        ),
-        (Some(m), _) => Some(
-            m.background
-                .nodes
-                .iter()
-                .enumerate()
-                .map(|(v, x)| {
-                    m.shape_values(x, &|| format!("output point {v}"))
-                        .map(|s| (s.ids, s.phi))
-                })
-                .collect::<Result<Vec<_>>>()?,
-        ),
-        (None, None) => None,
-    };
-    let mut series = Vec::new();
-    for (k, (t, u)) in out.frames.iter().enumerate() {
-        let model = &mut prep.model;
+    /// (time s, file name) of every frame written.
+    series: Vec<(f64, String)>,
+}
+
+impl<'a> FrameWriter<'a> {
+    /// A writer of `name_0000.vtu`, ... in `dir` (created if missing).
+    pub fn new(
+        dir: &Path,
+        name: &str,
+        mesh: &'a Mesh,
+        meshless: Option<&'a MeshlessBuild>,
+        coupled: Option<&'a CoupledBuild>,
+        format: VtuFormat,
+    ) -> Result<Self> {
+        std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
+        let interp: Option<Vec<(Vec<usize>, Vec<f64>)>> = match (meshless, coupled) {
+            (None, Some(c)) => Some(
+                c.vertex_weights()?
+                    .into_iter()
+                    .map(|w| w.into_iter().unzip())
+                    .collect(),
+            ),
+            (Some(m), _) => Some(
+                m.background
+                    .nodes
+                    .iter()
+                    .enumerate()
+                    .map(|(v, x)| {
+                        m.shape_values(x, &|| format!("output point {v}"))
+                            .map(|s| (s.ids, s.phi))
+                    })
+                    .collect::<Result<Vec<_>>>()?,
+            ),
+            (None, None) => None,
+        };
+        Ok(FrameWriter {
+            dir: dir.to_path_buf(),
+            name: name.to_string(),
+            mesh,
+            meshless,
+            coupled,
+            interp,
+            format,
+            series: Vec::new(),
+        })
+    }
+
+    /// Writes the next frame: displacement (m) per point; Cauchy and von Mises stress (Pa) and
+    /// J per cell, from `model` at displacements `u` and time `t` (s).
+    pub fn write(
+        &mut self,
+        model: &mut Model<NeoHookean>,
+        t: f64,
+        u: &[Vector3<f64>],
+    ) -> Result<()> {
         let (sig, vm, jac) = model.stress_fields(u);
-        let file = format!("{name}_{k:04}.vtu");
-        let path = dir.join(&file);
+        let file = format!("{}_{:04}.vtu", self.name, self.series.len());
+        let path = self.dir.join(&file);
+        let format = self.format;
         let cells: Option<(&[Vector3<f64>], (Vec<usize>, Vec<usize>, Vec<u8>), &[usize])> =
-            match (&prep.meshless, &prep.coupled) {
+            match (self.meshless, self.coupled) {
                 (Some(m), _) => {
                     let b = &m.background;
                     let npc = b.shape.nodes_per_cell();
@@ -1382,7 +1435,7 @@ pub fn write_outputs(
                 (None, Some(c)) => Some((&c.nodes, c.vtu_cells(), &c.owner)),
                 (None, None) => None,
             };
-        match (&interp, cells) {
+        match (&self.interp, cells) {
             (Some(interp), Some((points, (conn, offsets, types), owner))) => {
                 let disp: Vec<f64> = interp
                     .iter()
@@ -1428,12 +1481,55 @@ pub fn write_outputs(
                         values: &jac,
                     },
                 ];
-                vtu::write_mesh(&path, &prep.mesh, point_data, cell_data, format)?;
+                vtu::write_mesh(&path, self.mesh, point_data, cell_data, format)?;
             }
         }
-        series.push((*t, file));
+        self.series.push((t, file));
+        Ok(())
     }
-    vtu::write_pvd(&dir.join(format!("{name}.pvd")), &series)?;
+
+    /// Writes `name.pvd` listing the frames written so far.
+    pub fn write_series(&self) -> Result<()> {
+        vtu::write_pvd(&self.dir.join(format!("{}.pvd", self.name)), &self.series)
+    }
+}
+
+/// Writes one VTU per frame of `out.frames` (see [`FrameWriter`]) and then
+/// [`write_results`]: the `.pvd` series, `history.csv`, `relaxation.csv` and `summary.json`.
+pub fn write_outputs(
+    dir: &Path,
+    scene: &Scene,
+    prep: &mut Prepared,
+    out: &RunOutput,
+    summary: &Summary,
+    format: VtuFormat,
+) -> Result<()> {
+    let name = scene.name.clone().unwrap_or_else(|| "run".into());
+    let mut frames = FrameWriter::new(
+        dir,
+        &name,
+        &prep.mesh,
+        prep.meshless.as_ref(),
+        prep.coupled.as_ref(),
+        format,
+    )?;
+    for (t, u) in &out.frames {
+        frames.write(&mut prep.model, *t, u)?;
+    }
+    frames.write_series()?;
+    write_results(dir, &name, prep, out, summary, format)
+}
+
+/// The files of a run besides its frames: the integration points of adaptive runs,
+/// `history.csv` and its plots, `relaxation.csv` (relaxation runs) and `summary.json`.
+pub fn write_results(
+    dir: &Path,
+    name: &str,
+    prep: &Prepared,
+    out: &RunOutput,
+    summary: &Summary,
+    format: VtuFormat,
+) -> Result<()> {
     let points_file = dir.join(format!("{name}_integration_points.vtu"));
     if let Some(m) = prep.meshless.as_ref().filter(|m| m.adaptive.is_some()) {
         write_integration_points(

@@ -41,13 +41,20 @@ fn beyond_the_stable_step_is_reported_unstable_for_every_element() {
             err.contains("step") && err.contains("critical estimate") && err.contains("dt_factor"),
             "{el}: {err}"
         );
-        // No results, only the failure (issue 22): summary.json with the status and message.
+        // No results, only the failure (issue 22): summary.json with the status and message,
+        // and the frames written before the divergence (at least the initial one) for debugging.
         let mut names: Vec<String> = std::fs::read_dir(&dir)
             .unwrap()
             .map(|e| e.unwrap().file_name().to_string_lossy().to_string())
+            .filter(|n| !n.ends_with(".vtu"))
             .collect();
         names.sort();
-        assert_eq!(names, [".hytled-manifest", "summary.json"], "{el}");
+        assert_eq!(
+            names,
+            [".hytled-manifest", "cube-compression.pvd", "summary.json"],
+            "{el}"
+        );
+        assert!(dir.join("cube-compression_0000.vtu").exists(), "{el}");
         let v: serde_json::Value =
             serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap())
                 .unwrap();
@@ -433,7 +440,8 @@ fn exit_codes_and_json_status_tell_scripts_what_happened() {
 }
 
 /// Issue 22: an output folder holds exactly one run. A rerun with fewer frames leaves no old
-/// frames; a failed rerun leaves summary.json with "status": "failed" and no earlier results; a
+/// frames; a failed rerun leaves summary.json with "status": "failed", the frames it wrote
+/// before failing (written as they are produced) and no earlier results; a
 /// folder with files hytled did not write, or a path that is a file, is refused before any
 /// computing (exit 2).
 #[test]
@@ -467,10 +475,29 @@ fn an_output_folder_holds_exactly_one_run() {
     assert_eq!(frames().len(), 4, "{:?}", frames());
     let pvd = std::fs::read_to_string(dir.join("cube-compression.pvd")).unwrap();
     assert_eq!(pvd.matches("<DataSet").count(), 4);
-    // A diverging rerun: no stale results, the failure recorded.
-    let out = run(&["--set", "solver.dt_factor=4"]);
+    // A diverging rerun: no stale results, the failure recorded, and the frames it wrote up to
+    // the divergence (at step 3, t = 0.06 s, with 0.02 s steps) kept for debugging, with their
+    // .pvd; the earlier run's frames (t = 0, 0.1, 0.2, 0.3 s) are gone.
+    let out = run(&["--set", "solver.dt_factor=4", "--set", "output.frames=10"]);
     assert_eq!(out.status.code(), Some(3));
-    assert!(frames().is_empty(), "{:?}", frames());
+    let pvd = std::fs::read_to_string(dir.join("cube-compression.pvd")).unwrap();
+    let listed: Vec<&str> = pvd
+        .split("file=\"")
+        .skip(1)
+        .filter_map(|r| r.split('"').next())
+        .collect();
+    assert!(!listed.is_empty() && listed.len() < 11, "{pvd}");
+    assert_eq!(
+        frames(),
+        listed,
+        "the folder holds exactly the failed run's frames"
+    );
+    let times: Vec<f64> = pvd
+        .split("timestep=\"")
+        .skip(1)
+        .filter_map(|r| r.split('"').next()?.parse().ok())
+        .collect();
+    assert!(times.iter().all(|&t| t < 0.1), "{times:?}");
     let s = status();
     assert_eq!(s["status"], "failed");
     assert!(s["message"].as_str().unwrap().contains("diverged"), "{s}");
@@ -632,4 +659,53 @@ fn coarse_dynamic_cube() -> Command {
         "solver.duration=0.3",
     ]);
     c
+}
+
+/// Issue 22: frames are written while the run goes (the model computes their stresses between
+/// steps); that must not change the run. Reactions and step counts with 30 streamed frames are
+/// bitwise those of a run that writes nothing, for hex8, tet4-anp (nodal averages) and MLS.
+#[test]
+fn streaming_frames_does_not_change_the_run() {
+    for set in [
+        "discretization.element=hex8",
+        "discretization.element=tet4-anp",
+        "discretization.method=meshless",
+    ] {
+        let sc = scene(&[
+            "solver.mode=dynamic",
+            "solver.duration=0.3",
+            "discretization.size=0.05",
+            "output.frames=30",
+            set,
+        ]);
+        let plain = run_scene(&sc, &RunOptions::default()).unwrap();
+        let dir = std::env::temp_dir().join(format!("hytled-stream-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        let written = run_scene(
+            &sc,
+            &RunOptions {
+                out: Some(dir.clone()),
+                ..Default::default()
+            },
+        )
+        .unwrap();
+        assert_eq!(plain.steps, written.steps, "{set}");
+        assert_eq!(
+            serde_json::to_string(&plain.reactions).unwrap(),
+            serde_json::to_string(&written.reactions).unwrap(),
+            "{set}"
+        );
+        let vtus = std::fs::read_dir(&dir)
+            .unwrap()
+            .filter(|e| {
+                e.as_ref()
+                    .unwrap()
+                    .path()
+                    .extension()
+                    .is_some_and(|x| x == "vtu")
+            })
+            .count();
+        assert_eq!(vtus, 31, "{set}");
+        let _ = std::fs::remove_dir_all(&dir);
+    }
 }

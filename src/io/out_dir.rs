@@ -4,7 +4,7 @@
 //! holds files of anyone else, writes its files into a staging folder (`.hytled-partial`) and
 //! moves them in at the end. While it runs, and after it fails, `summary.json` says so
 //! (`"status": "running"` / `"failed"` with the message), so no earlier result is left looking
-//! current. A run killed while writing leaves the staging folder, which the next run removes;
+//! current; the frames a failed run wrote before it failed are kept for debugging. A run killed while writing leaves the staging folder, which the next run removes;
 //! the window in which a kill can leave a mix is the renames at the end.
 
 use std::path::{Path, PathBuf};
@@ -144,13 +144,31 @@ impl OutDir {
         std::fs::remove_dir_all(&s).map_err(|e| io(&s, e))
     }
 
-    /// Records a failed run: the staged files are dropped and summary.json carries
-    /// `"status": "failed"` with the error. Best effort (the run's own error is what matters).
+    /// Records a failed run: the files it staged (frames written before the failure) are moved
+    /// in and summary.json carries `"status": "failed"` with the error. Best effort (the run's
+    /// own error is what matters).
     pub fn fail(&self, e: &Error) {
         let s = self.dir.join(STAGING);
+        // What the run wrote before it failed (the frames up to a divergence and their .pvd)
+        // is kept for debugging; a staged summary would claim a result, so it is dropped.
+        let mut kept: Vec<String> = std::fs::read_dir(&s)
+            .map(|d| {
+                d.filter_map(|e| e.ok())
+                    .map(|e| e.file_name().to_string_lossy().to_string())
+                    .filter(|n| n != SUMMARY)
+                    .collect()
+            })
+            .unwrap_or_default();
+        kept.sort();
+        let mut all = kept.clone();
+        all.push(SUMMARY.into());
+        if write_manifest(&self.dir, &all).is_ok() {
+            for n in &kept {
+                let _ = std::fs::rename(s.join(n), self.dir.join(n));
+            }
+        }
         let _ = std::fs::remove_dir_all(&s);
         let _ = write_status(&self.dir, "failed", Some(e));
-        let _ = write_manifest(&self.dir, &[SUMMARY.to_string()]);
     }
 }
 
@@ -191,15 +209,25 @@ mod tests {
             .collect();
         left.sort();
         assert_eq!(left, [MANIFEST, "a_0000.vtu", "summary.json"]);
-        // A failed run leaves its status and message.
+        // A failed run leaves its status and message, and the frames it wrote before failing
+        // (not the earlier run's, and not a staged summary).
         let o = OutDir::open(&d).unwrap();
+        assert!(!d.join("a_0000.vtu").exists());
+        let s = o.staging().unwrap();
+        for f in ["b_0000.vtu", "b.pvd", "summary.json"] {
+            std::fs::write(s.join(f), "z").unwrap();
+        }
         o.fail(&Error::Unstable("diverged at step 3".into()));
         let v: serde_json::Value =
             serde_json::from_str(&std::fs::read_to_string(d.join("summary.json")).unwrap())
                 .unwrap();
         assert_eq!(v["status"], "failed");
         assert_eq!(v["exit_code"], 3);
-        assert!(!d.join("a_0000.vtu").exists());
+        assert!(d.join("b_0000.vtu").exists() && d.join("b.pvd").exists());
+        assert!(!d.join(STAGING).exists());
+        // ... and they are its own: the next run removes them.
+        OutDir::open(&d).unwrap();
+        assert!(!d.join("b_0000.vtu").exists() && !d.join("b.pvd").exists());
         let _ = std::fs::remove_dir_all(&d);
     }
 

@@ -362,15 +362,46 @@ pub fn auto_load_steps(length: f64, mu: f64, density: f64, dt: f64) -> usize {
 /// per dynamic run) and, in relaxation, a frequency estimate every `estimate_interval` steps;
 /// the steps between allocate nothing (tests/allocation.rs).
 pub fn run<M: Material>(model: &mut Model<M>, s: &Settings) -> Result<RunOutput> {
+    run_on_pool(model, s, None)
+}
+
+/// Receives each output frame as the run produces it: the model (for stresses), the time (s)
+/// and the displacements (m). An error from it stops the run.
+pub type FrameSink<'a, M> =
+    dyn FnMut(&mut Model<M>, f64, &[Vector3<f64>]) -> Result<()> + Send + 'a;
+
+/// [`run`], handing each output frame to `sink` when it is produced instead of keeping it
+/// (`RunOutput::frames` is then empty): long runs hold no frames in memory, and a run that
+/// fails has already delivered the frames up to the failure. The time spent in `sink` is not
+/// counted in `solve_seconds`.
+pub fn run_streaming<M: Material>(
+    model: &mut Model<M>,
+    s: &Settings,
+    sink: &mut FrameSink<'_, M>,
+) -> Result<RunOutput> {
+    run_on_pool(model, s, Some(sink))
+}
+
+fn run_on_pool<M: Material>(
+    model: &mut Model<M>,
+    s: &Settings,
+    sink: Option<&mut FrameSink<'_, M>>,
+) -> Result<RunOutput> {
     if rayon::current_thread_index().is_some() {
-        run_on_worker(model, s)
+        run_on_worker(model, s, sink)
     } else {
-        rayon::scope(|_| run_on_worker(model, s))
+        rayon::scope(|_| run_on_worker(model, s, sink))
     }
 }
 
-fn run_on_worker<M: Material>(model: &mut Model<M>, s: &Settings) -> Result<RunOutput> {
+fn run_on_worker<M: Material>(
+    model: &mut Model<M>,
+    s: &Settings,
+    mut sink: Option<&mut FrameSink<'_, M>>,
+) -> Result<RunOutput> {
     let start = Instant::now();
+    // Time spent handing frames to the sink (writing files), left out of solve_seconds.
+    let mut sink_seconds = 0.0;
     let n = model.nodes.len();
     let c = model.forces.material.wave_speed();
     let (dt_crit, critical) = critical_step(model, s.step_estimate);
@@ -479,7 +510,11 @@ fn run_on_worker<M: Material>(model: &mut Model<M>, s: &Settings) -> Result<RunO
     } else {
         vec![0]
     };
-    let frame_bytes = (frame_steps.len() + 1) as f64 * n as f64 * 24.0;
+    let frame_bytes = if sink.is_some() {
+        0.0
+    } else {
+        (frame_steps.len() + 1) as f64 * n as f64 * 24.0
+    };
     if let Some(avail) = available_memory() {
         let need = frame_bytes + model.solver_bytes() as f64;
         if need > 0.8 * avail {
@@ -494,9 +529,12 @@ fn run_on_worker<M: Material>(model: &mut Model<M>, s: &Settings) -> Result<RunO
         }
     }
     // Frame buffers are allocated here so that the loop only copies into them.
-    let mut frame_bufs: Vec<Vec<Vector3<f64>>> = (0..frame_steps.len() + usize::from(!dynamic))
-        .map(|_| zero.clone())
-        .collect();
+    let kept = if sink.is_some() {
+        0
+    } else {
+        frame_steps.len() + usize::from(!dynamic)
+    };
+    let mut frame_bufs: Vec<Vec<Vector3<f64>>> = (0..kept).map(|_| zero.clone()).collect();
     let mut frames: Vec<(f64, Vec<Vector3<f64>>)> = Vec::with_capacity(frame_bufs.len());
     let history_every = if dynamic {
         (total_steps / s.history_rows.max(1)).max(1)
@@ -622,7 +660,11 @@ fn run_on_worker<M: Material>(model: &mut Model<M>, s: &Settings) -> Result<RunO
             });
         }
         if frame_steps.contains(&step) {
-            if let Some(mut buf) = frame_bufs.pop() {
+            if let Some(sink) = sink.as_mut() {
+                let t0 = Instant::now();
+                sink(model, t, &u)?;
+                sink_seconds += t0.elapsed().as_secs_f64();
+            } else if let Some(mut buf) = frame_bufs.pop() {
                 buf.copy_from_slice(&u);
                 frames.push((t, buf));
             }
@@ -822,10 +864,15 @@ fn run_on_worker<M: Material>(model: &mut Model<M>, s: &Settings) -> Result<RunO
         }
     }
     pb.finish_and_clear();
+    let solve_seconds = start.elapsed().as_secs_f64() - sink_seconds;
     if !dynamic {
-        let mut buf = frame_bufs.pop().unwrap_or_else(|| zero.clone());
-        buf.copy_from_slice(&u);
-        frames.push((step as f64 * dt, buf));
+        if let Some(sink) = sink.as_mut() {
+            sink(model, step as f64 * dt, &u)?;
+        } else {
+            let mut buf = frame_bufs.pop().unwrap_or_else(|| zero.clone());
+            buf.copy_from_slice(&u);
+            frames.push((step as f64 * dt, buf));
+        }
     }
     let last = history.last().cloned();
     let (strain_energy, kinetic_energy) = last
@@ -857,7 +904,7 @@ fn run_on_worker<M: Material>(model: &mut Model<M>, s: &Settings) -> Result<RunO
         initial_kinetic,
         strain_energy,
         kinetic_energy,
-        solve_seconds: start.elapsed().as_secs_f64(),
+        solve_seconds,
     })
 }
 

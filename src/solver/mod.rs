@@ -18,7 +18,9 @@ use crate::material::Material;
 use crate::quadrature::{NodeSlots, QuadraturePoints};
 use crate::Result;
 pub use forces::Forces;
-pub use integrate::{keep_warm, run, Mode, RunOutput, Settings, StepEstimate};
+pub use integrate::{
+    keep_warm, run, run_streaming, FrameSink, Mode, RunOutput, Settings, StepEstimate,
+};
 
 /// A raw pointer that may cross threads: each parallel task writes a disjoint index range.
 #[derive(Clone, Copy)]
