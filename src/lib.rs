@@ -19,6 +19,7 @@ pub mod comparison;
 pub mod coupling;
 pub mod fe;
 pub mod material;
+pub mod memory;
 pub mod meshless;
 pub mod probe;
 pub mod quadrature;

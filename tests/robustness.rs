@@ -608,7 +608,7 @@ fn output_requests_and_divisions_are_held_to_the_memory() {
     let err = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(2), "{err}");
     assert!(
-        err.contains("output.frames") && err.contains("GiB"),
+        err.contains("output.frames") && err.contains("kiB of memory available"),
         "{err}"
     );
     let out = Command::new(env!("CARGO_BIN_EXE_hytled"))
@@ -620,6 +620,157 @@ fn output_requests_and_divisions_are_held_to_the_memory() {
     let err = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(2), "{err}");
     assert!(err.contains("2.000e11 cells"), "{err}");
+}
+
+/// Issue 22, a run killed while it writes: a complete run, then a rerun into the same folder
+/// killed (SIGKILL) as soon as its first frame is on disk. The folder then holds no result of
+/// either run that looks current: the earlier frames are gone and summary.json says "running";
+/// the frames written so far are in the staging folder only. The next run is not refused (the
+/// killed run's files are hytled's own) and leaves exactly one run.
+#[test]
+fn a_run_killed_while_writing_leaves_no_stale_results() {
+    let dir = std::env::temp_dir().join(format!("hytled-killed-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let names = || {
+        let mut v: Vec<String> = std::fs::read_dir(&dir)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().to_string())
+            .collect();
+        v.sort();
+        v
+    };
+    let status = || -> serde_json::Value {
+        serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap()
+    };
+    let complete_run = |extra: &[&str]| {
+        let out = coarse_dynamic_cube()
+            .args(extra)
+            .arg("--out")
+            .arg(&dir)
+            .output()
+            .unwrap();
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        assert_eq!(status()["status"], "completed");
+    };
+    complete_run(&[]);
+    // A long run (3,000 s of simulated time, 200 frames) killed at its first staged frame.
+    let mut child = coarse_dynamic_cube()
+        .args([
+            "--set",
+            "solver.duration=3000",
+            "--set",
+            "solver.max_steps=100000000",
+        ])
+        .args(["--set", "output.frames=200", "--out"])
+        .arg(&dir)
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let staging = dir.join(".hytled-partial");
+    let t0 = std::time::Instant::now();
+    let staged = loop {
+        let n = std::fs::read_dir(&staging)
+            .map(|d| d.filter(|e| e.is_ok()).count())
+            .unwrap_or(0);
+        if n > 0 {
+            break true;
+        }
+        if child.try_wait().unwrap().is_some() || t0.elapsed().as_secs() > 60 {
+            break false;
+        }
+        std::thread::sleep(std::time::Duration::from_millis(1));
+    };
+    child.kill().unwrap();
+    child.wait().unwrap();
+    assert!(staged, "the run should have staged a frame before it ended");
+    assert_eq!(
+        status()["status"],
+        "running",
+        "no stale 'completed' summary"
+    );
+    let left = names();
+    assert!(
+        !left
+            .iter()
+            .any(|n| n.ends_with(".vtu") || n.ends_with(".pvd") || n.ends_with(".csv")),
+        "the earlier run's results are gone: {left:?}"
+    );
+    // The next run takes the folder and leaves exactly one run.
+    complete_run(&["--set", "output.frames=3"]);
+    let left = names();
+    assert!(!left.iter().any(|n| n == ".hytled-partial"), "{left:?}");
+    let frames = left
+        .iter()
+        .filter(|n| n.ends_with(".vtu") && n.starts_with("cube-compression_0"))
+        .count();
+    assert_eq!(frames, 4, "{left:?}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// Issue 22: the dynamic history is planned before the loop: 1e9 rows asked of a run of over
+/// 6,000 steps hold a row per step (about 0.6 MB), which a 200 kB memory limit refuses as an input error
+/// naming output.history_rows; the same run with 100 rows passes under that limit.
+#[test]
+fn history_rows_are_checked_against_the_memory() {
+    let run = |rows: &str| {
+        let mut c = coarse_dynamic_cube();
+        c.args(["--set", "solver.duration=30", "--set"])
+            .arg(format!("output.history_rows={rows}"))
+            .args(["--set", "output.frames=1"])
+            .env("HYTLED_MEMORY_LIMIT", "200000");
+        c.output().unwrap()
+    };
+    let out = run("1000000000");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    // The rows planned are the steps (over 6,000), not the 1e9 asked for.
+    let rows: f64 = err
+        .split(" history rows")
+        .next()
+        .and_then(|h| h.rsplit(' ').next())
+        .and_then(|r| r.parse().ok())
+        .unwrap_or(f64::NAN);
+    assert!(
+        err.contains("output.history_rows") && (6000.0..1e5).contains(&rows),
+        "{err}"
+    );
+    let out = run("100");
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
+
+/// Issue 22: a meshless point table that would not fit is refused before the shape functions
+/// are computed, naming the points, the support size and the settings that lower them.
+#[test]
+fn meshless_point_table_is_checked_against_the_memory() {
+    let out = Command::new(env!("CARGO_BIN_EXE_hytled"))
+        .arg("run")
+        .arg(path("cases/cube-compression.toml"))
+        .args([
+            "--set",
+            "discretization.method=meshless",
+            "--set",
+            "discretization.size=0.025",
+        ])
+        .env("HYTLED_MEMORY_LIMIT", "100000")
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("meshless point table")
+            && err.contains("integration points x about")
+            && err.contains("support_nodes"),
+        "{err}"
+    );
 }
 
 /// Issue 22, readability: reaction and probe columns are labelled, relaxation's time is called a

@@ -452,6 +452,7 @@ fn import_xml(bytes: &[u8], path: &Path) -> Result<vtkio::Vtk> {
     }
     // Compressed or appended arrays, and binary cell types other than UInt8, are rewritten
     // inline as uncompressed base64 with UInt8 cell types (see `vtk_xml`).
+    let original = bytes;
     let normalized = super::vtk_xml::normalize(bytes, path)?;
     let bytes: &[u8] = normalized.as_deref().unwrap_or(bytes);
     let fixed = fix_cell_types(bytes, path)?;
@@ -459,7 +460,20 @@ fn import_xml(bytes: &[u8], path: &Path) -> Result<vtkio::Vtk> {
     let parsed = catch_unwind(AssertUnwindSafe(|| vtkio::Vtk::parse_xml(input)));
     match parsed {
         Ok(Ok(v)) => Ok(v),
-        Ok(Err(e)) => Err(fail(path, format!("cannot read the XML VTK file: {e}"))),
+        Ok(Err(e)) => {
+            // The parser's message can quote a whole array: 300 characters tell enough.
+            let mut e = e.to_string();
+            if let Some((cut, _)) = e.char_indices().nth(300) {
+                e.truncate(cut);
+                e.push_str("...");
+            }
+            let place = super::vtk_xml::locate_parse_error(original, &e)
+                .map_or(String::new(), |p| format!("{p}: "));
+            Err(fail(
+                path,
+                format!("{place}cannot read the XML VTK file: {e}"),
+            ))
+        }
         Err(_) => Err(fail(
             path,
             "cannot read the XML VTK file: the parser (vtkio) failed on malformed data; the \
@@ -1479,6 +1493,47 @@ _"#,
 </UnstructuredGrid>
 </VTKFile>
 "#;
+
+    /// Issue 22: errors of the XML parser carry the line and byte of the fault: a mismatched
+    /// end tag, an element left open, a non-integer count, an unknown type name.
+    #[test]
+    fn xml_parser_errors_name_the_line() {
+        let cases = [
+            (
+                "</Points>",
+                "</Pointz>",
+                "line 14 (byte ",
+                "</Pointz> does not close <Points>, opened on line 12",
+            ),
+            (
+                "NumberOfComponents=\"3\"",
+                "NumberOfComponents=\"x\"",
+                "line 13 (byte ",
+                "NumberOfComponents=\"x\" is not",
+            ),
+            (
+                "type=\"Float64\" Name=\"temp\"",
+                "type=\"Float65\" Name=\"temp\"",
+                "line 7 (byte ",
+                "'Float65'",
+            ),
+        ];
+        for (from, to, at, what) in cases {
+            let bad = TWO_PIECES.replacen(from, to, 1);
+            assert_ne!(bad, TWO_PIECES);
+            let e = err(bad.as_bytes(), "x.vtu");
+            assert!(
+                e.starts_with("x.vtu: ") && e.contains(at) && e.contains(what),
+                "{e}"
+            );
+        }
+        let open = TWO_PIECES.replace("</VTKFile>\n", "");
+        let e = err(open.as_bytes(), "x.vtu");
+        assert!(
+            e.contains("the file ends inside <VTKFile>, opened on line 2"),
+            "{e}"
+        );
+    }
 
     #[test]
     fn pieces_concatenate_and_arrays_become_sets() {

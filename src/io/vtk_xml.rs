@@ -190,6 +190,11 @@ struct Ctx<'a> {
     hsize: usize,
     big: bool,
     zlib: bool,
+    /// What the file declares for this array: (bytes, how that follows from the piece's sizes).
+    declared: Option<(u64, String)>,
+    /// Decompressed bytes the file's arrays may still take, of `cap` (at most [`cap`]).
+    budget: u64,
+    cap: u64,
 }
 
 impl Ctx<'_> {
@@ -235,23 +240,38 @@ impl Ctx<'_> {
         self.uint(&bytes[k * self.hsize..(k + 1) * self.hsize])
     }
 
-    /// The decoded, decompressed bytes of one array.
-    fn decode(&self, src: &Src) -> Result<Vec<u8>> {
+    /// Refuses an array whose decoded size (`bytes`, from its header) is more than the file
+    /// declares for it or than the memory left to the file's arrays; otherwise takes it from
+    /// the budget. Run before anything is inflated or allocated.
+    fn claim(&mut self, bytes: u64) -> Result<()> {
+        if let Some((want, why)) = &self.declared {
+            if bytes > *want {
+                return Err(self.err(format!(
+                    "the header announces {bytes} bytes, more than the {want} the file declares \
+                     ({why}): corrupt header"
+                )));
+            }
+        }
+        if bytes > self.budget {
+            return Err(self.err(format!(
+                "the arrays would decompress to more than {}, the cap for one file (an \
+                 eighth of the memory available, as reading takes several copies): a corrupt \
+                 or hostile file, or a mesh too large for this machine",
+                crate::memory::size(self.cap as f64)
+            )));
+        }
+        self.budget -= bytes;
+        Ok(())
+    }
+
+    /// The uncompressed size a compressed array's header announces, bytes, and the header:
+    /// (total, header length, compressed sizes, uncompressed sizes).
+    #[allow(clippy::type_complexity)]
+    fn compressed_layout(&self, src: &Src) -> Result<(u64, usize, Vec<u64>, Vec<u64>)> {
         let h = self.hsize;
         let too_big =
             |what: &str, v: u64| self.err(format!("{what} {v} in the header is too large"));
-        if !self.zlib {
-            let head = self.prefix(src, h)?;
-            let n = self.header_value(&head, 0);
-            let n = usize::try_from(n).map_err(|_| too_big("byte count", n))?;
-            let all = self.prefix(
-                src,
-                h.checked_add(n)
-                    .ok_or_else(|| too_big("byte count", n as u64))?,
-            )?;
-            return Ok(all[h..].to_vec());
-        }
-        // zlib: [number of blocks, block size, last block size, compressed sizes...].
+        // [number of blocks, block size, last block size, compressed sizes...].
         let head = self.prefix(src, 3 * h)?;
         let nb = self.header_value(&head, 0);
         let bs = self.header_value(&head, 1);
@@ -267,12 +287,6 @@ impl Ctx<'_> {
         let head_len = (3 + nb) * h;
         let head = self.prefix(src, head_len)?;
         let csizes: Vec<u64> = (0..nb).map(|k| self.header_value(&head, 3 + k)).collect();
-        let ctotal = csizes
-            .iter()
-            .try_fold(0u64, |a, &c| a.checked_add(c))
-            .filter(|&t| t <= avail)
-            .ok_or_else(|| self.err("the compressed block sizes in the header exceed the data"))?;
-        let all = self.prefix(src, head_len + ctotal as usize)?;
         // Uncompressed sizes: bs for every block, `last` for the last one when nonzero.
         let sizes: Vec<u64> = (0..nb)
             .map(|k| if k + 1 == nb && last != 0 { last } else { bs })
@@ -281,6 +295,38 @@ impl Ctx<'_> {
             .iter()
             .try_fold(0u64, |a, &s| a.checked_add(s))
             .unwrap_or(u64::MAX);
+        Ok((total, head_len, csizes, sizes))
+    }
+
+    /// The decoded, decompressed bytes of one array.
+    fn decode(&mut self, src: &Src) -> Result<Vec<u8>> {
+        let h = self.hsize;
+        if !self.zlib {
+            let head = self.prefix(src, h)?;
+            let n = self.header_value(&head, 0);
+            self.claim(n)?;
+            let n = usize::try_from(n)
+                .map_err(|_| self.err(format!("byte count {n} in the header is too large")))?;
+            let all = self.prefix(
+                src,
+                h.checked_add(n).ok_or_else(|| {
+                    self.err(format!("byte count {n} in the header is too large"))
+                })?,
+            )?;
+            return Ok(all[h..].to_vec());
+        }
+        let (total, head_len, csizes, sizes) = self.compressed_layout(src)?;
+        let nb = csizes.len();
+        let avail = match src {
+            Src::Raw(b) => b.len(),
+            Src::B64(t) => t.len(),
+        } as u64;
+        let ctotal = csizes
+            .iter()
+            .try_fold(0u64, |a, &c| a.checked_add(c))
+            .filter(|&t| t <= avail)
+            .ok_or_else(|| self.err("the compressed block sizes in the header exceed the data"))?;
+        let all = self.prefix(src, head_len + ctotal as usize)?;
         // zlib expands at most about 1032:1; anything beyond is a corrupt header.
         if total > ctotal.saturating_mul(1100).saturating_add(1 << 16) {
             return Err(self.err(format!(
@@ -288,6 +334,7 @@ impl Ctx<'_> {
                  corrupt header"
             )));
         }
+        self.claim(total)?;
         let mut out = Vec::with_capacity((total as usize).min(ctotal as usize * 8 + 4096));
         let mut pos = head_len;
         for (k, (&c, &s)) in csizes.iter().zip(&sizes).enumerate() {
@@ -313,9 +360,146 @@ impl Ctx<'_> {
     }
 }
 
+/// Decompressed bytes one file's arrays may take: an eighth of the memory available (reading
+/// holds the decoded arrays, their base64 for vtkio and vtkio's own copy), 16 GiB when the
+/// available memory is unknown.
+fn cap() -> u64 {
+    crate::memory::available().map_or(16 << 30, |a| (a / 8.0) as u64)
+}
+
+/// The start and end tags of the file's XML part: (byte offset, the text between '<' and '>').
+/// Array bodies (base64 or ASCII numbers) hold no '<', so this is one linear scan.
+fn tags(head: &[u8]) -> Vec<(usize, &[u8])> {
+    let mut out = Vec::new();
+    let mut i = 0;
+    while let Some(r) = head[i..].iter().position(|&b| b == b'<') {
+        let s = i + r;
+        let Some(e) = head[s..].iter().position(|&b| b == b'>').map(|p| s + p) else {
+            break;
+        };
+        out.push((s, &head[s + 1..e]));
+        i = e + 1;
+    }
+    out
+}
+
+/// What the file declares for the array whose tag starts at `s`: the piece's NumberOfPoints for
+/// `<Points>` and `<PointData>` arrays, NumberOfCells for `<CellData>` and the `offsets` /
+/// `types` of `<Cells>`, times the components and the type's width. None where the file
+/// declares no size (connectivity, field data) or the attributes are missing.
+fn declared(tags: &[(usize, &[u8])], s: usize, tag: &[u8]) -> Option<(u64, String)> {
+    let mut section: Option<&[u8]> = None;
+    let mut piece: Option<&[u8]> = None;
+    for &(_, t) in tags.iter().take_while(|(at, _)| *at < s) {
+        let name_end = t
+            .iter()
+            .position(|&b| b.is_ascii_whitespace() || b == b'/')
+            .unwrap_or(t.len());
+        let closing = t.first() == Some(&b'/');
+        let name = if closing { &t[1..] } else { &t[..name_end] };
+        match name {
+            b"Piece" if !closing => piece = Some(t),
+            b"Points" | b"PointData" | b"CellData" | b"Cells" => {
+                let self_closing = t.last() == Some(&b'/');
+                section = (!closing && !self_closing).then_some(name);
+            }
+            _ => {}
+        }
+    }
+    let piece = piece?;
+    let count = |key: &[u8]| -> Option<u64> { attr_str(piece, key)?.trim().parse().ok() };
+    let name = attr(tag, b"Name").unwrap_or(b"");
+    let (what, tuples) = match section? {
+        b"Points" | b"PointData" => ("NumberOfPoints", count(b"NumberOfPoints")?),
+        b"CellData" => ("NumberOfCells", count(b"NumberOfCells")?),
+        _ if name == b"offsets" || name == b"types" => ("NumberOfCells", count(b"NumberOfCells")?),
+        _ => return None,
+    };
+    // An unreadable component count declares nothing (the parser reports it).
+    let comps: u64 = match attr_str(tag, b"NumberOfComponents") {
+        Some(c) => c.trim().parse().ok()?,
+        None => 1,
+    };
+    let ty = attr_str(tag, b"type")?;
+    let w = type_width(ty)? as u64;
+    let bytes = tuples.checked_mul(comps)?.checked_mul(w)?;
+    Some((
+        bytes,
+        format!("{what} {tuples} x {comps} component(s) x {w} bytes of {ty}"),
+    ))
+}
+
+/// LZ4 / LZMA files, which vtkio inflates itself: every binary or appended array's header is
+/// read and its uncompressed size held to what the file declares and to the cap
+/// ([`Ctx::claim`]) before vtkio allocates anything.
+fn check_compressed(
+    bytes: &[u8],
+    path: &Path,
+    tags: &[(usize, &[u8])],
+    appended: Option<(bool, usize, usize)>,
+    hsize: usize,
+    big: bool,
+    budget0: u64,
+) -> Result<()> {
+    let mut budget = budget0;
+    for (i, &(s, t)) in tags.iter().enumerate() {
+        if !t.starts_with(b"DataArray") {
+            continue;
+        }
+        let tag = t.strip_suffix(b"/").unwrap_or(t);
+        let format = attr(tag, b"format").unwrap_or(b"ascii");
+        let mut ctx = Ctx {
+            path,
+            at: s,
+            name: attr_str(tag, b"Name").unwrap_or("(unnamed)").to_string(),
+            hsize,
+            big,
+            zlib: false,
+            declared: declared(tags, s, tag),
+            budget,
+            cap: budget0,
+        };
+        let total = if format == b"binary" {
+            // The body runs from after the tag to the next tag.
+            let from = s + t.len() + 2;
+            let to = tags.get(i + 1).map_or(bytes.len(), |n| n.0).max(from);
+            ctx.compressed_layout(&Src::B64(&bytes[from.min(to)..to]))?
+                .0
+        } else if format == b"appended" {
+            let Some((raw, start, end)) = appended else {
+                return Err(ctx.err("format=\"appended\" but the file has no <AppendedData>"));
+            };
+            let Some(block) = attr_str(tag, b"offset")
+                .and_then(|o| o.trim().parse::<usize>().ok())
+                .and_then(|o| start.checked_add(o))
+                .filter(|&b| b <= end)
+            else {
+                return Err(ctx.err("appended array without a valid offset"));
+            };
+            ctx.at = block;
+            let src = if raw {
+                Src::Raw(&bytes[block..end])
+            } else {
+                Src::B64(&bytes[block..end])
+            };
+            ctx.compressed_layout(&src)?.0
+        } else {
+            continue;
+        };
+        ctx.claim(total)?;
+        budget = ctx.budget;
+    }
+    Ok(())
+}
+
 /// The rewritten file, or None when it needs no rewriting (or is not laid out as expected: the
 /// caller then lets vtkio report the problem).
 pub(crate) fn normalize(bytes: &[u8], path: &Path) -> Result<Option<Vec<u8>>> {
+    normalize_capped(bytes, path, cap())
+}
+
+/// [`normalize`] with the arrays' decompressed bytes held to `cap`.
+fn normalize_capped(bytes: &[u8], path: &Path, cap: u64) -> Result<Option<Vec<u8>>> {
     let Some(vf) = find(bytes, b"<VTKFile") else {
         return Ok(None);
     };
@@ -329,11 +513,11 @@ pub(crate) fn normalize(bytes: &[u8], path: &Path) -> Result<Option<Vec<u8>>> {
     } else {
         4
     };
-    let zlib = match attr(vtag, b"compressor") {
-        None => false,
-        Some(b"vtkZLibDataCompressor") => true,
-        // LZ4 / LZMA: vtkio decompresses those itself.
-        Some(_) => return Ok(None),
+    let (zlib, other) = match attr(vtag, b"compressor") {
+        None => (false, false),
+        Some(b"vtkZLibDataCompressor") => (true, false),
+        // LZ4 / LZMA: vtkio decompresses those itself, after their sizes are checked.
+        Some(_) => (false, true),
     };
     // Appended data: encoding and where its bytes start (after '_').
     let app = find(bytes, b"<AppendedData");
@@ -361,6 +545,12 @@ pub(crate) fn normalize(bytes: &[u8], path: &Path) -> Result<Option<Vec<u8>>> {
     };
     let head_end = app.unwrap_or(bytes.len());
     let head = &bytes[..head_end];
+    let tag_list = tags(head);
+    let mut budget = cap;
+    if other {
+        check_compressed(bytes, path, &tag_list, appended, hsize, big, budget)?;
+        return Ok(None);
+    }
 
     // Ranges of <Cells> elements (their `types` array must become UInt8).
     let mut cells: Vec<(usize, usize)> = Vec::new();
@@ -439,6 +629,9 @@ pub(crate) fn normalize(bytes: &[u8], path: &Path) -> Result<Option<Vec<u8>>> {
             hsize,
             big,
             zlib,
+            declared: declared(&tag_list, s, tag),
+            budget,
+            cap,
         };
         // The body of an inline array, up to its closing tag.
         let body_end = if self_closing {
@@ -477,6 +670,7 @@ pub(crate) fn normalize(bytes: &[u8], path: &Path) -> Result<Option<Vec<u8>>> {
             ctx.decode(&src)?
         };
         ctx.at = s;
+        budget = ctx.budget;
         if let Some(w) = type_width(&ty) {
             if data.len() % w != 0 {
                 return Err(ctx.err(format!(
@@ -536,4 +730,210 @@ pub(crate) fn normalize(bytes: &[u8], path: &Path) -> Result<Option<Vec<u8>>> {
         out.extend_from_slice(b"</VTKFile>\n");
     }
     Ok(Some(out))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::io::Write;
+
+    fn zlib(data: &[u8]) -> Vec<u8> {
+        let mut e = flate2::write::ZlibEncoder::new(Vec::new(), flate2::Compression::best());
+        e.write_all(data).unwrap();
+        e.finish().unwrap()
+    }
+
+    /// A compressed one-tet VTU (UInt64 headers, one block per array) whose Points array
+    /// inflates to `points_bytes` (zeros), with the piece's NumberOfPoints `npoints`.
+    fn one_tet(
+        compressor: &str,
+        npoints: usize,
+        points_bytes: usize,
+        fake: Option<u64>,
+    ) -> Vec<u8> {
+        let array = |bytes: Vec<u8>, raw_len: u64| {
+            let mut h = Vec::new();
+            for v in [1u64, raw_len, raw_len, bytes.len() as u64] {
+                h.extend_from_slice(&v.to_le_bytes());
+            }
+            base64(&h) + &base64(&bytes)
+        };
+        let points = match fake {
+            Some(claimed) => array(vec![0u8; 16], claimed),
+            None => array(zlib(&vec![0u8; points_bytes]), points_bytes as u64),
+        };
+        let ints = |v: &[i64]| {
+            let raw: Vec<u8> = v.iter().flat_map(|x| x.to_le_bytes()).collect();
+            array(zlib(&raw), raw.len() as u64)
+        };
+        format!(
+            r#"<?xml version="1.0"?>
+<VTKFile type="UnstructuredGrid" version="1.0" byte_order="LittleEndian" header_type="UInt64" compressor="{compressor}">
+<UnstructuredGrid>
+<Piece NumberOfPoints="{npoints}" NumberOfCells="1">
+<Points>
+<DataArray type="Float64" Name="Points" NumberOfComponents="3" format="binary">{points}</DataArray>
+</Points>
+<Cells>
+<DataArray type="Int64" Name="connectivity" format="binary">{}</DataArray>
+<DataArray type="Int64" Name="offsets" format="binary">{}</DataArray>
+<DataArray type="UInt8" Name="types" format="binary">{}</DataArray>
+</Cells>
+</Piece>
+</UnstructuredGrid>
+</VTKFile>
+"#,
+            ints(&[0, 1, 2, 3]),
+            ints(&[4]),
+            array(zlib(&[10]), 1),
+        )
+        .into_bytes()
+    }
+
+    fn err(bytes: &[u8], cap: u64) -> String {
+        normalize_capped(bytes, Path::new("bomb.vtu"), cap)
+            .expect_err("expected an error")
+            .to_string()
+    }
+
+    /// Issue 22: a zlib array that inflates to more than the piece declares (10 MB of points
+    /// for 4 points: 96 bytes) is refused before anything is inflated, naming the count.
+    #[test]
+    fn inflated_sizes_are_held_to_what_the_file_declares() {
+        let ok = one_tet("vtkZLibDataCompressor", 4, 96, None);
+        assert!(normalize_capped(&ok, Path::new("ok.vtu"), 1 << 30).is_ok());
+        let bomb = one_tet("vtkZLibDataCompressor", 4, 10_000_000, None);
+        assert!(bomb.len() < 30_000, "{}", bomb.len());
+        let e = err(&bomb, 1 << 30);
+        assert!(
+            e.contains("bomb.vtu: byte ")
+                && e.contains("DataArray 'Points'")
+                && e.contains("10000000 bytes")
+                && e.contains("NumberOfPoints 4 x 3 component(s) x 8 bytes"),
+            "{e}"
+        );
+    }
+
+    /// Issue 22: a file consistent with itself but whose arrays would inflate past the cap (here
+    /// 1 MB; an eighth of the available memory in use) is refused before inflating.
+    #[test]
+    fn inflated_sizes_are_held_to_the_cap() {
+        let big = one_tet("vtkZLibDataCompressor", 100_000, 2_400_000, None);
+        let e = err(&big, 1_000_000);
+        assert!(
+            e.contains("cap for one file") && e.contains("'Points'"),
+            "{e}"
+        );
+        assert!(normalize_capped(&big, Path::new("big.vtu"), 1 << 30).is_ok());
+    }
+
+    /// LZ4 / LZMA arrays are inflated by vtkio: their headers are checked first. A header that
+    /// announces 1e12 bytes for 4 points is refused without being decompressed.
+    #[test]
+    fn lz4_and_lzma_headers_are_checked_before_vtkio_inflates() {
+        for c in ["vtkLZ4DataCompressor", "vtkLZMADataCompressor"] {
+            let f = one_tet(c, 4, 0, Some(1_000_000_000_000));
+            let e = err(&f, 1 << 30);
+            assert!(
+                e.contains("1000000000000 bytes") && e.contains("declares"),
+                "{c}: {e}"
+            );
+            let f = one_tet(c, 4_000_000, 0, Some(96_000_000));
+            let e = err(&f, 1_000_000);
+            assert!(e.contains("cap for one file"), "{c}: {e}");
+        }
+    }
+}
+
+/// Line (1-based) of byte `at`.
+fn line_of(bytes: &[u8], at: usize) -> usize {
+    bytes[..at.min(bytes.len())]
+        .iter()
+        .filter(|&&b| b == b'\n')
+        .count()
+        + 1
+}
+
+/// Where an XML file the parser (vtkio) rejected goes wrong, for its message, as "line L
+/// (byte B): what": the first end tag that does not close the element open there, an element
+/// left open at the end of the file, an integer attribute (NumberOfPoints, NumberOfCells,
+/// NumberOfComponents, offset) that is not one, or else the first place the value the parser
+/// names in backquotes (an unknown type name, say) appears. The parser's own
+/// errors carry no position. None when none of these finds the place.
+pub(crate) fn locate_parse_error(bytes: &[u8], message: &str) -> Option<String> {
+    let app = find(bytes, b"<AppendedData");
+    let head = &bytes[..app.unwrap_or(bytes.len())];
+    let at = |b: usize| format!("line {} (byte {b})", line_of(bytes, b));
+    let text = |t: &[u8]| super::clip(&String::from_utf8_lossy(t));
+    let mut open: Vec<(usize, &[u8])> = Vec::new();
+    for (s, t) in tags(head) {
+        if t.starts_with(b"?") || t.starts_with(b"!") {
+            continue;
+        }
+        if let Some(name) = t.strip_prefix(b"/") {
+            let name = name.trim_ascii();
+            match open.pop() {
+                Some((_, o)) if o == name => {}
+                Some((o_at, o)) => {
+                    return Some(format!(
+                        "{}: </{}> does not close <{}>, opened on {}",
+                        at(s),
+                        text(name),
+                        text(o),
+                        at(o_at)
+                    ))
+                }
+                None => {
+                    return Some(format!(
+                        "{}: </{}> closes no open element",
+                        at(s),
+                        text(name)
+                    ))
+                }
+            }
+        } else if !t.ends_with(b"/") {
+            let end = t
+                .iter()
+                .position(|b| b.is_ascii_whitespace())
+                .unwrap_or(t.len());
+            open.push((s, &t[..end]));
+        }
+    }
+    if app.is_none() {
+        if let Some(&(o_at, o)) = open.last() {
+            return Some(format!(
+                "{}: the file ends inside <{}>, opened on {}: truncated file?",
+                at(bytes.len()),
+                text(o),
+                at(o_at)
+            ));
+        }
+    }
+    // An integer attribute that is not an integer.
+    for (s, t) in tags(head) {
+        for key in [
+            &b"NumberOfPoints"[..],
+            b"NumberOfCells",
+            b"NumberOfComponents",
+            b"offset",
+        ] {
+            if let Some(v) = attr(t, key) {
+                if v.trim_ascii().is_empty() || !v.trim_ascii().iter().all(u8::is_ascii_digit) {
+                    return Some(format!(
+                        "{}: {}=\"{}\" is not a non-negative integer",
+                        at(s),
+                        text(key),
+                        text(v)
+                    ));
+                }
+            }
+        }
+    }
+    // A value the parser names: `Float65`.
+    let mut parts = message.split('`');
+    parts.next();
+    let value = parts.next().filter(|v| !v.is_empty())?;
+    let quoted = format!("\"{value}\"");
+    let b = find(head, quoted.as_bytes()).or_else(|| find(head, value.as_bytes()))?;
+    Some(format!("{}: '{}'", at(b), text(value.as_bytes())))
 }

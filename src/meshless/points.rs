@@ -104,6 +104,38 @@ fn shape_into(
     )))
 }
 
+/// Bytes one support slot (a node of one point's support) takes at the peak of the build and
+/// in the solver: its node id and dphi/dX in the chunk and again in the point table, the
+/// solver's slot map and force buffers. The brain scene (11.0 M slots) measured 1.22 GiB in
+/// all, about 119 bytes per slot with everything else the run holds.
+const BYTES_PER_SLOT: f64 = 96.0;
+
+/// Refuses a point table that would not fit in memory before it is built: the mean support
+/// size of up to 64 evenly spaced points (found at the unit support, before any growth) times
+/// the points and [`BYTES_PER_SLOT`].
+fn check_memory(support: &Support, positions: &[Vector3<f64>]) -> Result<()> {
+    let n = positions.len();
+    if n == 0 {
+        return Ok(());
+    }
+    let samples = n.min(64);
+    let (mut ids, mut radii) = (Vec::new(), Vec::new());
+    let mut total = 0usize;
+    for k in 0..samples {
+        support.find(&positions[k * n / samples], 1.0, &mut ids, &mut radii);
+        total += ids.len();
+    }
+    let mean = total as f64 / samples as f64;
+    crate::memory::check(
+        n as f64 * mean * BYTES_PER_SLOT,
+        &format!(
+            "the meshless point table ({n} integration points x about {mean:.0} support nodes)"
+        ),
+        "use fewer integration points (discretization.point_ratio, tet_rule, tets_per_point) or \
+         smaller supports (discretization.support_nodes, dilatation), or a coarser cloud",
+    )
+}
+
 /// Quadrature points of the meshless discretization: for every integration point (positions
 /// m, weights m^3) its support and dphi/dX. Built in parallel in fixed chunks and concatenated
 /// in point order, so the result does not depend on the number of threads.
@@ -114,6 +146,7 @@ pub fn build_points(
     weights: &[f64],
 ) -> Result<QuadraturePoints> {
     const CHUNK: usize = 512;
+    check_memory(support, positions)?;
     // Per chunk: support sizes, node ids, dphi.
     type Chunk = (Vec<usize>, Vec<u32>, Vec<Vector3<f64>>);
     let chunks: Vec<Result<Chunk>> = positions

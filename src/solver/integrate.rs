@@ -265,29 +265,6 @@ pub fn stable_step<M: Material>(model: &Model<M>) -> (f64, Critical) {
     }
 }
 
-const GIB: f64 = 1024.0 * 1024.0 * 1024.0;
-
-/// Memory a run may use, bytes: the system's available memory (Linux: MemAvailable of
-/// /proc/meminfo), or the environment's `HYTLED_MEMORY_LIMIT` (bytes) where that is smaller, for
-/// shared machines; None when neither is known.
-pub fn available_memory() -> Option<f64> {
-    let system = std::fs::read_to_string("/proc/meminfo")
-        .ok()
-        .and_then(|text| {
-            let line = text.lines().find(|l| l.starts_with("MemAvailable:"))?;
-            let kib: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
-            Some(kib * 1024.0)
-        });
-    let limit = std::env::var("HYTLED_MEMORY_LIMIT")
-        .ok()
-        .and_then(|v| v.trim().parse::<f64>().ok())
-        .filter(|v| *v > 0.0);
-    match (system, limit) {
-        (Some(a), Some(b)) => Some(a.min(b)),
-        (a, b) => a.or(b),
-    }
-}
-
 /// Dynamic runs needing more steps than this are refused unless `max_steps` allows them (a
 /// mistyped dt_factor or density would otherwise run for days without a word).
 const MAX_DYNAMIC_STEPS: f64 = 1e8;
@@ -515,19 +492,38 @@ fn run_on_worker<M: Material>(
     } else {
         (frame_steps.len() + 1) as f64 * n as f64 * 24.0
     };
-    if let Some(avail) = available_memory() {
-        let need = frame_bytes + model.solver_bytes() as f64;
-        if need > 0.8 * avail {
-            return Err(Error::Input(format!(
-                "the run would hold {:.1} GiB ({} output frames of {n} nodes: {:.1} GiB, and the model), \
-                 more than 80 % of the {:.1} GiB of memory available: lower output.frames",
-                need / GIB,
-                frame_steps.len(),
-                frame_bytes / GIB,
-                avail / GIB
-            )));
-        }
-    }
+    let history_every = if dynamic {
+        (total_steps / s.history_rows.max(1)).max(1)
+    } else {
+        s.estimate_interval.max(1)
+    };
+    // Relaxation records a row per estimate and usually stops long before max_steps, so only
+    // the dynamic history (a row count fixed in advance) is planned for.
+    let rows = if dynamic {
+        (total_steps / history_every + 2) as f64
+    } else {
+        0.0
+    };
+    let row_bytes = (std::mem::size_of::<HistoryRow>()
+        + model.boundaries.len() * std::mem::size_of::<[f64; 3]>()
+        + 16) as f64;
+    let history_bytes = rows * row_bytes;
+    let fix = if frame_bytes >= history_bytes {
+        "lower output.frames"
+    } else {
+        "lower output.history_rows"
+    };
+    crate::memory::check(
+        frame_bytes + history_bytes + model.solver_bytes() as f64,
+        &format!(
+            "the run ({} output frames of {n} nodes: {}; {rows:.0} history rows: {}; and the \
+             model)",
+            frame_steps.len(),
+            crate::memory::size(frame_bytes),
+            crate::memory::size(history_bytes)
+        ),
+        fix,
+    )?;
     // Frame buffers are allocated here so that the loop only copies into them.
     let kept = if sink.is_some() {
         0
@@ -536,11 +532,6 @@ fn run_on_worker<M: Material>(
     };
     let mut frame_bufs: Vec<Vec<Vector3<f64>>> = (0..kept).map(|_| zero.clone()).collect();
     let mut frames: Vec<(f64, Vec<Vector3<f64>>)> = Vec::with_capacity(frame_bufs.len());
-    let history_every = if dynamic {
-        (total_steps / s.history_rows.max(1)).max(1)
-    } else {
-        s.estimate_interval.max(1)
-    };
     let mut history = Vec::with_capacity(if dynamic {
         s.history_rows.min(total_steps) + 2
     } else {
@@ -659,7 +650,7 @@ fn run_on_worker<M: Material>(
                 kinetic_energy: ke,
             });
         }
-        if frame_steps.contains(&step) {
+        if frame_steps.binary_search(&step).is_ok() {
             if let Some(sink) = sink.as_mut() {
                 let t0 = Instant::now();
                 sink(model, t, &u)?;
