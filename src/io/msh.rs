@@ -1504,6 +1504,24 @@ mod tests {
         assert!(e.contains("wrong count") && e.contains("line 208"), "{e}");
     }
 
+    /// Issue 22: a header that announces more elements than the section holds is an error
+    /// naming both lines, and a 1e6-digit node id is quoted in 60 characters, not 1 MB.
+    #[test]
+    fn wrong_element_count_and_huge_ids_give_short_located_errors() {
+        let e = err22(&SMALL22.replacen("$Elements\n5\n", "$Elements\n9\n", 1));
+        assert!(
+            e.contains("wrong count") && e.contains("$EndElements") && e.contains("announces 9"),
+            "{e}"
+        );
+        let huge = "1".repeat(1_000_000);
+        let e = err22(&SMALL22.replacen("\n40 0 0 0\n", &format!("\n{huge} 0 0 0\n"), 1));
+        assert!(
+            e.contains("node id") && e.len() < 300,
+            "{}",
+            &e[..e.len().min(300)]
+        );
+    }
+
     #[test]
     fn non_numeric_field_is_an_error() {
         let text = cyl22();
