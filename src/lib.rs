@@ -28,3 +28,16 @@ pub mod scene;
 pub mod simulation;
 pub mod solver;
 pub mod sweep;
+
+/// Whether the kernels (force lanes, sparse solves) may use AVX2 (`HYTLED_NO_AVX2` set in the environment turns it
+/// off, e.g. to compare the two paths).
+pub(crate) fn simd_available() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        std::env::var_os("HYTLED_NO_AVX2").is_none() && std::arch::is_x86_feature_detected!("avx2")
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        false
+    }
+}

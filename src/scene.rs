@@ -70,33 +70,7 @@ pub enum Geometry {
     },
 }
 
-/// Mesh file formats.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum MeshFormat {
-    /// ABAQUS input file.
-    Inp,
-    /// Gmsh 2.2 or 4.1.
-    Msh,
-    /// VTK legacy.
-    Vtk,
-    /// VTK XML unstructured grid.
-    Vtu,
-}
-
-impl MeshFormat {
-    /// From a file extension (case-insensitive).
-    pub fn from_path(path: &Path) -> Option<Self> {
-        let e = path.extension()?.to_string_lossy().to_lowercase();
-        match e.as_str() {
-            "inp" => Some(MeshFormat::Inp),
-            "msh" => Some(MeshFormat::Msh),
-            "vtk" => Some(MeshFormat::Vtk),
-            "vtu" => Some(MeshFormat::Vtu),
-            _ => None,
-        }
-    }
-}
+pub use crate::io::mesh_file::MeshFormat;
 
 /// `[geometry]` as written.
 #[derive(Debug, Clone, Serialize, Deserialize, Default)]
@@ -702,6 +676,22 @@ fn default_model() -> String {
     "neo-hookean".into()
 }
 
+impl MaterialSpec {
+    /// The neo-Hookean material these keys describe: from (E, nu) or (mu, kappa).
+    pub fn neo_hookean(&self) -> crate::material::NeoHookean {
+        match (self.youngs_modulus, self.poisson_ratio) {
+            (Some(e), Some(nu)) => {
+                crate::material::NeoHookean::from_young_poisson(e, nu, self.density)
+            }
+            _ => crate::material::NeoHookean {
+                mu: self.shear_modulus.unwrap_or(0.0),
+                kappa: self.bulk_modulus.unwrap_or(0.0),
+                density: self.density,
+            },
+        }
+    }
+}
+
 /// A displacement component name.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
@@ -992,7 +982,7 @@ fn resolve_exact(s: &mut Scene) -> std::result::Result<(), String> {
                 "the stretch 1 + d / L = {stretch} must be positive"
             )));
         }
-        let m = crate::simulation::material(s);
+        let m = s.material.neo_hookean();
         let (a, _, sigma) = crate::material::uniaxial_stretch(&m, stretch);
         let parts: Vec<&str> = r.quantity.split('.').collect();
         let c = match parts[2] {

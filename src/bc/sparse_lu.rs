@@ -250,7 +250,7 @@ impl SparseLu {
             lower,
             upper,
             inv_diag,
-            avx2: crate::solver::forces::simd_available(),
+            avx2: crate::simd_available(),
         })
     }
 

@@ -3,9 +3,38 @@
 
 use std::path::Path;
 
+use serde::{Deserialize, Serialize};
+
 use super::model::MeshInput;
-use crate::scene::MeshFormat;
 use crate::{Error, Result};
+
+/// Mesh file formats.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum MeshFormat {
+    /// ABAQUS input file.
+    Inp,
+    /// Gmsh 2.2 or 4.1.
+    Msh,
+    /// VTK legacy.
+    Vtk,
+    /// VTK XML unstructured grid.
+    Vtu,
+}
+
+impl MeshFormat {
+    /// From a file extension (case-insensitive).
+    pub fn from_path(path: &Path) -> Option<Self> {
+        let e = path.extension()?.to_string_lossy().to_lowercase();
+        match e.as_str() {
+            "inp" => Some(MeshFormat::Inp),
+            "msh" => Some(MeshFormat::Msh),
+            "vtk" => Some(MeshFormat::Vtk),
+            "vtu" => Some(MeshFormat::Vtu),
+            _ => None,
+        }
+    }
+}
 
 /// Reads `path` in `format` (default: from the extension) and scales its coordinates by
 /// `units` (file length unit in m).

@@ -607,7 +607,7 @@ fn fill_patch<const D: usize>(
 /// Horton et al. (2010) sect. 3.1: any cloud with nodes spread through the solid will do, so
 /// clouds from other tools (image-based, hand-made) are read as they are.
 pub fn read_cloud(path: &Path) -> Result<Vec<Vector3<f64>>> {
-    if crate::scene::MeshFormat::from_path(path).is_some() {
+    if crate::io::mesh_file::MeshFormat::from_path(path).is_some() {
         // The vertices of a mesh file (.inp, .msh, .vtk, .vtu), unused nodes dropped.
         let nodes = crate::io::mesh_file::read_mesh(path, None, 1.0)?.mesh.nodes;
         check_cloud(&nodes, path)?;

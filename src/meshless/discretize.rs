@@ -1,11 +1,11 @@
-//! A scene's meshless discretization: nodes, background integration, supports, shape
+//! The meshless discretization: nodes, background integration, supports, shape
 //! functions, and removal of nodes that too few supports reach (Horton 2010 sect. 2.5).
 
 use nalgebra::Vector3;
 
 use super::adaptive::{self, AdaptiveSettings};
 use super::integration::{self, TetRule};
-use super::mls::{self, MlsSettings};
+use super::mls::MlsSettings;
 use super::points::{build_points, shape_at, support_counts, support_statistics};
 use super::support::{Support, SupportRule};
 use super::{cloud, points::ShapeAt};
@@ -13,7 +13,6 @@ use crate::geometry::domain::Domain;
 use crate::geometry::{ElementShape, Mesh};
 use crate::quadrature::QuadraturePoints;
 use crate::report::AdaptiveInfo;
-use crate::scene::{self, CloudKind, ElementName, Geometry, IntegrationKind, Scene, SupportKind};
 use crate::{Error, Result};
 
 /// The built meshless discretization of a scene.
@@ -57,173 +56,73 @@ impl MeshlessBuild {
     }
 }
 
-/// The scene's shape as a meshless domain (None for a mesh file, whose shape is its cells).
-pub fn domain(scene: &Scene) -> Option<Domain> {
-    match &scene.geometry {
-        Geometry::Box { min, max } => Some(Domain::Box {
-            min: Vector3::from(*min),
-            max: Vector3::from(*max),
-        }),
-        Geometry::Cylinder { radius, height } => Some(Domain::Cylinder {
-            radius: *radius,
-            height: *height,
-        }),
-        Geometry::HalfEllipsoid { semi_axes } => Some(Domain::HalfEllipsoid {
-            semi_axes: Vector3::from(*semi_axes),
-        }),
-        Geometry::Mesh { .. } => None,
+/// Where the meshless nodes come from.
+pub enum CloudSource {
+    /// The vertices of this mesh, whose cells (hexahedra split into six tets each) become the
+    /// background tets.
+    Mesh { mesh: Mesh, description: String },
+    /// Nodes (m) generated over the shape or read from a file; background tets by Delaunay
+    /// when the integration or EBCIEM needs them.
+    Nodes {
+        nodes: Vec<Vector3<f64>>,
+        description: String,
+    },
+}
+
+/// How the integration points are made (Horton 2010 sect. 3.2; thesis chapter 5).
+#[derive(Debug, Clone, Copy)]
+pub enum Integration {
+    /// `rule` in every background tet, merged into about one point per `tets_per_point` tets
+    /// (1: no merging).
+    Tets { rule: TetRule, tets_per_point: f64 },
+    /// A regular grid of `point_ratio` points per node over the domain.
+    Grid { point_ratio: f64 },
+    /// Adaptive subdivision of the background tets.
+    Adaptive(AdaptiveSettings),
+}
+
+impl Integration {
+    /// Background tets are needed to integrate.
+    fn uses_tets(&self) -> bool {
+        !matches!(self, Integration::Grid { .. })
     }
 }
 
-fn need_domain(scene: &Scene, what: &str) -> Result<Domain> {
-    domain(scene).ok_or_else(|| {
-        Error::Input(format!(
-            "{what} needs a built-in shape (box or cylinder); with geometry.mesh use cloud = 'mesh' or 'file' and integration = 'tets'"
-        ))
-    })
+/// Everything the meshless discretization needs, translated from the scene by the caller.
+pub struct MeshlessSettings {
+    pub cloud: CloudSource,
+    /// The body's shape where it is analytic (grid integration, reports); None for a mesh file.
+    pub domain: Option<Domain>,
+    pub integration: Integration,
+    pub mls: MlsSettings,
+    pub support: SupportRule,
+    /// Background tets wanted even for grid integration: their boundary faces carry the
+    /// EBCIEM boundary integrals.
+    pub boundary_tets: bool,
 }
 
-/// Node spacing (m) the scene's sizing asks for: `size`, or the smallest division length.
-pub fn spacing(scene: &Scene) -> Result<f64> {
-    let d = &scene.discretization;
-    if let Some(h) = d.size {
-        return Ok(h);
-    }
-    let div = d.divisions.ok_or_else(|| {
-        Error::Input("discretization: give `size` (node spacing, m) or `divisions`".into())
-    })?;
-    Ok(match &scene.geometry {
-        Geometry::Box { min, max } => (0..3)
-            .map(|k| (max[k] - min[k]) / div[k].max(1) as f64)
-            .fold(f64::INFINITY, f64::min),
-        Geometry::Cylinder { radius, height } => {
-            (radius / div[0].max(1) as f64 * 2.0).min(height / div[2].max(1) as f64)
-        }
-        // As the box: the bounding box [2a, 2b, c] divided by [nx, ny, nz].
-        Geometry::HalfEllipsoid { semi_axes: s } => [2.0 * s[0], 2.0 * s[1], s[2]]
-            .iter()
-            .zip(div)
-            .map(|(len, n)| len / n.max(1) as f64)
-            .fold(f64::INFINITY, f64::min),
-        Geometry::Mesh { .. } => {
-            return Err(Error::Input(
-                "a node spacing from `divisions` needs a built-in shape; give discretization.size"
-                    .into(),
-            ))
-        }
-    })
-}
-
-pub fn mls_settings(scene: &Scene) -> MlsSettings {
-    let d = &scene.discretization;
-    MlsSettings {
-        basis: match d.basis {
-            scene::Basis::Linear => mls::Basis::Linear,
-            scene::Basis::Quadratic => mls::Basis::Quadratic,
-        },
-        mu: d.mu,
-        min_rcond: d.min_rcond,
-    }
-}
-
-pub fn support_rule(scene: &Scene) -> SupportRule {
-    let d = &scene.discretization;
-    let quadratic = d.basis == scene::Basis::Quadratic;
-    match d.support {
-        SupportKind::Radius => SupportRule::Radius {
-            dilatation: d.dilatation.unwrap_or(if quadratic { 2.0 } else { 1.6 }),
-        },
-        SupportKind::Nearest => SupportRule::Nearest {
-            n: d.support_nodes.unwrap_or(if quadratic { 16 } else { 8 }),
-            alpha: d.alpha,
-        },
-    }
-}
-
-/// The nodes (m) of a generated cloud (`cloud = "lattice"` or `"halton"`) over the scene's
-/// built-in shape, a description of it, and its spacing h (m).
-pub fn generated_cloud(scene: &Scene) -> Result<(Vec<Vector3<f64>>, String, f64)> {
-    let d = &scene.discretization;
-    let h = spacing(scene)?;
-    match d.cloud {
-        CloudKind::Lattice => Ok((
-            cloud::jittered_lattice(
-                &need_domain(scene, "cloud = 'lattice'")?,
-                h,
-                d.jitter,
-                d.seed,
-            )?,
-            format!(
-                "lattice h = {h:.4e} m, jitter {}, seed {}",
-                d.jitter, d.seed
-            ),
-            h,
-        )),
-        CloudKind::Halton => {
-            let domain = &need_domain(scene, "cloud = 'halton'")?;
-            // Fill to saturation (random sequential packing at 0.85 h is about as dense as the
-            // lattice of spacing h); the cap only bounds the work.
-            let count = 3 * cloud::jittered_lattice(domain, h, 0.0, 0)?.len();
-            Ok((
-                cloud::halton_fill(domain, count, d.min_spacing * h, d.seed)?,
-                format!(
-                    "Halton fill, min spacing {:.4e} m, seed {}",
-                    d.min_spacing * h,
-                    d.seed
-                ),
-                h,
-            ))
-        }
-        other => Err(Error::Input(format!(
-            "cloud = '{other:?}' is not a generated cloud (use 'lattice' or 'halton')"
-        ))),
-    }
-}
-
-/// Nodes (and background tets when the nodes come from a tet mesh or Delaunay) of the scene.
-fn nodes_and_tets(scene: &Scene) -> Result<(Mesh, String)> {
-    let d = &scene.discretization;
-    // Tets integrate, and their boundary faces carry the EBCIEM boundary integrals.
-    let tets_wanted =
-        d.integration.uses_tets() || d.bc_method.resolve(d.support) == scene::BcMethod::Ebciem;
-    let (nodes, name) = match d.cloud {
-        CloudKind::Mesh => {
-            let mut s = scene.clone();
-            if s.discretization.element == ElementName::Hex8 {
-                s.discretization.element = ElementName::Tet4;
-            }
-            let mesh = hex_to_tets(crate::simulation::build_mesh(&s)?);
+/// Nodes and background tets of the settings' cloud, with its description.
+fn nodes_and_tets(s: MeshlessSettings) -> Result<(Mesh, String, MeshlessRest)> {
+    let tets_wanted = s.integration.uses_tets() || s.boundary_tets;
+    let rest = MeshlessRest {
+        domain: s.domain,
+        integration: s.integration,
+        mls: s.mls,
+        support: s.support,
+    };
+    let (nodes, name) = match s.cloud {
+        CloudSource::Mesh { mesh, description } => {
+            let mesh = hex_to_tets(mesh);
             let (nodes, map) = cloud::mesh_vertices(&mesh);
             let cells: Vec<usize> = mesh.cells.iter().map(|&i| map[i]).collect();
-            let name = format!(
-                "vertices of a {} tet mesh",
-                if d.mesher == scene::Mesher::Tetgen {
-                    "TetGen"
-                } else {
-                    "structured"
-                }
-            );
             let bg = Mesh {
                 nodes,
                 shape: ElementShape::Tet4,
                 cells,
             };
-            return Ok((bg, name));
+            return Ok((bg, description, rest));
         }
-        CloudKind::Lattice | CloudKind::Halton => {
-            let (nodes, name, _) = generated_cloud(scene)?;
-            (nodes, name)
-        }
-        CloudKind::File => {
-            let rel = d.cloud_file.clone().unwrap_or_default();
-            let path = if rel.is_absolute() {
-                rel
-            } else {
-                scene.base_dir.join(rel)
-            };
-            let nodes = cloud::read_cloud(&path)?;
-            (nodes, format!("file {}", path.display()))
-        }
+        CloudSource::Nodes { nodes, description } => (nodes, description),
     };
     let cells = if tets_wanted {
         delaunay(&nodes)?
@@ -237,7 +136,16 @@ fn nodes_and_tets(scene: &Scene) -> Result<(Mesh, String)> {
             cells,
         },
         name,
+        rest,
     ))
+}
+
+/// The settings other than the cloud, once the cloud is consumed.
+struct MeshlessRest {
+    domain: Option<Domain>,
+    integration: Integration,
+    mls: MlsSettings,
+    support: SupportRule,
 }
 
 /// Hexahedra split into six tets around the 0-6 diagonal (they tile each hex exactly, which is
@@ -295,25 +203,6 @@ pub fn delaunay(_nodes: &[Vector3<f64>]) -> Result<Vec<usize>> {
 /// Given the field nodes, the ones that carry a boundary condition or a probe.
 pub type ProtectedNodes<'a> = dyn Fn(&[Vector3<f64>]) -> Result<Vec<usize>> + 'a;
 
-/// The scene's rule per background tet (`tet_rule`: 1, 4 or 5 points).
-pub fn tet_rule(scene: &Scene) -> Result<TetRule> {
-    let n = scene.discretization.tet_rule();
-    TetRule::from_points(n)
-        .ok_or_else(|| Error::Input(format!("discretization.tet_rule = {n}: use 1, 4 or 5")))
-}
-
-/// The scene's adaptive-integration settings: `tolerance`, `tet_rule` (the base rule),
-/// `subdivision`, `max_level`.
-pub fn adaptive_settings(scene: &Scene) -> Result<AdaptiveSettings> {
-    let d = &scene.discretization;
-    Ok(AdaptiveSettings {
-        tolerance: d.tolerance,
-        rule: tet_rule(scene)?,
-        subdivision: d.subdivision,
-        max_level: d.max_level,
-    })
-}
-
 /// Adaptive integration points (thesis chapter 5) of the tet mesh `tets` for the shape functions
 /// of `support`, driven by the less-smooth integrand of thesis eq. 5.5, with the report of what
 /// the refinement did. Serves meshless scenes and coupled interiors.
@@ -343,11 +232,14 @@ pub fn adaptive_tet_points(
 
 /// Builds the meshless discretization. `protected(nodes)` returns the nodes that carry a
 /// boundary condition or a probe: removing one of those is an error.
-pub fn build(scene: &Scene, protected: &ProtectedNodes) -> Result<MeshlessBuild> {
-    let d = &scene.discretization;
-    let (background, cloud_name) = nodes_and_tets(scene)?;
-    let mls = mls_settings(scene);
-    let rule = support_rule(scene);
+pub fn build(settings: MeshlessSettings, protected: &ProtectedNodes) -> Result<MeshlessBuild> {
+    let (background, cloud_name, rest) = nodes_and_tets(settings)?;
+    let MeshlessRest {
+        domain,
+        integration,
+        mls,
+        support: rule,
+    } = rest;
 
     let tets: Vec<[usize; 4]> = background
         .cells
@@ -361,10 +253,9 @@ pub fn build(scene: &Scene, protected: &ProtectedNodes) -> Result<MeshlessBuild>
     )?;
     let mut adaptive_info = None;
     let mut point_level = Vec::new();
-    let (positions, weights, owner, integration_name) = match d.integration {
-        IntegrationKind::Adaptive => {
-            let (a, info) =
-                adaptive_tet_points(&adaptive_settings(scene)?, &background, &full, &mls)?;
+    let (positions, weights, owner, integration_name) = match integration {
+        Integration::Adaptive(a) => {
+            let (a, info) = adaptive_tet_points(&a, &background, &full, &mls)?;
             let name = format!(
                 "{} background tets, {}",
                 background.num_cells(),
@@ -374,17 +265,20 @@ pub fn build(scene: &Scene, protected: &ProtectedNodes) -> Result<MeshlessBuild>
             point_level = a.level;
             (a.positions, a.weights, a.owner, name)
         }
-        IntegrationKind::Tets => {
-            let (p, w, o) = integration::tet_points(&background, tet_rule(scene)?)?;
-            match integration::cluster_bin(&background, &w, d.tets_per_point()) {
+        Integration::Tets {
+            rule,
+            tets_per_point,
+        } => {
+            let (p, w, o) = integration::tet_points(&background, rule)?;
+            match integration::cluster_bin(&background, &w, tets_per_point) {
                 Some(bin) => {
                     let (p, w, o) = integration::cluster_points(&p, &w, &o, bin);
                     let name = format!(
                         "{} background tets x {} points merged into {} (about {} tets per point)",
                         background.num_cells(),
-                        d.tet_rule(),
+                        rule.points(),
                         p.len(),
-                        d.tets_per_point()
+                        tets_per_point
                     );
                     (p, w, o, name)
                 }
@@ -392,17 +286,23 @@ pub fn build(scene: &Scene, protected: &ProtectedNodes) -> Result<MeshlessBuild>
                     let name = format!(
                         "{} background tets x {} points",
                         background.num_cells(),
-                        d.tet_rule()
+                        rule.points()
                     );
                     (p, w, o, name)
                 }
             }
         }
-        IntegrationKind::Grid => {
-            let dom = need_domain(scene, "integration = 'grid'")?;
-            let (p, w) = integration::grid_points(&dom, background.nodes.len(), d.point_ratio)?;
+        Integration::Grid { point_ratio } => {
+            let dom = domain.as_ref().ok_or_else(|| {
+                Error::Input(
+                    "integration = 'grid' needs a built-in shape (box or cylinder); with geometry.mesh \
+                     use cloud = 'mesh' or 'file' and integration = 'tets'"
+                        .into(),
+                )
+            })?;
+            let (p, w) = integration::grid_points(dom, background.nodes.len(), point_ratio)?;
             let o = vec![usize::MAX; p.len()];
-            let name = format!("regular grid, {} points per node", d.point_ratio);
+            let name = format!("regular grid, {point_ratio} points per node");
             (p, w, o, name)
         }
     };
@@ -444,7 +344,7 @@ pub fn build(scene: &Scene, protected: &ProtectedNodes) -> Result<MeshlessBuild>
                 support,
                 mls,
                 removed_nodes: removed_total,
-                exact_volume: domain(scene).map_or(f64::NAN, |d| d.volume()),
+                exact_volume: domain.as_ref().map_or(f64::NAN, |d| d.volume()),
                 cloud: cloud_name,
                 integration: integration_name,
                 warnings,

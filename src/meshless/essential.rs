@@ -8,7 +8,6 @@ use super::discretize::MeshlessBuild;
 use crate::bc::ebciem::{ebciem_columns, ComponentCorrection, SparseVec};
 use crate::bc::{Boundary, LoadCurve};
 use crate::geometry::quality;
-use crate::scene::BcMethod;
 use crate::solver::{keep_warm, Corrector, SharedMut};
 use crate::Result;
 
@@ -96,6 +95,15 @@ pub struct MeshlessCorrector {
     forced: Vec<u32>,
 }
 
+/// How the boundary force of a corrected boundary is distributed (thesis chapter 4).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Imposition {
+    /// Interpolated linearly over the triangulated boundary (EBCIEM, thesis sect. 4.3).
+    Ebciem,
+    /// Lumped at the constrained nodes (SEBCIEM, thesis sect. 4.3.1).
+    Sebciem,
+}
+
 /// What building the corrector found worth a warning.
 pub struct CorrectorReport {
     /// Constrained nodes on no boundary triangle, imposed with lumped (SEBCIEM) columns.
@@ -109,12 +117,12 @@ impl MeshlessCorrector {
         build: &MeshlessBuild,
         boundaries: &[Boundary],
         mass: &[f64],
-        method: BcMethod,
+        method: Imposition,
     ) -> Result<(Self, CorrectorReport)> {
         let n = build.nodes.len();
         // Boundary triangles of the background tets, in field-node ids (all vertices kept).
         let tris: Vec<[usize; 3]> =
-            if method == BcMethod::Ebciem && build.background.num_cells() > 0 {
+            if method == Imposition::Ebciem && build.background.num_cells() > 0 {
                 quality::boundary_faces(&build.background)
                     .map_err(|e| crate::Error::Input(format!("background tets: {e}")))?
                     .into_iter()
@@ -150,7 +158,7 @@ impl MeshlessCorrector {
         shape: &dyn Fn(&Vector3<f64>) -> Result<SparseVec>,
         boundaries: &[Boundary],
         mass: &[f64],
-        method: BcMethod,
+        method: Imposition,
     ) -> Result<(Self, CorrectorReport)> {
         let n = nodes_x.len();
         let mut comps: Vec<Component> = Vec::new();
@@ -181,7 +189,7 @@ impl MeshlessCorrector {
                 .iter()
                 .map(|&i| shape(&nodes_x[i]))
                 .collect::<Result<_>>()?;
-            let v_cols = if method == BcMethod::Ebciem {
+            let v_cols = if method == Imposition::Ebciem {
                 let ctris = essential_triangles(tris, boundaries, c, n);
                 let mut in_tri = vec![false; n];
                 for t in &ctris {
@@ -544,7 +552,7 @@ mod tests {
                     &shape,
                     &b,
                     &mass,
-                    BcMethod::Sebciem,
+                    Imposition::Sebciem,
                 )
                 .unwrap();
                 // Bottom: x, y, z in one solve; top: x and z in another.
@@ -626,7 +634,7 @@ mod tests {
         let b = faces(&nodes);
         let mass = vec![1.0; nodes.len()];
         let (mut corr, _) =
-            MeshlessCorrector::from_parts(&nodes, &[], &shape, &b, &mass, BcMethod::Sebciem)
+            MeshlessCorrector::from_parts(&nodes, &[], &shape, &b, &mass, Imposition::Sebciem)
                 .unwrap();
         let touched = corr.touched().to_vec();
         assert!(

@@ -21,6 +21,7 @@ use super::chunks::{self, Buffers};
 use super::SharedMut;
 use crate::material::{inv_cbrt, Material};
 use crate::quadrature::{NodeSlots, PointKind, QuadraturePoints};
+use crate::simd_available;
 
 /// Points per rayon task in the per-point and per-node loops outside the force chunks.
 const CHUNK: usize = 256;
@@ -45,19 +46,6 @@ const LANES: usize = 4;
 /// small enough that the two ends of the update loop (`two_ended`) meet near the middle
 /// (the 4,389-node cylinder has 18 blocks; with 1,024 nodes it had 5).
 pub const NODE_BLOCK: usize = 256;
-
-/// Whether the lane kernels may use AVX2 (`HYTLED_NO_AVX2` set in the environment turns it
-/// off, e.g. to compare the two paths).
-pub(crate) fn simd_available() -> bool {
-    #[cfg(target_arch = "x86_64")]
-    {
-        std::env::var_os("HYTLED_NO_AVX2").is_none() && std::arch::is_x86_feature_detected!("avx2")
-    }
-    #[cfg(not(target_arch = "x86_64"))]
-    {
-        false
-    }
-}
 
 /// How a work item evaluates its points (see [`Forces::new`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

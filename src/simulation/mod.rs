@@ -1,27 +1,36 @@
 //! The pipeline of one run: scene -> mesh -> quadrature points -> model -> solver -> outputs.
 
 use std::collections::BTreeMap;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::time::Instant;
 
 use nalgebra::Vector3;
 
+mod output;
+mod translate;
+
+pub use output::{write_outputs, write_results, FrameWriter};
+pub use translate::{
+    build_mesh, load_mesh_input, material, mesh_checks, meshless_settings, settings,
+};
+use translate::{cloud_sets, scene_path};
+
 use crate::bc::Boundary;
 use crate::coupling::{self, CoupledBuild, NodeRole};
 use crate::fe::{self, ElementKind};
-use crate::geometry::{quality, shapes, ElementShape, Mesh};
+use crate::geometry::{quality, Mesh};
 use crate::io::model::MeshInput;
-use crate::io::vtu::{self, DataArray, VtuFormat};
+use crate::io::vtu::VtuFormat;
 use crate::material::{Material, NeoHookean};
 use crate::meshless::discretize::{self, MeshlessBuild};
-use crate::meshless::essential::MeshlessCorrector;
+use crate::meshless::essential::{Imposition, MeshlessCorrector};
 use crate::probe::Probe;
 use crate::report::{
     Comparison, CoupledInfo, Energy, MeshInfo, MeshlessInfo, ProbeResult, Summary, SupportNodes,
     WallSeconds,
 };
-use crate::scene::{BcMethod, Component, Geometry, Mesher, Method, Scene};
-use crate::solver::{self, Mode, Model, RunOutput, Settings};
+use crate::scene::{BcMethod, Component, Method, Scene};
+use crate::solver::{self, Mode, Model, RunOutput};
 use crate::{Error, Result};
 
 /// How to run a scene.
@@ -35,232 +44,6 @@ pub struct RunOptions {
     /// logs, where a bar cannot draw).
     pub progress_lines: Option<f64>,
     pub vtu_format: VtuFormat,
-}
-
-/// The material a scene asks for.
-pub fn material(scene: &Scene) -> NeoHookean {
-    let m = &scene.material;
-    match (m.youngs_modulus, m.poisson_ratio) {
-        (Some(e), Some(nu)) => NeoHookean::from_young_poisson(e, nu, m.density),
-        _ => NeoHookean {
-            mu: m.shear_modulus.unwrap_or(0.0),
-            kappa: m.bulk_modulus.unwrap_or(0.0),
-            density: m.density,
-        },
-    }
-}
-
-fn count(len: f64, h: f64, min: usize) -> usize {
-    ((len / h).round() as usize).max(min)
-}
-
-/// Builds the scene's mesh (structured hex/tet or TetGen tets).
-pub fn build_mesh(scene: &Scene) -> Result<Mesh> {
-    let d = &scene.discretization;
-    let kind: ElementKind = d.element.into();
-    let shape = kind.shape();
-    if let Geometry::Mesh { .. } = &scene.geometry {
-        return Ok(load_mesh(scene)?.mesh);
-    }
-    if d.mesher == Mesher::Tetgen {
-        if shape != ElementShape::Tet4 {
-            return Err(Error::Input("discretization.mesher = 'tetgen' makes tetrahedra: use element = 'tet4' or 'tet4-anp'".into()));
-        }
-        return tetgen_mesh(scene);
-    }
-    match &scene.geometry {
-        Geometry::Box { min, max } => {
-            let (lo, hi) = (Vector3::from(*min), Vector3::from(*max));
-            let div = match (d.divisions, d.size) {
-                (Some(div), _) => div,
-                (None, Some(h)) => std::array::from_fn(|k| count(hi[k] - lo[k], h, 1)),
-                (None, None) => unreachable_sizing()?,
-            };
-            match shape {
-                ElementShape::Hex8 => shapes::box_hex(lo, hi, div),
-                ElementShape::Tet4 => shapes::box_tet(lo, hi, div),
-            }
-        }
-        Geometry::Cylinder { radius, height } => {
-            let [ni, nr, nz] = match (d.divisions, d.size) {
-                (Some(div), _) => div,
-                (None, Some(h)) => [
-                    count(*radius, h, 2),
-                    count(0.5 * radius, h, 1),
-                    count(*height, h, 1),
-                ],
-                (None, None) => unreachable_sizing()?,
-            };
-            match shape {
-                ElementShape::Hex8 => shapes::cylinder_hex(*radius, *height, ni, nr, nz),
-                ElementShape::Tet4 => shapes::cylinder_tet(*radius, *height, ni, nr, nz),
-            }
-        }
-        Geometry::HalfEllipsoid { .. } => Err(Error::Input(
-            "geometry.shape = 'half_ellipsoid' has no structured mesh: use mesher = 'tetgen' \
-             (discretization.mesher = \"tetgen\" with element = 'tet4-anp' or 'tet4')"
-                .into(),
-        )),
-        Geometry::Mesh { .. } => Ok(load_mesh(scene)?.mesh),
-    }
-}
-
-fn unreachable_sizing<T>() -> Result<T> {
-    Err(Error::Input(
-        "discretization: give `size` (m) or `divisions`".into(),
-    ))
-}
-
-#[cfg(feature = "tetgen")]
-fn tetgen_mesh(scene: &Scene) -> Result<Mesh> {
-    use crate::geometry::tetgen;
-    let d = &scene.discretization;
-    let h = match (d.size, d.divisions, &scene.geometry) {
-        (Some(h), _, _) => h,
-        // As the box: the bounding box [2a, 2b, c] divided by [nx, ny, nz].
-        (None, Some(div), Geometry::HalfEllipsoid { semi_axes: s }) => {
-            [2.0 * s[0], 2.0 * s[1], s[2]]
-                .iter()
-                .zip(div)
-                .map(|(len, n)| len / n.max(1) as f64)
-                .fold(f64::INFINITY, f64::min)
-        }
-        _ => {
-            return Err(Error::Input(
-                "discretization.mesher = 'tetgen' needs `size` (target edge length, m)".into(),
-            ))
-        }
-    };
-    // Volume of a regular tetrahedron of edge h.
-    let max_volume = Some(h.powi(3) / (6.0 * 2f64.sqrt()));
-    match &scene.geometry {
-        Geometry::Box { min, max } => tetgen::tetgen_box(
-            Vector3::from(*min),
-            Vector3::from(*max),
-            max_volume,
-            d.radius_edge_ratio,
-        ),
-        Geometry::Cylinder { radius, height } => {
-            let n_circ = count(2.0 * std::f64::consts::PI * radius, h, 8);
-            tetgen::tetgen_cylinder(*radius, *height, n_circ, max_volume, d.radius_edge_ratio)
-        }
-        Geometry::HalfEllipsoid { semi_axes } => {
-            tetgen::tetgen_half_ellipsoid(*semi_axes, h, max_volume, d.radius_edge_ratio)
-        }
-        Geometry::Mesh { .. } => Err(Error::Input(
-            "discretization.mesher = 'tetgen' meshes built-in shapes; a mesh file is used as it is (remove mesher)".into(),
-        )),
-    }
-}
-
-#[cfg(not(feature = "tetgen"))]
-fn tetgen_mesh(_scene: &Scene) -> Result<Mesh> {
-    Err(Error::Input("this hytled was built without the `tetgen` feature; use mesher = 'structured' or rebuild with default features".into()))
-}
-
-/// The scene's mesh file, read and scaled to m, checked against the element the scene asks for.
-/// None for built-in shapes.
-pub fn load_mesh_input(scene: &Scene) -> Result<Option<MeshInput>> {
-    let Geometry::Mesh {
-        file,
-        format,
-        units,
-        merge_duplicates,
-    } = &scene.geometry
-    else {
-        return Ok(None);
-    };
-    let path = if file.is_absolute() {
-        file.clone()
-    } else {
-        scene.base_dir.join(file)
-    };
-    let mut m = crate::io::mesh_file::read_mesh(&path, *format, *units)?;
-    if *merge_duplicates {
-        let k = crate::io::mesh_file::merge_duplicate_nodes(&mut m);
-        if k > 0 {
-            m.warnings.push(format!(
-                "merged {k} duplicate node(s) (geometry.merge_duplicates)"
-            ));
-        }
-    }
-    let kind: ElementKind = scene.discretization.element.into();
-    let meshless = scene.discretization.method == Method::Meshless;
-    if !meshless && m.mesh.shape != kind.shape() {
-        return Err(Error::Input(format!(
-            "{}: the mesh has {} cells but discretization.element = '{}'; use {}",
-            path.display(),
-            if m.mesh.shape == ElementShape::Hex8 {
-                "hexahedral"
-            } else {
-                "tetrahedral"
-            },
-            kind.name(),
-            if m.mesh.shape == ElementShape::Hex8 {
-                "element = 'hex8'"
-            } else {
-                "element = 'tet4-anp' (or 'tet4')"
-            }
-        )));
-    }
-    Ok(Some(m))
-}
-
-fn load_mesh(scene: &Scene) -> Result<MeshInput> {
-    load_mesh_input(scene)?.ok_or_else(|| Error::Input("the scene has no mesh file".into()))
-}
-
-/// Warnings a mesh file deserves: duplicate nodes (coincident within 1e-9 x the bounding-box
-/// diagonal). Nodes no cell uses were already dropped on reading.
-pub fn mesh_checks(mesh: &Mesh) -> Vec<String> {
-    let mut w = Vec::new();
-    let (map, keep) = crate::io::mesh_file::coincident_nodes(mesh);
-    let dups = mesh.nodes.len() - keep.len();
-    if let Some(i) = (0..map.len()).find(|&i| keep[map[i]] != i) {
-        w.push(format!(
-            "{dups} duplicate node(s) (e.g. nodes {} and {i} coincide); the mesh is not connected there: \
-             merge them in the mesher or set geometry.merge_duplicates = true",
-            keep[map[i]]
-        ));
-    }
-    w
-}
-
-/// The node sets of a cloud file's label column, as a cell-less mesh input for set selection.
-fn cloud_sets(scene: &Scene) -> Result<Option<MeshInput>> {
-    let d = &scene.discretization;
-    let Some(rel) = d
-        .cloud_file
-        .as_ref()
-        .filter(|_| d.cloud == crate::scene::CloudKind::File)
-    else {
-        return Ok(None);
-    };
-    let path = if rel.is_absolute() {
-        rel.clone()
-    } else {
-        scene.base_dir.join(rel)
-    };
-    if crate::scene::MeshFormat::from_path(&path).is_some() {
-        let m = crate::io::mesh_file::read_mesh(&path, None, 1.0)?;
-        return Ok(Some(m));
-    }
-    let text = std::fs::read_to_string(&path).map_err(|e| Error::io(&path, e))?;
-    let (nodes, node_sets) = crate::meshless::cloud::parse_cloud_sets(&text, &path)?;
-    let n = nodes.len() as u64;
-    Ok(Some(MeshInput {
-        mesh: Mesh {
-            nodes,
-            shape: ElementShape::Tet4,
-            cells: Vec::new(),
-        },
-        node_ids: (1..=n).collect(),
-        element_ids: Vec::new(),
-        node_sets,
-        element_sets: Default::default(),
-        face_sets: Default::default(),
-        warnings: Vec::new(),
-    }))
 }
 
 /// Nodes of a selection, with the mesh file's sets available.
@@ -373,6 +156,16 @@ fn name_file_element(e: Error, input: Option<&MeshInput>) -> Error {
             m.element_ids.get(*element).copied().unwrap_or(0)
         )),
         _ => e,
+    }
+}
+
+/// The corrector's distribution of boundary forces for a resolved `bc_method` (the methods
+/// other than EBCIEM that reach a corrector lump them).
+fn imposition(method: BcMethod) -> Imposition {
+    if method == BcMethod::Ebciem {
+        Imposition::Ebciem
+    } else {
+        Imposition::Sebciem
     }
 }
 
@@ -562,7 +355,7 @@ fn prepare_meshless(scene: &Scene) -> Result<Prepared> {
         v.dedup();
         Ok(v)
     };
-    let build = discretize::build(scene, &protected)?;
+    let build = discretize::build(meshless_settings(scene)?, &protected)?;
     let mut warnings = build.warnings.clone();
     if method == BcMethod::Ebciem
         && scene.discretization.support == crate::scene::SupportKind::Nearest
@@ -574,8 +367,8 @@ fn prepare_meshless(scene: &Scene) -> Result<Prepared> {
         );
     }
     let bnd = boundaries(scene, &build.nodes, input.as_ref())?;
-    let dom = discretize::domain(scene);
-    let h = discretize::spacing(scene).unwrap_or(0.0);
+    let dom = translate::domain(scene);
+    let h = translate::spacing(scene).unwrap_or(0.0);
     let probes = scene
         .probes
         .iter()
@@ -629,7 +422,7 @@ fn prepare_meshless(scene: &Scene) -> Result<Prepared> {
         .map(|b| method != BcMethod::Correction && b.components.iter().any(|c| c.is_some()))
         .collect();
     if corrected.iter().any(|&c| c) {
-        let (corr, report) = MeshlessCorrector::new(&build, &bnd, &model.mass, method)?;
+        let (corr, report) = MeshlessCorrector::new(&build, &bnd, &model.mass, imposition(method))?;
         if report.lumped_nodes > 0 {
             warnings.push(format!(
                 "EBCIEM: {} constrained node(s) lie on no boundary triangle whose vertices are all constrained; \
@@ -698,18 +491,18 @@ fn prepare_coupled(scene: &Scene) -> Result<Prepared> {
         element: kind,
         hourglass: kappa_hg,
         hourglass_modulus,
-        mls: discretize::mls_settings(scene),
-        rule: discretize::support_rule(scene),
+        mls: translate::mls_settings(scene),
+        rule: translate::support_rule(scene),
         interface_scale: d.interface_scale,
         mean_dilatation: d.mean_dilatation,
         transition_rule: match d.transition_rule() {
             crate::scene::TransitionRuleKind::Full => coupling::TransitionRule::Full,
             crate::scene::TransitionRuleKind::Interior => coupling::TransitionRule::Interior,
         },
-        tet_rule: discretize::tet_rule(scene)?,
+        tet_rule: translate::tet_rule(scene)?,
         tets_per_point: d.tets_per_point(),
         adaptive: if d.integration == crate::scene::IntegrationKind::Adaptive {
-            Some(discretize::adaptive_settings(scene)?)
+            Some(translate::adaptive_settings(scene)?)
         } else {
             None
         },
@@ -722,18 +515,13 @@ fn prepare_coupled(scene: &Scene) -> Result<Prepared> {
             .collect())
     };
     let built = if mixed {
-        let rel = d.cloud_file.clone().unwrap_or_default();
-        let path = if rel.is_absolute() {
-            rel
-        } else {
-            scene.base_dir.join(rel)
-        };
+        let path = scene_path(scene, &d.cloud_file.clone().unwrap_or_default());
         let cloud = crate::meshless::cloud::read_cloud(&path)?;
         coupling::mixed::build(mesh, &cloud, 0.0, &settings, &tets).map(|(b, _)| b)
     } else if generated {
         // A generated interior: the outer fe_layers of the mesh stay FE, the generator's nodes
         // fill the cavity (those within half a spacing of the inner surface dropped).
-        let (cloud, _, h) = discretize::generated_cloud(scene)?;
+        let (cloud, _, h) = translate::generated_cloud(scene)?;
         let (shell, _) = coupling::regions::split_inputs(&mesh, d.fe_layers())?;
         coupling::mixed::build(shell, &cloud, 0.5 * h, &settings, &tets).map(|(b, _)| b)
     } else {
@@ -847,8 +635,14 @@ fn prepare_coupled(scene: &Scene) -> Result<Prepared> {
                 .map(|(i, p)| (i as u32, p))
                 .collect())
         };
-        let (corr, report) =
-            MeshlessCorrector::from_parts(&build.nodes, &tris, &shape, &bnd, &model.mass, method)?;
+        let (corr, report) = MeshlessCorrector::from_parts(
+            &build.nodes,
+            &tris,
+            &shape,
+            &bnd,
+            &model.mass,
+            imposition(method),
+        )?;
         if report.lumped_nodes > 0 {
             warnings.push(format!(
                 "{}: {} constrained meshless node(s) lie on no boundary triangle whose vertices are all constrained; \
@@ -881,35 +675,6 @@ fn prepare_coupled(scene: &Scene) -> Result<Prepared> {
         min_dihedral,
         preprocess_seconds: t0.elapsed().as_secs_f64(),
     })
-}
-
-/// Integrator settings from the scene.
-pub fn settings(scene: &Scene, progress: bool) -> Settings {
-    let s = &scene.solver;
-    Settings {
-        mode: s.mode,
-        duration: s.duration,
-        load_time: s.load_time.unwrap_or(s.duration),
-        load_steps: s.load_steps,
-        dt_factor: s.dt_factor,
-        step_estimate: s.time_step,
-        damping: s.damping,
-        tolerance: s.tolerance,
-        max_steps: s.max_steps,
-        estimate_interval: s.estimate_interval,
-        history_rows: scene.output.history_rows,
-        frames: scene.output.frames,
-        progress,
-        progress_lines: None,
-        initial_velocity: None,
-        initial_motion: scene.initial.as_ref().map(|i| {
-            [
-                Vector3::from(i.velocity),
-                Vector3::from(i.angular_velocity),
-                Vector3::from(i.center),
-            ]
-        }),
-    }
 }
 
 /// Runs a scene end to end and returns its summary; writes outputs when `opts.out` is set.
@@ -1145,471 +910,4 @@ fn basis_long(scene: &Scene) -> String {
             format!("quadratic MMLS (mu = {:e})", scene.discretization.mu)
         }
     }
-}
-
-/// One meshless VTU frame: the background vertices as points with the interpolated
-/// displacement, and the background tets as cells carrying the mean stress, von Mises stress
-/// and J of their integration points (one vertex cell per point when there are no tets).
-/// VTU cells making each of `n` points a VTK vertex (type 1), so ParaView draws them:
-/// (connectivity, offsets, types).
-fn vertex_cells(n: usize) -> (Vec<usize>, Vec<usize>, Vec<u8>) {
-    ((0..n).collect(), (1..=n).collect(), vec![1u8; n])
-}
-
-/// Integration points as VTK vertices with their weight (m^3), refinement level (adaptive
-/// integration) and background tet (-1 for none), for inspection.
-fn write_integration_points(
-    path: &Path,
-    positions: &[Vector3<f64>],
-    weights: &[f64],
-    levels: &[u8],
-    owner: &[usize],
-    format: VtuFormat,
-) -> Result<()> {
-    let n = positions.len();
-    let (conn, offsets, types) = vertex_cells(n);
-    let level: Vec<f64> = (0..n)
-        .map(|p| levels.get(p).map_or(0.0, |&l| l as f64))
-        .collect();
-    let owner: Vec<f64> = (0..n)
-        .map(|p| match owner.get(p) {
-            Some(&e) if e != usize::MAX => e as f64,
-            _ => -1.0,
-        })
-        .collect();
-    let piece = vtu::Piece {
-        points: positions,
-        connectivity: &conn,
-        offsets: &offsets,
-        types: &types,
-        point_data: vec![
-            DataArray {
-                name: "weight_m3",
-                components: 1,
-                values: weights,
-            },
-            DataArray {
-                name: "level",
-                components: 1,
-                values: &level,
-            },
-            DataArray {
-                name: "background_tet",
-                components: 1,
-                values: &owner,
-            },
-        ],
-        cell_data: Vec::new(),
-    };
-    vtu::write_vtu(path, &piece, format)
-}
-
-fn write_meshless_frame(
-    path: &Path,
-    points: &[Vector3<f64>],
-    (conn, offsets, types): (&[usize], &[usize], &[u8]),
-    owner: &[usize],
-    disp: &[f64],
-    (sig, vm, jac): (&[f64], &[f64], &[f64]),
-    format: VtuFormat,
-) -> Result<()> {
-    let ncell = types.len();
-    if ncell == 0 {
-        let (conn, offsets, types) = vertex_cells(points.len());
-        let piece = vtu::Piece {
-            points,
-            connectivity: &conn,
-            offsets: &offsets,
-            types: &types,
-            point_data: vec![DataArray {
-                name: "displacement",
-                components: 3,
-                values: disp,
-            }],
-            cell_data: Vec::new(),
-        };
-        return vtu::write_vtu(path, &piece, format);
-    }
-    let mut count = vec![0usize; ncell];
-    let (mut s9, mut v1, mut j1) = (vec![0.0; 9 * ncell], vec![0.0; ncell], vec![0.0; ncell]);
-    for (p, &e) in owner.iter().enumerate() {
-        if e >= ncell {
-            continue;
-        }
-        count[e] += 1;
-        for c in 0..9 {
-            s9[9 * e + c] += sig[9 * p + c];
-        }
-        v1[e] += vm[p];
-        j1[e] += jac[p];
-    }
-    for e in 0..ncell {
-        let w = 1.0 / count[e].max(1) as f64;
-        s9[9 * e..9 * e + 9].iter_mut().for_each(|x| *x *= w);
-        v1[e] *= w;
-        j1[e] *= w;
-    }
-    let cell_data = vec![
-        DataArray {
-            name: "cauchy_stress",
-            components: 9,
-            values: &s9,
-        },
-        DataArray {
-            name: "von_mises",
-            components: 1,
-            values: &v1,
-        },
-        DataArray {
-            name: "J",
-            components: 1,
-            values: &j1,
-        },
-    ];
-    let point_data = vec![DataArray {
-        name: "displacement",
-        components: 3,
-        values: disp,
-    }];
-    let piece = vtu::Piece {
-        points,
-        connectivity: conn,
-        offsets,
-        types,
-        point_data,
-        cell_data,
-    };
-    vtu::write_vtu(path, &piece, format)
-}
-
-/// `reaction.svg` (every constrained component of every boundary against time) and
-/// `energy.svg` (external work, strain and kinetic energy against time).
-fn write_history_plots(
-    dir: &Path,
-    boundaries: &[crate::bc::Boundary],
-    out: &RunOutput,
-) -> Result<()> {
-    use crate::io::plot::{line_plot, Series};
-    let names: Vec<String> = boundaries
-        .iter()
-        .flat_map(|b| {
-            (0..3)
-                .filter(|&k| b.components[k].is_some())
-                .map(move |k| format!("{} {}", b.name, ["x", "y", "z"][k]))
-        })
-        .collect();
-    let mut series = Vec::new();
-    let mut at = 0;
-    for (bi, b) in boundaries.iter().enumerate() {
-        for k in (0..3).filter(|&k| b.components[k].is_some()) {
-            series.push(Series {
-                name: &names[at],
-                points: out
-                    .history
-                    .iter()
-                    .filter_map(|h| Some((h.time, h.reactions.get(bi)?[k])))
-                    .collect(),
-            });
-            at += 1;
-        }
-    }
-    line_plot(
-        &dir.join("reaction.svg"),
-        "Reaction forces",
-        "time (s)",
-        "force (N)",
-        &series,
-    )?;
-    let e = |f: fn(&crate::solver::integrate::HistoryRow) -> f64| -> Vec<(f64, f64)> {
-        out.history.iter().map(|h| (h.time, f(h))).collect()
-    };
-    let energies = [
-        Series {
-            name: "external work",
-            points: e(|h| h.external_work),
-        },
-        Series {
-            name: "strain energy",
-            points: e(|h| h.strain_energy),
-        },
-        Series {
-            name: "kinetic energy",
-            points: e(|h| h.kinetic_energy),
-        },
-    ];
-    line_plot(
-        &dir.join("energy.svg"),
-        "Energies",
-        "time (s)",
-        "energy (J)",
-        &energies,
-    )
-}
-
-/// Writes the VTU frames of a run into a folder, one file per frame as the frames come, and
-/// the `.pvd` series that lists them.
-pub struct FrameWriter<'a> {
-    dir: PathBuf,
-    name: String,
-    mesh: &'a Mesh,
-    meshless: Option<&'a MeshlessBuild>,
-    coupled: Option<&'a CoupledBuild>,
-    /// Meshless and coupled: the nodes and shape-function values that give each VTU point's
-    /// displacement (nodal parameters are not displacements).
-    interp: Option<Vec<(Vec<usize>, Vec<f64>)>>,
-    format: VtuFormat,
-    /// (time s, file name) of every frame written.
-    series: Vec<(f64, String)>,
-}
-
-impl<'a> FrameWriter<'a> {
-    /// A writer of `name_0000.vtu`, ... in `dir` (created if missing).
-    pub fn new(
-        dir: &Path,
-        name: &str,
-        mesh: &'a Mesh,
-        meshless: Option<&'a MeshlessBuild>,
-        coupled: Option<&'a CoupledBuild>,
-        format: VtuFormat,
-    ) -> Result<Self> {
-        std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
-        let interp: Option<Vec<(Vec<usize>, Vec<f64>)>> = match (meshless, coupled) {
-            (None, Some(c)) => Some(
-                c.vertex_weights()?
-                    .into_iter()
-                    .map(|w| w.into_iter().unzip())
-                    .collect(),
-            ),
-            (Some(m), _) => Some(
-                m.background
-                    .nodes
-                    .iter()
-                    .enumerate()
-                    .map(|(v, x)| {
-                        m.shape_values(x, &|| format!("output point {v}"))
-                            .map(|s| (s.ids, s.phi))
-                    })
-                    .collect::<Result<Vec<_>>>()?,
-            ),
-            (None, None) => None,
-        };
-        Ok(FrameWriter {
-            dir: dir.to_path_buf(),
-            name: name.to_string(),
-            mesh,
-            meshless,
-            coupled,
-            interp,
-            format,
-            series: Vec::new(),
-        })
-    }
-
-    /// Writes the next frame: displacement (m) per point; Cauchy and von Mises stress (Pa) and
-    /// J per cell, from `model` at displacements `u` and time `t` (s).
-    pub fn write(
-        &mut self,
-        model: &mut Model<NeoHookean>,
-        t: f64,
-        u: &[Vector3<f64>],
-    ) -> Result<()> {
-        let (sig, vm, jac) = model.stress_fields(u);
-        let file = format!("{}_{:04}.vtu", self.name, self.series.len());
-        let path = self.dir.join(&file);
-        let format = self.format;
-        let cells: Option<(&[Vector3<f64>], (Vec<usize>, Vec<usize>, Vec<u8>), &[usize])> =
-            match (self.meshless, self.coupled) {
-                (Some(m), _) => {
-                    let b = &m.background;
-                    let npc = b.shape.nodes_per_cell();
-                    Some((
-                        &b.nodes,
-                        (
-                            b.cells.clone(),
-                            (1..=b.num_cells()).map(|e| e * npc).collect(),
-                            vec![b.shape.vtk_type(); b.num_cells()],
-                        ),
-                        &m.owner,
-                    ))
-                }
-                (None, Some(c)) => Some((&c.nodes, c.vtu_cells(), &c.owner)),
-                (None, None) => None,
-            };
-        match (&self.interp, cells) {
-            (Some(interp), Some((points, (conn, offsets, types), owner))) => {
-                let disp: Vec<f64> = interp
-                    .iter()
-                    .flat_map(|(ids, phi)| {
-                        let d = ids
-                            .iter()
-                            .zip(phi)
-                            .fold(Vector3::zeros(), |a: Vector3<f64>, (&i, &p)| a + u[i] * p);
-                        [d.x, d.y, d.z]
-                    })
-                    .collect();
-                write_meshless_frame(
-                    &path,
-                    points,
-                    (&conn, &offsets, &types),
-                    owner,
-                    &disp,
-                    (&sig, &vm, &jac),
-                    format,
-                )?;
-            }
-            _ => {
-                let disp: Vec<f64> = u.iter().flat_map(|v| [v.x, v.y, v.z]).collect();
-                let point_data = vec![DataArray {
-                    name: "displacement",
-                    components: 3,
-                    values: &disp,
-                }];
-                let cell_data = vec![
-                    DataArray {
-                        name: "cauchy_stress",
-                        components: 9,
-                        values: &sig,
-                    },
-                    DataArray {
-                        name: "von_mises",
-                        components: 1,
-                        values: &vm,
-                    },
-                    DataArray {
-                        name: "J",
-                        components: 1,
-                        values: &jac,
-                    },
-                ];
-                vtu::write_mesh(&path, self.mesh, point_data, cell_data, format)?;
-            }
-        }
-        self.series.push((t, file));
-        Ok(())
-    }
-
-    /// Writes `name.pvd` listing the frames written so far.
-    pub fn write_series(&self) -> Result<()> {
-        vtu::write_pvd(&self.dir.join(format!("{}.pvd", self.name)), &self.series)
-    }
-}
-
-/// Writes one VTU per frame of `out.frames` (see [`FrameWriter`]) and then
-/// [`write_results`]: the `.pvd` series, `history.csv`, `relaxation.csv` and `summary.json`.
-pub fn write_outputs(
-    dir: &Path,
-    scene: &Scene,
-    prep: &mut Prepared,
-    out: &RunOutput,
-    summary: &Summary,
-    format: VtuFormat,
-) -> Result<()> {
-    let name = scene.name.clone().unwrap_or_else(|| "run".into());
-    let mut frames = FrameWriter::new(
-        dir,
-        &name,
-        &prep.mesh,
-        prep.meshless.as_ref(),
-        prep.coupled.as_ref(),
-        format,
-    )?;
-    for (t, u) in &out.frames {
-        frames.write(&mut prep.model, *t, u)?;
-    }
-    frames.write_series()?;
-    write_results(dir, &name, prep, out, summary, format)
-}
-
-/// The files of a run besides its frames: the integration points of adaptive runs,
-/// `history.csv` and its plots, `relaxation.csv` (relaxation runs) and `summary.json`.
-pub fn write_results(
-    dir: &Path,
-    name: &str,
-    prep: &Prepared,
-    out: &RunOutput,
-    summary: &Summary,
-    format: VtuFormat,
-) -> Result<()> {
-    let points_file = dir.join(format!("{name}_integration_points.vtu"));
-    if let Some(m) = prep.meshless.as_ref().filter(|m| m.adaptive.is_some()) {
-        write_integration_points(
-            &points_file,
-            &m.positions,
-            &m.points.weights,
-            &m.point_level,
-            &m.owner,
-            format,
-        )?;
-    }
-    if let Some((c, (pos, levels))) = prep
-        .coupled
-        .as_ref()
-        .and_then(|c| c.adaptive_points.as_ref().map(|a| (c, a)))
-    {
-        // The interior's points are the last ones; their owners are offset by the FE cells.
-        let first = c.points.len() - pos.len();
-        let fe_cells = c.fe_mesh.num_cells();
-        let owner: Vec<usize> = c.owner[first..]
-            .iter()
-            .map(|&e| e.saturating_sub(fe_cells))
-            .collect();
-        write_integration_points(
-            &points_file,
-            pos,
-            &c.points.weights[first..],
-            levels,
-            &owner,
-            format,
-        )?;
-    }
-
-    let mut header = vec!["step".to_string(), "time_s".to_string()];
-    for b in &prep.model.boundaries {
-        for c in ["x", "y", "z"] {
-            header.push(format!("reaction_{}_{c}_N", b.name));
-        }
-    }
-    header.extend(["external_work_J", "strain_energy_J", "kinetic_energy_J"].map(String::from));
-    let rows: Vec<Vec<f64>> = out
-        .history
-        .iter()
-        .map(|h| {
-            let mut r = vec![h.step as f64, h.time];
-            r.extend(h.reactions.iter().flatten());
-            r.extend([h.external_work, h.strain_energy, h.kinetic_energy]);
-            r
-        })
-        .collect();
-    crate::io::csv::write_csv(&dir.join("history.csv"), &header, &rows)?;
-    write_history_plots(dir, &prep.model.boundaries, out)?;
-    if !out.relaxation.is_empty() {
-        let header: Vec<String> = [
-            "step",
-            "omega_min_rad_s",
-            "r",
-            "accepted",
-            "error_estimate_m",
-        ]
-        .map(String::from)
-        .to_vec();
-        let rows: Vec<Vec<f64>> = out
-            .relaxation
-            .iter()
-            .map(|r| {
-                vec![
-                    r.step as f64,
-                    r.omega_min,
-                    r.r,
-                    r.accepted as u8 as f64,
-                    r.error_estimate,
-                ]
-            })
-            .collect();
-        crate::io::csv::write_csv(&dir.join("relaxation.csv"), &header, &rows)?;
-    }
-    let json = serde_json::to_string_pretty(summary)
-        .map_err(|e| Error::Input(format!("cannot serialise the summary: {e}")))?;
-    std::fs::write(dir.join("summary.json"), json)
-        .map_err(|e| Error::io(dir.join("summary.json"), e))?;
-    Ok(())
 }

@@ -1,0 +1,468 @@
+//! The scene schema translated into the typed settings of the lower layers: the body's mesh
+//! (built-in shapes, TetGen, mesh files), the material, the meshless and coupled settings and
+//! the integrator's. The only place besides the pipeline itself that reads a [`Scene`].
+
+use std::path::PathBuf;
+
+use nalgebra::Vector3;
+
+use crate::fe::ElementKind;
+use crate::geometry::domain::Domain;
+use crate::geometry::{shapes, ElementShape, Mesh};
+use crate::io::model::MeshInput;
+use crate::material::NeoHookean;
+use crate::meshless::adaptive::AdaptiveSettings;
+use crate::meshless::cloud;
+use crate::meshless::discretize::{CloudSource, Integration, MeshlessSettings};
+use crate::meshless::integration::TetRule;
+use crate::meshless::mls::MlsSettings;
+use crate::meshless::support::SupportRule;
+use crate::scene::{
+    BcMethod, CloudKind, ElementName, Geometry, IntegrationKind, Mesher, Method, Scene, SupportKind,
+};
+use crate::solver::Settings;
+use crate::{Error, Result};
+
+/// The material a scene asks for.
+pub fn material(scene: &Scene) -> NeoHookean {
+    scene.material.neo_hookean()
+}
+
+fn count(len: f64, h: f64, min: usize) -> usize {
+    ((len / h).round() as usize).max(min)
+}
+
+/// Builds the scene's mesh (structured hex/tet or TetGen tets).
+pub fn build_mesh(scene: &Scene) -> Result<Mesh> {
+    let d = &scene.discretization;
+    let kind: ElementKind = d.element.into();
+    let shape = kind.shape();
+    if let Geometry::Mesh { .. } = &scene.geometry {
+        return Ok(load_mesh(scene)?.mesh);
+    }
+    if d.mesher == Mesher::Tetgen {
+        if shape != ElementShape::Tet4 {
+            return Err(Error::Input("discretization.mesher = 'tetgen' makes tetrahedra: use element = 'tet4' or 'tet4-anp'".into()));
+        }
+        return tetgen_mesh(scene);
+    }
+    match &scene.geometry {
+        Geometry::Box { min, max } => {
+            let (lo, hi) = (Vector3::from(*min), Vector3::from(*max));
+            let div = match (d.divisions, d.size) {
+                (Some(div), _) => div,
+                (None, Some(h)) => std::array::from_fn(|k| count(hi[k] - lo[k], h, 1)),
+                (None, None) => unreachable_sizing()?,
+            };
+            match shape {
+                ElementShape::Hex8 => shapes::box_hex(lo, hi, div),
+                ElementShape::Tet4 => shapes::box_tet(lo, hi, div),
+            }
+        }
+        Geometry::Cylinder { radius, height } => {
+            let [ni, nr, nz] = match (d.divisions, d.size) {
+                (Some(div), _) => div,
+                (None, Some(h)) => [
+                    count(*radius, h, 2),
+                    count(0.5 * radius, h, 1),
+                    count(*height, h, 1),
+                ],
+                (None, None) => unreachable_sizing()?,
+            };
+            match shape {
+                ElementShape::Hex8 => shapes::cylinder_hex(*radius, *height, ni, nr, nz),
+                ElementShape::Tet4 => shapes::cylinder_tet(*radius, *height, ni, nr, nz),
+            }
+        }
+        Geometry::HalfEllipsoid { .. } => Err(Error::Input(
+            "geometry.shape = 'half_ellipsoid' has no structured mesh: use mesher = 'tetgen' \
+             (discretization.mesher = \"tetgen\" with element = 'tet4-anp' or 'tet4')"
+                .into(),
+        )),
+        Geometry::Mesh { .. } => Ok(load_mesh(scene)?.mesh),
+    }
+}
+
+fn unreachable_sizing<T>() -> Result<T> {
+    Err(Error::Input(
+        "discretization: give `size` (m) or `divisions`".into(),
+    ))
+}
+
+#[cfg(feature = "tetgen")]
+fn tetgen_mesh(scene: &Scene) -> Result<Mesh> {
+    use crate::geometry::tetgen;
+    let d = &scene.discretization;
+    let h = match (d.size, d.divisions, &scene.geometry) {
+        (Some(h), _, _) => h,
+        // As the box: the bounding box [2a, 2b, c] divided by [nx, ny, nz].
+        (None, Some(div), Geometry::HalfEllipsoid { semi_axes: s }) => {
+            [2.0 * s[0], 2.0 * s[1], s[2]]
+                .iter()
+                .zip(div)
+                .map(|(len, n)| len / n.max(1) as f64)
+                .fold(f64::INFINITY, f64::min)
+        }
+        _ => {
+            return Err(Error::Input(
+                "discretization.mesher = 'tetgen' needs `size` (target edge length, m)".into(),
+            ))
+        }
+    };
+    // Volume of a regular tetrahedron of edge h.
+    let max_volume = Some(h.powi(3) / (6.0 * 2f64.sqrt()));
+    match &scene.geometry {
+        Geometry::Box { min, max } => tetgen::tetgen_box(
+            Vector3::from(*min),
+            Vector3::from(*max),
+            max_volume,
+            d.radius_edge_ratio,
+        ),
+        Geometry::Cylinder { radius, height } => {
+            let n_circ = count(2.0 * std::f64::consts::PI * radius, h, 8);
+            tetgen::tetgen_cylinder(*radius, *height, n_circ, max_volume, d.radius_edge_ratio)
+        }
+        Geometry::HalfEllipsoid { semi_axes } => {
+            tetgen::tetgen_half_ellipsoid(*semi_axes, h, max_volume, d.radius_edge_ratio)
+        }
+        Geometry::Mesh { .. } => Err(Error::Input(
+            "discretization.mesher = 'tetgen' meshes built-in shapes; a mesh file is used as it is (remove mesher)".into(),
+        )),
+    }
+}
+
+#[cfg(not(feature = "tetgen"))]
+fn tetgen_mesh(_scene: &Scene) -> Result<Mesh> {
+    Err(Error::Input("this hytled was built without the `tetgen` feature; use mesher = 'structured' or rebuild with default features".into()))
+}
+
+/// The scene's mesh file, read and scaled to m, checked against the element the scene asks for.
+/// None for built-in shapes.
+pub fn load_mesh_input(scene: &Scene) -> Result<Option<MeshInput>> {
+    let Geometry::Mesh {
+        file,
+        format,
+        units,
+        merge_duplicates,
+    } = &scene.geometry
+    else {
+        return Ok(None);
+    };
+    let path = scene_path(scene, file);
+    let mut m = crate::io::mesh_file::read_mesh(&path, *format, *units)?;
+    if *merge_duplicates {
+        let k = crate::io::mesh_file::merge_duplicate_nodes(&mut m);
+        if k > 0 {
+            m.warnings.push(format!(
+                "merged {k} duplicate node(s) (geometry.merge_duplicates)"
+            ));
+        }
+    }
+    let kind: ElementKind = scene.discretization.element.into();
+    let meshless = scene.discretization.method == Method::Meshless;
+    if !meshless && m.mesh.shape != kind.shape() {
+        return Err(Error::Input(format!(
+            "{}: the mesh has {} cells but discretization.element = '{}'; use {}",
+            path.display(),
+            if m.mesh.shape == ElementShape::Hex8 {
+                "hexahedral"
+            } else {
+                "tetrahedral"
+            },
+            kind.name(),
+            if m.mesh.shape == ElementShape::Hex8 {
+                "element = 'hex8'"
+            } else {
+                "element = 'tet4-anp' (or 'tet4')"
+            }
+        )));
+    }
+    Ok(Some(m))
+}
+
+fn load_mesh(scene: &Scene) -> Result<MeshInput> {
+    load_mesh_input(scene)?.ok_or_else(|| Error::Input("the scene has no mesh file".into()))
+}
+
+/// Warnings a mesh file deserves: duplicate nodes (coincident within 1e-9 x the bounding-box
+/// diagonal). Nodes no cell uses were already dropped on reading.
+pub fn mesh_checks(mesh: &Mesh) -> Vec<String> {
+    let mut w = Vec::new();
+    let (map, keep) = crate::io::mesh_file::coincident_nodes(mesh);
+    let dups = mesh.nodes.len() - keep.len();
+    if let Some(i) = (0..map.len()).find(|&i| keep[map[i]] != i) {
+        w.push(format!(
+            "{dups} duplicate node(s) (e.g. nodes {} and {i} coincide); the mesh is not connected there: \
+             merge them in the mesher or set geometry.merge_duplicates = true",
+            keep[map[i]]
+        ));
+    }
+    w
+}
+
+/// The node sets of a cloud file's label column, as a cell-less mesh input for set selection.
+pub(super) fn cloud_sets(scene: &Scene) -> Result<Option<MeshInput>> {
+    let d = &scene.discretization;
+    let Some(rel) = d
+        .cloud_file
+        .as_ref()
+        .filter(|_| d.cloud == crate::scene::CloudKind::File)
+    else {
+        return Ok(None);
+    };
+    let path = scene_path(scene, rel);
+    if crate::io::mesh_file::MeshFormat::from_path(&path).is_some() {
+        let m = crate::io::mesh_file::read_mesh(&path, None, 1.0)?;
+        return Ok(Some(m));
+    }
+    let text = std::fs::read_to_string(&path).map_err(|e| Error::io(&path, e))?;
+    let (nodes, node_sets) = crate::meshless::cloud::parse_cloud_sets(&text, &path)?;
+    let n = nodes.len() as u64;
+    Ok(Some(MeshInput {
+        mesh: Mesh {
+            nodes,
+            shape: ElementShape::Tet4,
+            cells: Vec::new(),
+        },
+        node_ids: (1..=n).collect(),
+        element_ids: Vec::new(),
+        node_sets,
+        element_sets: Default::default(),
+        face_sets: Default::default(),
+        warnings: Vec::new(),
+    }))
+}
+
+/// Integrator settings from the scene.
+pub fn settings(scene: &Scene, progress: bool) -> Settings {
+    let s = &scene.solver;
+    Settings {
+        mode: s.mode,
+        duration: s.duration,
+        load_time: s.load_time.unwrap_or(s.duration),
+        load_steps: s.load_steps,
+        dt_factor: s.dt_factor,
+        step_estimate: s.time_step,
+        damping: s.damping,
+        tolerance: s.tolerance,
+        max_steps: s.max_steps,
+        estimate_interval: s.estimate_interval,
+        history_rows: scene.output.history_rows,
+        frames: scene.output.frames,
+        progress,
+        progress_lines: None,
+        initial_velocity: None,
+        initial_motion: scene.initial.as_ref().map(|i| {
+            [
+                Vector3::from(i.velocity),
+                Vector3::from(i.angular_velocity),
+                Vector3::from(i.center),
+            ]
+        }),
+    }
+}
+
+/// The scene's shape as a meshless domain (None for a mesh file, whose shape is its cells).
+pub fn domain(scene: &Scene) -> Option<Domain> {
+    match &scene.geometry {
+        Geometry::Box { min, max } => Some(Domain::Box {
+            min: Vector3::from(*min),
+            max: Vector3::from(*max),
+        }),
+        Geometry::Cylinder { radius, height } => Some(Domain::Cylinder {
+            radius: *radius,
+            height: *height,
+        }),
+        Geometry::HalfEllipsoid { semi_axes } => Some(Domain::HalfEllipsoid {
+            semi_axes: Vector3::from(*semi_axes),
+        }),
+        Geometry::Mesh { .. } => None,
+    }
+}
+
+fn need_domain(scene: &Scene, what: &str) -> Result<Domain> {
+    domain(scene).ok_or_else(|| {
+        Error::Input(format!(
+            "{what} needs a built-in shape (box or cylinder); with geometry.mesh use cloud = 'mesh' or 'file' and integration = 'tets'"
+        ))
+    })
+}
+
+/// Node spacing (m) the scene's sizing asks for: `size`, or the smallest division length.
+pub fn spacing(scene: &Scene) -> Result<f64> {
+    let d = &scene.discretization;
+    if let Some(h) = d.size {
+        return Ok(h);
+    }
+    let div = d.divisions.ok_or_else(|| {
+        Error::Input("discretization: give `size` (node spacing, m) or `divisions`".into())
+    })?;
+    Ok(match &scene.geometry {
+        Geometry::Box { min, max } => (0..3)
+            .map(|k| (max[k] - min[k]) / div[k].max(1) as f64)
+            .fold(f64::INFINITY, f64::min),
+        Geometry::Cylinder { radius, height } => {
+            (radius / div[0].max(1) as f64 * 2.0).min(height / div[2].max(1) as f64)
+        }
+        // As the box: the bounding box [2a, 2b, c] divided by [nx, ny, nz].
+        Geometry::HalfEllipsoid { semi_axes: s } => [2.0 * s[0], 2.0 * s[1], s[2]]
+            .iter()
+            .zip(div)
+            .map(|(len, n)| len / n.max(1) as f64)
+            .fold(f64::INFINITY, f64::min),
+        Geometry::Mesh { .. } => {
+            return Err(Error::Input(
+                "a node spacing from `divisions` needs a built-in shape; give discretization.size"
+                    .into(),
+            ))
+        }
+    })
+}
+
+pub fn mls_settings(scene: &Scene) -> MlsSettings {
+    let d = &scene.discretization;
+    MlsSettings {
+        basis: match d.basis {
+            crate::scene::Basis::Linear => crate::meshless::mls::Basis::Linear,
+            crate::scene::Basis::Quadratic => crate::meshless::mls::Basis::Quadratic,
+        },
+        mu: d.mu,
+        min_rcond: d.min_rcond,
+    }
+}
+
+pub fn support_rule(scene: &Scene) -> SupportRule {
+    let d = &scene.discretization;
+    let quadratic = d.basis == crate::scene::Basis::Quadratic;
+    match d.support {
+        SupportKind::Radius => SupportRule::Radius {
+            dilatation: d.dilatation.unwrap_or(if quadratic { 2.0 } else { 1.6 }),
+        },
+        SupportKind::Nearest => SupportRule::Nearest {
+            n: d.support_nodes.unwrap_or(if quadratic { 16 } else { 8 }),
+            alpha: d.alpha,
+        },
+    }
+}
+
+/// The nodes (m) of a generated cloud (`cloud = "lattice"` or `"halton"`) over the scene's
+/// built-in shape, a description of it, and its spacing h (m).
+pub fn generated_cloud(scene: &Scene) -> Result<(Vec<Vector3<f64>>, String, f64)> {
+    let d = &scene.discretization;
+    let h = spacing(scene)?;
+    match d.cloud {
+        CloudKind::Lattice => Ok((
+            cloud::jittered_lattice(
+                &need_domain(scene, "cloud = 'lattice'")?,
+                h,
+                d.jitter,
+                d.seed,
+            )?,
+            format!(
+                "lattice h = {h:.4e} m, jitter {}, seed {}",
+                d.jitter, d.seed
+            ),
+            h,
+        )),
+        CloudKind::Halton => {
+            let domain = &need_domain(scene, "cloud = 'halton'")?;
+            // Fill to saturation (random sequential packing at 0.85 h is about as dense as the
+            // lattice of spacing h); the cap only bounds the work.
+            let count = 3 * cloud::jittered_lattice(domain, h, 0.0, 0)?.len();
+            Ok((
+                cloud::halton_fill(domain, count, d.min_spacing * h, d.seed)?,
+                format!(
+                    "Halton fill, min spacing {:.4e} m, seed {}",
+                    d.min_spacing * h,
+                    d.seed
+                ),
+                h,
+            ))
+        }
+        other => Err(Error::Input(format!(
+            "cloud = '{other:?}' is not a generated cloud (use 'lattice' or 'halton')"
+        ))),
+    }
+}
+
+/// The scene's rule per background tet (`tet_rule`: 1, 4 or 5 points).
+pub fn tet_rule(scene: &Scene) -> Result<TetRule> {
+    let n = scene.discretization.tet_rule();
+    TetRule::from_points(n)
+        .ok_or_else(|| Error::Input(format!("discretization.tet_rule = {n}: use 1, 4 or 5")))
+}
+
+/// The scene's adaptive-integration settings: `tolerance`, `tet_rule` (the base rule),
+/// `subdivision`, `max_level`.
+pub fn adaptive_settings(scene: &Scene) -> Result<AdaptiveSettings> {
+    let d = &scene.discretization;
+    Ok(AdaptiveSettings {
+        tolerance: d.tolerance,
+        rule: tet_rule(scene)?,
+        subdivision: d.subdivision,
+        max_level: d.max_level,
+    })
+}
+
+/// The scene's path `rel` resolved against the scene file's folder.
+pub(super) fn scene_path(scene: &Scene, rel: &std::path::Path) -> PathBuf {
+    if rel.is_absolute() {
+        rel.to_path_buf()
+    } else {
+        scene.base_dir.join(rel)
+    }
+}
+
+/// The meshless settings of a scene: its cloud (the vertices of the scene's tet mesh, a
+/// generated cloud or a node file), integration, MLS basis and support rule.
+pub fn meshless_settings(scene: &Scene) -> Result<MeshlessSettings> {
+    let d = &scene.discretization;
+    let cloud = match d.cloud {
+        CloudKind::Mesh => {
+            let mut s = scene.clone();
+            if s.discretization.element == ElementName::Hex8 {
+                s.discretization.element = ElementName::Tet4;
+            }
+            CloudSource::Mesh {
+                mesh: build_mesh(&s)?,
+                description: format!(
+                    "vertices of a {} tet mesh",
+                    if d.mesher == Mesher::Tetgen {
+                        "TetGen"
+                    } else {
+                        "structured"
+                    }
+                ),
+            }
+        }
+        CloudKind::Lattice | CloudKind::Halton => {
+            let (nodes, description, _) = generated_cloud(scene)?;
+            CloudSource::Nodes { nodes, description }
+        }
+        CloudKind::File => {
+            let path = scene_path(scene, &d.cloud_file.clone().unwrap_or_default());
+            CloudSource::Nodes {
+                nodes: cloud::read_cloud(&path)?,
+                description: format!("file {}", path.display()),
+            }
+        }
+    };
+    let integration = match d.integration {
+        IntegrationKind::Adaptive => Integration::Adaptive(adaptive_settings(scene)?),
+        IntegrationKind::Tets => Integration::Tets {
+            rule: tet_rule(scene)?,
+            tets_per_point: d.tets_per_point(),
+        },
+        IntegrationKind::Grid => Integration::Grid {
+            point_ratio: d.point_ratio,
+        },
+    };
+    Ok(MeshlessSettings {
+        cloud,
+        domain: domain(scene),
+        integration,
+        mls: mls_settings(scene),
+        support: support_rule(scene),
+        boundary_tets: d.bc_method.resolve(d.support) == BcMethod::Ebciem,
+    })
+}
