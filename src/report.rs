@@ -196,6 +196,9 @@ pub struct Summary {
     pub threads: usize,
     pub wall_seconds: WallSeconds,
     pub reactions: BTreeMap<String, [f64; 3]>,
+    /// Total force of each load at the end of the run, N (`[loads.NAME]`).
+    #[serde(skip_serializing_if = "BTreeMap::is_empty")]
+    pub loads: BTreeMap<String, [f64; 3]>,
     pub probes: BTreeMap<String, ProbeResult>,
     pub energy: Energy,
     pub reference: BTreeMap<String, Comparison>,
@@ -330,6 +333,16 @@ impl Summary {
                 "  {k:<14} {:>13.6e} {:>13.6e} {:>13.6e}",
                 v[0], v[1], v[2]
             );
+        }
+        if !self.loads.is_empty() {
+            let _ = writeln!(s, "loads (N)        {:>13} {:>13} {:>13}", "x", "y", "z");
+            for (k, v) in &self.loads {
+                let _ = writeln!(
+                    s,
+                    "  {k:<14} {:>13.6e} {:>13.6e} {:>13.6e}",
+                    v[0], v[1], v[2]
+                );
+            }
         }
         if !self.probes.is_empty() {
             let _ = writeln!(

@@ -7,7 +7,6 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
-use crate::bc::LoadCurve;
 use crate::geometry::select::Selection;
 use crate::solver::Mode;
 use crate::{Error, Result};
@@ -27,6 +26,12 @@ pub struct Scene {
     pub material: MaterialSpec,
     #[serde(default)]
     pub boundaries: BTreeMap<String, BoundarySpec>,
+    /// `[loads.NAME]`: gravity, point forces, tractions and pressures.
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub loads: BTreeMap<String, LoadSpec>,
+    /// `[curves.NAME]`: tabulated load curves that boundaries and loads name.
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub curves: BTreeMap<String, CurveSpec>,
     #[serde(default)]
     pub solver: SolverSpec,
     #[serde(default)]
@@ -722,8 +727,60 @@ pub struct BoundarySpec {
     /// Components driven to these values along `curve`.
     #[serde(default)]
     pub displacement: Option<Displacement>,
-    #[serde(default)]
-    pub curve: LoadCurve,
+    /// A built-in curve ("smooth", "ramp", "constant", "smooth-return") or the name of a
+    /// `[curves.NAME]` table.
+    #[serde(default = "default_curve")]
+    pub curve: String,
+}
+
+fn default_curve() -> String {
+    "smooth".into()
+}
+
+/// `[loads.NAME]`: one load, scaled by its curve. Exactly one of `gravity`, `force`,
+/// `traction` or `pressure`; the last three act on `select` (nodes for `force`, the boundary
+/// faces whose corners are all selected for `traction` and `pressure`).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LoadSpec {
+    /// Body force: the acceleration of gravity, m/s^2 (e.g. [0, 0, -9.81]); every node gets
+    /// its lumped mass times it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub gravity: Option<[f64; 3]>,
+    /// Force on each selected node, N.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub force: Option<[f64; 3]>,
+    /// Dead traction on the selected faces, Pa (force per reference area, fixed direction).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub traction: Option<[f64; 3]>,
+    /// Follower pressure on the selected faces, Pa, along the deformed inward normal
+    /// (positive pushes into the body).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub pressure: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub select: Option<Selection>,
+    /// As a boundary's `curve` (default "smooth").
+    #[serde(default = "default_curve")]
+    pub curve: String,
+}
+
+impl LoadSpec {
+    /// The load acts on faces (traction, pressure).
+    pub fn on_faces(&self) -> bool {
+        self.traction.is_some() || self.pressure.is_some()
+    }
+}
+
+/// `[curves.NAME]`: a tabulated load curve, (time s, factor of the final value) pairs, linear
+/// between them and held beyond them, given inline (`points`) or in a CSV file (`file`, two
+/// columns; relative to the scene file). Relaxation maps `solver.load_time` onto its load steps.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CurveSpec {
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub points: Option<Vec<[f64; 2]>>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub file: Option<PathBuf>,
 }
 
 /// `[solver]`.
@@ -1141,6 +1198,19 @@ fn with_suggestion(msg: &str) -> String {
     msg.to_string()
 }
 
+/// A curve name must be built in or a `[curves.NAME]` table.
+fn check_curve(s: &Scene, key: &str, name: &str) -> std::result::Result<(), String> {
+    if crate::bc::LoadCurve::builtin(name).is_some() || s.curves.contains_key(name) {
+        return Ok(());
+    }
+    let mut known: Vec<&str> = crate::bc::LoadCurve::BUILTIN.to_vec();
+    known.extend(s.curves.keys().map(String::as_str));
+    Err(format!(
+        "{key} = '{name}': no such curve; use one of {} or add a [curves.{name}] table",
+        known.join(", ")
+    ))
+}
+
 /// Physical and structural checks that serde cannot express.
 fn validate(s: &Scene) -> std::result::Result<(), String> {
     match &s.geometry {
@@ -1332,6 +1402,47 @@ fn validate(s: &Scene) -> std::result::Result<(), String> {
             }
         }
         _ => return Err("material: give either youngs_modulus and poisson_ratio, or shear_modulus and bulk_modulus".into()),
+    }
+    for (name, c) in &s.curves {
+        if crate::bc::LoadCurve::builtin(name).is_some() {
+            return Err(format!(
+                "curves.{name}: '{name}' is a built-in curve; give the table another name"
+            ));
+        }
+        if c.points.is_some() == c.file.is_some() {
+            return Err(format!(
+                "curves.{name}: give either `points = [[t, factor], ...]` (t in s) or `file = \"curve.csv\"`"
+            ));
+        }
+    }
+    for (name, b) in &s.boundaries {
+        check_curve(s, &format!("boundaries.{name}.curve"), &b.curve)?;
+    }
+    for (name, l) in &s.loads {
+        check_curve(s, &format!("loads.{name}.curve"), &l.curve)?;
+        let given = [
+            l.gravity.is_some(),
+            l.force.is_some(),
+            l.traction.is_some(),
+            l.pressure.is_some(),
+        ];
+        if given.iter().filter(|&&g| g).count() != 1 {
+            return Err(format!(
+                "loads.{name}: give exactly one of `gravity = [gx, gy, gz]` (m/s^2), `force = [fx, fy, fz]` \
+                 (N per node), `traction = [tx, ty, tz]` (Pa) or `pressure = p` (Pa)"
+            ));
+        }
+        match (l.gravity.is_some(), l.select.is_some()) {
+            (true, true) => {
+                return Err(format!(
+                    "loads.{name}: gravity acts on the whole body; remove `select`"
+                ))
+            }
+            (false, false) => return Err(format!(
+                "loads.{name}: needs `select = {{ ... }}` (the nodes or boundary faces it acts on)"
+            )),
+            _ => {}
+        }
     }
     for (name, b) in &s.boundaries {
         if b.fix.is_empty()

@@ -1,46 +1,14 @@
 //! Essential boundary conditions imposed directly on nodes (Kronecker-delta shape functions),
 //! and the load curves that drive them.
 
-use serde::{Deserialize, Serialize};
-
+pub mod curve;
 pub mod ebciem;
+pub mod loads;
 pub mod sparse_lu;
 
+pub use curve::{CurveTable, LoadCurve};
+
 use crate::{Error, Result};
-
-/// Time history of a prescribed displacement, as a fraction of its final value.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
-#[serde(rename_all = "kebab-case")]
-pub enum LoadCurve {
-    /// d(t) = d_max (10 - 15 tau + 6 tau^2) tau^3, tau = t / T: zero velocity and acceleration at
-    /// both ends (REFERENCE.md, the curve of every benchmark case).
-    #[default]
-    Smooth,
-    /// d(t) = d_max tau.
-    Ramp,
-    /// d(t) = d_max from the first step.
-    Constant,
-    /// There and back: the smooth curve to d_max over the first half of T and, mirrored, back to
-    /// zero over the second half (loading and unloading, Horton 2010 sect. 4.7).
-    SmoothReturn,
-}
-
-impl LoadCurve {
-    /// Fraction of the final value at normalised time tau = t / T (clamped to [0, 1]).
-    #[inline]
-    pub fn value(self, tau: f64) -> f64 {
-        let t = tau.clamp(0.0, 1.0);
-        match self {
-            LoadCurve::Smooth => (10.0 - 15.0 * t + 6.0 * t * t) * t * t * t,
-            LoadCurve::Ramp => t,
-            LoadCurve::Constant => 1.0,
-            LoadCurve::SmoothReturn => {
-                let h = if t <= 0.5 { 2.0 * t } else { 2.0 - 2.0 * t };
-                (10.0 - 15.0 * h + 6.0 * h * h) * h * h * h
-            }
-        }
-    }
-}
 
 /// One named boundary: its nodes and, per component, the final prescribed displacement (m)
 /// or `None` where the component is free.
@@ -49,7 +17,44 @@ pub struct Boundary {
     pub name: String,
     pub nodes: Vec<usize>,
     pub components: [Option<f64>; 3],
+    /// Final displacements node by node (m, one per entry of `nodes`: measured displacements),
+    /// taking the place of `components`' values on the prescribed components.
+    pub node_values: Option<Vec<[f64; 3]>>,
     pub curve: LoadCurve,
+}
+
+impl Boundary {
+    /// A boundary prescribing `components` uniformly on `nodes`.
+    pub fn uniform(
+        name: &str,
+        nodes: Vec<usize>,
+        components: [Option<f64>; 3],
+        curve: LoadCurve,
+    ) -> Self {
+        Boundary {
+            name: name.into(),
+            nodes,
+            components,
+            node_values: None,
+            curve,
+        }
+    }
+
+    /// Final prescribed value (m) of component `c` at the boundary's `k`-th node; None where
+    /// the component is free.
+    #[inline]
+    pub fn value(&self, k: usize, c: usize) -> Option<f64> {
+        let v = self.components[c]?;
+        Some(match &self.node_values {
+            Some(vals) => vals.get(k).map_or(v, |x| x[c]),
+            None => v,
+        })
+    }
+
+    /// Some component is prescribed (the boundary holds the body).
+    pub fn is_essential(&self) -> bool {
+        self.components.iter().any(|c| c.is_some())
+    }
 }
 
 /// All constrained degrees of freedom, flattened for the time loop.
@@ -74,9 +79,9 @@ impl Constraints {
             ..Default::default()
         };
         for (bi, b) in boundaries.iter().enumerate() {
-            for &n in &b.nodes {
-                for (k, comp) in b.components.iter().enumerate() {
-                    let Some(v) = *comp else { continue };
+            for (at, &n) in b.nodes.iter().enumerate() {
+                for k in 0..3 {
+                    let Some(v) = b.value(at, k) else { continue };
                     match owner[n][k] {
                         Some((other, v0)) => {
                             let same_curve =
@@ -93,7 +98,7 @@ impl Constraints {
                             owner[n][k] = Some((bi, v));
                             c.dofs.push((n as u32, k as u8));
                             c.amplitude.push(v);
-                            c.curve.push(b.curve);
+                            c.curve.push(b.curve.clone());
                             c.mask[n][k] = true;
                         }
                     }
@@ -185,43 +190,9 @@ mod tests {
     use super::*;
 
     #[test]
-    fn smooth_curve_has_zero_rate_at_ends_and_reaches_one() {
-        let c = LoadCurve::Smooth;
-        assert_eq!(c.value(0.0), 0.0);
-        assert!((c.value(1.0) - 1.0).abs() < 1e-15);
-        assert!((c.value(0.5) - 0.5).abs() < 1e-15);
-        let h = 1e-6;
-        assert!(((c.value(1.0) - c.value(1.0 - h)) / h).abs() < 1e-5);
-        assert!(((c.value(h) - c.value(0.0)) / h).abs() < 1e-5);
-    }
-
-    #[test]
-    fn return_curve_peaks_at_half_time_and_comes_back_smoothly() {
-        let c = LoadCurve::SmoothReturn;
-        assert_eq!(c.value(0.0), 0.0);
-        assert!((c.value(0.5) - 1.0).abs() < 1e-15);
-        assert!(c.value(1.0).abs() < 1e-15);
-        // Symmetric about the peak and equal to the smooth curve at double speed.
-        for tau in [0.1, 0.2, 0.3, 0.45] {
-            assert!((c.value(tau) - c.value(1.0 - tau)).abs() < 1e-14);
-            assert!((c.value(tau) - LoadCurve::Smooth.value(2.0 * tau)).abs() < 1e-15);
-        }
-        let h = 1e-6;
-        for tau in [0.0 + h, 0.5, 1.0] {
-            assert!(
-                ((c.value(tau) - c.value(tau - h)) / h).abs() < 1e-4,
-                "rate at {tau}"
-            );
-        }
-    }
-
-    #[test]
     fn conflicting_values_are_an_error_naming_both_boundaries() {
-        let b = |name: &str, v: f64| Boundary {
-            name: name.into(),
-            nodes: vec![0, 1],
-            components: [None, None, Some(v)],
-            curve: LoadCurve::Smooth,
+        let b = |name: &str, v: f64| {
+            Boundary::uniform(name, vec![0, 1], [None, None, Some(v)], LoadCurve::Smooth)
         };
         let err = Constraints::new(&[b("top", -0.02), b("lid", 0.01)], 2)
             .unwrap_err()
@@ -254,11 +225,8 @@ mod tests {
         mesh.nodes.extend(b.nodes.iter().cloned());
         mesh.cells.extend(b.cells.iter().map(|&i| i + na));
         let qp = element_points(&mesh, ElementKind::Hex8, 0.05, 1e5).unwrap();
-        let fix = |nodes: Vec<usize>| Boundary {
-            name: "fix".into(),
-            nodes,
-            components: [Some(0.0); 3],
-            curve: LoadCurve::default(),
+        let fix = |nodes: Vec<usize>| {
+            Boundary::uniform("fix", nodes, [Some(0.0); 3], LoadCurve::default())
         };
         let parts = free_parts(mesh.nodes.len(), &qp, &[fix(vec![0])]);
         assert_eq!(parts, vec![(8, na)]);

@@ -138,23 +138,66 @@ impl CoupledBuild {
             (Err(_), Some(_)) => return self.mls_values(x, &what),
             (Err(e), None) => return Err(e),
         };
-        match self.regions.cell[pr.element] {
-            CellRole::Fe => Ok(pr.nodes.into_iter().zip(pr.weights).collect()),
-            CellRole::Meshless => self.mls_values(x, &what),
+        self.layer_values(pr.element, &pr.nodes, &pr.weights, x, &what)
+    }
+
+    /// Shape-function values at `x` (m) on FE-layer cell `e` (`Some(e)`), or in the interior
+    /// (`None`), without searching for the cell: for points known to lie on a cell, such as
+    /// the Gauss points of its boundary faces. `what` names the point in errors.
+    pub fn shape_values_in(
+        &self,
+        cell: Option<usize>,
+        x: &Vector3<f64>,
+        what: &dyn Fn() -> String,
+    ) -> Result<Weights> {
+        let Some(e) = cell else {
+            return self.mls_values(x, what);
+        };
+        let ids = self.fe_mesh.cell(e);
+        let w: Vec<f64> = match self.fe_mesh.shape {
+            ElementShape::Hex8 => {
+                let c: [Vector3<f64>; 8] = std::array::from_fn(|a| self.nodes[ids[a]]);
+                let xi = hex8::natural_coordinates(&c, x)
+                    .ok_or_else(|| Error::Input(format!("{}: not on FE-layer cell {e}", what())))?;
+                hex8::shape(xi).to_vec()
+            }
+            ElementShape::Tet4 => {
+                let c: [Vector3<f64>; 4] = std::array::from_fn(|a| self.nodes[ids[a]]);
+                tet4::barycentric(&c, x)
+                    .ok_or_else(|| Error::Input(format!("{}: not on FE-layer cell {e}", what())))?
+                    .to_vec()
+            }
+        };
+        self.layer_values(e, ids, &w, x, what)
+    }
+
+    /// Values at `x` on FE-layer cell `e` whose nodes `ids` have FE shape-function values
+    /// `w` there: FE in pure FE cells, blended with MLS by the ramp r = sum of the interface
+    /// nodes' FE values in transition cells.
+    fn layer_values(
+        &self,
+        e: usize,
+        ids: &[usize],
+        w: &[f64],
+        x: &Vector3<f64>,
+        what: &dyn Fn() -> String,
+    ) -> Result<Weights> {
+        match self.regions.cell[e] {
+            CellRole::Fe => Ok(ids.iter().copied().zip(w.iter().copied()).collect()),
+            CellRole::Meshless => self.mls_values(x, what),
             CellRole::Transition => {
-                let r: f64 = pr
-                    .nodes
+                let r: f64 = ids
                     .iter()
-                    .zip(&pr.weights)
+                    .zip(w)
                     .filter(|(&i, _)| self.regions.node[i] == NodeRole::Interface)
                     .map(|(_, &w)| w)
                     .sum();
                 let mut acc: std::collections::BTreeMap<usize, f64> = Default::default();
-                for (i, w) in self.mls_values(x, &what)? {
-                    *acc.entry(i).or_default() += r * w;
+                for (i, v) in self.mls_values(x, what)? {
+                    *acc.entry(i).or_default() += r * v;
                 }
-                for (&i, &w) in pr.nodes.iter().zip(&pr.weights) {
-                    *acc.entry(i).or_default() += (1.0 - r) * w;
+                for (&i, &v) in ids.iter().zip(w) {
+                    *acc.entry(i).or_default() += (1.0 - r) * v;
                 }
                 Ok(acc.into_iter().collect())
             }
@@ -180,11 +223,16 @@ impl CoupledBuild {
     /// (interpolating), the MLS values at interface and meshless nodes.
     pub fn vertex_weights(&self) -> Result<Vec<Weights>> {
         (0..self.nodes.len())
-            .map(|v| match self.regions.node[v] {
-                NodeRole::Fe => Ok(vec![(v, 1.0)]),
-                _ => self.mls_values(&self.nodes[v], &|| format!("output vertex {v}")),
-            })
+            .map(|v| self.vertex_weights_of(v, &|| format!("output vertex {v}")))
             .collect()
+    }
+
+    /// [`Self::vertex_weights`] of vertex `v` alone; `what` names it in errors.
+    pub fn vertex_weights_of(&self, v: usize, what: &dyn Fn() -> String) -> Result<Weights> {
+        match self.regions.node[v] {
+            NodeRole::Fe => Ok(vec![(v, 1.0)]),
+            _ => self.mls_values(&self.nodes[v], what),
+        }
     }
 }
 

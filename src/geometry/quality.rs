@@ -154,9 +154,19 @@ fn canonical_rotation(f: &[usize]) -> Vec<usize> {
 /// still passes this check, but then shows extra boundary faces inside the domain; compare the
 /// total boundary area with the area of the geometric surface to catch that.
 pub fn boundary_faces(mesh: &Mesh) -> std::result::Result<Vec<Vec<usize>>, String> {
+    Ok(boundary_faces_with_cells(mesh)?
+        .into_iter()
+        .map(|(f, _)| f)
+        .collect())
+}
+
+/// [`boundary_faces`] with the element each face belongs to: (face, element), sorted by face.
+pub fn boundary_faces_with_cells(
+    mesh: &Mesh,
+) -> std::result::Result<Vec<(Vec<usize>, usize)>, String> {
     let faces = element_faces(mesh.shape);
-    // key: sorted node set -> (oriented face of first use, use count)
-    let mut map: HashMap<Vec<usize>, (Vec<usize>, usize)> = HashMap::new();
+    // key: sorted node set -> (oriented face of first use, use count, element of first use)
+    let mut map: HashMap<Vec<usize>, (Vec<usize>, usize, usize)> = HashMap::new();
     for e in 0..mesh.num_cells() {
         let c = mesh.cell(e);
         for f in faces {
@@ -170,9 +180,9 @@ pub fn boundary_faces(mesh: &Mesh) -> std::result::Result<Vec<Vec<usize>>, Strin
             }
             match map.get_mut(&key) {
                 None => {
-                    map.insert(key, (oriented, 1));
+                    map.insert(key, (oriented, 1, e));
                 }
-                Some((first, count)) => {
+                Some((first, count, _)) => {
                     *count += 1;
                     if *count > 2 {
                         return Err(format!(
@@ -194,10 +204,10 @@ pub fn boundary_faces(mesh: &Mesh) -> std::result::Result<Vec<Vec<usize>>, Strin
             }
         }
     }
-    let mut out: Vec<Vec<usize>> = map
+    let mut out: Vec<(Vec<usize>, usize)> = map
         .into_values()
-        .filter(|(_, n)| *n == 1)
-        .map(|(f, _)| f)
+        .filter(|(_, n, _)| *n == 1)
+        .map(|(f, _, e)| (f, e))
         .collect();
     out.sort_unstable();
     Ok(out)

@@ -221,9 +221,21 @@ impl MeshlessCorrector {
             };
             let amplitude: Vec<f64> = nodes
                 .iter()
-                .map(|&i| boundaries[owner[i]].components[c].unwrap_or(0.0))
+                .map(|&i| {
+                    let b = &boundaries[owner[i]];
+                    // Per-node values: the node's place in its boundary (uniform values
+                    // need none).
+                    let k = match b.node_values {
+                        Some(_) => b.nodes.iter().position(|&j| j == i).unwrap_or(0),
+                        None => 0,
+                    };
+                    b.value(k, c).unwrap_or(0.0)
+                })
                 .collect();
-            let curve: Vec<LoadCurve> = nodes.iter().map(|&i| boundaries[owner[i]].curve).collect();
+            let curve: Vec<LoadCurve> = nodes
+                .iter()
+                .map(|&i| boundaries[owner[i]].curve.clone())
+                .collect();
             for members in independent_groups(n, &phi_rows, &v_cols) {
                 let mut columns = vec![Vec::new(); boundaries.len()];
                 for (k, &m) in members.iter().enumerate() {
@@ -255,7 +267,7 @@ impl MeshlessCorrector {
                 comps.push(Component {
                     corr,
                     amplitude: members.iter().map(|&m| amplitude[m]).collect(),
-                    curve: members.iter().map(|&m| curve[m]).collect(),
+                    curve: members.iter().map(|&m| curve[m].clone()).collect(),
                     columns,
                     target: vec![0.0; ne],
                 });
@@ -500,12 +512,7 @@ mod tests {
     fn faces(nodes: &[Vector3<f64>]) -> [Boundary; 2] {
         let on = |z: f64| -> Vec<usize> { (0..nodes.len()).filter(|&i| nodes[i].z == z).collect() };
         [
-            Boundary {
-                name: "bottom".into(),
-                nodes: on(0.0),
-                components: [Some(0.0); 3],
-                curve: LoadCurve::Smooth,
-            },
+            Boundary::uniform("bottom", on(0.0), [Some(0.0); 3], LoadCurve::Smooth),
             boundary("top", on(5.0), Some(-0.1)),
         ]
     }
@@ -601,12 +608,7 @@ mod tests {
     }
 
     fn boundary(name: &str, nodes: Vec<usize>, z: Option<f64>) -> Boundary {
-        Boundary {
-            name: name.into(),
-            nodes,
-            components: [Some(0.0), None, z],
-            curve: LoadCurve::Smooth,
-        }
+        Boundary::uniform(name, nodes, [Some(0.0), None, z], LoadCurve::Smooth)
     }
 
     #[test]

@@ -6,14 +6,17 @@ use std::time::Instant;
 
 use nalgebra::Vector3;
 
+mod loads;
 mod output;
+mod surface;
 mod translate;
 
 pub use output::{write_outputs, write_results, FrameWriter};
+use surface::Discretized;
 pub use translate::{
     build_mesh, load_mesh_input, material, mesh_checks, meshless_settings, settings,
 };
-use translate::{cloud_sets, scene_path};
+use translate::{cloud_sets, load_curve, scene_path};
 
 use crate::bc::Boundary;
 use crate::coupling::{self, CoupledBuild, NodeRole};
@@ -108,7 +111,8 @@ pub fn boundaries(
             name: name.clone(),
             nodes: sel,
             components: comps,
-            curve: b.curve,
+            node_values: None,
+            curve: load_curve(scene, &b.curve)?,
         });
     }
     Ok(out)
@@ -295,7 +299,12 @@ fn prepare_fe(scene: &Scene) -> Result<Prepared> {
         })
         .collect::<Result<Vec<_>>>()?;
     let min_dihedral = quality::min_dihedral_angle(&mesh);
-    let model = Model::new(mesh.nodes.clone(), points, mat, bnd)?;
+    let mut model = Model::new(mesh.nodes.clone(), points, mat, bnd)?;
+    model.set_loads(loads::scene_loads(
+        scene,
+        Discretized::Fe(&mesh),
+        input.as_ref(),
+    )?)?;
     Ok(Prepared {
         mesh,
         meshless: None,
@@ -417,6 +426,11 @@ fn prepare_meshless(scene: &Scene) -> Result<Prepared> {
         })
         .collect::<Result<Vec<_>>>()?;
     let mut model = Model::new(build.nodes.clone(), build.points.clone(), mat, bnd.clone())?;
+    model.set_loads(loads::scene_loads(
+        scene,
+        Discretized::Meshless(&build),
+        input.as_ref(),
+    )?)?;
     let corrected: Vec<bool> = bnd
         .iter()
         .map(|b| method != BcMethod::Correction && b.components.iter().any(|c| c.is_some()))
@@ -595,6 +609,11 @@ fn prepare_coupled(scene: &Scene) -> Result<Prepared> {
         .collect::<Result<Vec<_>>>()?;
     let mut model = Model::new(build.nodes.clone(), build.points.clone(), mat, bnd.clone())?;
     model.set_lumped_volumes(&build.lumped_volume)?;
+    model.set_loads(loads::scene_loads(
+        scene,
+        Discretized::Coupled(&build),
+        input.as_ref(),
+    )?)?;
     if let Some(method) = bc_method {
         let tris: Vec<[usize; 3]> = if method == BcMethod::Ebciem {
             let mut faces = quality::boundary_faces(&build.fe_mesh)
@@ -831,6 +850,13 @@ pub fn summarize(scene: &Scene, prep: &Prepared, out: &RunOutput, total_seconds:
             total: total_seconds,
         },
         reactions,
+        loads: model
+            .loads
+            .names()
+            .iter()
+            .zip(model.loads.totals())
+            .map(|(n, t)| (n.clone(), [t.x, t.y, t.z]))
+            .collect(),
         probes,
         energy: Energy {
             external_work: w,

@@ -6,6 +6,7 @@ use std::path::PathBuf;
 
 use nalgebra::Vector3;
 
+use crate::bc::{CurveTable, LoadCurve};
 use crate::fe::ElementKind;
 use crate::geometry::domain::Domain;
 use crate::geometry::{shapes, ElementShape, Mesh};
@@ -463,6 +464,35 @@ pub fn meshless_settings(scene: &Scene) -> Result<MeshlessSettings> {
         integration,
         mls: mls_settings(scene),
         support: support_rule(scene),
-        boundary_tets: d.bc_method.resolve(d.support) == BcMethod::Ebciem,
+        // EBCIEM integrates over the boundary triangles, surface loads act on them.
+        boundary_tets: d.bc_method.resolve(d.support) == BcMethod::Ebciem
+            || scene.loads.values().any(|l| l.on_faces()),
     })
+}
+
+/// The load curve a scene names: built in, or its `[curves.NAME]` table with the times mapped
+/// to load fractions by `solver.load_time` (default: the duration).
+pub(super) fn load_curve(scene: &Scene, name: &str) -> Result<LoadCurve> {
+    if let Some(c) = LoadCurve::builtin(name) {
+        return Ok(c);
+    }
+    let spec = scene.curves.get(name).ok_or_else(|| {
+        Error::Input(format!(
+            "no curve '{name}' (built in: smooth, ramp, constant, smooth-return)"
+        ))
+    })?;
+    let what = format!("curves.{name}");
+    let points = match (&spec.points, &spec.file) {
+        (Some(p), _) => p.clone(),
+        (None, Some(f)) => {
+            let path = scene_path(scene, f);
+            let text = std::fs::read_to_string(&path).map_err(|e| Error::io(&path, e))?;
+            crate::bc::curve::parse_curve_csv(&text, &path.display().to_string())?
+        }
+        (None, None) => Vec::new(),
+    };
+    let load_time = scene.solver.load_time.unwrap_or(scene.solver.duration);
+    Ok(LoadCurve::Table(std::sync::Arc::new(
+        CurveTable::from_times(&points, load_time, &what)?,
+    )))
 }

@@ -435,6 +435,10 @@ fn run_on_worker<M: Material>(
         }
     };
 
+    let has_loads = !model.loads.is_empty();
+    if has_loads && model.f_ext.len() != n {
+        model.f_ext = vec![Vector3::zeros(); n];
+    }
     let zero = vec![Vector3::zeros(); n];
     let mut u = zero.clone();
     let mut u_prev = zero.clone();
@@ -616,6 +620,9 @@ fn run_on_worker<M: Material>(
                 dt / dt_crit
             )));
         }
+        if has_loads {
+            model.loads.apply(&u, load_frac(step), &mut model.f_ext);
+        }
         let at_end =
             (dynamic && step == total_steps) || finish || (!dynamic && step >= total_steps);
         let record = step.is_multiple_of(history_every) || at_end;
@@ -678,6 +685,7 @@ fn run_on_worker<M: Material>(
         // Parallel over node blocks, from both ends as the point stage (`two_ended`); max is
         // order-independent, so the result is thread-count independent.
         let (mass, forces) = (&model.mass, &model.forces);
+        let f_ext = has_loads.then_some(model.f_ext.as_slice());
         let (u_cur, u_old) = (&u, &u_prev);
         let un_all = SharedMut(u_next.as_mut_ptr());
         let f_all = SharedMut(f.as_mut_ptr());
@@ -701,6 +709,11 @@ fn run_on_worker<M: Material>(
                 let mut acc = (0.0f64, 0.0f64);
                 for (j, (un, fi)) in un_b.iter_mut().zip(f_b.iter()).enumerate() {
                     let i = n0 + j;
+                    // The net force F_int - F_ext (bitwise F_int without loads).
+                    let fi = match f_ext {
+                        Some(e) => fi - e[i],
+                        None => *fi,
+                    };
                     let inv_m = a / mass[i];
                     let mask = cons.mask[i];
                     let mut mdu = 0.0f64;
@@ -744,6 +757,16 @@ fn run_on_worker<M: Material>(
                 0.0
             };
             external_work += (f[i][k] + inertia) * 0.5 * (u_next[i][k] - u_prev[i][k]);
+        }
+        // Work of the loads on the DOFs the integrator moves.
+        if has_loads {
+            for (i, fe) in model.f_ext.iter().enumerate() {
+                for k in 0..3 {
+                    if !cons.mask[i][k] {
+                        external_work += fe[k] * 0.5 * (u_next[i][k] - u_prev[i][k]);
+                    }
+                }
+            }
         }
         peak_external_work = peak_external_work.max(external_work.abs());
         for &(node, comp) in cons.dofs.iter() {

@@ -13,6 +13,7 @@ mod two_ended;
 
 use nalgebra::Vector3;
 
+use crate::bc::loads::{Load, Loads};
 use crate::bc::{Boundary, Constraints};
 use crate::material::Material;
 use crate::quadrature::{NodeSlots, QuadraturePoints};
@@ -78,6 +79,10 @@ pub struct Model<M: Material> {
     pub corrector: Option<Box<dyn Corrector>>,
     /// Per boundary: imposed by `corrector` instead of directly on nodes.
     pub corrected: Vec<bool>,
+    /// Gravity, point forces, tractions and pressures ([`Self::set_loads`]).
+    pub loads: Loads,
+    /// External nodal forces of the last step, N (empty without loads).
+    pub f_ext: Vec<Vector3<f64>>,
 }
 
 impl<M: Material> Model<M> {
@@ -125,7 +130,21 @@ impl<M: Material> Model<M> {
             forces,
             corrector: None,
             corrected,
+            loads: Loads::default(),
+            f_ext: Vec::new(),
         })
+    }
+
+    /// Sets the model's loads. Gravity takes the lumped masses as they are now, so call this
+    /// after [`Self::set_lumped_volumes`].
+    pub fn set_loads(&mut self, loads: Vec<Load>) -> Result<()> {
+        self.loads = Loads::new(loads, &self.mass)?;
+        self.f_ext = if self.loads.is_empty() {
+            Vec::new()
+        } else {
+            vec![Vector3::zeros(); self.nodes.len()]
+        };
+        Ok(())
     }
 
     /// Replaces the evenly split lumped masses by `rho V_i` from the lumped volumes `volume`
@@ -217,10 +236,12 @@ impl<M: Material> Model<M> {
         (s, v, j)
     }
 
-    /// Sum of internal nodal forces over each boundary's nodes, N: the force each boundary
-    /// applies to the body (negative along the axis in compression, as in REFERENCE.md).
+    /// The force each boundary applies to the body, N: the sum over its nodes of the internal
+    /// minus the external nodal forces (`self.f_ext`, the last step's loads; at equilibrium
+    /// F_int = F_ext + R), negative along the axis in compression as in REFERENCE.md.
     /// Boundaries imposed by a corrector report its constraint force instead.
     pub fn reactions(&self, f_int: &[Vector3<f64>]) -> Vec<Vector3<f64>> {
+        let ext = |i: usize| self.f_ext.get(i).copied().unwrap_or_else(Vector3::zeros);
         self.boundaries
             .iter()
             .enumerate()
@@ -229,7 +250,7 @@ impl<M: Material> Model<M> {
                 _ => b
                     .nodes
                     .iter()
-                    .fold(Vector3::zeros(), |acc, &i| acc + f_int[i]),
+                    .fold(Vector3::zeros(), |acc, &i| acc + (f_int[i] - ext(i))),
             })
             .collect()
     }

@@ -1,0 +1,151 @@
+//! What loads, contact and measured displacements need of a discretization, whatever its
+//! method: the nodes, the interpolation row that gives the displacement at a node's position
+//! (the node itself for FE nodes; shape functions for meshless and blended nodes, which do not
+//! interpolate) and the body's outward boundary faces with the rows at points on them.
+
+use nalgebra::Vector3;
+
+use crate::bc::loads::{Face, Row};
+use crate::coupling::CoupledBuild;
+use crate::geometry::{quality, Mesh};
+use crate::meshless::discretize::MeshlessBuild;
+use crate::{Error, Result};
+
+/// A built discretization, seen through what surfaces and nodes need.
+#[derive(Clone, Copy)]
+pub(crate) enum Discretized<'a> {
+    Fe(&'a Mesh),
+    Meshless(&'a MeshlessBuild),
+    Coupled(&'a CoupledBuild),
+}
+
+/// The body's boundary: vertex positions (m) and outward faces over them, each with the cell
+/// it bounds (coupled: `Some(FE-layer cell)`, or `None` for the meshless interior).
+pub(crate) struct Surface {
+    pub vertices: Vec<Vector3<f64>>,
+    pub faces: Vec<(Vec<usize>, Option<usize>)>,
+}
+
+fn sparse(w: Vec<(usize, f64)>) -> Row {
+    w.into_iter().map(|(i, p)| (i as u32, p)).collect()
+}
+
+impl<'a> Discretized<'a> {
+    /// The model's nodes, m.
+    pub fn nodes(&self) -> &'a [Vector3<f64>] {
+        match self {
+            Discretized::Fe(m) => &m.nodes,
+            Discretized::Meshless(b) => &b.nodes,
+            Discretized::Coupled(b) => &b.nodes,
+        }
+    }
+
+    /// The row that gives the displacement at the reference point `x` (m) of the body:
+    /// meshless and coupled only (FE nodes interpolate).
+    fn row_at(
+        &self,
+        x: &Vector3<f64>,
+        cell: Option<usize>,
+        what: &dyn Fn() -> String,
+    ) -> Result<Row> {
+        match self {
+            Discretized::Fe(_) => Err(Error::Input(format!(
+                "{}: FE faces take their nodes' values (internal)",
+                what()
+            ))),
+            Discretized::Meshless(b) => {
+                let s = b.shape_values(x, what)?;
+                Ok(s.ids
+                    .iter()
+                    .zip(&s.phi)
+                    .map(|(&i, &p)| (i as u32, p))
+                    .collect())
+            }
+            Discretized::Coupled(b) => Ok(sparse(b.shape_values_in(cell, x, what)?)),
+        }
+    }
+
+    /// The row that gives the displacement at node `i`'s position.
+    pub fn node_row(&self, i: usize) -> Result<Row> {
+        match self {
+            Discretized::Fe(_) => Ok(vec![(i as u32, 1.0)]),
+            Discretized::Meshless(b) => self.row_at(&b.nodes[i], None, &|| format!("node {i}")),
+            Discretized::Coupled(b) => Ok(sparse(b.vertex_weights_of(i, &|| format!("node {i}"))?)),
+        }
+    }
+
+    /// The outward boundary faces: of the FE mesh; of the meshless background tets (their
+    /// vertices, which include nodes removed as poorly supported); of the coupled FE layer and
+    /// interior less the faces they share.
+    pub fn surface(&self) -> Result<Surface> {
+        let faces = |m: &Mesh, what: &str| {
+            quality::boundary_faces_with_cells(m).map_err(|e| Error::Input(format!("{what}: {e}")))
+        };
+        match self {
+            Discretized::Fe(m) => Ok(Surface {
+                vertices: m.nodes.clone(),
+                faces: faces(m, "mesh")?
+                    .into_iter()
+                    .map(|(f, e)| (f, Some(e)))
+                    .collect(),
+            }),
+            Discretized::Meshless(b) => {
+                if b.background.num_cells() == 0 {
+                    return Err(Error::Input(
+                        "surface loads and contact on a meshless body need its boundary \
+                         triangles: use integration = 'tets' (or a cloud with background tets)"
+                            .into(),
+                    ));
+                }
+                Ok(Surface {
+                    vertices: b.background.nodes.clone(),
+                    faces: faces(&b.background, "meshless background tets")?
+                        .into_iter()
+                        .map(|(f, _)| (f, None))
+                        .collect(),
+                })
+            }
+            Discretized::Coupled(b) => {
+                let mut all: Vec<(Vec<usize>, Option<usize>)> =
+                    faces(&b.fe_mesh, "coupled FE layer")?
+                        .into_iter()
+                        .map(|(f, e)| (f, Some(e)))
+                        .collect();
+                all.extend(
+                    faces(&b.interior, "coupled interior")?
+                        .into_iter()
+                        .map(|(f, _)| (f, None)),
+                );
+                // Faces on both sides of the FE layer's inner surface are inside the body.
+                let key = |f: &[usize]| {
+                    let mut k = f.to_vec();
+                    k.sort_unstable();
+                    k
+                };
+                let mut seen: std::collections::BTreeMap<Vec<usize>, usize> = Default::default();
+                for (f, _) in &all {
+                    *seen.entry(key(f)).or_default() += 1;
+                }
+                all.retain(|(f, _)| seen[&key(f)] == 1);
+                Ok(Surface {
+                    vertices: b.nodes.clone(),
+                    faces: all,
+                })
+            }
+        }
+    }
+
+    /// Face `k` of `surface`, with its interpolation rows.
+    pub fn face(&self, surface: &Surface, k: usize) -> Result<Face> {
+        let (ids, cell) = &surface.faces[k];
+        match self {
+            Discretized::Fe(m) => Face::interpolating(ids, &m.nodes),
+            _ => {
+                let x: Vec<Vector3<f64>> = ids.iter().map(|&i| surface.vertices[i]).collect();
+                Face::with_shape(&x, &|p| {
+                    self.row_at(p, *cell, &|| format!("boundary face {k}"))
+                })
+            }
+        }
+    }
+}
