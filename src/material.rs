@@ -257,6 +257,223 @@ impl Material for NeoHookean {
     }
 }
 
+/// One-term Ogden solid with the volumetric term of the neo-Hookean form, as used for brain
+/// tissue (Miller and Chinzei 2002, J. Biomech. 35: mu = 842 Pa, alpha = -4.7; NiftySim's
+/// Ogden material):
+/// W = (2 mu / alpha^2) (lbar_1^alpha + lbar_2^alpha + lbar_3^alpha - 3) + kappa/2 (J - 1)^2,
+/// with lbar_i = J^(-1/3) lambda_i the isochoric principal stretches. mu is the small-strain
+/// shear modulus for any alpha; alpha = 2 is the neo-Hookean solid of [`NeoHookean`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Ogden {
+    /// Shear modulus mu, Pa.
+    pub mu: f64,
+    /// Exponent alpha (non-zero).
+    pub alpha: f64,
+    /// Bulk modulus kappa, Pa.
+    pub kappa: f64,
+    /// Density rho, kg/m^3.
+    pub density: f64,
+}
+
+impl Ogden {
+    /// Principal stretches squared (eigenvalues of C = F^T F) and the principal directions.
+    fn principal(f: &Matrix3<f64>) -> (nalgebra::Vector3<f64>, Matrix3<f64>) {
+        let e = nalgebra::SymmetricEigen::new(f.transpose() * f);
+        (e.eigenvalues, e.eigenvectors)
+    }
+
+    /// Principal Kirchhoff stresses tau_i (Pa) from the squared stretches `l2` and J:
+    /// tau_i = (2 mu / alpha) (lbar_i^alpha - (1/3) sum_j lbar_j^alpha) + kappa J (J - 1).
+    fn kirchhoff(&self, l2: &nalgebra::Vector3<f64>, j: f64) -> nalgebra::Vector3<f64> {
+        let jm = j.powf(-self.alpha / 3.0);
+        let la = l2.map(|v| v.powf(0.5 * self.alpha) * jm);
+        let mean = (la.x + la.y + la.z) / 3.0;
+        let p = self.kappa * j * (j - 1.0);
+        la.map(|v| 2.0 * self.mu / self.alpha * (v - mean) + p)
+    }
+
+    /// Homogeneous uniaxial stretch with free lateral faces, F = diag(a, a, stretch), from the
+    /// closed-form principal stresses (independent of the eigen-decomposition the kernel
+    /// uses): tau_1 = (2 mu / (3 alpha)) (lbar_1^alpha - lbar_3^alpha) + kappa J (J - 1) = 0
+    /// solved for a by bisection. Returns (a, J, sigma_zz in Pa).
+    pub fn uniaxial(&self, stretch: f64) -> (f64, f64, f64) {
+        let parts = |a: f64| {
+            let j = a * a * stretch;
+            let c = j.powf(-1.0 / 3.0);
+            let (l1, l3) = ((a * c).powf(self.alpha), (stretch * c).powf(self.alpha));
+            (j, l1, l3, self.kappa * j * (j - 1.0))
+        };
+        let t1 = |a: f64| {
+            let (_, l1, l3, p) = parts(a);
+            2.0 * self.mu / (3.0 * self.alpha) * (l1 - l3) + p
+        };
+        let a = bisect_increasing(t1, 1.0 / stretch.sqrt());
+        let (j, l1, l3, p) = parts(a);
+        (
+            a,
+            j,
+            (4.0 * self.mu / (3.0 * self.alpha) * (l3 - l1) + p) / j,
+        )
+    }
+}
+
+/// The root of `g`, increasing in a, bracketed from (1e-3, start) by doubling the upper end.
+fn bisect_increasing(g: impl Fn(f64) -> f64, start: f64) -> f64 {
+    let (mut lo, mut hi) = (1e-3, start);
+    while g(hi) < 0.0 && hi < 1e6 {
+        hi *= 2.0;
+    }
+    for _ in 0..200 {
+        let mid = 0.5 * (lo + hi);
+        if g(mid) < 0.0 {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+    }
+    0.5 * (lo + hi)
+}
+
+impl Material for Ogden {
+    fn strain_energy(&self, f: &Matrix3<f64>) -> f64 {
+        let (l2, _) = Self::principal(f);
+        let j = f.determinant();
+        let jm = j.powf(-self.alpha / 3.0);
+        let sum: f64 = l2.iter().map(|v| v.powf(0.5 * self.alpha) * jm).sum();
+        2.0 * self.mu / (self.alpha * self.alpha) * (sum - 3.0)
+            + 0.5 * self.kappa * (j - 1.0).powi(2)
+    }
+
+    /// S = sum_i tau_i / lambda_i^2 N_i (x) N_i (principal directions N_i of C).
+    fn pk2_stress(&self, f: &Matrix3<f64>, j: f64) -> Matrix3<f64> {
+        let (l2, n) = Self::principal(f);
+        let tau = self.kirchhoff(&l2, j);
+        let mut s = Matrix3::zeros();
+        for i in 0..3 {
+            let v = n.column(i);
+            s += v * v.transpose() * (tau[i] / l2[i]);
+        }
+        s
+    }
+
+    fn wave_speed(&self) -> f64 {
+        ((self.kappa + 4.0 * self.mu / 3.0) / self.density).sqrt()
+    }
+
+    fn density(&self) -> f64 {
+        self.density
+    }
+
+    fn lame(&self) -> (f64, f64) {
+        (self.kappa - 2.0 * self.mu / 3.0, self.mu)
+    }
+}
+
+/// The materials a scene can use, dispatched per lane block: the kernel stays monomorphic and
+/// each block evaluates one variant's (vectorized) stress.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Solid {
+    NeoHookean(NeoHookean),
+    Ogden(Ogden),
+}
+
+impl Solid {
+    /// Short name for reports.
+    pub fn name(&self) -> &'static str {
+        match self {
+            Solid::NeoHookean(_) => "neo-hookean",
+            Solid::Ogden(_) => "ogden",
+        }
+    }
+
+    /// Bulk modulus kappa, Pa.
+    pub fn kappa(&self) -> f64 {
+        match self {
+            Solid::NeoHookean(m) => m.kappa,
+            Solid::Ogden(m) => m.kappa,
+        }
+    }
+}
+
+impl From<NeoHookean> for Solid {
+    fn from(m: NeoHookean) -> Self {
+        Solid::NeoHookean(m)
+    }
+}
+
+impl Material for Solid {
+    #[inline]
+    fn strain_energy(&self, f: &Matrix3<f64>) -> f64 {
+        match self {
+            Solid::NeoHookean(m) => m.strain_energy(f),
+            Solid::Ogden(m) => m.strain_energy(f),
+        }
+    }
+
+    #[inline]
+    fn pk2_stress(&self, f: &Matrix3<f64>, j: f64) -> Matrix3<f64> {
+        match self {
+            Solid::NeoHookean(m) => m.pk2_stress(f, j),
+            Solid::Ogden(m) => m.pk2_stress(f, j),
+        }
+    }
+
+    #[inline(always)]
+    fn first_pk_stress(&self, f: &Matrix3<f64>, j: f64) -> Matrix3<f64> {
+        match self {
+            Solid::NeoHookean(m) => m.first_pk_stress(f, j),
+            Solid::Ogden(m) => m.first_pk_stress(f, j),
+        }
+    }
+
+    #[inline(always)]
+    fn first_pk_stress_lanes<const L: usize>(
+        &self,
+        f: &[[f64; L]; 9],
+        j: &[f64; L],
+    ) -> [[f64; L]; 9] {
+        match self {
+            Solid::NeoHookean(m) => m.first_pk_stress_lanes(f, j),
+            Solid::Ogden(m) => m.first_pk_stress_lanes(f, j),
+        }
+    }
+
+    fn wave_speed(&self) -> f64 {
+        match self {
+            Solid::NeoHookean(m) => m.wave_speed(),
+            Solid::Ogden(m) => m.wave_speed(),
+        }
+    }
+
+    fn density(&self) -> f64 {
+        match self {
+            Solid::NeoHookean(m) => m.density(),
+            Solid::Ogden(m) => m.density(),
+        }
+    }
+
+    fn lame(&self) -> (f64, f64) {
+        match self {
+            Solid::NeoHookean(m) => m.lame(),
+            Solid::Ogden(m) => m.lame(),
+        }
+    }
+}
+
+/// Homogeneous uniaxial stretch of any material with free lateral faces: F = diag(a, a,
+/// stretch) with a such that the lateral Cauchy stress (from the material's S) vanishes,
+/// by bisection (it rises with a). Returns (a, J, sigma_zz in Pa). For the neo-Hookean solid
+/// [`uniaxial_stretch`] is the closed form.
+pub fn uniaxial_stretch_of<M: Material>(m: &M, stretch: f64) -> (f64, f64, f64) {
+    let cauchy = |a: f64| {
+        let f = Matrix3::from_diagonal(&nalgebra::Vector3::new(a, a, stretch));
+        let j = f.determinant();
+        f * m.pk2_stress(&f, j) * f.transpose() / j
+    };
+    let a = bisect_increasing(|a| cauchy(a)[(0, 0)], 1.0 / stretch.sqrt());
+    (a, a * a * stretch, cauchy(a)[(2, 2)])
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -450,6 +667,116 @@ mod tests {
                 );
                 assert!((s[(2, 2)] - szz).abs() < 1e-9 * scale, "{s} vs {szz}");
             }
+        }
+    }
+
+    /// Brain tissue (Miller and Chinzei 2002) with a near-incompressible bulk modulus.
+    fn brain() -> Ogden {
+        Ogden {
+            mu: 842.0,
+            alpha: -4.7,
+            kappa: 842.0 * 100.0,
+            density: 1000.0,
+        }
+    }
+
+    /// P = dW/dF by central differences of the Ogden energy, and S symmetric, stress free at
+    /// F = I, objective.
+    #[test]
+    fn ogden_stress_is_the_derivative_of_its_energy() {
+        for m in [
+            brain(),
+            Ogden {
+                alpha: 3.0,
+                ..brain()
+            },
+        ] {
+            assert!(m.pk2_stress(&Matrix3::identity(), 1.0).norm() < 1e-9);
+            let mut st = 5u64;
+            for _ in 0..40 {
+                let f = random_f(&mut st);
+                let p = m.first_pk_stress(&f, f.determinant());
+                let scale = p.abs().max().max(m.mu);
+                for i in 0..3 {
+                    for j in 0..3 {
+                        let h = 1e-6;
+                        let (mut fp, mut fm) = (f, f);
+                        fp[(i, j)] += h;
+                        fm[(i, j)] -= h;
+                        let fd = (m.strain_energy(&fp) - m.strain_energy(&fm)) / (2.0 * h);
+                        assert!(
+                            (fd - p[(i, j)]).abs() <= 2e-6 * scale,
+                            "alpha {}: P[{i}{j}] = {} vs {fd}",
+                            m.alpha,
+                            p[(i, j)]
+                        );
+                    }
+                }
+                let s = m.pk2_stress(&f, f.determinant());
+                assert!((s - s.transpose()).norm() <= 1e-10 * s.norm().max(1.0));
+                let r = nalgebra::Rotation3::from_euler_angles(0.3, -1.1, 2.0);
+                let rf = r.matrix() * f;
+                assert!(
+                    (m.pk2_stress(&rf, rf.determinant()) - s).norm() <= 1e-9 * s.norm().max(1.0)
+                );
+            }
+        }
+    }
+
+    /// alpha = 2 is the neo-Hookean solid; the small-strain moduli are mu and kappa.
+    #[test]
+    fn ogden_with_alpha_2_is_neo_hookean() {
+        let nh = mat();
+        let og = Ogden {
+            mu: nh.mu,
+            alpha: 2.0,
+            kappa: nh.kappa,
+            density: nh.density,
+        };
+        let mut st = 9u64;
+        for _ in 0..50 {
+            let f = random_f(&mut st);
+            let j = f.determinant();
+            let (a, b) = (og.pk2_stress(&f, j), nh.pk2_stress(&f, j));
+            assert!((a - b).norm() <= 1e-9 * b.norm().max(nh.mu), "{a} vs {b}");
+            assert!((og.strain_energy(&f) - nh.strain_energy(&f)).abs() <= 1e-9 * nh.mu);
+        }
+        assert_eq!(og.lame(), nh.lame());
+        assert_eq!(og.wave_speed(), nh.wave_speed());
+    }
+
+    /// The kernel's stress at the closed-form uniaxial solution is uniaxial with the
+    /// closed-form axial stress, in tension and compression.
+    #[test]
+    fn ogden_uniaxial_closed_form_matches_the_stress() {
+        for m in [
+            brain(),
+            Ogden {
+                alpha: 2.5,
+                ..brain()
+            },
+        ] {
+            for stretch in [0.5, 0.8, 1.2, 1.5] {
+                let (a, j, szz) = m.uniaxial(stretch);
+                let f = Matrix3::from_diagonal(&nalgebra::Vector3::new(a, a, stretch));
+                let sig = f * m.pk2_stress(&f, j) * f.transpose() / j;
+                let scale = szz.abs();
+                assert!(
+                    sig[(0, 0)].abs() < 1e-8 * scale && sig[(1, 1)].abs() < 1e-8 * scale,
+                    "{sig}"
+                );
+                assert!((sig[(2, 2)] - szz).abs() < 1e-8 * scale, "{sig} vs {szz}");
+                let (a2, _, s2) = uniaxial_stretch_of(&m, stretch);
+                assert!((a2 - a).abs() < 1e-9 && (s2 - szz).abs() < 1e-8 * scale);
+            }
+            // Incompressible limit check: sigma = (2 mu / alpha) (l^alpha - l^(-alpha / 2)).
+            let stiff = Ogden {
+                kappa: 1e7 * m.mu,
+                ..m
+            };
+            let (_, _, szz) = stiff.uniaxial(0.8);
+            let want = 2.0 * m.mu / m.alpha * (0.8f64.powf(m.alpha) - 0.8f64.powf(-m.alpha / 2.0));
+            assert!((szz - want).abs() < 1e-4 * want.abs(), "{szz} vs {want}");
         }
     }
 }

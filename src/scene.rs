@@ -26,6 +26,9 @@ pub struct Scene {
     pub material: MaterialSpec,
     #[serde(default)]
     pub boundaries: BTreeMap<String, BoundarySpec>,
+    /// `[regions.NAME]`: tissue regions with their own material.
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub regions: BTreeMap<String, RegionSpec>,
     /// `[loads.NAME]`: gravity, point forces, tractions and pressures.
     #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
     pub loads: BTreeMap<String, LoadSpec>,
@@ -655,16 +658,17 @@ impl Default for Discretization {
     }
 }
 
-/// `[material]`: neo-Hookean from (E, nu) or (mu, kappa), plus density.
+/// `[material]`: neo-Hookean or one-term Ogden from (E, nu) or (mu, kappa), plus density.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct MaterialSpec {
+    /// "neo-hookean" (default) or "ogden".
     #[serde(default = "default_model")]
     pub model: String,
-    /// Young's modulus E, Pa.
+    /// Young's modulus E, Pa (small strain).
     #[serde(default)]
     pub youngs_modulus: Option<f64>,
-    /// Poisson's ratio nu.
+    /// Poisson's ratio nu (small strain).
     #[serde(default)]
     pub poisson_ratio: Option<f64>,
     /// Shear modulus mu, Pa.
@@ -673,6 +677,9 @@ pub struct MaterialSpec {
     /// Bulk modulus kappa, Pa.
     #[serde(default)]
     pub bulk_modulus: Option<f64>,
+    /// Ogden exponent alpha (non-zero; -4.7 for brain, Miller and Chinzei 2002).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub alpha: Option<f64>,
     /// Density, kg/m^3.
     pub density: f64,
 }
@@ -682,19 +689,106 @@ fn default_model() -> String {
 }
 
 impl MaterialSpec {
+    /// (mu, kappa) in Pa from (E, nu) or (mu, kappa).
+    fn moduli(&self) -> (f64, f64) {
+        match (self.youngs_modulus, self.poisson_ratio) {
+            (Some(e), Some(nu)) => (e / (2.0 * (1.0 + nu)), e / (3.0 * (1.0 - 2.0 * nu))),
+            _ => (
+                self.shear_modulus.unwrap_or(0.0),
+                self.bulk_modulus.unwrap_or(0.0),
+            ),
+        }
+    }
+
     /// The neo-Hookean material these keys describe: from (E, nu) or (mu, kappa).
     pub fn neo_hookean(&self) -> crate::material::NeoHookean {
         match (self.youngs_modulus, self.poisson_ratio) {
             (Some(e), Some(nu)) => {
                 crate::material::NeoHookean::from_young_poisson(e, nu, self.density)
             }
-            _ => crate::material::NeoHookean {
-                mu: self.shear_modulus.unwrap_or(0.0),
-                kappa: self.bulk_modulus.unwrap_or(0.0),
-                density: self.density,
-            },
+            _ => {
+                let (mu, kappa) = self.moduli();
+                crate::material::NeoHookean {
+                    mu,
+                    kappa,
+                    density: self.density,
+                }
+            }
         }
     }
+
+    /// The material these keys describe.
+    pub fn solid(&self) -> crate::material::Solid {
+        use crate::material::{Ogden, Solid};
+        match self.model.as_str() {
+            "ogden" => {
+                let (mu, kappa) = self.moduli();
+                Solid::Ogden(Ogden {
+                    mu,
+                    alpha: self.alpha.unwrap_or(2.0),
+                    kappa,
+                    density: self.density,
+                })
+            }
+            _ => Solid::NeoHookean(self.neo_hookean()),
+        }
+    }
+
+    /// These keys with a region's given keys in their place. A region that gives E or nu
+    /// takes the other of the pair from here (likewise mu and kappa); giving both pairs is an
+    /// error the validation reports.
+    pub fn with(&self, r: &RegionSpec) -> MaterialSpec {
+        let mut m = self.clone();
+        if let Some(model) = &r.model {
+            m.model = model.clone();
+        }
+        let e_nu = r.youngs_modulus.is_some() || r.poisson_ratio.is_some();
+        let mu_kappa = r.shear_modulus.is_some() || r.bulk_modulus.is_some();
+        if e_nu {
+            m.youngs_modulus = r.youngs_modulus.or(self.youngs_modulus);
+            m.poisson_ratio = r.poisson_ratio.or(self.poisson_ratio);
+            if !mu_kappa {
+                (m.shear_modulus, m.bulk_modulus) = (None, None);
+            }
+        }
+        if mu_kappa {
+            m.shear_modulus = r.shear_modulus.or(self.shear_modulus);
+            m.bulk_modulus = r.bulk_modulus.or(self.bulk_modulus);
+            if !e_nu {
+                (m.youngs_modulus, m.poisson_ratio) = (None, None);
+            }
+        }
+        m.alpha = r.alpha.or(m.alpha);
+        m.density = r.density.unwrap_or(m.density);
+        m
+    }
+}
+
+/// `[regions.NAME]`: a tissue region with its own material. Points of the region (by
+/// `select`, a box, sphere or cylinder tested at the point, or `elements`, an element set of
+/// the mesh file) take [material] with the keys given here in place of its own.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RegionSpec {
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub select: Option<Selection>,
+    /// An element set of the mesh file.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub elements: Option<String>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub model: Option<String>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub youngs_modulus: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub poisson_ratio: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub shear_modulus: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub bulk_modulus: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub alpha: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub density: Option<f64>,
 }
 
 /// A displacement component name.
@@ -1039,8 +1133,15 @@ fn resolve_exact(s: &mut Scene) -> std::result::Result<(), String> {
                 "the stretch 1 + d / L = {stretch} must be positive"
             )));
         }
-        let m = s.material.neo_hookean();
-        let (a, _, sigma) = crate::material::uniaxial_stretch(&m, stretch);
+        if !s.regions.is_empty() {
+            return Err(fail(
+                "the exact uniaxial solution holds for one material; this scene has regions".into(),
+            ));
+        }
+        let (a, _, sigma) = match s.material.solid() {
+            crate::material::Solid::NeoHookean(m) => crate::material::uniaxial_stretch(&m, stretch),
+            crate::material::Solid::Ogden(m) => m.uniaxial(stretch),
+        };
         let parts: Vec<&str> = r.quantity.split('.').collect();
         let c = match parts[2] {
             "x" => 0,
@@ -1196,6 +1297,51 @@ fn with_suggestion(msg: &str) -> String {
         }
     }
     msg.to_string()
+}
+
+/// The model name, moduli and density of a material (`key` names it in errors).
+fn check_material(m: &MaterialSpec, key: &str) -> std::result::Result<(), String> {
+    match m.model.as_str() {
+        "neo-hookean" => {
+            if m.alpha.is_some() && key == "material" {
+                return Err(format!("{key}.alpha is the Ogden exponent; set model = 'ogden' or remove it"));
+            }
+        }
+        "ogden" => match m.alpha {
+            Some(a) if a != 0.0 => {}
+            _ => {
+                return Err(format!(
+                    "{key}: model = 'ogden' needs `alpha`, a non-zero exponent (-4.7 for brain tissue, \
+                     Miller and Chinzei 2002)"
+                ))
+            }
+        },
+        other => {
+            return Err(format!(
+                "{key}.model = '{other}': the available models are 'neo-hookean' and 'ogden'"
+            ))
+        }
+    }
+    if !(m.density > 0.0) {
+        return Err(format!(
+            "{key}.density = {}: must be positive (kg/m^3)",
+            m.density
+        ));
+    }
+    match (m.youngs_modulus, m.poisson_ratio, m.shear_modulus, m.bulk_modulus) {
+        (Some(e), Some(nu), None, None) => {
+            if !(e > 0.0) || !(nu > -1.0 && nu < 0.5) {
+                return Err(format!("{key}: need youngs_modulus > 0 (got {e}) and -1 < poisson_ratio < 0.5 (got {nu})"));
+            }
+        }
+        (None, None, Some(mu), Some(k)) => {
+            if !(mu > 0.0 && k > 0.0) {
+                return Err(format!("{key}: shear_modulus ({mu}) and bulk_modulus ({k}) must be positive (Pa)"));
+            }
+        }
+        _ => return Err(format!("{key}: give either youngs_modulus and poisson_ratio, or shear_modulus and bulk_modulus")),
+    }
+    Ok(())
 }
 
 /// A curve name must be built in or a `[curves.NAME]` table.
@@ -1377,31 +1523,24 @@ fn validate(s: &Scene) -> std::result::Result<(), String> {
             "discretization.hourglass = {h}: must be >= 0 (default 0.51 with hourglass_modulus = 'shear', 0.01 with 'p-wave')"
         ));
     }
-    let m = &s.material;
-    if m.model != "neo-hookean" {
-        return Err(format!(
-            "material.model = '{}': the available model is 'neo-hookean'",
-            m.model
-        ));
-    }
-    if !(m.density > 0.0) {
-        return Err(format!(
-            "material.density = {}: must be positive (kg/m^3)",
-            m.density
-        ));
-    }
-    match (m.youngs_modulus, m.poisson_ratio, m.shear_modulus, m.bulk_modulus) {
-        (Some(e), Some(nu), None, None) => {
-            if !(e > 0.0) || !(nu > -1.0 && nu < 0.5) {
-                return Err(format!("material: need youngs_modulus > 0 (got {e}) and -1 < poisson_ratio < 0.5 (got {nu})"));
+    check_material(&s.material, "material")?;
+    for (name, r) in &s.regions {
+        let key = format!("regions.{name}");
+        match (&r.select, &r.elements) {
+            (Some(Selection::Plane { .. }), _) | (Some(Selection::Set(_)), _) => {
+                return Err(format!(
+                    "{key}.select: a region is a volume; use a box, sphere or cylinder (or \
+                     `elements = \"SET\"` for an element set of the mesh file)"
+                ))
+            }
+            (Some(_), None) | (None, Some(_)) => {}
+            _ => {
+                return Err(format!(
+                    "{key}: give either `select = {{ box | sphere | cylinder = ... }}` or `elements = \"SET\"`"
+                ))
             }
         }
-        (None, None, Some(mu), Some(k)) => {
-            if !(mu > 0.0 && k > 0.0) {
-                return Err(format!("material: shear_modulus ({mu}) and bulk_modulus ({k}) must be positive (Pa)"));
-            }
-        }
-        _ => return Err("material: give either youngs_modulus and poisson_ratio, or shear_modulus and bulk_modulus".into()),
+        check_material(&s.material.with(r), &key)?;
     }
     for (name, c) in &s.curves {
         if crate::bc::LoadCurve::builtin(name).is_some() {
@@ -1438,9 +1577,11 @@ fn validate(s: &Scene) -> std::result::Result<(), String> {
                     "loads.{name}: gravity acts on the whole body; remove `select`"
                 ))
             }
-            (false, false) => return Err(format!(
+            (false, false) => {
+                return Err(format!(
                 "loads.{name}: needs `select = {{ ... }}` (the nodes or boundary faces it acts on)"
-            )),
+            ))
+            }
             _ => {}
         }
     }

@@ -8,6 +8,7 @@ use nalgebra::Vector3;
 
 mod loads;
 mod output;
+mod regions;
 mod surface;
 mod translate;
 
@@ -24,7 +25,7 @@ use crate::fe::{self, ElementKind};
 use crate::geometry::{quality, Mesh};
 use crate::io::model::MeshInput;
 use crate::io::vtu::VtuFormat;
-use crate::material::{Material, NeoHookean};
+use crate::material::{Material, Solid};
 use crate::meshless::discretize::{self, MeshlessBuild};
 use crate::meshless::essential::{Imposition, MeshlessCorrector};
 use crate::probe::Probe;
@@ -130,7 +131,12 @@ pub struct Prepared {
     pub bc_method: Option<BcMethod>,
     /// Things the user should know that do not stop the run.
     pub warnings: Vec<String>,
-    pub model: Model<NeoHookean>,
+    pub model: Model<Solid>,
+    /// Each quadrature point's material (discretization order: elements, meshless or coupled
+    /// points): 0 is `[material]`, k the k-th region; empty without regions.
+    pub point_material: Vec<u16>,
+    /// Regions and the points each holds.
+    pub regions: Vec<(String, usize)>,
     pub probes: Vec<Probe>,
     pub kind: ElementKind,
     pub min_dihedral: Option<(f64, usize)>,
@@ -171,6 +177,18 @@ fn imposition(method: BcMethod) -> Imposition {
     } else {
         Imposition::Sebciem
     }
+}
+
+/// Centroid of cell `e` of `mesh`, m.
+fn centroid(mesh: &Mesh, e: usize) -> Vector3<f64> {
+    let c = mesh.cell(e);
+    c.iter().map(|&i| mesh.nodes[i]).sum::<Vector3<f64>>() / c.len() as f64
+}
+
+/// The modulus that scales hex8 hourglass stiffness for material `m` (Pa).
+fn hourglass_modulus(scene: &Scene, m: &Solid) -> f64 {
+    let (lambda, mu) = m.lame();
+    scene.discretization.hourglass_scale(lambda, mu).1
 }
 
 /// Meshes the scene, builds the quadrature points, masses, constraints and probes.
@@ -218,13 +236,13 @@ const LOCKING_POINTS_PER_DOF: f64 = 3.0;
 /// points per free DOF than [`LOCKING_POINTS_PER_DOF`]. Names the element and the setting to
 /// change (points per constraint as in Hughes, The Finite Element Method, sect. 4.3).
 fn locking_warning(scene: &Scene, p: &Prepared) -> Option<String> {
-    let m = &p.model.forces.material;
-    let ratio = m.kappa / m.mu;
+    let (ratio, m) = regions::stiffest_ratio(&p.model.forces.materials);
     if !(ratio >= LOCKING_KAPPA_OVER_MU) {
         return None;
     }
     let d = &scene.discretization;
-    let nu = (3.0 * m.kappa - 2.0 * m.mu) / (2.0 * (3.0 * m.kappa + m.mu));
+    let (kappa, mu) = (m.kappa(), m.lame().1);
+    let nu = (3.0 * kappa - 2.0 * mu) / (2.0 * (3.0 * kappa + mu));
     let head = format!("nu = {nu:.5} (kappa / mu = {ratio:.0}): possible volumetric locking:");
     let fe_used = d.method != Method::Meshless;
     if fe_used && d.element == crate::scene::ElementName::Tet4 {
@@ -275,8 +293,20 @@ fn prepare_fe(scene: &Scene) -> Result<Prepared> {
     let kind: ElementKind = scene.discretization.element.into();
     let (lambda, mu) = mat.lame();
     let (kappa_hg, modulus) = scene.discretization.hourglass_scale(lambda, mu);
-    let points = fe::element_points(&mesh, kind, kappa_hg, modulus)
+    let mut points = fe::element_points(&mesh, kind, kappa_hg, modulus)
         .map_err(|e| name_file_element(e, input.as_ref()))?;
+    let places = regions::Places {
+        position: (0..mesh.num_cells()).map(|e| centroid(&mesh, e)).collect(),
+        element: (0..mesh.num_cells()).map(Some).collect(),
+    };
+    let (materials, point_material, region_counts) =
+        regions::point_materials(scene, input.as_ref(), &places)?;
+    regions::scale_hourglass(
+        &mut points,
+        &point_material,
+        &|m| hourglass_modulus(scene, m),
+        &materials,
+    );
     let bnd = boundaries(scene, &mesh.nodes, input.as_ref())?;
     let probes = scene
         .probes
@@ -299,7 +329,13 @@ fn prepare_fe(scene: &Scene) -> Result<Prepared> {
         })
         .collect::<Result<Vec<_>>>()?;
     let min_dihedral = quality::min_dihedral_angle(&mesh);
-    let mut model = Model::new(mesh.nodes.clone(), points, mat, bnd)?;
+    let mut model = Model::with_materials(
+        mesh.nodes.clone(),
+        points,
+        materials,
+        point_material.clone(),
+        bnd,
+    )?;
     model.set_loads(loads::scene_loads(
         scene,
         Discretized::Fe(&mesh),
@@ -312,6 +348,8 @@ fn prepare_fe(scene: &Scene) -> Result<Prepared> {
         bc_method: None,
         warnings,
         model,
+        point_material,
+        regions: region_counts,
         probes,
         kind,
         min_dihedral,
@@ -328,7 +366,6 @@ fn prepare_meshless(scene: &Scene) -> Result<Prepared> {
         Some(m) => Some(m),
         None => cloud_sets(scene)?,
     };
-    let mat = material(scene);
     let method = scene
         .discretization
         .bc_method
@@ -425,7 +462,32 @@ fn prepare_meshless(scene: &Scene) -> Result<Prepared> {
             })
         })
         .collect::<Result<Vec<_>>>()?;
-    let mut model = Model::new(build.nodes.clone(), build.points.clone(), mat, bnd.clone())?;
+    // Element sets reach meshless points through their background tet when the cloud is the
+    // vertices of the scene's mesh file (hexahedra split into six tets each).
+    let from_file = input.as_ref().filter(|m| {
+        !m.mesh.cells.is_empty() && scene.discretization.cloud == crate::scene::CloudKind::Mesh
+    });
+    let per_cell = match from_file.map(|m| m.mesh.shape) {
+        Some(crate::geometry::ElementShape::Hex8) => 6,
+        _ => 1,
+    };
+    let places = regions::Places {
+        position: build.positions.clone(),
+        element: build
+            .owner
+            .iter()
+            .map(|&o| (from_file.is_some() && o != usize::MAX).then_some(o / per_cell))
+            .collect(),
+    };
+    let (materials, point_material, region_counts) =
+        regions::point_materials(scene, input.as_ref(), &places)?;
+    let mut model = Model::with_materials(
+        build.nodes.clone(),
+        build.points.clone(),
+        materials,
+        point_material.clone(),
+        bnd.clone(),
+    )?;
     model.set_loads(loads::scene_loads(
         scene,
         Discretized::Meshless(&build),
@@ -453,6 +515,8 @@ fn prepare_meshless(scene: &Scene) -> Result<Prepared> {
         bc_method: Some(method),
         warnings,
         model,
+        point_material,
+        regions: region_counts,
         probes,
         kind: ElementKind::Tet4,
         min_dihedral: None,
@@ -607,8 +671,49 @@ fn prepare_coupled(scene: &Scene) -> Result<Prepared> {
             ))),
         })
         .collect::<Result<Vec<_>>>()?;
-    let mut model = Model::new(build.nodes.clone(), build.points.clone(), mat, bnd.clone())?;
-    model.set_lumped_volumes(&build.lumped_volume)?;
+    // Each point takes the material of its cell (the FE-layer or interior cell it belongs to).
+    let nf = build.fe_mesh.num_cells();
+    let cell_centroid = |o: usize| {
+        if o < nf {
+            centroid(&build.fe_mesh, o)
+        } else {
+            centroid(&build.interior, o - nf)
+        }
+    };
+    let places = regions::Places {
+        position: build.owner.iter().map(|&o| cell_centroid(o)).collect(),
+        element: build
+            .owner
+            .iter()
+            .map(|&o| {
+                build
+                    .source_cell
+                    .get(o)
+                    .copied()
+                    .filter(|&c| c != usize::MAX)
+            })
+            .collect(),
+    };
+    let (materials, point_material, region_counts) =
+        regions::point_materials(scene, input.as_ref(), &places)?;
+    let mut points = build.points.clone();
+    regions::scale_hourglass(
+        &mut points,
+        &point_material,
+        &|m| self::hourglass_modulus(scene, m),
+        &materials,
+    );
+    let masses = build.lumped_masses(&|p| {
+        materials[point_material.get(p).copied().unwrap_or(0) as usize].density()
+    });
+    let mut model = Model::with_materials(
+        build.nodes.clone(),
+        points,
+        materials,
+        point_material.clone(),
+        bnd.clone(),
+    )?;
+    model.set_lumped_masses(&masses)?;
     model.set_loads(loads::scene_loads(
         scene,
         Discretized::Coupled(&build),
@@ -689,6 +794,8 @@ fn prepare_coupled(scene: &Scene) -> Result<Prepared> {
         bc_method,
         warnings,
         model,
+        point_material,
+        regions: region_counts,
         probes,
         kind,
         min_dihedral,

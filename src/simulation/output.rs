@@ -11,7 +11,7 @@ use super::Prepared;
 use crate::coupling::CoupledBuild;
 use crate::geometry::Mesh;
 use crate::io::vtu::{self, DataArray, VtuFormat};
-use crate::material::NeoHookean;
+use crate::material::Solid;
 use crate::meshless::discretize::MeshlessBuild;
 use crate::report::Summary;
 use crate::scene::Scene;
@@ -278,12 +278,7 @@ impl<'a> FrameWriter<'a> {
 
     /// Writes the next frame: displacement (m) per point; Cauchy and von Mises stress (Pa) and
     /// J per cell, from `model` at displacements `u` and time `t` (s).
-    pub fn write(
-        &mut self,
-        model: &mut Model<NeoHookean>,
-        t: f64,
-        u: &[Vector3<f64>],
-    ) -> Result<()> {
+    pub fn write(&mut self, model: &mut Model<Solid>, t: f64, u: &[Vector3<f64>]) -> Result<()> {
         let (sig, vm, jac) = model.stress_fields(u);
         let file = format!("{}_{:04}.vtu", self.name, self.series.len());
         let path = self.dir.join(&file);

@@ -11,7 +11,7 @@ use crate::fe::ElementKind;
 use crate::geometry::domain::Domain;
 use crate::geometry::{shapes, ElementShape, Mesh};
 use crate::io::model::MeshInput;
-use crate::material::NeoHookean;
+use crate::material::Solid;
 use crate::meshless::adaptive::AdaptiveSettings;
 use crate::meshless::cloud;
 use crate::meshless::discretize::{CloudSource, Integration, MeshlessSettings};
@@ -24,9 +24,9 @@ use crate::scene::{
 use crate::solver::Settings;
 use crate::{Error, Result};
 
-/// The material a scene asks for.
-pub fn material(scene: &Scene) -> NeoHookean {
-    scene.material.neo_hookean()
+/// The material a scene asks for (`[material]`; regions come on top, see `regions`).
+pub fn material(scene: &Scene) -> Solid {
+    scene.material.solid()
 }
 
 fn count(len: f64, h: f64, min: usize) -> usize {

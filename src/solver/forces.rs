@@ -70,6 +70,8 @@ struct Item {
     first: u32,
     count: u8,
     mode: Mode,
+    /// Index into `Forces::materials` of every point of the item.
+    material: u16,
     /// Blocks: first entry of the block's data in `Forces::lane_data`.
     lane: u32,
 }
@@ -117,7 +119,10 @@ fn hourglass_modes(g: &[f64], u: impl Fn(usize) -> Vector3<f64>) -> [Vector3<f64
 
 /// Internal-force evaluator with its preallocated scratch space (no allocation per call).
 pub struct Forces<M: Material> {
-    pub material: M,
+    /// The model's materials (one per region); `point_material` says which each point has.
+    pub materials: Vec<M>,
+    /// Index into `materials` of each point (empty: every point has the first).
+    point_material: Vec<u16>,
     /// The chunks in evaluation order.
     chunks: Vec<Chunk>,
     /// Where each slot adds its force, and each node's entries.
@@ -179,7 +184,8 @@ struct Plan {
 /// (about `qp.nodes.len() / CHUNKS` slots each). Within a chunk, `LANES` consecutive points of
 /// one lane mode become a block (when `blocks`), the rest single points. The chunks do not
 /// depend on `blocks`.
-fn plan(qp: &QuadraturePoints, num_nodes: usize, blocks: bool) -> Plan {
+fn plan(qp: &QuadraturePoints, point_material: &[u16], num_nodes: usize, blocks: bool) -> Plan {
+    let mat = |p: usize| point_material.get(p).copied().unwrap_or(0);
     let n = qp.len();
     assert!(
         n < u32::MAX as usize,
@@ -206,7 +212,8 @@ fn plan(qp: &QuadraturePoints, num_nodes: usize, blocks: bool) -> Plan {
             let block = blocks
                 && m != Mode::Other
                 && p + LANES <= end
-                && modes[p..p + LANES].iter().all(|&x| x == m);
+                && modes[p..p + LANES].iter().all(|&x| x == m)
+                && (p..p + LANES).all(|q| mat(q) == mat(p));
             let count = if block { LANES } else { 1 };
             let lane = u32::try_from(lanes.len()).expect("lane data beyond u32 entries");
             if block {
@@ -235,6 +242,7 @@ fn plan(qp: &QuadraturePoints, num_nodes: usize, blocks: bool) -> Plan {
                 first: p as u32,
                 count: count as u8,
                 mode: m,
+                material: mat(p),
                 lane,
             });
             p += count;
@@ -276,6 +284,34 @@ impl<M: Material> Forces<M> {
     /// When a point refers to a node id at or above `num_nodes` (discretizations validate ids
     /// before they get here; [`Model::new`](super::Model::new) builds the node map first).
     pub fn new(material: M, qp: &QuadraturePoints, slots: &NodeSlots, num_nodes: usize) -> Self {
+        Self::with_materials(vec![material], Vec::new(), qp, slots, num_nodes)
+    }
+
+    /// As [`Self::new`] with one material per region: point `p` has
+    /// `materials[point_material[p]]` (`point_material` empty: all the first).
+    ///
+    /// # Panics
+    /// As [`Self::new`], and when `point_material` is neither empty nor one entry per point
+    /// below `materials.len()`.
+    pub fn with_materials(
+        materials: Vec<M>,
+        point_material: Vec<u16>,
+        qp: &QuadraturePoints,
+        slots: &NodeSlots,
+        num_nodes: usize,
+    ) -> Self {
+        assert!(
+            !materials.is_empty()
+                && (point_material.is_empty()
+                    || (point_material.len() == qp.len()
+                        && point_material
+                            .iter()
+                            .all(|&m| (m as usize) < materials.len()))),
+            "{} point materials for {} points and {} materials",
+            point_material.len(),
+            qp.len(),
+            materials.len()
+        );
         assert!(
             qp.node_bound() <= num_nodes,
             "quadrature points refer to node {} of {num_nodes}",
@@ -303,12 +339,13 @@ impl<M: Material> Forces<M> {
         let anp_list = (0..qp.len() as u32)
             .filter(|&p| qp.kinds[p as usize] == PointKind::Anp)
             .collect();
-        let plan = plan(qp, num_nodes, true);
+        let plan = plan(qp, &point_material, num_nodes, true);
         Forces {
             anp_offsets,
             anp_points,
             anp_list,
-            material,
+            materials,
+            point_material,
             chunks: plan.chunks,
             // One more entry, always zero: the `first` entry of nodes no point reaches.
             chunk_forces: vec![Vector3::zeros(); plan.buffers.len() + 1],
@@ -348,6 +385,19 @@ impl<M: Material> Forces<M> {
             + size_of_val(self.energy_scratch.as_slice())
             + size_of_val(self.lane_data.as_slice())
             + size_of_val(self.items.as_slice())
+            + size_of_val(self.point_material.as_slice())
+    }
+
+    /// The material of point `p`.
+    #[inline(always)]
+    pub fn material_at(&self, p: usize) -> &M {
+        let m = self.point_material.get(p).copied().unwrap_or(0);
+        &self.materials[m as usize]
+    }
+
+    /// Index into [`Self::materials`] of each point (empty: all the first).
+    pub fn point_materials(&self) -> &[u16] {
+        &self.point_material
     }
 
     /// The averaged J's the modified points need (ANP nodal averages, group means).
@@ -572,28 +622,29 @@ impl<M: Material> Forces<M> {
         pj: SharedMut<f64>,
     ) -> (f64, usize) {
         let p = it.first as usize;
+        let mat = self.materials.get_unchecked(it.material as usize);
         match (it.mode, it.count as usize) {
             (Mode::Plain8, LANES) => {
-                self.lanes::<8, LANES, false, false, AVX>(qp, p, it.lane, u, cf, pj)
+                self.lanes::<8, LANES, false, false, AVX>(qp, mat, p, it.lane, u, cf, pj)
             }
-            (Mode::Plain8, _) => self.lanes::<8, 1, false, false, AVX>(qp, p, 0, u, cf, pj),
+            (Mode::Plain8, _) => self.lanes::<8, 1, false, false, AVX>(qp, mat, p, 0, u, cf, pj),
             (Mode::Plain4, LANES) => {
-                self.lanes::<4, LANES, false, false, AVX>(qp, p, it.lane, u, cf, pj)
+                self.lanes::<4, LANES, false, false, AVX>(qp, mat, p, it.lane, u, cf, pj)
             }
             (Mode::Anp4, LANES) => {
-                self.lanes::<4, LANES, false, true, AVX>(qp, p, it.lane, u, cf, pj)
+                self.lanes::<4, LANES, false, true, AVX>(qp, mat, p, it.lane, u, cf, pj)
             }
-            (Mode::Plain4, _) => self.lanes::<4, 1, false, false, AVX>(qp, p, 0, u, cf, pj),
+            (Mode::Plain4, _) => self.lanes::<4, 1, false, false, AVX>(qp, mat, p, 0, u, cf, pj),
             (Mode::Hourglass8, LANES) => {
-                self.lanes::<8, LANES, true, false, AVX>(qp, p, it.lane, u, cf, pj)
+                self.lanes::<8, LANES, true, false, AVX>(qp, mat, p, it.lane, u, cf, pj)
             }
-            (Mode::Hourglass8, _) => self.lanes::<8, 1, true, false, AVX>(qp, p, 0, u, cf, pj),
+            (Mode::Hourglass8, _) => self.lanes::<8, 1, true, false, AVX>(qp, mat, p, 0, u, cf, pj),
             (Mode::Other, _) | (Mode::Anp4, _) => {
                 let (a, b) = (qp.offsets[p], qp.offsets[p + 1]);
                 let j = match b - a {
-                    8 => self.point_fixed::<8, AVX>(qp, p, a, u, cf),
-                    4 => self.point_fixed::<4, AVX>(qp, p, a, u, cf),
-                    _ => self.point_any::<AVX>(qp, p, a, b, u, cf),
+                    8 => self.point_fixed::<8, AVX>(qp, mat, p, a, u, cf),
+                    4 => self.point_fixed::<4, AVX>(qp, mat, p, a, u, cf),
+                    _ => self.point_any::<AVX>(qp, mat, p, a, b, u, cf),
                 };
                 *pj.get().add(p) = j;
                 (j, p)
@@ -612,6 +663,7 @@ impl<M: Material> Forces<M> {
     unsafe fn point_fixed<const N: usize, const AVX: bool>(
         &self,
         qp: &QuadraturePoints,
+        mat: &M,
         p: usize,
         a: usize,
         u: &[Vector3<f64>],
@@ -624,7 +676,7 @@ impl<M: Material> Forces<M> {
         for k in 0..N {
             f += ul[k] * d[k].transpose();
         }
-        self.stress_to_chunk::<AVX>(qp, p, a, f, d, cf)
+        self.stress_to_chunk::<AVX>(qp, mat, p, a, f, d, cf)
     }
 
     /// L consecutive points `p0..p0 + L` of N support nodes each (slots contiguous from
@@ -649,6 +701,7 @@ impl<M: Material> Forces<M> {
     >(
         &self,
         qp: &QuadraturePoints,
+        mat: &M,
         p0: usize,
         lane: u32,
         u: &[Vector3<f64>],
@@ -740,7 +793,7 @@ impl<M: Material> Forces<M> {
             }
             j = j_avg;
         }
-        let mut pk = self.material.first_pk_stress_lanes(&f, &j);
+        let mut pk = mat.first_pk_stress_lanes(&f, &j);
         let w: [f64; L] = std::array::from_fn(|l| *qp.weights.get_unchecked(p0 + l));
         for row in pk.iter_mut() {
             for l in 0..L {
@@ -832,6 +885,7 @@ impl<M: Material> Forces<M> {
     unsafe fn point_any<const AVX: bool>(
         &self,
         qp: &QuadraturePoints,
+        mat: &M,
         p: usize,
         a: usize,
         b: usize,
@@ -844,13 +898,13 @@ impl<M: Material> Forces<M> {
         if AVX {
             // SAFETY: AVX is set only under chunk_avx2; ids are below u.len() (see Safety).
             let f = super::lanes_avx2::any_gradient(ids, d, u.as_ptr());
-            return self.stress_to_chunk::<AVX>(qp, p, a, f, d, cf);
+            return self.stress_to_chunk::<AVX>(qp, mat, p, a, f, d, cf);
         }
         let mut f = Matrix3::identity();
         for (&id, dk) in ids.iter().zip(d) {
             f += *u.get_unchecked(id as usize) * dk.transpose();
         }
-        self.stress_to_chunk::<AVX>(qp, p, a, f, d, cf)
+        self.stress_to_chunk::<AVX>(qp, mat, p, a, f, d, cf)
     }
 
     /// From the plain F of point `p` (slots from `a`, derivatives `d`): the stress (ANP /
@@ -860,9 +914,11 @@ impl<M: Material> Forces<M> {
     /// # Safety
     /// As [`Self::point_fixed`]: the point's chunk buffer belongs to the caller alone.
     #[inline(always)]
+    #[allow(clippy::too_many_arguments)]
     unsafe fn stress_to_chunk<const AVX: bool>(
         &self,
         qp: &QuadraturePoints,
+        mat: &M,
         p: usize,
         a: usize,
         f: Matrix3<f64>,
@@ -870,7 +926,7 @@ impl<M: Material> Forces<M> {
         cf: SharedMut<Vector3<f64>>,
     ) -> f64 {
         let (f, j) = self.modified(qp, p, f);
-        let pk = self.material.first_pk_stress(&f, j) * qp.weights[p];
+        let pk = mat.first_pk_stress(&f, j) * qp.weights[p];
         let entries = &self.buffers.slot_entry[a..a + d.len()];
         #[cfg(target_arch = "x86_64")]
         if AVX {
@@ -909,7 +965,7 @@ impl<M: Material> Forces<M> {
         let this = &*self;
         per_point.par_iter_mut().enumerate().for_each(|(p, e)| {
             let (f, _) = this.stress_gradient(qp, p, u);
-            let mut w = qp.weights[p] * this.material.strain_energy(&f);
+            let mut w = qp.weights[p] * this.material_at(p).strain_energy(&f);
             if let PointKind::Hourglass(h) = qp.kinds[p] {
                 // u^T HG u / 2 = |G^T u|^2 / 2 over the three components.
                 let base = qp.offsets[p];
@@ -943,7 +999,7 @@ impl<M: Material> Forces<M> {
         let mut jj = vec![0.0; qp.len()];
         for p in 0..qp.len() {
             let (f, j) = self.stress_gradient(qp, p, u);
-            let s = self.material.pk2_stress(&f, j);
+            let s = self.material_at(p).pk2_stress(&f, j);
             let c = f * s * f.transpose() / j;
             for r in 0..3 {
                 for k in 0..3 {
@@ -992,7 +1048,7 @@ mod tests {
         let mut out = Vec::new();
         for (blocks, simd) in [(true, simd_available()), (true, false), (false, false)] {
             let mut f = Forces::new(mat, qp, &slots, nodes.len());
-            let plan = plan(qp, nodes.len(), blocks);
+            let plan = plan(qp, &[], nodes.len(), blocks);
             (f.items, f.lane_data, f.chunks) = (plan.items, plan.lane_data, plan.chunks);
             f.simd = simd;
             let mut nodal = vec![Vector3::zeros(); nodes.len()];

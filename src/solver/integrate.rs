@@ -231,29 +231,25 @@ impl std::fmt::Display for Critical {
 /// hold for the reference stiffness, so the larger step (the tighter bound) is taken. The nodal
 /// bound is much tighter where supports are large (meshless about 1.5x, blended points 2-2.4x).
 pub fn stable_step<M: Material>(model: &Model<M>) -> (f64, Critical) {
-    let c = model.forces.material.wave_speed();
+    let moduli = |p: usize| model.point_moduli(p);
     if all_anp(model) {
         // Average nodal pressure: the bound that sees the averaging (timestep::anp_time_step).
-        let (lambda, mu) = model.forces.material.lame();
         let (dt, node) = super::timestep::anp_time_step(
             &model.points,
             &model.slots,
             &model.mass,
             &model.constraints.mask,
-            mu,
-            lambda + 2.0 * mu / 3.0,
-            model.forces.material.density(),
+            &moduli,
         );
         return (dt, Critical::Node(node));
     }
-    let (dt_point, crit_point) = critical_time_step(&model.points, c);
+    let (dt_point, crit_point) = critical_time_step(&model.points, &moduli);
     let (dt_node, crit_node) = super::timestep::nodal_time_step(
         &model.points,
         &model.slots,
         &model.mass,
         &model.constraints.mask,
-        c,
-        model.forces.material.density(),
+        &moduli,
     );
     if dt_node > dt_point {
         (dt_node, Critical::Node(crit_node))
@@ -380,7 +376,13 @@ fn run_on_worker<M: Material>(
     // Time spent handing frames to the sink (writing files), left out of solve_seconds.
     let mut sink_seconds = 0.0;
     let n = model.nodes.len();
-    let c = model.forces.material.wave_speed();
+    // The fastest wave bounds how far a node may move in one step.
+    let c = model
+        .forces
+        .materials
+        .iter()
+        .map(|m| m.wave_speed())
+        .fold(0.0, f64::max);
     let (dt_crit, critical) = critical_step(model, s.step_estimate);
     if !(dt_crit.is_finite() && dt_crit > 0.0) {
         return Err(Error::Input(format!("the critical time step estimate is {dt_crit} s; the discretization has no usable points")));
@@ -418,8 +420,14 @@ fn run_on_worker<M: Material>(
     );
     let size = (hi - lo).norm();
     let load_steps = s.load_steps.unwrap_or_else(|| {
-        let (_, mu) = model.forces.material.lame();
-        auto_load_steps((hi - lo).max(), mu, model.forces.material.density(), dt)
+        // The slowest shear wave sets how fast the load may come.
+        model
+            .forces
+            .materials
+            .iter()
+            .map(|m| auto_load_steps((hi - lo).max(), m.lame().1, m.density(), dt))
+            .max()
+            .unwrap_or(400)
     });
     let load_frac = |step: usize| -> f64 {
         if dynamic {

@@ -95,17 +95,53 @@ impl<M: Material> Model<M> {
         material: M,
         boundaries: Vec<Boundary>,
     ) -> Result<Self> {
+        Self::with_materials(nodes, points, vec![material], Vec::new(), boundaries)
+    }
+
+    /// As [`Self::new`] with one material per region: point `p` (in the discretization's
+    /// order) has `materials[point_material[p]]`; `point_material` empty gives every point the
+    /// first. Masses take each point's density. Errors when the lists do not match.
+    pub fn with_materials(
+        nodes: Vec<Vector3<f64>>,
+        points: QuadraturePoints,
+        materials: Vec<M>,
+        point_material: Vec<u16>,
+        boundaries: Vec<Boundary>,
+    ) -> Result<Self> {
         let n = nodes.len();
+        if materials.is_empty()
+            || !(point_material.is_empty() || point_material.len() == points.len())
+            || point_material
+                .iter()
+                .any(|&m| m as usize >= materials.len())
+        {
+            return Err(crate::Error::Input(format!(
+                "{} point materials for {} points and {} materials",
+                point_material.len(),
+                points.len(),
+                materials.len()
+            )));
+        }
         let (points, point_ids) = order::spatial_order(points, &nodes);
+        // The materials follow their points into the spatial order.
+        let point_material: Vec<u16> = if point_material.is_empty() {
+            Vec::new()
+        } else {
+            point_ids
+                .iter()
+                .map(|&q| point_material[q as usize])
+                .collect()
+        };
         let slots = NodeSlots::new(&points, n);
-        let rho = material.density();
+        let rho =
+            |p: usize| materials[point_material.get(p).copied().unwrap_or(0) as usize].density();
         let mass: Vec<f64> = (0..n)
             .map(|i| {
                 slots
                     .range(i)
                     .map(|k| {
                         let p = slots.points[k] as usize;
-                        rho * points.weights[p] / points.slots(p).len() as f64
+                        rho(p) * points.weights[p] / points.slots(p).len() as f64
                     })
                     .sum()
             })
@@ -117,7 +153,7 @@ impl<M: Material> Model<M> {
             )));
         }
         let constraints = Constraints::new(&boundaries, n)?;
-        let forces = Forces::new(material, &points, &slots, n);
+        let forces = Forces::with_materials(materials, point_material, &points, &slots, n);
         let corrected = vec![false; boundaries.len()];
         Ok(Model {
             nodes,
@@ -147,29 +183,34 @@ impl<M: Material> Model<M> {
         Ok(())
     }
 
-    /// Replaces the evenly split lumped masses by `rho V_i` from the lumped volumes `volume`
-    /// (m^3, one per node; see [`crate::coupling::CoupledBuild::lumped_volume`]). Errors
-    /// naming a node whose volume is not positive.
-    pub fn set_lumped_volumes(&mut self, volume: &[f64]) -> Result<()> {
-        if volume.len() != self.mass.len() {
+    /// Replaces the evenly split lumped masses by `mass` (kg, one per node; see
+    /// [`crate::coupling::CoupledBuild::lumped_masses`]). Errors naming a node whose mass is
+    /// not positive.
+    pub fn set_lumped_masses(&mut self, mass: &[f64]) -> Result<()> {
+        if mass.len() != self.mass.len() {
             return Err(crate::Error::Input(format!(
-                "{} lumped volumes for {} nodes",
-                volume.len(),
+                "{} lumped masses for {} nodes",
+                mass.len(),
                 self.mass.len()
             )));
         }
-        if let Some(i) = volume.iter().position(|&v| !(v > 0.0)) {
+        if let Some(i) = mass.iter().position(|&v| !(v > 0.0)) {
             return Err(crate::Error::Input(format!(
-                "node {i} at {:?} m has lumped volume {:.3e} m^3; it needs a positive mass",
+                "node {i} at {:?} m has lumped mass {:.3e} kg; it needs a positive mass",
                 self.nodes[i].as_slice(),
-                volume[i]
+                mass[i]
             )));
         }
-        let rho = self.forces.material.density();
-        for (m, v) in self.mass.iter_mut().zip(volume) {
-            *m = rho * v;
-        }
+        self.mass.copy_from_slice(mass);
         Ok(())
+    }
+
+    /// (P-wave modulus lambda + 2 mu, shear modulus mu, bulk modulus kappa in Pa, density in
+    /// kg/m^3) of point `p` (model order), for the stable-step bounds.
+    pub fn point_moduli(&self, p: usize) -> [f64; 4] {
+        let m = self.forces.material_at(p);
+        let (lambda, mu) = m.lame();
+        [lambda + 2.0 * mu, mu, lambda + 2.0 * mu / 3.0, m.density()]
     }
 
     /// Hands the boundaries marked in `corrected` to `corrector`: they leave the directly

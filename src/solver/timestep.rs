@@ -4,16 +4,21 @@
 
 use crate::quadrature::QuadraturePoints;
 
-/// Critical step, s: min over points I of 2 / (c sqrt(n_I sum_j |dphi_j/dX|^2)), with c the
-/// dilatational wave speed (m/s) and the point's mass split evenly over its n_I nodes. Returns the
-/// step and the point that sets it.
-pub fn critical_time_step(qp: &QuadraturePoints, wave_speed: f64) -> (f64, usize) {
+/// Per point p: [P-wave modulus lambda + 2 mu, shear modulus mu, bulk modulus kappa (Pa),
+/// density (kg/m^3)] of its material.
+pub type Moduli<'a> = dyn Fn(usize) -> [f64; 4] + 'a;
+
+/// Critical step, s: min over points I of 2 / (c_I sqrt(n_I sum_j |dphi_j/dX|^2)), with c_I
+/// the dilatational wave speed sqrt((lambda + 2 mu) / rho) of I's material (m/s) and the
+/// point's mass split evenly over its n_I nodes. Returns the step and the point that sets it.
+pub fn critical_time_step(qp: &QuadraturePoints, moduli: &Moduli) -> (f64, usize) {
     let mut best = (f64::INFINITY, 0);
     for p in 0..qp.len() {
         let r = qp.slots(p);
         let n = r.len() as f64;
         let sum: f64 = qp.dphi[r].iter().map(|d| d.norm_squared()).sum();
-        let dt = 2.0 / (wave_speed * (n * sum).sqrt());
+        let [m, _, _, rho] = moduli(p);
+        let dt = 2.0 / ((m / rho).sqrt() * (n * sum).sqrt());
         if dt < best.0 {
             best = (dt, p);
         }
@@ -27,8 +32,9 @@ fn fully_prescribed(prescribed: &[[bool; 3]], i: usize) -> bool {
 }
 
 /// Nodal (block Gershgorin) bound on the stable step, s: with lumped masses m_i (kg) and the
-/// reference stiffness blocks |K_ij| <= sum_p w_p (lambda + 2 mu) |dphi_i| |dphi_j|,
-/// lambda_max(M^-1 K) <= max_i (c^2 rho / m_i) sum_p w_p |dphi_i(p)| sum_j |dphi_j(p)|.
+/// reference stiffness blocks |K_ij| <= sum_p w_p (lambda + 2 mu)_p |dphi_i| |dphi_j|,
+/// lambda_max(M^-1 K) <= max_i (1 / m_i) sum_p w_p (lambda + 2 mu)_p |dphi_i(p)| sum_j
+/// |dphi_j(p)| (the modulus of each point's material).
 /// Nodes whose three components are all prescribed (`prescribed[i]`, e.g. the direct
 /// constraints' mask) are not integrated, so their rows are left out: the free block of
 /// M^-1 K has its eigenvalues within the discs of the free rows (the rows keep their
@@ -41,11 +47,14 @@ pub fn nodal_time_step(
     slots: &crate::quadrature::NodeSlots,
     mass: &[f64],
     prescribed: &[[bool; 3]],
-    wave_speed: f64,
-    density: f64,
+    moduli: &Moduli,
 ) -> (f64, usize) {
+    // |dphi| summed over each point's slots, times its weight and P-wave modulus.
     let abs_sum: Vec<f64> = (0..qp.len())
-        .map(|p| qp.dphi[qp.slots(p)].iter().map(|d| d.norm()).sum())
+        .map(|p| {
+            let s: f64 = qp.dphi[qp.slots(p)].iter().map(|d| d.norm()).sum();
+            s * qp.weights[p] * moduli(p)[0]
+        })
         .collect();
     let mut best = (f64::INFINITY, 0);
     for (i, &m) in mass.iter().enumerate() {
@@ -56,9 +65,9 @@ pub fn nodal_time_step(
         for k in slots.range(i) {
             let p = slots.points[k] as usize;
             let s = slots.slots[k] as usize;
-            row += qp.weights[p] * qp.dphi[s].norm() * abs_sum[p];
+            row += qp.dphi[s].norm() * abs_sum[p];
         }
-        let lam = wave_speed * wave_speed * density / m * row;
+        let lam = row / m;
         let dt = 2.0 / lam.sqrt();
         if dt < best.0 {
             best = (dt, i);
@@ -81,24 +90,25 @@ pub fn nodal_time_step(
 ///   with lambda + 2 mu cannot see.
 ///
 /// Nodes whose three components are prescribed (`prescribed`) are left out of G (their DOFs are
-/// not integrated). `mu`, `kappa` in Pa, `density` in kg/m^3, masses in kg.
+/// not integrated). Each point's mu and rho are its material's; kappa is the largest over the
+/// points (an upper bound where regions differ). Masses in kg.
 pub fn anp_time_step(
     qp: &QuadraturePoints,
     slots: &crate::quadrature::NodeSlots,
     mass: &[f64],
     prescribed: &[[bool; 3]],
-    mu: f64,
-    kappa: f64,
-    density: f64,
+    moduli: &Moduli,
 ) -> (f64, usize) {
     let n = mass.len();
     let lam_dev = (0..qp.len())
         .map(|p| {
             let r = qp.slots(p);
             let sum: f64 = qp.dphi[r.clone()].iter().map(|d| d.norm_squared()).sum();
+            let [_, mu, _, density] = moduli(p);
             r.len() as f64 * 2.0 * mu / density * sum
         })
         .fold(0.0, f64::max);
+    let kappa = (0..qp.len()).map(|p| moduli(p)[2]).fold(0.0, f64::max);
     // g_n as sorted (node j, V_p b_pj summed over the points p at n that reach j).
     let mut w = vec![0.0; n];
     let g: Vec<Vec<(usize, nalgebra::Vector3<f64>)>> = (0..n)
@@ -185,12 +195,13 @@ mod tests {
         let (c, rho) = (2.0, 1000.0);
         let abs_sum: f64 = d.iter().map(|g| g.norm()).sum();
         let step = |i: usize| 2.0 / (c * c * rho / mass[i] * v * d[i].norm() * abs_sum).sqrt();
-        let free = nodal_time_step(&qp, &slots, &mass, &[[false; 3]; 4], c, rho);
+        let moduli = |_: usize| [c * c * rho, 0.0, 0.0, rho];
+        let free = nodal_time_step(&qp, &slots, &mass, &[[false; 3]; 4], &moduli);
         assert_eq!(free.1, 0);
         assert!((free.0 - step(0)).abs() < 1e-12 * step(0));
         let mut mask = [[false; 3]; 4];
         mask[0] = [true; 3];
-        let held = nodal_time_step(&qp, &slots, &mass, &mask, c, rho);
+        let held = nodal_time_step(&qp, &slots, &mass, &mask, &moduli);
         let expect = (1..4).map(step).fold(f64::INFINITY, f64::min);
         assert_ne!(held.1, 0);
         assert!(
@@ -199,6 +210,6 @@ mod tests {
         );
         // A node with only some components prescribed still counts.
         mask[0] = [true, true, false];
-        assert_eq!(nodal_time_step(&qp, &slots, &mass, &mask, c, rho).1, 0);
+        assert_eq!(nodal_time_step(&qp, &slots, &mass, &mask, &moduli).1, 0);
     }
 }
