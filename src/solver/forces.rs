@@ -19,7 +19,7 @@ use rayon::prelude::*;
 
 use super::chunks::{self, Buffers};
 use super::SharedMut;
-use crate::material::{inv_cbrt, Material};
+use crate::material::{inv_cbrt, Concrete, Material};
 use crate::quadrature::{NodeSlots, PointKind, QuadraturePoints};
 use crate::simd_available;
 
@@ -621,30 +621,75 @@ impl<M: Material> Forces<M> {
         cf: SharedMut<Vector3<f64>>,
         pj: SharedMut<f64>,
     ) -> (f64, usize) {
+        // Each concrete material gets its own copy of the kernels (see Material::concrete).
+        match self
+            .materials
+            .get_unchecked(it.material as usize)
+            .concrete()
+        {
+            Concrete::NeoHookean(m) => self.item_with::<AVX, _>(qp, m, it, u, cf, pj),
+            Concrete::Ogden(m) => self.item_out_of_line::<AVX, _>(qp, m, it, u, cf, pj),
+            Concrete::Itself(m) => self.item_out_of_line::<AVX, _>(qp, m, it, u, cf, pj),
+        }
+    }
+
+    /// [`Self::item_with`] out of line: the kernels of the other materials stay out of the
+    /// neo-Hookean chunk loop (inlined there they slowed it by 7-10 %, hex8 on one thread).
+    ///
+    /// # Safety
+    /// As [`Self::chunk`] for the item's chunk.
+    #[inline(never)]
+    unsafe fn item_out_of_line<const AVX: bool, K: Material>(
+        &self,
+        qp: &QuadraturePoints,
+        mat: &K,
+        it: &Item,
+        u: &[Vector3<f64>],
+        cf: SharedMut<Vector3<f64>>,
+        pj: SharedMut<f64>,
+    ) -> (f64, usize) {
+        self.item_with::<AVX, K>(qp, mat, it, u, cf, pj)
+    }
+
+    /// [`Self::item`] with the item's material `mat` as its concrete type.
+    ///
+    /// # Safety
+    /// As [`Self::chunk`] for the item's chunk.
+    #[inline(always)]
+    unsafe fn item_with<const AVX: bool, K: Material>(
+        &self,
+        qp: &QuadraturePoints,
+        mat: &K,
+        it: &Item,
+        u: &[Vector3<f64>],
+        cf: SharedMut<Vector3<f64>>,
+        pj: SharedMut<f64>,
+    ) -> (f64, usize) {
         let p = it.first as usize;
-        let mat = self.materials.get_unchecked(it.material as usize);
         match (it.mode, it.count as usize) {
             (Mode::Plain8, LANES) => {
-                self.lanes::<8, LANES, false, false, AVX>(qp, mat, p, it.lane, u, cf, pj)
+                self.lanes::<8, LANES, false, false, AVX, K>(qp, mat, p, it.lane, u, cf, pj)
             }
-            (Mode::Plain8, _) => self.lanes::<8, 1, false, false, AVX>(qp, mat, p, 0, u, cf, pj),
+            (Mode::Plain8, _) => self.lanes::<8, 1, false, false, AVX, K>(qp, mat, p, 0, u, cf, pj),
             (Mode::Plain4, LANES) => {
-                self.lanes::<4, LANES, false, false, AVX>(qp, mat, p, it.lane, u, cf, pj)
+                self.lanes::<4, LANES, false, false, AVX, K>(qp, mat, p, it.lane, u, cf, pj)
             }
             (Mode::Anp4, LANES) => {
-                self.lanes::<4, LANES, false, true, AVX>(qp, mat, p, it.lane, u, cf, pj)
+                self.lanes::<4, LANES, false, true, AVX, K>(qp, mat, p, it.lane, u, cf, pj)
             }
-            (Mode::Plain4, _) => self.lanes::<4, 1, false, false, AVX>(qp, mat, p, 0, u, cf, pj),
+            (Mode::Plain4, _) => self.lanes::<4, 1, false, false, AVX, K>(qp, mat, p, 0, u, cf, pj),
             (Mode::Hourglass8, LANES) => {
-                self.lanes::<8, LANES, true, false, AVX>(qp, mat, p, it.lane, u, cf, pj)
+                self.lanes::<8, LANES, true, false, AVX, K>(qp, mat, p, it.lane, u, cf, pj)
             }
-            (Mode::Hourglass8, _) => self.lanes::<8, 1, true, false, AVX>(qp, mat, p, 0, u, cf, pj),
+            (Mode::Hourglass8, _) => {
+                self.lanes::<8, 1, true, false, AVX, K>(qp, mat, p, 0, u, cf, pj)
+            }
             (Mode::Other, _) | (Mode::Anp4, _) => {
                 let (a, b) = (qp.offsets[p], qp.offsets[p + 1]);
                 let j = match b - a {
-                    8 => self.point_fixed::<8, AVX>(qp, mat, p, a, u, cf),
-                    4 => self.point_fixed::<4, AVX>(qp, mat, p, a, u, cf),
-                    _ => self.point_any::<AVX>(qp, mat, p, a, b, u, cf),
+                    8 => self.point_fixed::<8, AVX, K>(qp, mat, p, a, u, cf),
+                    4 => self.point_fixed::<4, AVX, K>(qp, mat, p, a, u, cf),
+                    _ => self.point_any::<AVX, K>(qp, mat, p, a, b, u, cf),
                 };
                 *pj.get().add(p) = j;
                 (j, p)
@@ -660,10 +705,10 @@ impl<M: Material> Forces<M> {
     /// The chunk buffer of point p belongs to the caller alone, and every node id is below
     /// `u.len()`.
     #[inline(always)]
-    unsafe fn point_fixed<const N: usize, const AVX: bool>(
+    unsafe fn point_fixed<const N: usize, const AVX: bool, K: Material>(
         &self,
         qp: &QuadraturePoints,
-        mat: &M,
+        mat: &K,
         p: usize,
         a: usize,
         u: &[Vector3<f64>],
@@ -676,7 +721,7 @@ impl<M: Material> Forces<M> {
         for k in 0..N {
             f += ul[k] * d[k].transpose();
         }
-        self.stress_to_chunk::<AVX>(qp, mat, p, a, f, d, cf)
+        self.stress_to_chunk::<AVX, K>(qp, mat, p, a, f, d, cf)
     }
 
     /// L consecutive points `p0..p0 + L` of N support nodes each (slots contiguous from
@@ -698,10 +743,11 @@ impl<M: Material> Forces<M> {
         const HG: bool,
         const ANP: bool,
         const AVX: bool,
+        K: Material,
     >(
         &self,
         qp: &QuadraturePoints,
-        mat: &M,
+        mat: &K,
         p0: usize,
         lane: u32,
         u: &[Vector3<f64>],
@@ -882,10 +928,10 @@ impl<M: Material> Forces<M> {
     /// # Safety
     /// As [`Self::point_fixed`] for slots a..b.
     #[inline(always)]
-    unsafe fn point_any<const AVX: bool>(
+    unsafe fn point_any<const AVX: bool, K: Material>(
         &self,
         qp: &QuadraturePoints,
-        mat: &M,
+        mat: &K,
         p: usize,
         a: usize,
         b: usize,
@@ -898,13 +944,13 @@ impl<M: Material> Forces<M> {
         if AVX {
             // SAFETY: AVX is set only under chunk_avx2; ids are below u.len() (see Safety).
             let f = super::lanes_avx2::any_gradient(ids, d, u.as_ptr());
-            return self.stress_to_chunk::<AVX>(qp, mat, p, a, f, d, cf);
+            return self.stress_to_chunk::<AVX, K>(qp, mat, p, a, f, d, cf);
         }
         let mut f = Matrix3::identity();
         for (&id, dk) in ids.iter().zip(d) {
             f += *u.get_unchecked(id as usize) * dk.transpose();
         }
-        self.stress_to_chunk::<AVX>(qp, mat, p, a, f, d, cf)
+        self.stress_to_chunk::<AVX, K>(qp, mat, p, a, f, d, cf)
     }
 
     /// From the plain F of point `p` (slots from `a`, derivatives `d`): the stress (ANP /
@@ -915,10 +961,10 @@ impl<M: Material> Forces<M> {
     /// As [`Self::point_fixed`]: the point's chunk buffer belongs to the caller alone.
     #[inline(always)]
     #[allow(clippy::too_many_arguments)]
-    unsafe fn stress_to_chunk<const AVX: bool>(
+    unsafe fn stress_to_chunk<const AVX: bool, K: Material>(
         &self,
         qp: &QuadraturePoints,
-        mat: &M,
+        mat: &K,
         p: usize,
         a: usize,
         f: Matrix3<f64>,
