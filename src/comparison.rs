@@ -126,7 +126,11 @@ pub fn run_case(
         }
         let reaction_history = compared_reaction(&s)
             .and_then(|(name, k)| {
-                let b = prep.model.boundaries.iter().position(|b| b.name == name)?;
+                let b = prep
+                    .model
+                    .reaction_names()
+                    .iter()
+                    .position(|b| *b == name)?;
                 Some(
                     out_run
                         .history

@@ -69,6 +69,17 @@ pub struct SupportNodes {
     pub max: usize,
 }
 
+/// A rigid contact body at the end of a run.
+#[derive(Debug, Clone, Serialize)]
+pub struct ContactInfo {
+    /// Surface points it pressed at the last step.
+    pub points_in_contact: usize,
+    /// Deepest penetration any step left after its corrections, m (of every rigid body).
+    pub max_penetration: f64,
+    /// Penetration the corrections aim to leave at most, m.
+    pub tolerance: f64,
+}
+
 /// How the meshless discretization was made.
 #[derive(Debug, Clone, Serialize)]
 pub struct MeshlessInfo {
@@ -196,6 +207,10 @@ pub struct Summary {
     pub threads: usize,
     pub wall_seconds: WallSeconds,
     pub reactions: BTreeMap<String, [f64; 3]>,
+    /// Rigid contact bodies: points in contact at the end and the deepest penetration any
+    /// step left (their forces are among `reactions`).
+    #[serde(skip_serializing_if = "BTreeMap::is_empty")]
+    pub contact: BTreeMap<String, ContactInfo>,
     /// Total force of each load at the end of the run, N (`[loads.NAME]`).
     #[serde(skip_serializing_if = "BTreeMap::is_empty")]
     pub loads: BTreeMap<String, [f64; 3]>,
@@ -332,6 +347,13 @@ impl Summary {
                 s,
                 "  {k:<14} {:>13.6e} {:>13.6e} {:>13.6e}",
                 v[0], v[1], v[2]
+            );
+        }
+        for (k, c) in &self.contact {
+            let _ = writeln!(
+                s,
+                "contact          {k}: {} surface point(s) in contact, deepest penetration {:.3e} m (tolerance {:.1e} m)",
+                c.points_in_contact, c.max_penetration, c.tolerance
             );
         }
         if !self.loads.is_empty() {

@@ -32,6 +32,9 @@ pub struct Scene {
     /// `[loads.NAME]`: gravity, point forces, tractions and pressures.
     #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
     pub loads: BTreeMap<String, LoadSpec>,
+    /// `[contact.NAME]`: rigid bodies the body's surface touches without friction.
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub contact: BTreeMap<String, ContactSpec>,
     /// `[curves.NAME]`: tabulated load curves that boundaries and loads name.
     #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
     pub curves: BTreeMap<String, CurveSpec>,
@@ -865,6 +868,63 @@ impl LoadSpec {
     }
 }
 
+/// `[contact.NAME]`: a rigid body moved by `motion` along `curve`, which the body's surface
+/// points touch without friction (the body stays outside it): `shape = "plane"` with `point`
+/// and `normal` (pointing to the body), `"sphere"` with `center` and `radius`, or
+/// `"cylinder"` with `center`, `axis`, `radius` and optional `min` / `max` (the extent along
+/// the axis from `center`, flat ends). `select` limits the surface points that may touch it.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ContactSpec {
+    pub shape: String,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub point: Option<[f64; 3]>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub normal: Option<[f64; 3]>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub center: Option<[f64; 3]>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub radius: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub axis: Option<[f64; 3]>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub min: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub max: Option<f64>,
+    /// The rigid body's displacement at the end of its curve, m.
+    #[serde(default)]
+    pub motion: [f64; 3],
+    #[serde(default = "default_curve")]
+    pub curve: String,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub select: Option<Selection>,
+}
+
+impl ContactSpec {
+    /// The rigid surface these keys describe (validated: every key its shape needs is there).
+    pub fn rigid_shape(&self) -> crate::bc::contact::RigidShape {
+        use crate::bc::contact::RigidShape;
+        let v = |a: Option<[f64; 3]>| nalgebra::Vector3::from(a.unwrap_or_default());
+        match self.shape.as_str() {
+            "plane" => RigidShape::Plane {
+                point: v(self.point),
+                normal: v(self.normal).normalize(),
+            },
+            "sphere" => RigidShape::Sphere {
+                center: v(self.center),
+                radius: self.radius.unwrap_or(0.0),
+            },
+            _ => RigidShape::Cylinder {
+                center: v(self.center),
+                axis: v(self.axis).normalize(),
+                radius: self.radius.unwrap_or(0.0),
+                min: self.min,
+                max: self.max,
+            },
+        }
+    }
+}
+
 /// `[curves.NAME]`: a tabulated load curve, (time s, factor of the final value) pairs, linear
 /// between them and held beyond them, given inline (`points`) or in a CSV file (`file`, two
 /// columns; relative to the scene file). Relaxation maps `solver.load_time` onto its load steps.
@@ -1557,6 +1617,57 @@ fn validate(s: &Scene) -> std::result::Result<(), String> {
     for (name, b) in &s.boundaries {
         check_curve(s, &format!("boundaries.{name}.curve"), &b.curve)?;
     }
+    for (name, c) in &s.contact {
+        let key = format!("contact.{name}");
+        check_curve(s, &format!("{key}.curve"), &c.curve)?;
+        if s.boundaries.contains_key(name) {
+            return Err(format!(
+                "{key}: a boundary has the same name; reactions are reported by name, so give the rigid body another"
+            ));
+        }
+        let positive = |v: Option<f64>| v.is_some_and(|r| r > 0.0);
+        let nonzero = |v: Option<[f64; 3]>| v.is_some_and(|a| a.iter().any(|&x| x != 0.0));
+        let (need, ok, allowed): (&str, bool, &[&str]) = match c.shape.as_str() {
+            "plane" => (
+                "`point = [x, y, z]` and a non-zero `normal` (pointing to the body)",
+                c.point.is_some() && nonzero(c.normal),
+                &["point", "normal"],
+            ),
+            "sphere" => (
+                "`center` and `radius` > 0 (m)",
+                c.center.is_some() && positive(c.radius),
+                &["center", "radius"],
+            ),
+            "cylinder" => (
+                "`center`, a non-zero `axis` and `radius` > 0 (m); `min` < `max` along the axis when given",
+                c.center.is_some()
+                    && nonzero(c.axis)
+                    && positive(c.radius)
+                    && !matches!((c.min, c.max), (Some(a), Some(b)) if !(a < b)),
+                &["center", "axis", "radius", "min", "max"],
+            ),
+            other => {
+                return Err(format!(
+                    "{key}.shape = '{other}': use \"plane\", \"sphere\" or \"cylinder\""
+                ))
+            }
+        };
+        if !ok {
+            return Err(format!("{key}: a {} needs {need}", c.shape));
+        }
+        let given = [
+            ("point", c.point.is_some()),
+            ("normal", c.normal.is_some()),
+            ("center", c.center.is_some()),
+            ("radius", c.radius.is_some()),
+            ("axis", c.axis.is_some()),
+            ("min", c.min.is_some()),
+            ("max", c.max.is_some()),
+        ];
+        if let Some((k, _)) = given.iter().find(|(k, g)| *g && !allowed.contains(k)) {
+            return Err(format!("{key}.{k} does not apply to a {}", c.shape));
+        }
+    }
     for (name, l) in &s.loads {
         check_curve(s, &format!("loads.{name}.curve"), &l.curve)?;
         let given = [
@@ -1648,7 +1759,9 @@ fn validate(s: &Scene) -> std::result::Result<(), String> {
         let ok = parts.len() == 3
             && matches!(parts[2], "x" | "y" | "z")
             && match parts[0] {
-                "reaction" => s.boundaries.contains_key(parts[1]),
+                "reaction" => {
+                    s.boundaries.contains_key(parts[1]) || s.contact.contains_key(parts[1])
+                }
                 "probe" => s.probes.contains_key(parts[1]),
                 _ => false,
             };

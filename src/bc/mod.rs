@@ -1,6 +1,7 @@
 //! Essential boundary conditions imposed directly on nodes (Kronecker-delta shape functions),
 //! and the load curves that drive them.
 
+pub mod contact;
 pub mod curve;
 pub mod ebciem;
 pub mod loads;

@@ -1,9 +1,10 @@
-//! The scene's `[loads]` on a built discretization.
+//! The scene's `[loads]` and `[contact]` on a built discretization.
 
 use nalgebra::Vector3;
 
 use super::surface::{Discretized, Surface};
 use super::{load_curve, select_nodes};
+use crate::bc::contact::{Contact, ContactPoint, RigidBody};
 use crate::bc::loads::{Load, LoadKind};
 use crate::io::model::MeshInput;
 use crate::scene::Scene;
@@ -67,3 +68,81 @@ pub(super) fn scene_loads(
     }
     Ok(out)
 }
+
+/// The scene's `[contact]` rigid bodies on a built discretization: their candidate points are
+/// the body's surface vertices (FE: surface nodes; meshless: boundary vertices with the shape
+/// functions there; coupled: surface vertices, FE nodes interpolating), limited by each body's
+/// `select`. The contact tolerance (penetration left once the corrections converge) is
+/// [`CONTACT_TOLERANCE`] times the body's bounding-box diagonal. Returns None without contact,
+/// and warnings for bodies that start inside the surface.
+pub(super) fn scene_contact(
+    scene: &Scene,
+    d: Discretized<'_>,
+    input: Option<&MeshInput>,
+    warnings: &mut Vec<String>,
+) -> Result<Option<Contact>> {
+    if scene.contact.is_empty() {
+        return Ok(None);
+    }
+    let s = d.surface()?;
+    let mut on_face = vec![false; s.vertices.len()];
+    for (f, _) in &s.faces {
+        for &i in f {
+            on_face[i] = true;
+        }
+    }
+    let (lo, hi) = crate::geometry::select::bounds(d.nodes());
+    let tolerance = CONTACT_TOLERANCE * (hi - lo).norm();
+    let mut bodies = Vec::new();
+    let mut points = Vec::new();
+    for (name, c) in &scene.contact {
+        let what = format!("contact '{name}'");
+        let mut chosen: Vec<usize> = (0..s.vertices.len()).filter(|&i| on_face[i]).collect();
+        if let Some(sel) = &c.select {
+            let picked = select_nodes(sel, &s.vertices, &what, input)?;
+            let mut keep = vec![false; s.vertices.len()];
+            for i in picked {
+                keep[i] = true;
+            }
+            chosen.retain(|&i| keep[i]);
+        }
+        let pts = chosen
+            .iter()
+            .map(|&i| {
+                Ok(ContactPoint {
+                    x: s.vertices[i],
+                    row: d.vertex_row(&s, i)?,
+                })
+            })
+            .collect::<Result<Vec<_>>>()?;
+        let body = RigidBody {
+            name: name.clone(),
+            shape: c.rigid_shape(),
+            motion: Vector3::from(c.motion),
+            curve: load_curve(scene, &c.curve)?,
+        };
+        let d0 = body.motion * body.curve.value(0.0);
+        let deepest = pts
+            .iter()
+            .map(|p| body.shape.signed_depth(&p.x, &d0).0)
+            .fold(0.0f64, f64::max);
+        if deepest > tolerance {
+            warnings.push(format!(
+                "{what} starts {deepest:.3e} m inside the body's surface; the first steps push \
+                 the surface out (move the rigid body or its curve's start)"
+            ));
+        }
+        bodies.push(body);
+        points.push(pts);
+    }
+    Ok(Some(Contact::new(
+        bodies,
+        points,
+        d.nodes().len(),
+        tolerance,
+    )?))
+}
+
+/// Penetration a contact correction may leave, as a fraction of the body's bounding-box
+/// diagonal.
+pub const CONTACT_TOLERANCE: f64 = 1e-8;

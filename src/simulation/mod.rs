@@ -341,6 +341,8 @@ fn prepare_fe(scene: &Scene) -> Result<Prepared> {
         Discretized::Fe(&mesh),
         input.as_ref(),
     )?)?;
+    model.contact =
+        loads::scene_contact(scene, Discretized::Fe(&mesh), input.as_ref(), &mut warnings)?;
     Ok(Prepared {
         mesh,
         meshless: None,
@@ -493,6 +495,12 @@ fn prepare_meshless(scene: &Scene) -> Result<Prepared> {
         Discretized::Meshless(&build),
         input.as_ref(),
     )?)?;
+    model.contact = loads::scene_contact(
+        scene,
+        Discretized::Meshless(&build),
+        input.as_ref(),
+        &mut warnings,
+    )?;
     let corrected: Vec<bool> = bnd
         .iter()
         .map(|b| method != BcMethod::Correction && b.components.iter().any(|c| c.is_some()))
@@ -719,6 +727,12 @@ fn prepare_coupled(scene: &Scene) -> Result<Prepared> {
         Discretized::Coupled(&build),
         input.as_ref(),
     )?)?;
+    model.contact = loads::scene_contact(
+        scene,
+        Discretized::Coupled(&build),
+        input.as_ref(),
+        &mut warnings,
+    )?;
     if let Some(method) = bc_method {
         let tris: Vec<[usize; 3]> = if method == BcMethod::Ebciem {
             let mut faces = quality::boundary_faces(&build.fe_mesh)
@@ -880,11 +894,23 @@ pub fn element_label(scene: &Scene, prep: &Prepared) -> String {
 pub fn summarize(scene: &Scene, prep: &Prepared, out: &RunOutput, total_seconds: f64) -> Summary {
     let model = &prep.model;
     let reactions: BTreeMap<String, [f64; 3]> = model
-        .boundaries
-        .iter()
+        .reaction_names()
+        .into_iter()
         .zip(model.reactions(&out.f_int))
-        .map(|(b, r)| (b.name.clone(), [r.x, r.y, r.z]))
+        .map(|(b, r)| (b, [r.x, r.y, r.z]))
         .collect();
+    let mut warnings = prep.warnings.clone();
+    if let Some(c) = &model.contact {
+        if c.worst_penetration() > c.tolerance() {
+            warnings.push(format!(
+                "contact: a step left a surface point {:.3e} m inside a rigid body, more than the \
+                 tolerance {:.1e} m (the corrections did not converge within their sweeps; a \
+                 sharp edge of the rigid surface or a large step per load increment)",
+                c.worst_penetration(),
+                c.tolerance()
+            ));
+        }
+    }
     let probes: BTreeMap<String, ProbeResult> = prep
         .probes
         .iter()
@@ -957,6 +983,25 @@ pub fn summarize(scene: &Scene, prep: &Prepared, out: &RunOutput, total_seconds:
             total: total_seconds,
         },
         reactions,
+        contact: model
+            .contact
+            .as_ref()
+            .map(|c| {
+                c.names()
+                    .enumerate()
+                    .map(|(b, name)| {
+                        (
+                            name.to_string(),
+                            crate::report::ContactInfo {
+                                points_in_contact: c.points_in_contact()[b],
+                                max_penetration: c.worst_penetration(),
+                                tolerance: c.tolerance(),
+                            },
+                        )
+                    })
+                    .collect()
+            })
+            .unwrap_or_default(),
         loads: model
             .loads
             .names()
@@ -1022,7 +1067,7 @@ pub fn summarize(scene: &Scene, prep: &Prepared, out: &RunOutput, total_seconds:
                 adaptive: c.adaptive.clone(),
             }
         }),
-        warnings: prep.warnings.clone(),
+        warnings,
         relaxation: out.relaxation.clone(),
         load_steps: out.load_steps,
         momentum: (scene.mode_is_dynamic()).then_some(out.momentum),

@@ -155,24 +155,33 @@ fn write_meshless_frame(
 
 /// `reaction.svg` (every constrained component of every boundary against time) and
 /// `energy.svg` (external work, strain and kinetic energy against time).
-fn write_history_plots(
-    dir: &Path,
-    boundaries: &[crate::bc::Boundary],
-    out: &RunOutput,
-) -> Result<()> {
+fn write_history_plots(dir: &Path, model: &Model<Solid>, out: &RunOutput) -> Result<()> {
     use crate::io::plot::{line_plot, Series};
-    let names: Vec<String> = boundaries
+    // Per reaction: the components a boundary prescribes; all three of a rigid body's.
+    let shown: Vec<(String, Vec<usize>)> = model
+        .reaction_names()
+        .into_iter()
+        .enumerate()
+        .map(|(bi, name)| {
+            let comps = match model.boundaries.get(bi) {
+                Some(b) => (0..3).filter(|&k| b.components[k].is_some()).collect(),
+                None => vec![0, 1, 2],
+            };
+            (name, comps)
+        })
+        .collect();
+    let names: Vec<String> = shown
         .iter()
-        .flat_map(|b| {
-            (0..3)
-                .filter(|&k| b.components[k].is_some())
-                .map(move |k| format!("{} {}", b.name, ["x", "y", "z"][k]))
+        .flat_map(|(name, comps)| {
+            comps
+                .iter()
+                .map(move |&k| format!("{name} {}", ["x", "y", "z"][k]))
         })
         .collect();
     let mut series = Vec::new();
     let mut at = 0;
-    for (bi, b) in boundaries.iter().enumerate() {
-        for k in (0..3).filter(|&k| b.components[k].is_some()) {
+    for (bi, (_, comps)) in shown.iter().enumerate() {
+        for &k in comps {
             series.push(Series {
                 name: &names[at],
                 points: out
@@ -430,9 +439,9 @@ pub fn write_results(
     }
 
     let mut header = vec!["step".to_string(), "time_s".to_string()];
-    for b in &prep.model.boundaries {
+    for b in prep.model.reaction_names() {
         for c in ["x", "y", "z"] {
-            header.push(format!("reaction_{}_{c}_N", b.name));
+            header.push(format!("reaction_{b}_{c}_N"));
         }
     }
     header.extend(["external_work_J", "strain_energy_J", "kinetic_energy_J"].map(String::from));
@@ -447,7 +456,7 @@ pub fn write_results(
         })
         .collect();
     crate::io::csv::write_csv(&dir.join("history.csv"), &header, &rows)?;
-    write_history_plots(dir, &prep.model.boundaries, out)?;
+    write_history_plots(dir, &prep.model, out)?;
     if !out.relaxation.is_empty() {
         let header: Vec<String> = [
             "step",

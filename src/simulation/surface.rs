@@ -74,6 +74,17 @@ impl<'a> Discretized<'a> {
         }
     }
 
+    /// The row that gives the displacement at vertex `i` of `surface`.
+    pub fn vertex_row(&self, surface: &Surface, i: usize) -> Result<Row> {
+        match self {
+            // FE and coupled surfaces are over the model's nodes.
+            Discretized::Fe(_) | Discretized::Coupled(_) => self.node_row(i),
+            Discretized::Meshless(_) => self.row_at(&surface.vertices[i], None, &|| {
+                format!("boundary vertex {i}")
+            }),
+        }
+    }
+
     /// The outward boundary faces: of the FE mesh; of the meshless background tets (their
     /// vertices, which include nodes removed as poorly supported); of the coupled FE layer and
     /// interior less the faces they share.

@@ -588,15 +588,21 @@ fn run_on_worker<M: Material>(
     // their step change is measured after the correction (a short serial loop), every other
     // node's during the update. A parallel pass over all nodes after the correction cost as
     // much as the correction itself on two threads (the idle worker had gone to sleep).
-    let late: Vec<u32> = match model.corrector.as_ref() {
-        Some(corr) => {
-            let mut l: Vec<u32> = corr.touched().to_vec();
-            l.extend(cons.dofs.iter().map(|&(node, _)| node));
-            l.sort_unstable();
-            l.dedup();
-            l
+    // Contact corrections move their nodes after the update too.
+    let late: Vec<u32> = if model.corrector.is_some() || model.contact.is_some() {
+        let mut l: Vec<u32> = Vec::new();
+        if let Some(corr) = model.corrector.as_ref() {
+            l.extend_from_slice(corr.touched());
         }
-        None => Vec::new(),
+        if let Some(ct) = model.contact.as_ref() {
+            l.extend_from_slice(ct.touched());
+        }
+        l.extend(cons.dofs.iter().map(|&(node, _)| node));
+        l.sort_unstable();
+        l.dedup();
+        l
+    } else {
+        Vec::new()
     };
     let mut is_late = vec![false; n];
     for &i in &late {
@@ -747,6 +753,12 @@ fn run_on_worker<M: Material>(
         if let Some(corr) = model.corrector.as_mut() {
             corr.correct(&mut u_next, load_frac(step + 1), a);
             external_work += corr.work(&u_next, &u_prev);
+        }
+        if let Some(ct) = model.contact.as_mut() {
+            ct.correct(&mut u_next, load_frac(step + 1), a, &model.mass, &cons.mask);
+            external_work += ct.work(&u_next, &u_prev);
+        }
+        if !late.is_empty() {
             // The predictor's change includes the part the correction takes back (it never
             // vanishes next to a constrained boundary), so measure the corrected change.
             for &i in &late {

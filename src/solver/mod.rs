@@ -13,6 +13,7 @@ mod two_ended;
 
 use nalgebra::Vector3;
 
+use crate::bc::contact::Contact;
 use crate::bc::loads::{Load, Loads};
 use crate::bc::{Boundary, Constraints};
 use crate::material::Material;
@@ -83,6 +84,8 @@ pub struct Model<M: Material> {
     pub loads: Loads,
     /// External nodal forces of the last step, N (empty without loads).
     pub f_ext: Vec<Vector3<f64>>,
+    /// Frictionless contact with rigid bodies, corrected after each update.
+    pub contact: Option<Contact>,
 }
 
 impl<M: Material> Model<M> {
@@ -168,6 +171,7 @@ impl<M: Material> Model<M> {
             corrected,
             loads: Loads::default(),
             f_ext: Vec::new(),
+            contact: None,
         })
     }
 
@@ -281,9 +285,12 @@ impl<M: Material> Model<M> {
     /// minus the external nodal forces (`self.f_ext`, the last step's loads; at equilibrium
     /// F_int = F_ext + R), negative along the axis in compression as in REFERENCE.md.
     /// Boundaries imposed by a corrector report its constraint force instead.
+    /// Rigid contact bodies follow the boundaries with the force they applied in the last
+    /// correction ([`Self::reaction_names`]).
     pub fn reactions(&self, f_int: &[Vector3<f64>]) -> Vec<Vector3<f64>> {
         let ext = |i: usize| self.f_ext.get(i).copied().unwrap_or_else(Vector3::zeros);
-        self.boundaries
+        let mut r: Vec<Vector3<f64>> = self
+            .boundaries
             .iter()
             .enumerate()
             .map(|(k, b)| match (&self.corrector, self.corrected.get(k)) {
@@ -293,7 +300,20 @@ impl<M: Material> Model<M> {
                     .iter()
                     .fold(Vector3::zeros(), |acc, &i| acc + (f_int[i] - ext(i))),
             })
-            .collect()
+            .collect();
+        if let Some(c) = &self.contact {
+            r.extend_from_slice(c.forces());
+        }
+        r
+    }
+
+    /// Names of the entries of [`Self::reactions`]: the boundaries, then the rigid bodies.
+    pub fn reaction_names(&self) -> Vec<String> {
+        let mut v: Vec<String> = self.boundaries.iter().map(|b| b.name.clone()).collect();
+        if let Some(c) = &self.contact {
+            v.extend(c.names().map(String::from));
+        }
+        v
     }
 }
 

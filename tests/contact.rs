@@ -1,0 +1,200 @@
+//! Issue 23, rigid contact: a frictionless plate compressing the cube (REFERENCE.md's exact
+//! uniaxial solution), a ball indenting it in dynamics (energy balance, no point through the
+//! surface), the brain indented by a rigid cylinder, and the scene's checks.
+
+mod common;
+use common::path;
+
+use hytled::report::Summary;
+use hytled::simulation::{prepare, run_scene, settings, RunOptions};
+
+/// The cube case with the driven top face replaced by a rigid plate that starts on the top
+/// face and moves 20 mm down: frictionless, so the top slides and the exact solution is the
+/// homogeneous one of REFERENCE.md (F_z = -7.63269 N, lateral stretch a = 1.11574668).
+fn plate(extra: &[&str]) -> Summary {
+    let mut o: Vec<String> = [
+        "boundaries.top=",
+        "references={}",
+        "discretization.size=0.025",
+        "solver.tolerance=1e-9",
+        "contact.plate={ shape = \"plane\", point = [0.0, 0.0, 0.1], normal = [0.0, 0.0, -1.0], motion = [0.0, 0.0, -0.02] }",
+    ]
+    .iter()
+    .map(|s| s.to_string())
+    .collect();
+    o.extend(extra.iter().map(|s| s.to_string()));
+    let text = std::fs::read_to_string(path("cases/cube-compression.toml")).unwrap();
+    // The scene without its [boundaries.top] table (the plate drives the top instead).
+    let start = text.find("[boundaries.top]").unwrap();
+    let end = start + text[start..].find("\n\n").unwrap();
+    let text = format!("{}{}", &text[..start], &text[end..]);
+    let dir = std::env::temp_dir().join(format!("hytled-contact-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let file = dir.join(format!(
+        "plate-{}.toml",
+        extra.join("-").replace(['/', ' '], "_")
+    ));
+    std::fs::write(&file, text).unwrap();
+    o.retain(|s| s != "boundaries.top=");
+    let sc = hytled::scene::load(&file, &o).unwrap_or_else(|e| panic!("{e}"));
+    run_scene(&sc, &RunOptions::default()).unwrap_or_else(|e| panic!("{extra:?}: {e}"))
+}
+
+/// A rigid frictionless plate compressing the cube by 20 % gives the exact uniaxial reaction
+/// for every method, and no surface point ends inside the plate by more than the tolerance.
+#[test]
+fn a_rigid_plate_compressing_the_cube_gives_the_exact_reaction_for_every_method() {
+    let (f_exact, a) = (-7.63269, 1.11574668);
+    for (method, tol_f, tol_u) in [
+        (&["discretization.method=fe"][..], 1e-5, 1e-5),
+        (
+            &[
+                "discretization.method=fe",
+                "discretization.element=tet4-anp",
+            ],
+            1e-5,
+            1e-5,
+        ),
+        // Meshless and coupled: their integration error (tests/meshless.rs, the same cube
+        // driven by its top nodes); MMLS is 1 % off laterally on this coarse cloud.
+        (&["discretization.method=meshless"], 1e-3, 5e-3),
+        (
+            &[
+                "discretization.method=meshless",
+                "discretization.basis=quadratic",
+            ],
+            1e-3,
+            2e-2,
+        ),
+        (
+            &[
+                "discretization.method=coupled",
+                "discretization.size=0.0125",
+            ],
+            1e-3,
+            5e-3,
+        ),
+    ] {
+        let s = plate(method);
+        assert!(s.converged);
+        let f = s.reactions["plate"];
+        let u = s.probes["corner"].displacement;
+        let c = &s.contact["plate"];
+        println!(
+            "{method:?}: plate force {:.6} N ({:.4} %), corner u_x {:.6e} m ({:.4} %), {} points in contact, deepest {:.2e} m",
+            f[2],
+            100.0 * (f[2] / f_exact - 1.0),
+            u[0],
+            100.0 * (u[0] / (0.1 * (a - 1.0)) - 1.0),
+            c.points_in_contact,
+            c.max_penetration
+        );
+        assert!(
+            (f[2] - f_exact).abs() < tol_f * f_exact.abs(),
+            "{method:?}: {f:?}"
+        );
+        assert!(
+            f[0].abs() < 1e-9 && f[1].abs() < 1e-9,
+            "frictionless: {f:?}"
+        );
+        assert!(
+            (u[0] - 0.1 * (a - 1.0)).abs() < tol_u * 0.1 * (a - 1.0),
+            "{method:?}: {u:?}"
+        );
+        assert!((u[2] + 0.02).abs() < 1e-6, "{method:?}: {u:?}");
+        assert!(c.max_penetration <= c.tolerance, "{method:?}: {c:?}");
+        // The plate's force is what the supports hold.
+        assert!((s.reactions["bottom"][2] + f[2]).abs() < 1e-6 * f[2].abs());
+    }
+}
+
+/// A rigid ball pressed 10 mm into the top of the cube in explicit dynamics: the energy the
+/// ball puts in is the strain plus kinetic energy (the kinematic contact does work only
+/// through its forces), and no surface point is ever inside the ball by more than the
+/// tolerance.
+#[test]
+fn a_ball_indenting_in_dynamics_keeps_energy_and_the_surface_outside() {
+    for method in [
+        &["discretization.method=fe"][..],
+        &["discretization.method=meshless"],
+    ] {
+        let mut o = vec![
+            "solver.mode=dynamic",
+            "solver.duration=2.0",
+            "contact.plate={ shape = \"sphere\", center = [0.1, 0.1, 0.14], radius = 0.04, motion = [0.0, 0.0, -0.01] }",
+        ];
+        o.extend_from_slice(method);
+        let s = plate(&o);
+        let c = &s.contact["plate"];
+        let b = s.energy.balance_error.unwrap();
+        println!(
+            "{method:?}: ball force {:?} N, {} points in contact, deepest {:.2e} m, balance error {:.3e}",
+            s.reactions["plate"], c.points_in_contact, c.max_penetration, b
+        );
+        assert!(s.reactions["plate"][2] < 0.0 && c.points_in_contact > 0);
+        assert!(c.max_penetration <= c.tolerance, "{method:?}: {c:?}");
+        assert!(b < 0.01, "{method:?}: {b}");
+    }
+}
+
+/// The brain indented by a rigid flat-ended cylinder (cases/brain-contact.toml) at a coarse
+/// size: relaxation converges, the indenter pushes down, the bonded base holds its force, and
+/// every surface node ends outside the indenter.
+#[cfg(feature = "tetgen")]
+#[test]
+fn the_brain_indented_by_a_rigid_cylinder() {
+    let sc = hytled::scene::load(
+        &path("cases/brain-contact.toml"),
+        &["discretization.size=0.009".into()],
+    )
+    .unwrap();
+    let mut prep = prepare(&sc).unwrap();
+    let out = hytled::solver::run(&mut prep.model, &settings(&sc, false)).unwrap();
+    let s = hytled::simulation::summarize(&sc, &prep, &out, 0.0);
+    let r = s.reactions["indenter"];
+    println!(
+        "brain contact: {} nodes, {} steps, indenter {r:?} N, base {:?} N, {:?}",
+        s.nodes, s.steps, s.reactions["base"], s.contact["indenter"]
+    );
+    assert!(s.converged);
+    assert!(
+        r[2] < 0.0 && r[0].abs() < 1e-9 && r[1].abs() < 1e-9,
+        "{r:?}"
+    );
+    assert!((s.reactions["base"][2] + r[2]).abs() < 1e-3 * r[2].abs());
+    // Every node ends outside the indenter (end face at 28.5 - 5 mm, radius 5 mm).
+    let tol = s.contact["indenter"].tolerance;
+    for (x, u) in prep.model.nodes.iter().zip(&out.u) {
+        let p = x + u;
+        let inside = p.x.hypot(p.y) < 0.005 - tol && p.z > 0.0235 + tol;
+        assert!(!inside, "node at {x:?} ends at {p:?}, inside the indenter");
+    }
+}
+
+/// Contact keys are checked: a shape's required keys, keys of other shapes, unknown shapes,
+/// a name shared with a boundary.
+#[test]
+fn contact_scene_errors_name_the_key() {
+    for (spec, want) in [
+        ("{ shape = \"plane\", point = [0.0, 0.0, 0.1] }", "a plane needs"),
+        ("{ shape = \"sphere\", center = [0.0, 0.0, 0.1], radius = -1.0 }", "a sphere needs"),
+        ("{ shape = \"cylinder\", center = [0.0, 0.0, 0.1], axis = [0.0, 0.0, 1.0], radius = 1.0, min = 2.0, max = 1.0 }", "min` < `max"),
+        ("{ shape = \"sphere\", center = [0.0, 0.0, 0.1], radius = 1.0, normal = [0.0, 0.0, 1.0] }", "contact.top_plate.normal does not apply"),
+        ("{ shape = \"cone\" }", "use \"plane\""),
+    ] {
+        let e = hytled::scene::load(
+            &path("cases/cube-compression.toml"),
+            &[format!("contact.top_plate={spec}")],
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains(want), "{spec}: {e}");
+    }
+    let e = hytled::scene::load(
+        &path("cases/cube-compression.toml"),
+        &["contact.top={ shape = \"sphere\", center = [0.0, 0.0, 0.2], radius = 0.01 }".into()],
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(e.contains("same name"), "{e}");
+}
