@@ -32,6 +32,9 @@ pub struct Scene {
     /// `[loads.NAME]`: gravity, point forces, tractions and pressures.
     #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
     pub loads: BTreeMap<String, LoadSpec>,
+    /// `[measured.NAME]`: displacements prescribed node by node from a file.
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub measured: BTreeMap<String, MeasuredSpec>,
     /// `[contact.NAME]`: rigid bodies the body's surface touches without friction.
     #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
     pub contact: BTreeMap<String, ContactSpec>,
@@ -868,6 +871,23 @@ impl LoadSpec {
     }
 }
 
+/// `[measured.NAME]`: displacements measured on the surface (e.g. registered from
+/// intra-operative images), prescribed node by node along `curve`: `file` holds `x, y, z, ux,
+/// uy, uz` per line (each point taken by the nearest surface node within `tolerance`) or `id,
+/// ux, uy, uz` (node ids of the mesh file), in m. An essential boundary named NAME.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MeasuredSpec {
+    /// The file, relative to the scene file.
+    pub file: PathBuf,
+    /// Largest distance from a measured point to the surface node that takes it, m (default
+    /// 1e-3 x the body's bounding-box diagonal).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub tolerance: Option<f64>,
+    #[serde(default = "default_curve")]
+    pub curve: String,
+}
+
 /// `[contact.NAME]`: a rigid body moved by `motion` along `curve`, which the body's surface
 /// points touch without friction (the body stays outside it): `shape = "plane"` with `point`
 /// and `normal` (pointing to the body), `"sphere"` with `center` and `radius`, or
@@ -1617,6 +1637,20 @@ fn validate(s: &Scene) -> std::result::Result<(), String> {
     for (name, b) in &s.boundaries {
         check_curve(s, &format!("boundaries.{name}.curve"), &b.curve)?;
     }
+    for (name, m) in &s.measured {
+        let key = format!("measured.{name}");
+        check_curve(s, &format!("{key}.curve"), &m.curve)?;
+        if s.boundaries.contains_key(name) || s.contact.contains_key(name) {
+            return Err(format!(
+                "{key}: a boundary or rigid body has the same name; reactions are reported by name, so give it another"
+            ));
+        }
+        if let Some(t) = m.tolerance.filter(|t| !(*t > 0.0)) {
+            return Err(format!(
+                "{key}.tolerance = {t}: must be a positive distance (m)"
+            ));
+        }
+    }
     for (name, c) in &s.contact {
         let key = format!("contact.{name}");
         check_curve(s, &format!("{key}.curve"), &c.curve)?;
@@ -1760,7 +1794,9 @@ fn validate(s: &Scene) -> std::result::Result<(), String> {
             && matches!(parts[2], "x" | "y" | "z")
             && match parts[0] {
                 "reaction" => {
-                    s.boundaries.contains_key(parts[1]) || s.contact.contains_key(parts[1])
+                    s.boundaries.contains_key(parts[1])
+                        || s.contact.contains_key(parts[1])
+                        || s.measured.contains_key(parts[1])
                 }
                 "probe" => s.probes.contains_key(parts[1]),
                 _ => false,

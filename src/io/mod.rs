@@ -2,6 +2,7 @@
 
 pub mod csv;
 pub mod inp;
+pub mod measured;
 pub mod mesh_file;
 pub mod model;
 pub mod msh;

@@ -7,6 +7,7 @@ use std::time::Instant;
 use nalgebra::Vector3;
 
 mod loads;
+mod measured;
 mod output;
 mod regions;
 mod surface;
@@ -83,8 +84,33 @@ fn set_probe(name: &str, nodes: &[Vector3<f64>], w: Vec<(usize, f64)>) -> Probe 
     }
 }
 
-/// The scene's boundaries with their selected nodes.
+/// The scene's boundaries with their selected nodes, then its measured displacements matched
+/// to the nodes `surface()` lists (called only when the scene has some).
 pub fn boundaries(
+    scene: &Scene,
+    nodes: &[Vector3<f64>],
+    input: Option<&MeshInput>,
+    surface: &dyn Fn() -> Result<Vec<usize>>,
+) -> Result<Vec<Boundary>> {
+    let mut out = boundaries_only(scene, nodes, input)?;
+    if !scene.measured.is_empty() {
+        let candidates = surface()?;
+        for (name, m) in &scene.measured {
+            out.push(measured::boundary(
+                scene,
+                name,
+                m,
+                nodes,
+                &candidates,
+                input,
+            )?);
+        }
+    }
+    Ok(out)
+}
+
+/// The scene's `[boundaries]` with their selected nodes.
+fn boundaries_only(
     scene: &Scene,
     nodes: &[Vector3<f64>],
     input: Option<&MeshInput>,
@@ -307,7 +333,9 @@ fn prepare_fe(scene: &Scene) -> Result<Prepared> {
         &|m| hourglass_modulus(scene, m),
         &materials,
     );
-    let bnd = boundaries(scene, &mesh.nodes, input.as_ref())?;
+    let bnd = boundaries(scene, &mesh.nodes, input.as_ref(), &|| {
+        Discretized::Fe(&mesh).surface_nodes()
+    })?;
     let probes = scene
         .probes
         .iter()
@@ -376,7 +404,10 @@ fn prepare_meshless(scene: &Scene) -> Result<Prepared> {
     // nodes nearest to each probe.
     let protected = |nodes: &[Vector3<f64>]| -> Result<Vec<usize>> {
         let mut v = Vec::new();
-        for b in boundaries(scene, nodes, input.as_ref())? {
+        // Measured points are matched to any node here: the surface is not known yet.
+        for b in boundaries(scene, nodes, input.as_ref(), &|| {
+            Ok((0..nodes.len()).collect())
+        })? {
             v.extend(b.nodes);
         }
         for (name, p) in &scene.probes {
@@ -414,7 +445,9 @@ fn prepare_meshless(scene: &Scene) -> Result<Prepared> {
                 .into(),
         );
     }
-    let bnd = boundaries(scene, &build.nodes, input.as_ref())?;
+    let bnd = boundaries(scene, &build.nodes, input.as_ref(), &|| {
+        Discretized::Meshless(&build).surface_nodes()
+    })?;
     let dom = translate::domain(scene);
     let h = translate::spacing(scene).unwrap_or(0.0);
     let probes = scene
@@ -559,7 +592,9 @@ fn prepare_coupled(scene: &Scene) -> Result<Prepared> {
             ))
         }
         crate::scene::FeRegionKind::Essential => {
-            let bnd = boundaries(scene, &mesh.nodes, input.as_ref())?;
+            let bnd = boundaries(scene, &mesh.nodes, input.as_ref(), &|| {
+                Discretized::Fe(&mesh).surface_nodes()
+            })?;
             let mut nodes: Vec<usize> = bnd
                 .iter()
                 .filter(|b| b.components.iter().any(|c| c.is_some()))
@@ -615,7 +650,9 @@ fn prepare_coupled(scene: &Scene) -> Result<Prepared> {
     };
     let build = built.map_err(|e| name_file_element(e, input.as_ref()))?;
     warnings.extend(build.warnings.iter().cloned());
-    let bnd = boundaries(scene, &build.nodes, input.as_ref())?;
+    let bnd = boundaries(scene, &build.nodes, input.as_ref(), &|| {
+        Discretized::Coupled(&build).surface_nodes()
+    })?;
     // Boundaries that reach interface or meshless nodes (no Kronecker delta there) are
     // imposed by EBCIEM / SEBCIEM correction, the alternate path; the rest directly.
     let corrected: Vec<bool> = bnd

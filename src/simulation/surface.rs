@@ -85,6 +85,30 @@ impl<'a> Discretized<'a> {
         }
     }
 
+    /// The model nodes on the body's surface, ascending (meshless: the field nodes at the
+    /// background tets' boundary vertices).
+    pub fn surface_nodes(&self) -> Result<Vec<usize>> {
+        let s = self.surface()?;
+        let mut on = vec![false; s.vertices.len()];
+        for (f, _) in &s.faces {
+            for &i in f {
+                on[i] = true;
+            }
+        }
+        Ok(match self {
+            Discretized::Meshless(b) => {
+                let mut v: Vec<usize> = (0..on.len())
+                    .filter(|&i| on[i])
+                    .map(|i| b.background_node[i])
+                    .filter(|&n| n != usize::MAX)
+                    .collect();
+                v.sort_unstable();
+                v
+            }
+            _ => (0..on.len()).filter(|&i| on[i]).collect(),
+        })
+    }
+
     /// The outward boundary faces: of the FE mesh; of the meshless background tets (their
     /// vertices, which include nodes removed as poorly supported); of the coupled FE layer and
     /// interior less the faces they share.

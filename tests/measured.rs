@@ -1,0 +1,219 @@
+//! Issue 23, measured displacements: a file of displacements on part of the surface, matched to
+//! its nodes and ramped by a curve (the image-driven brain-shift workflow), checked on the cube
+//! whose exact homogeneous field is given on its top face (REFERENCE.md).
+
+mod common;
+use common::path;
+
+use std::path::PathBuf;
+
+use hytled::simulation::{run_scene, RunOptions};
+
+const A: f64 = 1.11574668; // REFERENCE.md: lateral stretch of the cube compressed by 20 %
+
+fn folder(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("hytled-measured-{name}-{}", std::process::id()));
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+/// `x, y, z, ux, uy, uz` of the exact field u = ((a - 1) x, (a - 1) y, -0.2 z) on the top face,
+/// at the (n + 1)^2 nodes of a grid of spacing 0.1 / n m, each moved by `jitter` (m) within the
+/// face.
+fn exact_top(n: usize, jitter: f64) -> String {
+    let h = 0.1 / n as f64;
+    let mut s = String::from("x,y,z,ux,uy,uz\n");
+    for j in 0..=n {
+        for i in 0..=n {
+            let (x, y) = (h * i as f64, h * j as f64);
+            let (px, py) = (
+                x + jitter * ((i + j) % 2) as f64,
+                y - jitter * (j % 2) as f64,
+            );
+            s += &format!(
+                "{px},{py},0.1,{},{},{}\n",
+                (A - 1.0) * x,
+                (A - 1.0) * y,
+                -0.02
+            );
+        }
+    }
+    s
+}
+
+/// Relative errors of the top force and the corner's lateral displacement against the exact
+/// cube (REFERENCE.md: F_z = -7.63269 N, u_x = (a - 1) 0.1 m).
+fn errors(s: &hytled::report::Summary) -> (f64, f64) {
+    let f = s.reactions["top"][2];
+    let u = s.probes["corner"].displacement[0];
+    (
+        (f + 7.63269).abs() / 7.63269,
+        (u - (A - 1.0) * 0.1).abs() / ((A - 1.0) * 0.1),
+    )
+}
+
+/// The cube case with its top boundary replaced by `[measured.top]` from `file`.
+fn run(
+    dir: &std::path::Path,
+    file: &str,
+    extra: &[&str],
+) -> hytled::Result<hytled::report::Summary> {
+    let text = std::fs::read_to_string(path("cases/cube-compression.toml")).unwrap();
+    let start = text.find("[boundaries.top]").unwrap();
+    let end = start + text[start..].find("\n\n").unwrap();
+    let text = format!(
+        "{}[measured.top]\nfile = \"{file}\"\ncurve = \"smooth\"\n{}",
+        &text[..start],
+        &text[end..]
+    );
+    let scene_file = dir.join("cube.toml");
+    std::fs::write(&scene_file, text).unwrap();
+    // The case's exact references need its driven face; these tests compare with them here.
+    let mut o: Vec<String> = vec![
+        "discretization.size=0.025".into(),
+        "solver.tolerance=1e-9".into(),
+        "references={}".into(),
+    ];
+    o.extend(extra.iter().map(|s| s.to_string()));
+    let sc = hytled::scene::load(&scene_file, &o)?;
+    run_scene(&sc, &RunOptions::default())
+}
+
+/// The exact displacements measured at the top face's nodes (and, for the methods whose
+/// top nodes differ, matched within the tolerance): the cube reproduces the exact solution,
+/// and the measured boundary's reaction is the exact top force (the references of the case).
+#[test]
+fn measured_exact_displacements_reproduce_the_exact_cube() {
+    let dir = folder("exact");
+    std::fs::write(dir.join("top.csv"), exact_top(4, 0.0)).unwrap();
+    std::fs::write(dir.join("top-jitter.csv"), exact_top(4, 0.002)).unwrap();
+    std::fs::write(dir.join("top-fine.csv"), exact_top(8, 0.0)).unwrap();
+    for (file, method, tol) in [
+        ("top.csv", &["discretization.method=fe"][..], 1e-6),
+        (
+            "top-jitter.csv",
+            &["discretization.method=fe", "measured.top.tolerance=0.003"],
+            1e-6,
+        ),
+        (
+            "top.csv",
+            &[
+                "discretization.method=fe",
+                "discretization.element=tet4-anp",
+            ],
+            1e-6,
+        ),
+        // Meshless: integration error, as for the cube driven by its top boundary (2 %).
+        ("top.csv", &["discretization.method=meshless"], 2e-2),
+        (
+            "top-fine.csv",
+            &[
+                "discretization.method=coupled",
+                "discretization.size=0.0125",
+            ],
+            2e-2,
+        ),
+    ] {
+        let s = run(&dir, file, method).unwrap_or_else(|e| panic!("{method:?}: {e}"));
+        let (ef, eu) = errors(&s);
+        println!(
+            "{file} {method:?}: top force {:?} N, force error {:.4} %, lateral error {:.4} %",
+            s.reactions["top"],
+            100.0 * ef,
+            100.0 * eu
+        );
+        let tol: f64 = tol;
+        assert!(ef < tol && eu < tol, "{method:?}");
+    }
+}
+
+/// Node ids of a mesh file work too, and the errors say which line fails and why: a point
+/// beyond the tolerance (with its distance), two points on one node, an unknown id.
+#[test]
+fn measured_ids_and_errors() {
+    let dir = folder("ids");
+    // The 5 x 5 x 5 structured cube as an ABAQUS file; node ids start at 101.
+    let n = 4;
+    let h = 0.1 / n as f64;
+    let id = |i: usize, j: usize, k: usize| 101 + i + (n + 1) * (j + (n + 1) * k);
+    let mut inp = String::from("*HEADING\ncube\n*NODE\n");
+    for k in 0..=n {
+        for j in 0..=n {
+            for i in 0..=n {
+                inp += &format!(
+                    "{}, {}, {}, {}\n",
+                    id(i, j, k),
+                    i as f64 * h,
+                    j as f64 * h,
+                    k as f64 * h
+                );
+            }
+        }
+    }
+    inp += "*ELEMENT, TYPE=C3D8, ELSET=ALL\n";
+    let mut e = 1;
+    for k in 0..n {
+        for j in 0..n {
+            for i in 0..n {
+                inp += &format!(
+                    "{e}, {}, {}, {}, {}, {}, {}, {}, {}\n",
+                    id(i, j, k),
+                    id(i + 1, j, k),
+                    id(i + 1, j + 1, k),
+                    id(i, j + 1, k),
+                    id(i, j, k + 1),
+                    id(i + 1, j, k + 1),
+                    id(i + 1, j + 1, k + 1),
+                    id(i, j + 1, k + 1)
+                );
+                e += 1;
+            }
+        }
+    }
+    std::fs::write(dir.join("cube.inp"), inp).unwrap();
+    let mut ids = String::from("id,ux,uy,uz\n");
+    for j in 0..=n {
+        for i in 0..=n {
+            let (x, y) = (i as f64 * h, j as f64 * h);
+            ids += &format!(
+                "{},{},{},-0.02\n",
+                id(i, j, n),
+                (A - 1.0) * x,
+                (A - 1.0) * y
+            );
+        }
+    }
+    std::fs::write(dir.join("ids.csv"), ids).unwrap();
+    let mesh = format!(
+        "geometry={{ mesh = \"{}\" }}",
+        dir.join("cube.inp").display()
+    );
+    let s = run(&dir, "ids.csv", &[&mesh, "probes={}"]).unwrap();
+    println!("ids: top force {:?} N", s.reactions["top"]);
+    assert!((s.reactions["top"][2] + 7.63269).abs() < 1e-5 * 7.63269);
+
+    std::fs::write(dir.join("far.csv"), "0.05,0.05,0.12,0,0,-0.01\n").unwrap();
+    let e = run(&dir, "far.csv", &[]).unwrap_err().to_string();
+    assert!(
+        e.contains("far.csv line 1")
+            && e.contains("beyond the tolerance")
+            && e.contains("2.000e-2 m from"),
+        "{e}"
+    );
+    std::fs::write(
+        dir.join("twice.csv"),
+        "0.05,0.05,0.1,0,0,-0.01\n0.0501,0.05,0.1,0,0,-0.01\n",
+    )
+    .unwrap();
+    let e = run(&dir, "twice.csv", &[]).unwrap_err().to_string();
+    assert!(
+        e.contains("twice.csv line 2") && e.contains("line 1 already took"),
+        "{e}"
+    );
+    std::fs::write(dir.join("unknown.csv"), "7,0,0,-0.01\n").unwrap();
+    let e = run(&dir, "unknown.csv", &[&mesh]).unwrap_err().to_string();
+    assert!(
+        e.contains("unknown.csv line 1") && e.contains("no node 7"),
+        "{e}"
+    );
+}
