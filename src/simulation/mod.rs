@@ -13,7 +13,7 @@ mod regions;
 mod surface;
 mod translate;
 
-pub use output::{write_outputs, write_results, FrameWriter};
+pub use output::{write_outputs, write_results, FrameLabels, FrameWriter};
 use surface::Discretized;
 pub use translate::{
     build_mesh, load_mesh_input, material, mesh_checks, meshless_settings, settings,
@@ -878,6 +878,7 @@ pub fn run_scene(scene: &Scene, opts: &RunOptions) -> Result<Summary> {
         // failure (OutDir::fail keeps them, with their .pvd) for debugging.
         let staging = d.staging()?;
         let name = scene.name.clone().unwrap_or_else(|| "run".into());
+        let labels = FrameLabels::of(&prep);
         let Prepared {
             model,
             mesh,
@@ -891,6 +892,7 @@ pub fn run_scene(scene: &Scene, opts: &RunOptions) -> Result<Summary> {
             mesh,
             meshless.as_ref(),
             coupled.as_ref(),
+            labels,
             opts.vtu_format,
         )?;
         let run = solver::run_streaming(model, &settings, &mut |m, t, u| frames.write(m, t, u));

@@ -72,87 +72,6 @@ fn write_integration_points(
     vtu::write_vtu(path, &piece, format)
 }
 
-/// One meshless VTU frame: the background vertices as points with the interpolated
-/// displacement, and the background tets as cells carrying the mean stress, von Mises stress
-/// and J of their integration points (one vertex cell per point when there are no tets).
-fn write_meshless_frame(
-    path: &Path,
-    points: &[Vector3<f64>],
-    (conn, offsets, types): (&[usize], &[usize], &[u8]),
-    owner: &[usize],
-    disp: &[f64],
-    (sig, vm, jac): (&[f64], &[f64], &[f64]),
-    format: VtuFormat,
-) -> Result<()> {
-    let ncell = types.len();
-    if ncell == 0 {
-        let (conn, offsets, types) = vertex_cells(points.len());
-        let piece = vtu::Piece {
-            points,
-            connectivity: &conn,
-            offsets: &offsets,
-            types: &types,
-            point_data: vec![DataArray {
-                name: "displacement",
-                components: 3,
-                values: disp,
-            }],
-            cell_data: Vec::new(),
-        };
-        return vtu::write_vtu(path, &piece, format);
-    }
-    let mut count = vec![0usize; ncell];
-    let (mut s9, mut v1, mut j1) = (vec![0.0; 9 * ncell], vec![0.0; ncell], vec![0.0; ncell]);
-    for (p, &e) in owner.iter().enumerate() {
-        if e >= ncell {
-            continue;
-        }
-        count[e] += 1;
-        for c in 0..9 {
-            s9[9 * e + c] += sig[9 * p + c];
-        }
-        v1[e] += vm[p];
-        j1[e] += jac[p];
-    }
-    for e in 0..ncell {
-        let w = 1.0 / count[e].max(1) as f64;
-        s9[9 * e..9 * e + 9].iter_mut().for_each(|x| *x *= w);
-        v1[e] *= w;
-        j1[e] *= w;
-    }
-    let cell_data = vec![
-        DataArray {
-            name: "cauchy_stress",
-            components: 9,
-            values: &s9,
-        },
-        DataArray {
-            name: "von_mises",
-            components: 1,
-            values: &v1,
-        },
-        DataArray {
-            name: "J",
-            components: 1,
-            values: &j1,
-        },
-    ];
-    let point_data = vec![DataArray {
-        name: "displacement",
-        components: 3,
-        values: disp,
-    }];
-    let piece = vtu::Piece {
-        points,
-        connectivity: conn,
-        offsets,
-        types,
-        point_data,
-        cell_data,
-    };
-    vtu::write_vtu(path, &piece, format)
-}
-
 /// `reaction.svg` (every constrained component of every boundary against time) and
 /// `energy.svg` (external work, strain and kinetic energy against time).
 fn write_history_plots(dir: &Path, model: &Model<Solid>, out: &RunOutput) -> Result<()> {
@@ -226,6 +145,55 @@ fn write_history_plots(dir: &Path, model: &Model<Solid>, out: &RunOutput) -> Res
     )
 }
 
+/// What a frame labels its points and cells with, besides the fields: a 0/1 point array per
+/// boundary (`boundary_NAME`: the nodes it holds, measured ones included) and the region of
+/// each cell (`region`: 0 for `[material]`, k for the k-th region in name order), so that
+/// ParaView users can colour and threshold by them.
+pub struct FrameLabels {
+    /// Per boundary: its name and, per model node, whether it holds the node.
+    pub boundaries: Vec<(String, Vec<bool>)>,
+    /// Per quadrature point (discretization order) its cell in the frame's cells and its
+    /// material index; empty without regions.
+    pub point_cells: Vec<(usize, u16)>,
+}
+
+impl FrameLabels {
+    /// The labels of a prepared run.
+    pub fn of(prep: &Prepared) -> Self {
+        let n = prep.model.nodes.len();
+        let boundaries = prep
+            .model
+            .boundaries
+            .iter()
+            .map(|b| {
+                let mut on = vec![false; n];
+                for &i in &b.nodes {
+                    on[i] = true;
+                }
+                (b.name.clone(), on)
+            })
+            .collect();
+        let point_cells = if prep.point_material.is_empty() {
+            Vec::new()
+        } else {
+            let owner: Vec<usize> = match (&prep.meshless, &prep.coupled) {
+                (Some(m), _) => m.owner.clone(),
+                (None, Some(c)) => c.owner.clone(),
+                // One point per element.
+                (None, None) => (0..prep.point_material.len()).collect(),
+            };
+            owner
+                .into_iter()
+                .zip(prep.point_material.iter().copied())
+                .collect()
+        };
+        FrameLabels {
+            boundaries,
+            point_cells,
+        }
+    }
+}
+
 /// Writes the VTU frames of a run into a folder, one file per frame as the frames come, and
 /// the `.pvd` series that lists them.
 pub struct FrameWriter<'a> {
@@ -237,9 +205,23 @@ pub struct FrameWriter<'a> {
     /// Meshless and coupled: the nodes and shape-function values that give each VTU point's
     /// displacement (nodal parameters are not displacements).
     interp: Option<Vec<(Vec<usize>, Vec<f64>)>>,
+    labels: FrameLabels,
     format: VtuFormat,
     /// (time s, file name) of every frame written.
     series: Vec<(f64, String)>,
+}
+
+/// Sums `rows` (entries, weights) of `values` (`width` numbers per entry) into one entry per row.
+fn interpolate(rows: &[(Vec<usize>, Vec<f64>)], values: &[f64], width: usize) -> Vec<f64> {
+    let mut out = vec![0.0; rows.len() * width];
+    for (r, (ids, phi)) in rows.iter().enumerate() {
+        for (&i, &p) in ids.iter().zip(phi) {
+            for c in 0..width {
+                out[r * width + c] += p * values[i * width + c];
+            }
+        }
+    }
+    out
 }
 
 impl<'a> FrameWriter<'a> {
@@ -250,6 +232,7 @@ impl<'a> FrameWriter<'a> {
         mesh: &'a Mesh,
         meshless: Option<&'a MeshlessBuild>,
         coupled: Option<&'a CoupledBuild>,
+        labels: FrameLabels,
         format: VtuFormat,
     ) -> Result<Self> {
         std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
@@ -280,85 +263,228 @@ impl<'a> FrameWriter<'a> {
             meshless,
             coupled,
             interp,
+            labels,
             format,
             series: Vec::new(),
         })
     }
 
-    /// Writes the next frame: displacement (m) per point; Cauchy and von Mises stress (Pa) and
-    /// J per cell, from `model` at displacements `u` and time `t` (s).
+    /// Writes the next frame at displacements `u` (m) and time `t` (s). Point data:
+    /// displacement (m); the nodal Cauchy stress (Pa), Green-Lagrange strain, principal
+    /// stretches (largest first), von Mises stress (Pa) and J, averaged from the points
+    /// ([`Model::nodal_fields`]; meshless: interpolated to the background vertices with the
+    /// shape functions); `boundary_NAME` (1 on the nodes a boundary holds). Cell data: the
+    /// points' Cauchy stress, von Mises stress and J (meshless and coupled: the mean over the
+    /// cell's points) and, with regions, `region`.
     pub fn write(&mut self, model: &mut Model<Solid>, t: f64, u: &[Vector3<f64>]) -> Result<()> {
-        let (sig, vm, jac) = model.stress_fields(u);
+        let points = model.stress_fields(u);
+        let nodal = model.nodal_fields(u);
         let file = format!("{}_{:04}.vtu", self.name, self.series.len());
         let path = self.dir.join(&file);
-        let format = self.format;
-        let cells: Option<(&[Vector3<f64>], (Vec<usize>, Vec<usize>, Vec<u8>), &[usize])> =
-            match (self.meshless, self.coupled) {
-                (Some(m), _) => {
-                    let b = &m.background;
+        // The frame's points and cells: FE mesh, meshless background tets (or vertices),
+        // coupled FE layer and interior; `owner` maps points to cells (None: one per element).
+        let (xs, (conn, offsets, types), owner): (
+            &[Vector3<f64>],
+            (Vec<usize>, Vec<usize>, Vec<u8>),
+            Option<&[usize]>,
+        ) = match (self.meshless, self.coupled) {
+            (Some(m), _) => {
+                let b = &m.background;
+                let cells = if b.num_cells() == 0 {
+                    // A cloud without tets: each vertex a VTK vertex.
+                    let n = b.nodes.len();
+                    ((0..n).collect(), (1..=n).collect(), vec![1u8; n])
+                } else {
                     let npc = b.shape.nodes_per_cell();
-                    Some((
-                        &b.nodes,
-                        (
-                            b.cells.clone(),
-                            (1..=b.num_cells()).map(|e| e * npc).collect(),
-                            vec![b.shape.vtk_type(); b.num_cells()],
-                        ),
-                        &m.owner,
-                    ))
+                    (
+                        b.cells.clone(),
+                        (1..=b.num_cells()).map(|e| e * npc).collect(),
+                        vec![b.shape.vtk_type(); b.num_cells()],
+                    )
+                };
+                (&b.nodes, cells, Some(&m.owner[..]))
+            }
+            (None, Some(c)) => (&c.nodes, c.vtu_cells(), Some(&c.owner[..])),
+            (None, None) => {
+                let m = self.mesh;
+                let npc = m.shape.nodes_per_cell();
+                (
+                    &m.nodes,
+                    (
+                        m.cells.clone(),
+                        (1..=m.num_cells()).map(|e| e * npc).collect(),
+                        vec![m.shape.vtk_type(); m.num_cells()],
+                    ),
+                    None,
+                )
+            }
+        };
+        let ncell = types.len();
+        // Displacements and nodal fields at the frame's points.
+        let flat_u: Vec<f64> = u.iter().flat_map(|v| [v.x, v.y, v.z]).collect();
+        let (disp, at_points) = match (&self.interp, self.meshless) {
+            (Some(rows), Some(_)) => {
+                let mut f = crate::solver::Fields::zeros(rows.len());
+                let (c, e, j) = (
+                    interpolate(rows, &nodal.cauchy, 9),
+                    interpolate(rows, &nodal.green, 9),
+                    interpolate(rows, &nodal.j, 1),
+                );
+                for v in 0..rows.len() {
+                    f.set(
+                        v,
+                        &nalgebra::Matrix3::from_row_slice(&c[9 * v..9 * v + 9]),
+                        &nalgebra::Matrix3::from_row_slice(&e[9 * v..9 * v + 9]),
+                        j[v],
+                    );
                 }
-                (None, Some(c)) => Some((&c.nodes, c.vtu_cells(), &c.owner)),
-                (None, None) => None,
+                (interpolate(rows, &flat_u, 3), f)
+            }
+            (Some(rows), None) => (interpolate(rows, &flat_u, 3), nodal),
+            (None, _) => (flat_u, nodal),
+        };
+        let stretches: Vec<f64> = (0..at_points.len())
+            .flat_map(|v| at_points.principal_stretches(v))
+            .collect();
+        // Cell values: per element, or the mean of each cell's points.
+        let cells_of = |values: &[f64], width: usize| -> Vec<f64> {
+            let Some(owner) = owner else {
+                return values.to_vec();
             };
-        match (&self.interp, cells) {
-            (Some(interp), Some((points, (conn, offsets, types), owner))) => {
-                let disp: Vec<f64> = interp
-                    .iter()
-                    .flat_map(|(ids, phi)| {
-                        let d = ids
-                            .iter()
-                            .zip(phi)
-                            .fold(Vector3::zeros(), |a: Vector3<f64>, (&i, &p)| a + u[i] * p);
-                        [d.x, d.y, d.z]
+            let mut sum = vec![0.0; ncell * width];
+            let mut count = vec![0usize; ncell];
+            for (p, &e) in owner.iter().enumerate() {
+                if e < ncell {
+                    count[e] += 1;
+                    for c in 0..width {
+                        sum[e * width + c] += values[p * width + c];
+                    }
+                }
+            }
+            for e in 0..ncell {
+                let w = 1.0 / count[e].max(1) as f64;
+                sum[e * width..(e + 1) * width]
+                    .iter_mut()
+                    .for_each(|x| *x *= w);
+            }
+            sum
+        };
+        let (cell_sig, cell_vm, cell_j) = (
+            cells_of(&points.cauchy, 9),
+            cells_of(&points.von_mises, 1),
+            cells_of(&points.j, 1),
+        );
+        let region: Vec<f64> = if self.labels.point_cells.is_empty() {
+            Vec::new()
+        } else {
+            let mut r = vec![0.0; ncell];
+            for &(e, m) in &self.labels.point_cells {
+                if let Some(x) = r.get_mut(e) {
+                    *x = m as f64;
+                }
+            }
+            r
+        };
+        // Boundary labels at the frame's points (meshless: at the field node of a vertex).
+        let node_of = |v: usize| -> Option<usize> {
+            match self.meshless {
+                Some(m) => m
+                    .background_node
+                    .get(v)
+                    .copied()
+                    .filter(|&i| i != usize::MAX),
+                None => Some(v),
+            }
+        };
+        let labels: Vec<(String, Vec<f64>)> = self
+            .labels
+            .boundaries
+            .iter()
+            .map(|(name, on)| {
+                let v: Vec<f64> = (0..xs.len())
+                    .map(|k| match node_of(k) {
+                        Some(i) if on.get(i) == Some(&true) => 1.0,
+                        _ => 0.0,
                     })
                     .collect();
-                write_meshless_frame(
-                    &path,
-                    points,
-                    (&conn, &offsets, &types),
-                    owner,
-                    &disp,
-                    (&sig, &vm, &jac),
-                    format,
-                )?;
-            }
-            _ => {
-                let disp: Vec<f64> = u.iter().flat_map(|v| [v.x, v.y, v.z]).collect();
-                let point_data = vec![DataArray {
-                    name: "displacement",
-                    components: 3,
-                    values: &disp,
-                }];
-                let cell_data = vec![
-                    DataArray {
-                        name: "cauchy_stress",
-                        components: 9,
-                        values: &sig,
-                    },
-                    DataArray {
-                        name: "von_mises",
-                        components: 1,
-                        values: &vm,
-                    },
-                    DataArray {
-                        name: "J",
-                        components: 1,
-                        values: &jac,
-                    },
-                ];
-                vtu::write_mesh(&path, self.mesh, point_data, cell_data, format)?;
+                (format!("boundary_{name}"), v)
+            })
+            .collect();
+        let mut point_data = vec![
+            DataArray {
+                name: "displacement",
+                components: 3,
+                values: &disp,
+            },
+            DataArray {
+                name: "cauchy_stress",
+                components: 9,
+                values: &at_points.cauchy,
+            },
+            DataArray {
+                name: "green_lagrange_strain",
+                components: 9,
+                values: &at_points.green,
+            },
+            DataArray {
+                name: "principal_stretches",
+                components: 3,
+                values: &stretches,
+            },
+            DataArray {
+                name: "von_mises",
+                components: 1,
+                values: &at_points.von_mises,
+            },
+            DataArray {
+                name: "J",
+                components: 1,
+                values: &at_points.j,
+            },
+        ];
+        for (name, v) in &labels {
+            point_data.push(DataArray {
+                name,
+                components: 1,
+                values: v,
+            });
+        }
+        let mut cell_data = Vec::new();
+        if types.iter().all(|&t| t != 1) {
+            cell_data.extend([
+                DataArray {
+                    name: "cauchy_stress",
+                    components: 9,
+                    values: &cell_sig,
+                },
+                DataArray {
+                    name: "von_mises",
+                    components: 1,
+                    values: &cell_vm,
+                },
+                DataArray {
+                    name: "J",
+                    components: 1,
+                    values: &cell_j,
+                },
+            ]);
+            if !region.is_empty() {
+                cell_data.push(DataArray {
+                    name: "region",
+                    components: 1,
+                    values: &region,
+                });
             }
         }
+        let piece = vtu::Piece {
+            points: xs,
+            connectivity: &conn,
+            offsets: &offsets,
+            types: &types,
+            point_data,
+            cell_data,
+        };
+        vtu::write_vtu(&path, &piece, self.format)?;
         self.series.push((t, file));
         Ok(())
     }
@@ -380,12 +506,14 @@ pub fn write_outputs(
     format: VtuFormat,
 ) -> Result<()> {
     let name = scene.name.clone().unwrap_or_else(|| "run".into());
+    let labels = FrameLabels::of(prep);
     let mut frames = FrameWriter::new(
         dir,
         &name,
         &prep.mesh,
         prep.meshless.as_ref(),
         prep.coupled.as_ref(),
+        labels,
         format,
     )?;
     for (t, u) in &out.frames {

@@ -1027,36 +1027,100 @@ impl<M: Material> Forces<M> {
         total
     }
 
-    /// Per point: Cauchy stress (Pa, row-major 9 values), von Mises stress (Pa) and J.
+    /// Per point: Cauchy stress (Pa, from the stress the kernel uses: ANP / mean-dilatation F),
+    /// Green-Lagrange strain E = (F^T F - I) / 2 of the point's own F, von Mises stress (Pa)
+    /// and the stress's J.
     pub fn stress_fields(
         &mut self,
         qp: &QuadraturePoints,
         slots: &NodeSlots,
         u: &[Vector3<f64>],
-    ) -> (Vec<f64>, Vec<f64>, Vec<f64>) {
+    ) -> Fields {
         debug_assert_eq!(
             slots.slots.len(),
             qp.nodes.len(),
             "node slots of other points"
         );
         self.averages(qp, u);
-        let mut sig = vec![0.0; 9 * qp.len()];
-        let mut vm = vec![0.0; qp.len()];
-        let mut jj = vec![0.0; qp.len()];
+        let mut out = Fields::zeros(qp.len());
         for p in 0..qp.len() {
-            let (f, j) = self.stress_gradient(qp, p, u);
+            let plain = deformation_gradient(qp, p, u);
+            let (f, j) = self.modified(qp, p, plain);
             let s = self.material_at(p).pk2_stress(&f, j);
             let c = f * s * f.transpose() / j;
-            for r in 0..3 {
-                for k in 0..3 {
-                    sig[9 * p + 3 * r + k] = c[(r, k)];
-                }
-            }
-            let dev = c - Matrix3::identity() * (c.trace() / 3.0);
-            vm[p] = (1.5 * dev.norm_squared()).sqrt();
-            jj[p] = j;
+            let e = (plain.transpose() * plain - Matrix3::identity()) * 0.5;
+            out.set(p, &c, &e, j);
         }
-        (sig, vm, jj)
+        out
+    }
+}
+
+/// Fields of the deformation per point or per node: Cauchy stress (Pa) and Green-Lagrange
+/// strain (dimensionless), each 9 values row-major per entry, von Mises stress (Pa) and J.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Fields {
+    pub cauchy: Vec<f64>,
+    pub green: Vec<f64>,
+    pub von_mises: Vec<f64>,
+    pub j: Vec<f64>,
+}
+
+impl Fields {
+    /// `n` entries of zeros.
+    pub fn zeros(n: usize) -> Self {
+        Fields {
+            cauchy: vec![0.0; 9 * n],
+            green: vec![0.0; 9 * n],
+            von_mises: vec![0.0; n],
+            j: vec![0.0; n],
+        }
+    }
+
+    /// Number of entries.
+    pub fn len(&self) -> usize {
+        self.j.len()
+    }
+
+    /// No entry.
+    pub fn is_empty(&self) -> bool {
+        self.j.is_empty()
+    }
+
+    /// Entry `p` from its Cauchy stress `c`, strain `e` and J (von Mises from `c`).
+    pub fn set(&mut self, p: usize, c: &Matrix3<f64>, e: &Matrix3<f64>, j: f64) {
+        for r in 0..3 {
+            for k in 0..3 {
+                self.cauchy[9 * p + 3 * r + k] = c[(r, k)];
+                self.green[9 * p + 3 * r + k] = e[(r, k)];
+            }
+        }
+        let dev = c - Matrix3::identity() * (c.trace() / 3.0);
+        self.von_mises[p] = (1.5 * dev.norm_squared()).sqrt();
+        self.j[p] = j;
+    }
+
+    /// Cauchy stress of entry `p`, Pa.
+    pub fn cauchy_at(&self, p: usize) -> Matrix3<f64> {
+        Matrix3::from_row_slice(&self.cauchy[9 * p..9 * p + 9])
+    }
+
+    /// Green-Lagrange strain of entry `p`.
+    pub fn green_at(&self, p: usize) -> Matrix3<f64> {
+        Matrix3::from_row_slice(&self.green[9 * p..9 * p + 9])
+    }
+
+    /// Principal stretches of entry `p`, largest first: sqrt of the eigenvalues of
+    /// C = 2 E + I.
+    pub fn principal_stretches(&self, p: usize) -> [f64; 3] {
+        let c = self.green_at(p) * 2.0 + Matrix3::identity();
+        let e = nalgebra::SymmetricEigen::new(c).eigenvalues;
+        let mut l = [
+            e.x.max(0.0).sqrt(),
+            e.y.max(0.0).sqrt(),
+            e.z.max(0.0).sqrt(),
+        ];
+        l.sort_by(|a, b| b.total_cmp(a));
+        l
     }
 }
 

@@ -11,7 +11,7 @@ pub mod spectrum;
 pub mod timestep;
 mod two_ended;
 
-use nalgebra::Vector3;
+use nalgebra::{Matrix3, Vector3};
 
 use crate::bc::contact::Contact;
 use crate::bc::loads::{Load, Loads};
@@ -19,7 +19,7 @@ use crate::bc::{Boundary, Constraints};
 use crate::material::Material;
 use crate::quadrature::{NodeSlots, QuadraturePoints};
 use crate::Result;
-pub use forces::Forces;
+pub use forces::{Fields, Forces};
 pub use integrate::{
     keep_warm, run, run_streaming, FrameSink, Mode, RunOutput, Settings, StepEstimate,
 };
@@ -267,18 +267,43 @@ impl<M: Material> Model<M> {
     }
 
     /// Per point in the discretization's order (element order for FE meshes): Cauchy stress
-    /// (Pa, row-major 9 values), von Mises stress (Pa) and J at displacements `u` (m).
-    pub fn stress_fields(&mut self, u: &[Vector3<f64>]) -> (Vec<f64>, Vec<f64>, Vec<f64>) {
-        let (sig, vm, jac) = self.forces.stress_fields(&self.points, &self.slots, u);
-        let n = self.points.len();
-        let (mut s, mut v, mut j) = (vec![0.0; 9 * n], vec![0.0; n], vec![0.0; n]);
+    /// (Pa), Green-Lagrange strain, von Mises stress (Pa) and J at displacements `u` (m).
+    pub fn stress_fields(&mut self, u: &[Vector3<f64>]) -> Fields {
+        let f = self.forces.stress_fields(&self.points, &self.slots, u);
+        let mut out = Fields::zeros(f.len());
         for (q, &p) in self.point_ids.iter().enumerate() {
             let p = p as usize;
-            s[9 * p..9 * p + 9].copy_from_slice(&sig[9 * q..9 * q + 9]);
-            v[p] = vm[q];
-            j[p] = jac[q];
+            out.cauchy[9 * p..9 * p + 9].copy_from_slice(&f.cauchy[9 * q..9 * q + 9]);
+            out.green[9 * p..9 * p + 9].copy_from_slice(&f.green[9 * q..9 * q + 9]);
+            out.von_mises[p] = f.von_mises[q];
+            out.j[p] = f.j[q];
         }
-        (s, v, j)
+        out
+    }
+
+    /// Per node: the points' Cauchy stress, strain and J averaged with each point's share of
+    /// its volume at the node (w_p / n_p, the lumped-mass weights), von Mises stress from the
+    /// averaged Cauchy stress. The smoothed nodal fields ParaView colours by; a node's own
+    /// points are those that support it.
+    pub fn nodal_fields(&mut self, u: &[Vector3<f64>]) -> Fields {
+        let f = self.forces.stress_fields(&self.points, &self.slots, u);
+        let n = self.nodes.len();
+        let mut out = Fields::zeros(n);
+        for i in 0..n {
+            let (mut c, mut e, mut j, mut w) = (Matrix3::zeros(), Matrix3::zeros(), 0.0, 0.0);
+            for k in self.slots.range(i) {
+                let p = self.slots.points[k] as usize;
+                let wp = self.points.weights[p] / self.points.slots(p).len() as f64;
+                c += f.cauchy_at(p) * wp;
+                e += f.green_at(p) * wp;
+                j += f.j[p] * wp;
+                w += wp;
+            }
+            if w != 0.0 {
+                out.set(i, &(c / w), &(e / w), j / w);
+            }
+        }
+        out
     }
 
     /// The force each boundary applies to the body, N: the sum over its nodes of the internal
@@ -344,15 +369,12 @@ mod tests {
             .iter()
             .map(|x| Vector3::new(0.3 * x.x * x.x, 0.1 * x.x * x.y, -0.2 * x.z * (x.x + 0.05)))
             .collect();
-        let (sig, vm, jac) = model.stress_fields(&u);
+        let fields = model.stress_fields(&u);
         let slots = NodeSlots::new(&qp, mesh.nodes.len());
         let mut plain = Forces::new(mat, &qp, &slots, mesh.nodes.len());
-        let (sig0, vm0, jac0) = plain.stress_fields(&qp, &slots, &u);
-        assert!(
-            sig == sig0 && vm == vm0 && jac == jac0,
-            "per-point results moved"
-        );
-        let distinct = jac0.windows(2).filter(|w| w[0] != w[1]).count();
+        let fields0 = plain.stress_fields(&qp, &slots, &u);
+        assert!(fields == fields0, "per-point results moved");
+        let distinct = fields0.j.windows(2).filter(|w| w[0] != w[1]).count();
         assert!(
             distinct > qp.len() / 2,
             "the test field must tell elements apart"
