@@ -339,7 +339,8 @@ fn cli_json_summary_has_the_documented_fields_and_outputs_are_written() {
     if let vtkio::model::DataSet::UnstructuredGrid { pieces, .. } = vtk.data {
         let piece = pieces[0].load_piece_data(None).unwrap();
         assert_eq!(piece.num_points(), 729);
-        assert_eq!(piece.data.point.len(), 1);
+        // Displacement, five nodal fields and a label per boundary (four in the case).
+        assert_eq!(piece.data.point.len(), 6 + 4);
         assert_eq!(piece.data.cell.len(), 3);
     } else {
         panic!("not an unstructured grid");
