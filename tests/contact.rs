@@ -198,3 +198,56 @@ fn contact_scene_errors_name_the_key() {
     .to_string();
     assert!(e.contains("same name"), "{e}");
 }
+
+/// cases/brain-shift.toml as it stands (3,520 nodes): Ogden brain with a stiffer tumour region
+/// under gravity, base bonded, 192 measured cortical displacements in a craniotomy. It
+/// converges; the base and the measured boundary together hold the weight; every measured node
+/// ends at its measured displacement (the apex at -2 mm); the tumour holds points.
+#[cfg(feature = "tetgen")]
+#[test]
+fn the_brain_shift_scene_runs_from_its_case() {
+    let sc = hytled::scene::load(&path("cases/brain-shift.toml"), &[]).unwrap();
+    let mut prep = prepare(&sc).unwrap();
+    assert_eq!(
+        prep.regions,
+        vec![("tumour".to_string(), prep.regions[0].1)]
+    );
+    assert!(prep.regions[0].1 > 0);
+    let out = hytled::solver::run(&mut prep.model, &settings(&sc, false)).unwrap();
+    let s = hytled::simulation::summarize(&sc, &prep, &out, 0.0);
+    let (base, exposed, weight) = (
+        s.reactions["base"],
+        s.reactions["exposed"],
+        s.loads["gravity"],
+    );
+    println!(
+        "brain shift: {} steps, base {base:?} N, exposed {exposed:?} N, weight {weight:?} N, apex {:?} m, tumour {:?} m",
+        s.steps, s.probes["apex"].displacement, s.probes["tumour_centre"].displacement
+    );
+    assert!(s.converged);
+    // Balanced to what the scene's relaxation tolerance (1e-7 m) leaves.
+    for k in 0..3 {
+        assert!(
+            (base[k] + exposed[k] + weight[k]).abs() < 1e-4 * weight[2].abs(),
+            "{k}"
+        );
+    }
+    let measured = prep
+        .model
+        .boundaries
+        .iter()
+        .find(|b| b.name == "exposed")
+        .unwrap();
+    assert_eq!(measured.nodes.len(), 192);
+    for (k, &i) in measured.nodes.iter().enumerate() {
+        for c in 0..3 {
+            let want = measured.value(k, c).unwrap();
+            assert!(
+                (out.u[i][c] - want).abs() < 1e-12,
+                "node {i}: {:?}",
+                out.u[i]
+            );
+        }
+    }
+    assert!((s.probes["apex"].displacement[2] + 0.002).abs() < 1e-12);
+}
