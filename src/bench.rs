@@ -13,8 +13,7 @@ use nalgebra::Vector3;
 use serde::Serialize;
 
 use crate::scene::{self, Scene};
-use crate::simulation;
-use crate::solver::{self, Mode};
+use crate::simulation::{self, Mode};
 use crate::{Error, Result};
 
 /// The cylinder scene the default cases start from.
@@ -198,13 +197,13 @@ fn time_once(
     let preprocess_s = t0.elapsed().as_secs_f64();
     let mut s = simulation::settings(&case.scene, false);
     s.mode = Mode::Dynamic;
-    let (dt_crit, _) = solver::integrate::critical_step(&mut prep.model, s.step_estimate);
+    let (dt_crit, _) = simulation::critical_step(&case.scene, &mut prep);
     // The run divides the duration into whole steps of at most dt_factor x dt_crit.
     s.duration = steps as f64 * s.dt_factor * dt_crit * (1.0 - 1e-9);
     // As in a full 3 s run of ~8,000 steps with 200 history rows: energies every 40 steps.
     s.history_rows = (steps / 40).max(1);
     s.frames = 1;
-    let out = solver::run(&mut prep.model, &s)?;
+    let out = simulation::solve(&mut prep, &s)?;
     let points = prep.model.points.len();
     let per_step = out.solve_seconds / out.steps.max(1) as f64;
     let row = BenchRow {

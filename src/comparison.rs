@@ -119,7 +119,7 @@ pub fn run_case(
         let s = scene::load(scene_path, overrides)?;
         let mut prep = simulation::prepare(&s)?;
         let settings = simulation::settings(&s, false);
-        let out_run = crate::solver::run(&mut prep.model, &settings)?;
+        let out_run = simulation::solve(&mut prep, &settings)?;
         let summary = simulation::summarize(&s, &prep, &out_run, t0.elapsed().as_secs_f64());
         if let Some(dir) = out {
             simulation::write_outputs(dir, &s, &mut prep, &out_run, &summary, vtu_format)?;

@@ -143,3 +143,24 @@ fn lower_layers_do_not_see_the_scene() {
         }
     }
 }
+
+/// Issue 23: the pipeline (`simulation`) is the one place that knows both the scene schema and
+/// the solver; the schema and the commands built on the pipeline reach the solver through it.
+#[test]
+fn only_the_pipeline_knows_both_the_scene_and_the_solver() {
+    for (m, text) in modules() {
+        if m == "simulation" || !TOP.contains(&m.as_str()) {
+            continue;
+        }
+        // The schema names the solver's mode and step-estimate enums as scene values.
+        let calls: Vec<&str> = text
+            .split("crate::solver")
+            .skip(1)
+            .filter(|rest| !(rest.starts_with("::Mode") || rest.starts_with("::StepEstimate")))
+            .collect();
+        assert!(
+            calls.is_empty(),
+            "module `{m}` names the solver: go through simulation (solve, critical_step)"
+        );
+    }
+}

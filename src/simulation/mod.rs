@@ -35,7 +35,8 @@ use crate::report::{
     WallSeconds,
 };
 use crate::scene::{BcMethod, Component, Method, Scene};
-use crate::solver::{self, Mode, Model, RunOutput};
+use crate::solver::{self, Model, RunOutput};
+pub use crate::solver::{Mode, Settings};
 use crate::{Error, Result};
 
 /// How to run a scene.
@@ -907,6 +908,19 @@ pub fn run_scene(scene: &Scene, opts: &RunOptions) -> Result<Summary> {
         d.fail(e);
     }
     result
+}
+
+/// Runs a prepared scene's model with `settings` to the end of its dynamic interval or to
+/// relaxation convergence (see [`solver::run`]); commands built on the pipeline solve through
+/// this, so the pipeline stays the one place that knows both the scene and the solver.
+pub fn solve(prep: &mut Prepared, settings: &Settings) -> Result<RunOutput> {
+    solver::run(&mut prep.model, settings)
+}
+
+/// The critical time step of a prepared scene, s, and what sets it, by the scene's estimate
+/// (`solver.time_step`).
+pub fn critical_step(scene: &Scene, prep: &mut Prepared) -> (f64, solver::integrate::Critical) {
+    solver::integrate::critical_step(&mut prep.model, scene.solver.time_step)
 }
 
 /// "fe", "coupled" or "meshless".
