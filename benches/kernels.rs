@@ -77,7 +77,7 @@ fn subset(qp: &QuadraturePoints, keep: impl Fn(PointKind) -> bool) -> Quadrature
 fn bench_points(c: &mut Criterion, name: &str, prep: &Prepared, qp: &QuadraturePoints) {
     let n = prep.model.nodes.len();
     let slots = NodeSlots::new(qp, n);
-    let mut forces = Forces::new(prep.model.forces.material, qp, &slots, n);
+    let mut forces = Forces::new(prep.model.forces.materials[0], qp, &slots, n);
     let u = field(&prep.model.nodes);
     let mut out = vec![Vector3::zeros(); n];
     let pool = rayon::ThreadPoolBuilder::new()

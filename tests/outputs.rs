@@ -11,16 +11,15 @@ use hytled::simulation::{run_scene, RunOptions};
 
 const A: f64 = 1.11574668;
 
-/// The arrays of the last frame of a run written to `dir`: point and cell arrays by name.
-fn last_frame(
-    dir: &std::path::Path,
-    name: &str,
-    frame: usize,
-) -> (
+/// Point arrays, cell arrays (by name) and point coordinates of a frame.
+type Frame = (
     BTreeMap<String, Vec<f64>>,
     BTreeMap<String, Vec<f64>>,
     Vec<f64>,
-) {
+);
+
+/// The arrays of the last frame of a run written to `dir`: point and cell arrays by name.
+fn last_frame(dir: &std::path::Path, name: &str, frame: usize) -> Frame {
     let vtk = vtkio::Vtk::import(dir.join(format!("{name}_{frame:04}.vtu")))
         .expect("vtkio reads the frame");
     let vtkio::model::DataSet::UnstructuredGrid { pieces, .. } = vtk.data else {

@@ -431,7 +431,7 @@ mod tests {
         )
         .unwrap();
         let mut f = vec![Vector3::zeros(); 4];
-        l.apply(&vec![Vector3::zeros(); 4], 1.0, &mut f);
+        l.apply(&[Vector3::zeros(); 4], 1.0, &mut f);
         for fi in &f {
             assert!((fi - t / 4.0).norm() < 1e-12, "{fi}");
         }
@@ -452,7 +452,7 @@ mod tests {
             &[1.0; 4],
         )
         .unwrap();
-        l.apply(&vec![Vector3::zeros(); 4], 1.0, &mut f);
+        l.apply(&[Vector3::zeros(); 4], 1.0, &mut f);
         let want = [2.0, 1.0, 2.0, 1.0].map(|k| t * (k / 6.0));
         for (fi, w) in f.iter().zip(want) {
             assert!((fi - w).norm() < 1e-12, "{fi} vs {w}");

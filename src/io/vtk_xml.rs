@@ -732,6 +732,99 @@ fn normalize_capped(bytes: &[u8], path: &Path, cap: u64) -> Result<Option<Vec<u8
     Ok(Some(out))
 }
 
+/// Line (1-based) of byte `at`.
+fn line_of(bytes: &[u8], at: usize) -> usize {
+    bytes[..at.min(bytes.len())]
+        .iter()
+        .filter(|&&b| b == b'\n')
+        .count()
+        + 1
+}
+
+/// Where an XML file the parser (vtkio) rejected goes wrong, for its message, as "line L
+/// (byte B): what": the first end tag that does not close the element open there, an element
+/// left open at the end of the file, an integer attribute (NumberOfPoints, NumberOfCells,
+/// NumberOfComponents, offset) that is not one, or else the first place the value the parser
+/// names in backquotes (an unknown type name, say) appears. The parser's own
+/// errors carry no position. None when none of these finds the place.
+pub(crate) fn locate_parse_error(bytes: &[u8], message: &str) -> Option<String> {
+    let app = find(bytes, b"<AppendedData");
+    let head = &bytes[..app.unwrap_or(bytes.len())];
+    let at = |b: usize| format!("line {} (byte {b})", line_of(bytes, b));
+    let text = |t: &[u8]| super::clip(&String::from_utf8_lossy(t));
+    let mut open: Vec<(usize, &[u8])> = Vec::new();
+    for (s, t) in tags(head) {
+        if t.starts_with(b"?") || t.starts_with(b"!") {
+            continue;
+        }
+        if let Some(name) = t.strip_prefix(b"/") {
+            let name = name.trim_ascii();
+            match open.pop() {
+                Some((_, o)) if o == name => {}
+                Some((o_at, o)) => {
+                    return Some(format!(
+                        "{}: </{}> does not close <{}>, opened on {}",
+                        at(s),
+                        text(name),
+                        text(o),
+                        at(o_at)
+                    ))
+                }
+                None => {
+                    return Some(format!(
+                        "{}: </{}> closes no open element",
+                        at(s),
+                        text(name)
+                    ))
+                }
+            }
+        } else if !t.ends_with(b"/") {
+            let end = t
+                .iter()
+                .position(|b| b.is_ascii_whitespace())
+                .unwrap_or(t.len());
+            open.push((s, &t[..end]));
+        }
+    }
+    if app.is_none() {
+        if let Some(&(o_at, o)) = open.last() {
+            return Some(format!(
+                "{}: the file ends inside <{}>, opened on {}: truncated file?",
+                at(bytes.len()),
+                text(o),
+                at(o_at)
+            ));
+        }
+    }
+    // An integer attribute that is not an integer.
+    for (s, t) in tags(head) {
+        for key in [
+            &b"NumberOfPoints"[..],
+            b"NumberOfCells",
+            b"NumberOfComponents",
+            b"offset",
+        ] {
+            if let Some(v) = attr(t, key) {
+                if v.trim_ascii().is_empty() || !v.trim_ascii().iter().all(u8::is_ascii_digit) {
+                    return Some(format!(
+                        "{}: {}=\"{}\" is not a non-negative integer",
+                        at(s),
+                        text(key),
+                        text(v)
+                    ));
+                }
+            }
+        }
+    }
+    // A value the parser names: `Float65`.
+    let mut parts = message.split('`');
+    parts.next();
+    let value = parts.next().filter(|v| !v.is_empty())?;
+    let quoted = format!("\"{value}\"");
+    let b = find(head, quoted.as_bytes()).or_else(|| find(head, value.as_bytes()))?;
+    Some(format!("{}: '{}'", at(b), text(value.as_bytes())))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -843,97 +936,4 @@ mod tests {
             assert!(e.contains("cap for one file"), "{c}: {e}");
         }
     }
-}
-
-/// Line (1-based) of byte `at`.
-fn line_of(bytes: &[u8], at: usize) -> usize {
-    bytes[..at.min(bytes.len())]
-        .iter()
-        .filter(|&&b| b == b'\n')
-        .count()
-        + 1
-}
-
-/// Where an XML file the parser (vtkio) rejected goes wrong, for its message, as "line L
-/// (byte B): what": the first end tag that does not close the element open there, an element
-/// left open at the end of the file, an integer attribute (NumberOfPoints, NumberOfCells,
-/// NumberOfComponents, offset) that is not one, or else the first place the value the parser
-/// names in backquotes (an unknown type name, say) appears. The parser's own
-/// errors carry no position. None when none of these finds the place.
-pub(crate) fn locate_parse_error(bytes: &[u8], message: &str) -> Option<String> {
-    let app = find(bytes, b"<AppendedData");
-    let head = &bytes[..app.unwrap_or(bytes.len())];
-    let at = |b: usize| format!("line {} (byte {b})", line_of(bytes, b));
-    let text = |t: &[u8]| super::clip(&String::from_utf8_lossy(t));
-    let mut open: Vec<(usize, &[u8])> = Vec::new();
-    for (s, t) in tags(head) {
-        if t.starts_with(b"?") || t.starts_with(b"!") {
-            continue;
-        }
-        if let Some(name) = t.strip_prefix(b"/") {
-            let name = name.trim_ascii();
-            match open.pop() {
-                Some((_, o)) if o == name => {}
-                Some((o_at, o)) => {
-                    return Some(format!(
-                        "{}: </{}> does not close <{}>, opened on {}",
-                        at(s),
-                        text(name),
-                        text(o),
-                        at(o_at)
-                    ))
-                }
-                None => {
-                    return Some(format!(
-                        "{}: </{}> closes no open element",
-                        at(s),
-                        text(name)
-                    ))
-                }
-            }
-        } else if !t.ends_with(b"/") {
-            let end = t
-                .iter()
-                .position(|b| b.is_ascii_whitespace())
-                .unwrap_or(t.len());
-            open.push((s, &t[..end]));
-        }
-    }
-    if app.is_none() {
-        if let Some(&(o_at, o)) = open.last() {
-            return Some(format!(
-                "{}: the file ends inside <{}>, opened on {}: truncated file?",
-                at(bytes.len()),
-                text(o),
-                at(o_at)
-            ));
-        }
-    }
-    // An integer attribute that is not an integer.
-    for (s, t) in tags(head) {
-        for key in [
-            &b"NumberOfPoints"[..],
-            b"NumberOfCells",
-            b"NumberOfComponents",
-            b"offset",
-        ] {
-            if let Some(v) = attr(t, key) {
-                if v.trim_ascii().is_empty() || !v.trim_ascii().iter().all(u8::is_ascii_digit) {
-                    return Some(format!(
-                        "{}: {}=\"{}\" is not a non-negative integer",
-                        at(s),
-                        text(key),
-                        text(v)
-                    ));
-                }
-            }
-        }
-    }
-    // A value the parser names: `Float65`.
-    let mut parts = message.split('`');
-    parts.next();
-    let value = parts.next().filter(|v| !v.is_empty())?;
-    let quoted = format!("\"{value}\"");
-    let b = find(head, quoted.as_bytes()).or_else(|| find(head, value.as_bytes()))?;
-    Some(format!("{}: '{}'", at(b), text(value.as_bytes())))
 }

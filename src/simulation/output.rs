@@ -211,6 +211,14 @@ pub struct FrameWriter<'a> {
     series: Vec<(f64, String)>,
 }
 
+/// A frame's points (m), its cells (connectivity, offsets, VTK types) and the cell of each
+/// quadrature point (None: one point per cell, in cell order).
+type FrameGeometry<'a> = (
+    &'a [Vector3<f64>],
+    (Vec<usize>, Vec<usize>, Vec<u8>),
+    Option<&'a [usize]>,
+);
+
 /// Sums `rows` (entries, weights) of `values` (`width` numbers per entry) into one entry per row.
 fn interpolate(rows: &[(Vec<usize>, Vec<f64>)], values: &[f64], width: usize) -> Vec<f64> {
     let mut out = vec![0.0; rows.len() * width];
@@ -283,42 +291,39 @@ impl<'a> FrameWriter<'a> {
         let path = self.dir.join(&file);
         // The frame's points and cells: FE mesh, meshless background tets (or vertices),
         // coupled FE layer and interior; `owner` maps points to cells (None: one per element).
-        let (xs, (conn, offsets, types), owner): (
-            &[Vector3<f64>],
-            (Vec<usize>, Vec<usize>, Vec<u8>),
-            Option<&[usize]>,
-        ) = match (self.meshless, self.coupled) {
-            (Some(m), _) => {
-                let b = &m.background;
-                let cells = if b.num_cells() == 0 {
-                    // A cloud without tets: each vertex a VTK vertex.
-                    let n = b.nodes.len();
-                    ((0..n).collect(), (1..=n).collect(), vec![1u8; n])
-                } else {
-                    let npc = b.shape.nodes_per_cell();
+        let (xs, (conn, offsets, types), owner): FrameGeometry<'_> =
+            match (self.meshless, self.coupled) {
+                (Some(m), _) => {
+                    let b = &m.background;
+                    let cells = if b.num_cells() == 0 {
+                        // A cloud without tets: each vertex a VTK vertex.
+                        let n = b.nodes.len();
+                        ((0..n).collect(), (1..=n).collect(), vec![1u8; n])
+                    } else {
+                        let npc = b.shape.nodes_per_cell();
+                        (
+                            b.cells.clone(),
+                            (1..=b.num_cells()).map(|e| e * npc).collect(),
+                            vec![b.shape.vtk_type(); b.num_cells()],
+                        )
+                    };
+                    (&b.nodes, cells, Some(&m.owner[..]))
+                }
+                (None, Some(c)) => (&c.nodes, c.vtu_cells(), Some(&c.owner[..])),
+                (None, None) => {
+                    let m = self.mesh;
+                    let npc = m.shape.nodes_per_cell();
                     (
-                        b.cells.clone(),
-                        (1..=b.num_cells()).map(|e| e * npc).collect(),
-                        vec![b.shape.vtk_type(); b.num_cells()],
+                        &m.nodes,
+                        (
+                            m.cells.clone(),
+                            (1..=m.num_cells()).map(|e| e * npc).collect(),
+                            vec![m.shape.vtk_type(); m.num_cells()],
+                        ),
+                        None,
                     )
-                };
-                (&b.nodes, cells, Some(&m.owner[..]))
-            }
-            (None, Some(c)) => (&c.nodes, c.vtu_cells(), Some(&c.owner[..])),
-            (None, None) => {
-                let m = self.mesh;
-                let npc = m.shape.nodes_per_cell();
-                (
-                    &m.nodes,
-                    (
-                        m.cells.clone(),
-                        (1..=m.num_cells()).map(|e| e * npc).collect(),
-                        vec![m.shape.vtk_type(); m.num_cells()],
-                    ),
-                    None,
-                )
-            }
-        };
+                }
+            };
         let ncell = types.len();
         // Displacements and nodal fields at the frame's points.
         let flat_u: Vec<f64> = u.iter().flat_map(|v| [v.x, v.y, v.z]).collect();

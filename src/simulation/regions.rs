@@ -16,6 +16,9 @@ pub(super) struct Places {
     pub element: Vec<Option<usize>>,
 }
 
+/// The model's materials, each point's index into them and each region's point count.
+pub(super) type PointMaterials = (Vec<Solid>, Vec<u16>, Vec<(String, usize)>);
+
 /// The model's materials and each point's index into them: 0 is `[material]`, k the k-th
 /// `[regions]` entry in name order. Without regions the index list is empty (every point has
 /// `[material]`). A point in two regions, or a region with no point, is an error naming it.
@@ -23,7 +26,7 @@ pub(super) fn point_materials(
     scene: &Scene,
     input: Option<&MeshInput>,
     places: &Places,
-) -> Result<(Vec<Solid>, Vec<u16>, Vec<(String, usize)>)> {
+) -> Result<PointMaterials> {
     let mut materials = vec![scene.material.solid()];
     if scene.regions.is_empty() {
         return Ok((materials, Vec::new(), Vec::new()));

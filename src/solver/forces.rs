@@ -737,6 +737,7 @@ impl<M: Material> Forces<M> {
     /// `u.len()`.
     #[inline(always)]
     #[allow(clippy::needless_range_loop)] // index loops over lanes are what vectorizes
+    #[allow(clippy::too_many_arguments)]
     unsafe fn lanes<
         const N: usize,
         const L: usize,
@@ -928,6 +929,7 @@ impl<M: Material> Forces<M> {
     /// # Safety
     /// As [`Self::point_fixed`] for slots a..b.
     #[inline(always)]
+    #[allow(clippy::too_many_arguments)]
     unsafe fn point_any<const AVX: bool, K: Material>(
         &self,
         qp: &QuadraturePoints,
