@@ -77,7 +77,8 @@ pub fn peak_memory_mib() -> Option<f64> {
 }
 
 /// The reaction component the comparison plots: the first reference's reaction, else the z
-/// component of the first boundary with a prescribed displacement, else of the first boundary.
+/// component of the first boundary with a prescribed displacement, else of the first rigid
+/// contact body (what drives the scene), else of the first boundary.
 fn compared_reaction(s: &scene::Scene) -> Option<(String, usize)> {
     for r in s.references.values() {
         let parts: Vec<&str> = r.quantity.split('.').collect();
@@ -93,8 +94,10 @@ fn compared_reaction(s: &scene::Scene) -> Option<(String, usize)> {
     s.boundaries
         .iter()
         .find(|(_, b)| b.displacement.is_some())
-        .or_else(|| s.boundaries.iter().next())
-        .map(|(n, _)| (n.clone(), 2))
+        .map(|(n, _)| n)
+        .or_else(|| s.contact.keys().next())
+        .or_else(|| s.boundaries.keys().next())
+        .map(|n| (n.clone(), 2))
 }
 
 /// One finished run of a scene: its summary and the history of its compared reaction.

@@ -312,6 +312,20 @@ fn execute(cmd: Command) -> hytled::Result<u8> {
             for b in &prep.model.boundaries {
                 println!("  boundary {:<12} {} nodes", b.name, b.nodes.len());
             }
+            for (name, count) in &prep.regions {
+                println!("  region {name:<14} {count} integration points");
+            }
+            for name in prep.model.loads.names() {
+                println!("  load {name}");
+            }
+            if let Some(c) = &prep.model.contact {
+                for (b, name) in c.names().enumerate() {
+                    println!(
+                        "  contact {name:<13} {} candidate surface points",
+                        c.candidates(b)
+                    );
+                }
+            }
             for pr in &prep.probes {
                 if pr.element == usize::MAX {
                     println!(

@@ -215,6 +215,11 @@ impl Contact {
         self.bodies.iter().map(|b| b.name.as_str())
     }
 
+    /// Surface points that may touch rigid body `b`.
+    pub fn candidates(&self, b: usize) -> usize {
+        self.points.get(b).map_or(0, Vec::len)
+    }
+
     /// Number of rigid bodies.
     pub fn len(&self) -> usize {
         self.bodies.len()
