@@ -90,6 +90,17 @@ impl NeoHookean {
     }
 }
 
+/// Dilatational wave speed sqrt((kappa + 4 mu / 3) / rho), m/s, of a solid with small-strain
+/// shear and bulk moduli mu, kappa (Pa) and density rho (kg/m^3).
+fn p_wave_speed(mu: f64, kappa: f64, rho: f64) -> f64 {
+    ((kappa + 4.0 * mu / 3.0) / rho).sqrt()
+}
+
+/// Lame moduli (lambda, mu) = (kappa - 2 mu / 3, mu), Pa.
+fn lame_from(mu: f64, kappa: f64) -> (f64, f64) {
+    (kappa - 2.0 * mu / 3.0, mu)
+}
+
 /// x^(-1/3) for x > 0, to within 2 ulp, without the library cube root (a software routine that
 /// took 20 % of a meshless step). Exponent-bit guess (Moroz et al. 2021) refined by four Newton
 /// steps y <- y (4 - x y^3) / 3, which converge quadratically from its 3 % error. Other x (0,
@@ -260,7 +271,7 @@ impl Material for NeoHookean {
     }
 
     fn wave_speed(&self) -> f64 {
-        ((self.kappa + 4.0 * self.mu / 3.0) / self.density).sqrt()
+        p_wave_speed(self.mu, self.kappa, self.density)
     }
 
     fn density(&self) -> f64 {
@@ -268,7 +279,7 @@ impl Material for NeoHookean {
     }
 
     fn lame(&self) -> (f64, f64) {
-        (self.kappa - 2.0 * self.mu / 3.0, self.mu)
+        lame_from(self.mu, self.kappa)
     }
 }
 
@@ -416,27 +427,8 @@ impl Material for Ogden {
         s
     }
 
-    /// Lane by lane, out of line: the eigen-decomposition is long and gains nothing from
-    /// being inlined into the point kernel.
-    #[inline(never)]
-    fn first_pk_stress_lanes<const L: usize>(
-        &self,
-        f: &[[f64; L]; 9],
-        j: &[f64; L],
-    ) -> [[f64; L]; 9] {
-        let mut out = [[0.0; L]; 9];
-        for l in 0..L {
-            let fl = Matrix3::from_fn(|r, c| f[3 * r + c][l]);
-            let p = self.first_pk_stress(&fl, j[l]);
-            for (i, o) in out.iter_mut().enumerate() {
-                o[l] = p[(i / 3, i % 3)];
-            }
-        }
-        out
-    }
-
     fn wave_speed(&self) -> f64 {
-        ((self.kappa + 4.0 * self.mu / 3.0) / self.density).sqrt()
+        p_wave_speed(self.mu, self.kappa, self.density)
     }
 
     fn density(&self) -> f64 {
@@ -444,7 +436,7 @@ impl Material for Ogden {
     }
 
     fn lame(&self) -> (f64, f64) {
-        (self.kappa - 2.0 * self.mu / 3.0, self.mu)
+        lame_from(self.mu, self.kappa)
     }
 }
 
@@ -457,14 +449,6 @@ pub enum Solid {
 }
 
 impl Solid {
-    /// Short name for reports.
-    pub fn name(&self) -> &'static str {
-        match self {
-            Solid::NeoHookean(_) => "neo-hookean",
-            Solid::Ogden(_) => "ogden",
-        }
-    }
-
     /// Bulk modulus kappa, Pa.
     pub fn kappa(&self) -> f64 {
         match self {
@@ -545,20 +529,6 @@ impl Material for Solid {
             Solid::Ogden(m) => Concrete::Ogden(m),
         }
     }
-}
-
-/// Homogeneous uniaxial stretch of any material with free lateral faces: F = diag(a, a,
-/// stretch) with a such that the lateral Cauchy stress (from the material's S) vanishes,
-/// by bisection (it rises with a). Returns (a, J, sigma_zz in Pa). For the neo-Hookean solid
-/// [`uniaxial_stretch`] is the closed form.
-pub fn uniaxial_stretch_of<M: Material>(m: &M, stretch: f64) -> (f64, f64, f64) {
-    let cauchy = |a: f64| {
-        let f = Matrix3::from_diagonal(&nalgebra::Vector3::new(a, a, stretch));
-        let j = f.determinant();
-        f * m.pk2_stress(&f, j) * f.transpose() / j
-    };
-    let a = bisect_increasing(|a| cauchy(a)[(0, 0)], 1.0 / stretch.sqrt());
-    (a, a * a * stretch, cauchy(a)[(2, 2)])
 }
 
 #[cfg(test)]
@@ -853,8 +823,6 @@ mod tests {
                     "{sig}"
                 );
                 assert!((sig[(2, 2)] - szz).abs() < 1e-8 * scale, "{sig} vs {szz}");
-                let (a2, _, s2) = uniaxial_stretch_of(&m, stretch);
-                assert!((a2 - a).abs() < 1e-9 && (s2 - szz).abs() < 1e-8 * scale);
             }
             // Incompressible limit check: sigma = (2 mu / alpha) (l^alpha - l^(-alpha / 2)).
             let stiff = Ogden {

@@ -8,6 +8,9 @@ use hytled::material::{uniaxial_stretch, NeoHookean};
 use hytled::report::Summary;
 use hytled::simulation::{run_scene, RunOptions};
 
+mod common;
+use common::ALL_METHODS;
+
 /// A 0.1 m cube on the symmetry planes x = 0, y = 0, z = 0 (REFERENCE.md, "Cube"), relaxation,
 /// E = 3000 Pa, nu = 0.49, with `extra` TOML appended (loads, curves).
 fn cube(extra: &str) -> String {
@@ -65,25 +68,6 @@ fn run(text: &str, dir: &Path, overrides: &[&str]) -> Summary {
     s
 }
 
-/// Every method, with the resolution it needs (coupled: a meshless interior inside two FE
-/// layers).
-const METHODS: [&[&str]; 5] = [
-    &["discretization.method=fe"],
-    &[
-        "discretization.method=fe",
-        "discretization.element=tet4-anp",
-    ],
-    &["discretization.method=meshless"],
-    &[
-        "discretization.method=meshless",
-        "discretization.basis=quadratic",
-    ],
-    &[
-        "discretization.method=coupled",
-        "discretization.size=0.0125",
-    ],
-];
-
 /// Relative tolerance on displacements against an exact homogeneous solution: FE elements pass
 /// the patch test (solver tolerance); meshless and coupled points carry their integration
 /// error, which the displacement-driven meshless cube (tests/meshless.rs) also shows (thesis
@@ -128,7 +112,7 @@ mode = "relaxation"
 tolerance = 1e-9
 "#;
     let weight = 1000.0 * 9.81 * 1e-3;
-    for m in METHODS {
+    for m in ALL_METHODS {
         let s = run(text, &dir, m);
         let r = s.reactions["base"];
         let l = s.loads["weight"];
@@ -220,7 +204,7 @@ fn a_cube_pulled_by_a_uniform_traction_reproduces_the_exact_solution() {
     let text = cube(&format!(
         "[loads.pull]\nselect = {{ plane = {{ axis = \"z\", value = 0.1 }} }}\ntraction = [0.0, 0.0, {t}]\n"
     ));
-    for method in METHODS {
+    for method in ALL_METHODS {
         let s = run(&text, &dir, method);
         let u = s.probes["corner"].displacement;
         let want = [(a - 1.0) * 0.1, (a - 1.0) * 0.1, (stretch - 1.0) * 0.1];
@@ -260,7 +244,7 @@ fn a_cube_under_follower_pressure_reproduces_the_exact_solution() {
     let text = cube(&format!(
         "[loads.press]\nselect = {{ plane = {{ axis = \"z\", value = 0.1 }} }}\npressure = {p}\n"
     ));
-    for method in METHODS {
+    for method in ALL_METHODS {
         let s = run(&text, &dir, method);
         let u = s.probes["corner"].displacement;
         let want = [(a - 1.0) * 0.1, (a - 1.0) * 0.1, (stretch - 1.0) * 0.1];
@@ -310,7 +294,7 @@ points = [[0.0, 0.0], [3.0, 0.5]]
 file = "pull.csv"
 "#,
     );
-    for method in METHODS {
+    for method in ALL_METHODS {
         let s = run(&text, &dir, method);
         let weight = s.loads["weight"];
         let pull = s.loads["corner_pull"];

@@ -3,7 +3,7 @@
 //! whose exact homogeneous field is given on its top face (REFERENCE.md).
 
 mod common;
-use common::path;
+use common::{box_inp, box_node_id, path};
 
 use std::path::PathBuf;
 
@@ -132,44 +132,11 @@ fn measured_exact_displacements_reproduce_the_exact_cube() {
 #[test]
 fn measured_ids_and_errors() {
     let dir = folder("ids");
-    // The 5 x 5 x 5 structured cube as an ABAQUS file; node ids start at 101.
+    // The 4 x 4 x 4-cell cube as an ABAQUS file; node ids start at 101.
     let n = 4;
     let h = 0.1 / n as f64;
-    let id = |i: usize, j: usize, k: usize| 101 + i + (n + 1) * (j + (n + 1) * k);
-    let mut inp = String::from("*HEADING\ncube\n*NODE\n");
-    for k in 0..=n {
-        for j in 0..=n {
-            for i in 0..=n {
-                inp += &format!(
-                    "{}, {}, {}, {}\n",
-                    id(i, j, k),
-                    i as f64 * h,
-                    j as f64 * h,
-                    k as f64 * h
-                );
-            }
-        }
-    }
-    inp += "*ELEMENT, TYPE=C3D8, ELSET=ALL\n";
-    let mut e = 1;
-    for k in 0..n {
-        for j in 0..n {
-            for i in 0..n {
-                inp += &format!(
-                    "{e}, {}, {}, {}, {}, {}, {}, {}, {}\n",
-                    id(i, j, k),
-                    id(i + 1, j, k),
-                    id(i + 1, j + 1, k),
-                    id(i, j + 1, k),
-                    id(i, j, k + 1),
-                    id(i + 1, j, k + 1),
-                    id(i + 1, j + 1, k + 1),
-                    id(i, j + 1, k + 1)
-                );
-                e += 1;
-            }
-        }
-    }
+    let id = |i, j, k| box_node_id(n, 101, i, j, k);
+    let inp = box_inp(n, 101, &[("ALL", 0..n)]);
     std::fs::write(dir.join("cube.inp"), inp).unwrap();
     let mut ids = String::from("id,ux,uy,uz\n");
     for j in 0..=n {

@@ -8,25 +8,7 @@ use hytled::report::Summary;
 use hytled::simulation::{prepare, run_scene, RunOptions};
 
 mod common;
-use common::path;
-
-/// Every method on the 0.1 m cube (coupled needs a meshless interior inside two FE layers).
-const METHODS: [&[&str]; 5] = [
-    &["discretization.method=fe"],
-    &[
-        "discretization.method=fe",
-        "discretization.element=tet4-anp",
-    ],
-    &["discretization.method=meshless"],
-    &[
-        "discretization.method=meshless",
-        "discretization.basis=quadratic",
-    ],
-    &[
-        "discretization.method=coupled",
-        "discretization.size=0.0125",
-    ],
-];
+use common::{box_inp, path, ALL_METHODS};
 
 /// FE passes the patch test; meshless and coupled carry their integration error (the bounds
 /// of the displacement-driven cube tests: 2 % for the reaction).
@@ -78,7 +60,7 @@ fn an_ogden_cube_matches_its_exact_uniaxial_solution_for_every_method() {
     std::fs::create_dir_all(&dir).unwrap();
     let file = dir.join("cube.toml");
     std::fs::write(&file, text).unwrap();
-    for method in METHODS {
+    for method in ALL_METHODS {
         let o: Vec<String> = ["solver.tolerance=1e-9", "discretization.size=0.025"]
             .iter()
             .chain(method.iter())
@@ -118,7 +100,7 @@ fn two_regions_side_by_side_reproduce_the_exact_mean_reaction() {
     let (a2, _, s2) = uniaxial_stretch(&hard, 0.8);
     assert!((a - a2).abs() < 1e-12, "same nu, same lateral stretch");
     let want = 0.5 * (s1 + s2) * (0.1 * a) * (0.1 * a);
-    for method in METHODS {
+    for method in ALL_METHODS {
         let mut o = vec![
             "regions.hard.select={ box = { min = [0.05, -1.0, -1.0], max = [1.0, 1.0, 1.0] } }",
             "regions.hard.youngs_modulus=6000",
@@ -160,47 +142,8 @@ fn two_regions_side_by_side_reproduce_the_exact_mean_reaction() {
 fn two_set_box() -> PathBuf {
     let dir = std::env::temp_dir().join(format!("hytled-regions-inp-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
-    let n = 6;
-    let h = 0.1 / n as f64;
-    let id = |i: usize, j: usize, k: usize| 1 + i + (n + 1) * (j + (n + 1) * k);
-    let mut s = String::from("*HEADING\ntwo sets\n*NODE\n");
-    for k in 0..=n {
-        for j in 0..=n {
-            for i in 0..=n {
-                s += &format!(
-                    "{}, {}, {}, {}\n",
-                    id(i, j, k),
-                    i as f64 * h,
-                    j as f64 * h,
-                    k as f64 * h
-                );
-            }
-        }
-    }
-    let mut e = 1;
-    for (name, range) in [("LEFT", 0..n / 2), ("RIGHT", n / 2..n)] {
-        s += &format!("*ELEMENT, TYPE=C3D8, ELSET={name}\n");
-        for k in 0..n {
-            for j in 0..n {
-                for i in range.clone() {
-                    s += &format!(
-                        "{e}, {}, {}, {}, {}, {}, {}, {}, {}\n",
-                        id(i, j, k),
-                        id(i + 1, j, k),
-                        id(i + 1, j + 1, k),
-                        id(i, j + 1, k),
-                        id(i, j, k + 1),
-                        id(i + 1, j, k + 1),
-                        id(i + 1, j + 1, k + 1),
-                        id(i, j + 1, k + 1)
-                    );
-                    e += 1;
-                }
-            }
-        }
-    }
     let f = dir.join("box.inp");
-    std::fs::write(&f, s).unwrap();
+    std::fs::write(&f, box_inp(6, 1, &[("LEFT", 0..3), ("RIGHT", 3..6)])).unwrap();
     f
 }
 

@@ -138,14 +138,15 @@ pub struct Contact {
     /// Contact force on each node in the last correction, N (for the work), entries of
     /// `touched` only.
     nodal: Vec<Vector3<f64>>,
-    /// Deepest penetration left after any correction so far and after the last one, m;
-    /// points in contact with each body.
+    /// Deepest penetration left after any correction so far, m; points in contact with each
+    /// body.
     worst: f64,
-    last: f64,
     in_contact: Vec<usize>,
-    /// Scratch of the sweeps: each point's multiplier (N) and the points in contact.
+    /// Scratch of the sweeps: each point's multiplier (N), the points in contact and whether
+    /// each point is among them.
     lambda: Vec<f64>,
     active: Vec<usize>,
+    is_active: Vec<bool>,
 }
 
 /// Gauss-Seidel sweeps at most per step. Points near the edge of a flat-ended indenter switch
@@ -203,10 +204,10 @@ impl Contact {
             forces: vec![Vector3::zeros(); n],
             nodal: vec![Vector3::zeros(); num_nodes],
             worst: 0.0,
-            last: 0.0,
             in_contact: vec![0; n],
             lambda: Vec::new(),
             active: Vec::new(),
+            is_active: Vec::new(),
         })
     }
 
@@ -295,6 +296,8 @@ impl Contact {
             self.active.clear();
             self.lambda.clear();
             self.lambda.resize(self.points[b].len(), 0.0);
+            self.is_active.clear();
+            self.is_active.resize(self.points[b].len(), false);
             // Deepest penetration at the last full check (infinite until one is made).
             let mut after = f64::INFINITY;
             for sweep in 0..SWEEPS {
@@ -313,6 +316,7 @@ impl Contact {
                     }
                     if sweep == 0 {
                         self.active.push(i);
+                        self.is_active[i] = true;
                     }
                     let mut den = 0.0;
                     for &(j, f) in &p.row {
@@ -353,8 +357,9 @@ impl Contact {
                 for (i, p) in self.points[b].iter().enumerate() {
                     let depth = shape.signed_depth(&position(p, u), &d).0;
                     after = after.max(depth);
-                    if depth > self.tolerance && !self.active.contains(&i) {
+                    if depth > self.tolerance && !self.is_active[i] {
                         self.active.push(i);
+                        self.is_active[i] = true;
                     }
                 }
                 if after <= self.tolerance {
@@ -365,13 +370,7 @@ impl Contact {
             self.forces[b] = force;
             self.in_contact[b] = self.lambda.iter().filter(|&&l| l > 0.0).count();
         }
-        self.last = worst;
         self.worst = self.worst.max(worst);
-    }
-
-    /// Deepest penetration the last correction left, m.
-    pub fn last_penetration(&self) -> f64 {
-        self.last
     }
 
     /// Work (J) of the last correction's contact forces over the increment (u_next - u_prev) / 2.

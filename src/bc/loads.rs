@@ -38,6 +38,15 @@ const QUAD_GAUSS: [([f64; 2], f64); 4] = {
     ]
 };
 
+/// The Gauss rule of a face with `n` corners (3: triangle, 4: quadrilateral).
+fn gauss_rule(n: usize) -> Result<&'static [([f64; 2], f64)]> {
+    match n {
+        3 => Ok(&TRI_GAUSS),
+        4 => Ok(&QUAD_GAUSS),
+        _ => Err(Error::Input(format!("a face has 3 or 4 corners, not {n}"))),
+    }
+}
+
 /// Shape functions of the face's corners at parametric point (xi, eta): linear on the
 /// triangle, bilinear on the quadrilateral (corners counterclockwise from (-1, -1)).
 fn corner_weights(corners: usize, [xi, eta]: [f64; 2]) -> [f64; 4] {
@@ -92,11 +101,7 @@ impl Face {
     /// face's own linear or bilinear shape functions spread the forces.
     pub fn interpolating(ids: &[usize], x: &[Vector3<f64>]) -> Result<Self> {
         let n = ids.len();
-        let rule: &[([f64; 2], f64)] = match n {
-            3 => &TRI_GAUSS,
-            4 => &QUAD_GAUSS,
-            _ => return Err(Error::Input(format!("a face has 3 or 4 corners, not {n}"))),
-        };
+        let rule = gauss_rule(n)?;
         let gauss = rule
             .iter()
             .map(|&(p, w)| {
@@ -123,11 +128,7 @@ impl Face {
         shape: &dyn Fn(&Vector3<f64>) -> Result<Row>,
     ) -> Result<Self> {
         let n = x.len();
-        let rule: &[([f64; 2], f64)] = match n {
-            3 => &TRI_GAUSS,
-            4 => &QUAD_GAUSS,
-            _ => return Err(Error::Input(format!("a face has 3 or 4 corners, not {n}"))),
-        };
+        let rule = gauss_rule(n)?;
         let gauss = rule
             .iter()
             .map(|&(p, w)| {
@@ -251,46 +252,24 @@ impl Loads {
                     }
                 }
                 LoadKind::PointForce { rows, force } => {
-                    let mut acc = vec![Vector3::zeros(); n];
-                    let mut hit = vec![false; n];
-                    for row in &rows {
-                        for &(j, phi) in row {
-                            let j = j as usize;
-                            if j >= n {
-                                return Err(bad(j));
-                            }
-                            acc[j] += force * phi;
-                            hit[j] = true;
-                        }
-                    }
-                    let nodes: Vec<u32> = (0..n as u32).filter(|&j| hit[j as usize]).collect();
+                    let (nodes, f) = spread(n, rows.iter().map(|row| (force, row))).map_err(bad)?;
                     Prepared::Fixed {
                         total: force * rows.len() as f64,
-                        force: nodes.iter().map(|&j| acc[j as usize]).collect(),
+                        force: f,
                         nodes,
                     }
                 }
                 LoadKind::Traction { faces, traction } => {
-                    let mut acc = vec![Vector3::zeros(); n];
-                    let mut hit = vec![false; n];
-                    let mut total = Vector3::zeros();
-                    for f in &faces {
-                        for (p, w, row) in &f.gauss {
-                            let fg = traction * (area_vector(&f.corners, *p).norm() * w);
-                            total += fg;
-                            for &(j, phi) in row {
-                                let j = j as usize;
-                                if j >= n {
-                                    return Err(bad(j));
-                                }
-                                acc[j] += fg * phi;
-                                hit[j] = true;
-                            }
-                        }
-                    }
-                    let nodes: Vec<u32> = (0..n as u32).filter(|&j| hit[j as usize]).collect();
+                    // Each Gauss point's force: the traction times its reference area.
+                    let at_points = faces.iter().flat_map(|f| {
+                        f.gauss.iter().map(|(p, w, row)| {
+                            (traction * (area_vector(&f.corners, *p).norm() * w), row)
+                        })
+                    });
+                    let total = at_points.clone().map(|(fg, _)| fg).sum();
+                    let (nodes, force) = spread(n, at_points).map_err(bad)?;
                     Prepared::Fixed {
-                        force: nodes.iter().map(|&j| acc[j as usize]).collect(),
+                        force,
                         nodes,
                         total,
                     }
@@ -393,6 +372,29 @@ impl Loads {
             }
         }
     }
+}
+
+/// Nodal forces of point forces `(force, row)` spread by their rows on `n` nodes: the nodes
+/// they reach (ascending) and each one's force, N. Errs with the first node id out of range.
+fn spread<'a>(
+    n: usize,
+    forces: impl Iterator<Item = (Vector3<f64>, &'a Row)>,
+) -> std::result::Result<(Vec<u32>, Vec<Vector3<f64>>), usize> {
+    let mut acc = vec![Vector3::zeros(); n];
+    let mut hit = vec![false; n];
+    for (f, row) in forces {
+        for &(j, phi) in row {
+            let j = j as usize;
+            if j >= n {
+                return Err(j);
+            }
+            acc[j] += f * phi;
+            hit[j] = true;
+        }
+    }
+    let nodes: Vec<u32> = (0..n as u32).filter(|&j| hit[j as usize]).collect();
+    let force = nodes.iter().map(|&j| acc[j as usize]).collect();
+    Ok((nodes, force))
 }
 
 #[cfg(test)]

@@ -206,6 +206,20 @@ fn imposition(method: BcMethod) -> Imposition {
     }
 }
 
+/// The scene's loads and rigid contact on `model`, built on discretization `d` (after its
+/// masses are final: gravity takes them).
+fn add_loads_and_contact(
+    model: &mut Model<Solid>,
+    scene: &Scene,
+    d: Discretized<'_>,
+    input: Option<&MeshInput>,
+    warnings: &mut Vec<String>,
+) -> Result<()> {
+    model.set_loads(loads::scene_loads(scene, d, input)?)?;
+    model.contact = loads::scene_contact(scene, d, input, warnings)?;
+    Ok(())
+}
+
 /// Centroid of cell `e` of `mesh`, m.
 fn centroid(mesh: &Mesh, e: usize) -> Vector3<f64> {
     let c = mesh.cell(e);
@@ -365,13 +379,13 @@ fn prepare_fe(scene: &Scene) -> Result<Prepared> {
         point_material.clone(),
         bnd,
     )?;
-    model.set_loads(loads::scene_loads(
+    add_loads_and_contact(
+        &mut model,
         scene,
         Discretized::Fe(&mesh),
         input.as_ref(),
-    )?)?;
-    model.contact =
-        loads::scene_contact(scene, Discretized::Fe(&mesh), input.as_ref(), &mut warnings)?;
+        &mut warnings,
+    )?;
     Ok(Prepared {
         mesh,
         meshless: None,
@@ -524,12 +538,8 @@ fn prepare_meshless(scene: &Scene) -> Result<Prepared> {
         point_material.clone(),
         bnd.clone(),
     )?;
-    model.set_loads(loads::scene_loads(
-        scene,
-        Discretized::Meshless(&build),
-        input.as_ref(),
-    )?)?;
-    model.contact = loads::scene_contact(
+    add_loads_and_contact(
+        &mut model,
         scene,
         Discretized::Meshless(&build),
         input.as_ref(),
@@ -760,12 +770,8 @@ fn prepare_coupled(scene: &Scene) -> Result<Prepared> {
         bnd.clone(),
     )?;
     model.set_lumped_masses(&masses)?;
-    model.set_loads(loads::scene_loads(
-        scene,
-        Discretized::Coupled(&build),
-        input.as_ref(),
-    )?)?;
-    model.contact = loads::scene_contact(
+    add_loads_and_contact(
+        &mut model,
         scene,
         Discretized::Coupled(&build),
         input.as_ref(),

@@ -26,3 +26,73 @@ pub fn rel_err(s: &Summary, name: &str) -> f64 {
         .unwrap_or_else(|| panic!("no reference '{name}'"))
         .relative_error
 }
+
+/// Every method on the 0.1 m cube: fe hex8, fe tet4-anp, meshless MLS and MMLS, coupled (which
+/// needs a meshless interior inside its two FE layers: 12.5 mm cells).
+pub const ALL_METHODS: [&[&str]; 5] = [
+    &["discretization.method=fe"],
+    &[
+        "discretization.method=fe",
+        "discretization.element=tet4-anp",
+    ],
+    &["discretization.method=meshless"],
+    &[
+        "discretization.method=meshless",
+        "discretization.basis=quadratic",
+    ],
+    &[
+        "discretization.method=coupled",
+        "discretization.size=0.0125",
+    ],
+];
+
+/// Node id of grid point (i, j, k) of an n x n x n box of hexahedra whose ids start at `first`.
+pub fn box_node_id(n: usize, first: usize, i: usize, j: usize, k: usize) -> usize {
+    first + i + (n + 1) * (j + (n + 1) * k)
+}
+
+/// An ABAQUS file of the 0.1 m cube as n x n x n C3D8 hexahedra, node ids from `first`
+/// ([`box_node_id`]), the elements split into element sets by x: `sets` gives each set's name
+/// and its range of cell columns i.
+pub fn box_inp(n: usize, first: usize, sets: &[(&str, std::ops::Range<usize>)]) -> String {
+    let h = 0.1 / n as f64;
+    let id = |i, j, k| box_node_id(n, first, i, j, k);
+    let mut s = String::from("*HEADING\nbox\n*NODE\n");
+    for k in 0..=n {
+        for j in 0..=n {
+            for i in 0..=n {
+                s += &format!(
+                    "{}, {}, {}, {}\n",
+                    id(i, j, k),
+                    i as f64 * h,
+                    j as f64 * h,
+                    k as f64 * h
+                );
+            }
+        }
+    }
+    let mut e = 1;
+    for (name, range) in sets {
+        s += &format!("*ELEMENT, TYPE=C3D8, ELSET={name}\n");
+        for k in 0..n {
+            for j in 0..n {
+                for i in range.clone() {
+                    let c = [
+                        id(i, j, k),
+                        id(i + 1, j, k),
+                        id(i + 1, j + 1, k),
+                        id(i, j + 1, k),
+                        id(i, j, k + 1),
+                        id(i + 1, j, k + 1),
+                        id(i + 1, j + 1, k + 1),
+                        id(i, j + 1, k + 1),
+                    ];
+                    let c: Vec<String> = c.iter().map(|x| x.to_string()).collect();
+                    s += &format!("{e}, {}\n", c.join(", "));
+                    e += 1;
+                }
+            }
+        }
+    }
+    s
+}
