@@ -304,7 +304,59 @@ pub struct Ogden {
 impl Ogden {
     /// Principal stretches squared (eigenvalues of C = F^T F) and the principal directions.
     fn principal(f: &Matrix3<f64>) -> (nalgebra::Vector3<f64>, Matrix3<f64>) {
-        symmetric_eigen3(f.transpose() * f)
+        let (l2, v) = symmetric_eigen3_lanes::<1>(right_cauchy_green_lanes(&lanes_of(f)));
+        (
+            nalgebra::Vector3::from_fn(|i, _| l2[i][0]),
+            Matrix3::from_fn(|r, c| v[r][c][0]),
+        )
+    }
+
+    /// Second Piola-Kirchhoff stress S = sum_i tau_i / lambda_i^2 N_i (x) N_i at L points
+    /// (lanes last, as [`Material::first_pk_stress_lanes`]; `s[r][c][l]`), Pa.
+    /// The eigen-decompositions of the L points run side by side (SIMD square roots and
+    /// divisions), each lane's rotations masked once it has converged, so a lane's result does
+    /// not depend on its neighbours: the scalar path is this one with L = 1.
+    #[inline(always)]
+    #[allow(clippy::needless_range_loop)] // index loops over lanes are what vectorizes
+    fn pk2_lanes<const L: usize>(&self, f: &[[f64; L]; 9], j: &[f64; L]) -> [[[f64; L]; 3]; 3] {
+        let (l2, v) = symmetric_eigen3_lanes(right_cauchy_green_lanes(f));
+        // g_i = tau_i / lambda_i^2, lane by lane (the powers do not vectorize).
+        let mut g = [[0.0; L]; 3];
+        for l in 0..L {
+            let tau = self.kirchhoff(&nalgebra::Vector3::new(l2[0][l], l2[1][l], l2[2][l]), j[l]);
+            for i in 0..3 {
+                g[i][l] = tau[i] / l2[i][l];
+            }
+        }
+        let mut s = [[[0.0; L]; 3]; 3];
+        for r in 0..3 {
+            for c in 0..3 {
+                for i in 0..3 {
+                    for l in 0..L {
+                        s[r][c][l] += v[r][i][l] * v[c][i][l] * g[i][l];
+                    }
+                }
+            }
+        }
+        s
+    }
+
+    /// P = F S at L points from [`Self::pk2_lanes`], Pa.
+    #[inline(always)]
+    #[allow(clippy::needless_range_loop)]
+    fn first_pk_lanes<const L: usize>(&self, f: &[[f64; L]; 9], j: &[f64; L]) -> [[f64; L]; 9] {
+        let s = self.pk2_lanes(f, j);
+        let mut p = [[0.0; L]; 9];
+        for r in 0..3 {
+            for c in 0..3 {
+                for k in 0..3 {
+                    for l in 0..L {
+                        p[3 * r + c][l] += f[3 * r + k][l] * s[k][c][l];
+                    }
+                }
+            }
+        }
+        p
     }
 
     /// Principal Kirchhoff stresses tau_i (Pa) from the squared stretches `l2` and J:
@@ -342,6 +394,26 @@ impl Ogden {
     }
 }
 
+/// F (row-major, 3 r + c) of one point as lanes of width 1.
+fn lanes_of(f: &Matrix3<f64>) -> [[f64; 1]; 9] {
+    std::array::from_fn(|i| [f[(i / 3, i % 3)]])
+}
+
+/// C = F^T F at L points: `f[3 r + c][l]` is F_rc of lane l; C_ab = sum_r F_ra F_rb.
+#[inline(always)]
+fn right_cauchy_green_lanes<const L: usize>(f: &[[f64; L]; 9]) -> [[[f64; L]; 3]; 3] {
+    let mut c = [[[0.0; L]; 3]; 3];
+    for a in 0..3 {
+        for b in 0..3 {
+            for l in 0..L {
+                c[a][b][l] =
+                    f[a][l] * f[b][l] + f[3 + a][l] * f[3 + b][l] + f[6 + a][l] * f[6 + b][l];
+            }
+        }
+    }
+    c
+}
+
 /// Eigenvalues and orthonormal eigenvectors (columns) of a symmetric 3 x 3 matrix by cyclic
 /// Jacobi rotations (Golub and Van Loan, Matrix Computations, sect. 8.5): each rotation zeroes
 /// one off-diagonal entry, and the sweeps converge quadratically, so a strained C needs three or
@@ -349,42 +421,92 @@ impl Ogden {
 /// of the matrix's squared norm (or after 16 sweeps). Several times faster for one 3 x 3 than
 /// the general tridiagonal QR, and exact for coincident eigenvalues (any basis of their space
 /// is a valid set of eigenvectors).
-pub fn symmetric_eigen3(mut a: Matrix3<f64>) -> (nalgebra::Vector3<f64>, Matrix3<f64>) {
-    let mut v = Matrix3::identity();
-    let scale = a.norm_squared();
-    for _ in 0..16 {
-        let off = a[(0, 1)] * a[(0, 1)] + a[(0, 2)] * a[(0, 2)] + a[(1, 2)] * a[(1, 2)];
-        if !(off > 1e-30 * scale) {
-            break;
-        }
-        for (p, q) in [(0, 1), (0, 2), (1, 2)] {
-            let apq = a[(p, q)];
-            if apq == 0.0 {
-                continue;
-            }
-            // t = tan of the rotation angle, the smaller root of t^2 + 2 theta t - 1 = 0.
-            let theta = (a[(q, q)] - a[(p, p)]) / (2.0 * apq);
-            let t = theta.signum() / (theta.abs() + (theta * theta + 1.0).sqrt());
-            let c = 1.0 / (t * t + 1.0).sqrt();
-            let s = t * c;
-            let r = 3 - p - q;
-            let (arp, arq) = (a[(r, p)], a[(r, q)]);
-            a[(p, p)] -= t * apq;
-            a[(q, q)] += t * apq;
-            a[(p, q)] = 0.0;
-            a[(q, p)] = 0.0;
-            a[(r, p)] = c * arp - s * arq;
-            a[(p, r)] = a[(r, p)];
-            a[(r, q)] = s * arp + c * arq;
-            a[(q, r)] = a[(r, q)];
-            for k in 0..3 {
-                let (vkp, vkq) = (v[(k, p)], v[(k, q)]);
-                v[(k, p)] = c * vkp - s * vkq;
-                v[(k, q)] = s * vkp + c * vkq;
+pub fn symmetric_eigen3(a: Matrix3<f64>) -> (nalgebra::Vector3<f64>, Matrix3<f64>) {
+    let (l, v) = symmetric_eigen3_lanes::<1>(std::array::from_fn(|r| {
+        std::array::from_fn(|c| [a[(r, c)]])
+    }));
+    (
+        nalgebra::Vector3::from_fn(|i, _| l[i][0]),
+        Matrix3::from_fn(|r, c| v[r][c][0]),
+    )
+}
+
+/// [`symmetric_eigen3`] of L matrices at once, `a[r][c][l]` the entry (r, c) of lane l:
+/// returns the eigenvalues `[i][l]` and eigenvectors `[r][i][l]` (component r of vector i).
+/// Every lane takes exactly the rotations it would take alone (a converged lane is masked
+/// out), so results are bitwise those of L = 1.
+#[inline(always)]
+#[allow(clippy::needless_range_loop)] // index loops over lanes are what vectorizes
+pub fn symmetric_eigen3_lanes<const L: usize>(
+    mut a: [[[f64; L]; 3]; 3],
+) -> ([[f64; L]; 3], [[[f64; L]; 3]; 3]) {
+    let mut v = [[[0.0; L]; 3]; 3];
+    for (i, row) in v.iter_mut().enumerate() {
+        row[i] = [1.0; L];
+    }
+    let mut scale = [0.0; L];
+    for row in &a {
+        for e in row {
+            for l in 0..L {
+                scale[l] += e[l] * e[l];
             }
         }
     }
-    (nalgebra::Vector3::new(a[(0, 0)], a[(1, 1)], a[(2, 2)]), v)
+    let mut active = [true; L];
+    for _ in 0..16 {
+        let mut any = false;
+        for l in 0..L {
+            let off = a[0][1][l] * a[0][1][l] + a[0][2][l] * a[0][2][l] + a[1][2][l] * a[1][2][l];
+            // Written so that a NaN stops the lane.
+            active[l] = active[l] && off > 1e-30 * scale[l];
+            any |= active[l];
+        }
+        if !any {
+            break;
+        }
+        jacobi_rotation(&mut a, &mut v, &active, 0, 1);
+        jacobi_rotation(&mut a, &mut v, &active, 0, 2);
+        jacobi_rotation(&mut a, &mut v, &active, 1, 2);
+    }
+    (std::array::from_fn(|i| a[i][i]), v)
+}
+
+/// One Jacobi rotation in the (p, q) plane that zeroes a_pq, applied to the lanes that are
+/// `active` and have a_pq != 0 (the others keep their values).
+#[inline(always)]
+#[allow(clippy::needless_range_loop)]
+fn jacobi_rotation<const L: usize>(
+    a: &mut [[[f64; L]; 3]; 3],
+    v: &mut [[[f64; L]; 3]; 3],
+    active: &[bool; L],
+    p: usize,
+    q: usize,
+) {
+    let r = 3 - p - q;
+    for l in 0..L {
+        let apq = a[p][q][l];
+        let go = active[l] && apq != 0.0;
+        // t = tan of the rotation angle, the smaller root of t^2 + 2 theta t - 1 = 0.
+        let theta = (a[q][q][l] - a[p][p][l]) / (2.0 * apq);
+        let t = theta.signum() / (theta.abs() + (theta * theta + 1.0).sqrt());
+        let c = 1.0 / (t * t + 1.0).sqrt();
+        let s = t * c;
+        let pick = |new: f64, old: f64| if go { new } else { old };
+        let (arp, arq) = (a[r][p][l], a[r][q][l]);
+        a[p][p][l] = pick(a[p][p][l] - t * apq, a[p][p][l]);
+        a[q][q][l] = pick(a[q][q][l] + t * apq, a[q][q][l]);
+        a[p][q][l] = pick(0.0, apq);
+        a[q][p][l] = a[p][q][l];
+        a[r][p][l] = pick(c * arp - s * arq, arp);
+        a[p][r][l] = a[r][p][l];
+        a[r][q][l] = pick(s * arp + c * arq, arq);
+        a[q][r][l] = a[r][q][l];
+        for k in 0..3 {
+            let (vkp, vkq) = (v[k][p][l], v[k][q][l]);
+            v[k][p][l] = pick(c * vkp - s * vkq, vkp);
+            v[k][q][l] = pick(s * vkp + c * vkq, vkq);
+        }
+    }
 }
 
 /// The root of `g`, increasing in a, bracketed from (1e-3, start) by doubling the upper end.
@@ -415,16 +537,25 @@ impl Material for Ogden {
     }
 
     /// S = sum_i tau_i / lambda_i^2 N_i (x) N_i (principal directions N_i of C).
-    #[inline(never)]
     fn pk2_stress(&self, f: &Matrix3<f64>, j: f64) -> Matrix3<f64> {
-        let (l2, n) = Self::principal(f);
-        let tau = self.kirchhoff(&l2, j);
-        let mut s = Matrix3::zeros();
-        for i in 0..3 {
-            let v = n.column(i);
-            s += v * v.transpose() * (tau[i] / l2[i]);
-        }
-        s
+        let s = self.pk2_lanes::<1>(&lanes_of(f), &[j]);
+        Matrix3::from_fn(|r, c| s[r][c][0])
+    }
+
+    #[inline(never)]
+    fn first_pk_stress(&self, f: &Matrix3<f64>, j: f64) -> Matrix3<f64> {
+        let p = self.first_pk_lanes::<1>(&lanes_of(f), &[j]);
+        Matrix3::from_fn(|r, c| p[3 * r + c][0])
+    }
+
+    /// Inlined so that the AVX2 kernels evaluate four lanes per instruction.
+    #[inline(always)]
+    fn first_pk_stress_lanes<const L: usize>(
+        &self,
+        f: &[[f64; L]; 9],
+        j: &[f64; L],
+    ) -> [[f64; L]; 9] {
+        self.first_pk_lanes(f, j)
     }
 
     fn wave_speed(&self) -> f64 {
@@ -832,6 +963,34 @@ mod tests {
             let (_, _, szz) = stiff.uniaxial(0.8);
             let want = 2.0 * m.mu / m.alpha * (0.8f64.powf(m.alpha) - 0.8f64.powf(-m.alpha / 2.0));
             assert!((szz - want).abs() < 1e-4 * want.abs(), "{szz} vs {want}");
+        }
+    }
+
+    /// Four Ogden points evaluated side by side give each lane bitwise its scalar stress,
+    /// whatever its neighbours (an undeformed lane converges at once, strained ones take
+    /// several sweeps, one has coincident stretches), and P = F S.
+    #[test]
+    fn ogden_lanes_equal_the_scalar_stress_bitwise() {
+        let m = brain();
+        let mut st = 5u64;
+        for block in 0..50 {
+            let mut fs: Vec<Matrix3<f64>> = (0..4).map(|_| random_f(&mut st)).collect();
+            fs[block % 4] = Matrix3::identity();
+            fs[(block + 1) % 4] = Matrix3::from_diagonal(&nalgebra::Vector3::new(1.1, 1.1, 0.8));
+            let f: [[f64; 4]; 9] =
+                std::array::from_fn(|i| std::array::from_fn(|l| fs[l][(i / 3, i % 3)]));
+            let j: [f64; 4] = std::array::from_fn(|l| fs[l].determinant());
+            let p = m.first_pk_stress_lanes(&f, &j);
+            for l in 0..4 {
+                let one = m.first_pk_stress(&fs[l], j[l]);
+                let via_s = fs[l] * m.pk2_stress(&fs[l], j[l]);
+                for i in 0..9 {
+                    assert_eq!(p[i][l].to_bits(), one[(i / 3, i % 3)].to_bits(), "lane {l}");
+                    assert!(
+                        (one[(i / 3, i % 3)] - via_s[(i / 3, i % 3)]).abs() <= 1e-12 * one.norm()
+                    );
+                }
+            }
         }
     }
 
