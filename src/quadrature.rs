@@ -38,6 +38,9 @@ pub struct QuadraturePoints {
     pub groups: Vec<[u32; 2]>,
 }
 
+/// One point of a mean-dilatation group: (node ids, dphi/dX in 1/m, weight in m^3).
+pub type GroupPoint = (Vec<usize>, Vec<Vector3<f64>>, f64);
+
 impl QuadraturePoints {
     /// Empty list with room for `points` points and `slots` slots.
     pub fn with_capacity(points: usize, slots: usize) -> Self {
@@ -95,7 +98,7 @@ impl QuadraturePoints {
 
     /// Appends the points of one cell as a mean-dilatation group: `points` = (node ids,
     /// dphi/dX, weight) each.
-    pub fn push_group(&mut self, points: &[(Vec<usize>, Vec<Vector3<f64>>, f64)]) {
+    pub fn push_group(&mut self, points: &[GroupPoint]) {
         let g = self.groups.len() as u32;
         let first = self.len() as u32;
         for (ids, dphi, w) in points {

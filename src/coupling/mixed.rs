@@ -132,6 +132,9 @@ pub struct MixedReport {
     pub near_surface: usize,
 }
 
+/// Tetrahedralizes a point set (m): the Delaunay mesher a mixed scene uses.
+pub type Delaunay = dyn Fn(&[Vector3<f64>]) -> Result<Vec<[usize; 4]>>;
+
 /// Builds the coupled discretization from the FE layer `fe` (a shell) and the `cloud` (m)
 /// that fills its cavity. `delaunay` tetrahedralizes a point set. Cloud nodes closer than
 /// `min_gap` (m) to the inner surface are dropped: a generated cloud knows nothing of the
@@ -141,7 +144,7 @@ pub fn build(
     cloud: &[Vector3<f64>],
     min_gap: f64,
     s: &CoupledSettings,
-    delaunay: &dyn Fn(&[Vector3<f64>]) -> Result<Vec<[usize; 4]>>,
+    delaunay: &Delaunay,
 ) -> Result<(CoupledBuild, MixedReport)> {
     super::check_shape(s, fe.shape)?;
     let comps = surface_components(&fe)?;

@@ -633,6 +633,7 @@ fn assemble(
     let mut qp = QuadraturePoints::with_capacity(total, slots);
     let mut owner = Vec::with_capacity(total);
     let mut ids = Vec::new();
+    #[allow(clippy::needless_range_loop)] // p indexes the point table and its owners alike
     for p in 0..fe_qp.len() {
         let r = fe_qp.slots(p);
         ids.clear();
@@ -662,6 +663,7 @@ fn assemble(
         owner.extend(std::iter::repeat_n(e, b.len()));
     }
     let nf = fe_mesh.num_cells();
+    #[allow(clippy::needless_range_loop)] // p indexes the point table and its owners alike
     for p in 0..ml_qp.len() {
         let r = ml_qp.slots(p);
         ids.clear();

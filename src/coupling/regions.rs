@@ -205,36 +205,6 @@ pub fn write_split_inputs(
     Ok((input.mesh.nodes.len(), cloud.len()))
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::geometry::shapes;
-
-    #[test]
-    fn box_layers() {
-        let mesh = shapes::box_hex(
-            nalgebra::Vector3::zeros(),
-            nalgebra::Vector3::new(1.0, 1.0, 1.0),
-            [6, 6, 6],
-        )
-        .unwrap();
-        let r = split(&mesh, 1, &FeRegion::Surface).unwrap();
-        // 6^3 cells: the outer shell (6^3 - 4^3) is FE, all of it touching the 4^3 core.
-        assert_eq!(r.cells(CellRole::Meshless), 64);
-        assert_eq!(r.cells(CellRole::Transition), 216 - 64);
-        assert_eq!(r.cells(CellRole::Fe), 0);
-        // Interface: the 5^3 - 3^3 shell of nodes at depth 1.
-        assert_eq!(r.nodes(NodeRole::Interface), 125 - 27);
-        assert_eq!(r.nodes(NodeRole::Meshless), 27);
-        let r = split(&mesh, 2, &FeRegion::Surface).unwrap();
-        assert_eq!(r.cells(CellRole::Meshless), 8);
-        assert_eq!(r.cells(CellRole::Transition), 64 - 8);
-        assert_eq!(r.cells(CellRole::Fe), 216 - 64);
-        assert!(split(&mesh, 3, &FeRegion::Surface).is_err());
-        assert!(split(&mesh, 0, &FeRegion::Surface).is_err());
-    }
-}
-
 /// The FE layer of `mesh` as a mesh of its own (unused nodes dropped) and the positions (m) of
 /// the meshless-only nodes: the two inputs of a mixed coupled scene, made from one mesh.
 pub fn split_inputs(mesh: &Mesh, fe_layers: usize) -> Result<(Mesh, Vec<nalgebra::Vector3<f64>>)> {
@@ -266,4 +236,34 @@ pub fn split_inputs(mesh: &Mesh, fe_layers: usize) -> Result<(Mesh, Vec<nalgebra
         },
         cloud,
     ))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::shapes;
+
+    #[test]
+    fn box_layers() {
+        let mesh = shapes::box_hex(
+            nalgebra::Vector3::zeros(),
+            nalgebra::Vector3::new(1.0, 1.0, 1.0),
+            [6, 6, 6],
+        )
+        .unwrap();
+        let r = split(&mesh, 1, &FeRegion::Surface).unwrap();
+        // 6^3 cells: the outer shell (6^3 - 4^3) is FE, all of it touching the 4^3 core.
+        assert_eq!(r.cells(CellRole::Meshless), 64);
+        assert_eq!(r.cells(CellRole::Transition), 216 - 64);
+        assert_eq!(r.cells(CellRole::Fe), 0);
+        // Interface: the 5^3 - 3^3 shell of nodes at depth 1.
+        assert_eq!(r.nodes(NodeRole::Interface), 125 - 27);
+        assert_eq!(r.nodes(NodeRole::Meshless), 27);
+        let r = split(&mesh, 2, &FeRegion::Surface).unwrap();
+        assert_eq!(r.cells(CellRole::Meshless), 8);
+        assert_eq!(r.cells(CellRole::Transition), 64 - 8);
+        assert_eq!(r.cells(CellRole::Fe), 216 - 64);
+        assert!(split(&mesh, 3, &FeRegion::Surface).is_err());
+        assert!(split(&mesh, 0, &FeRegion::Surface).is_err());
+    }
 }

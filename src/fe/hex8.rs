@@ -177,8 +177,8 @@ mod tests {
         let h = Hex8Reference::new(&x).unwrap();
         // sum_a x_a (x) B_a = I for any hexahedron (mean gradient of the identity map).
         let mut m = Matrix3::zeros();
-        for a in 0..8 {
-            m += x[a] * h.b[a].transpose();
+        for (xa, ba) in x.iter().zip(&h.b) {
+            m += xa * ba.transpose();
         }
         assert!((m - Matrix3::identity()).norm() < 1e-12, "{m}");
         let s: Vector3<f64> = h.b.iter().sum();
@@ -195,6 +195,7 @@ mod tests {
         let gv = h.hourglass_vectors(&x, 0.075, 1e5);
         let hg = gv * gv.transpose();
         // g^T x = Gamma^T x - Gamma^T x B^T x = 0 for each coordinate column: no force under affine motion.
+        #[allow(clippy::needless_range_loop)] // i is the coordinate of every node's position
         for i in 0..3 {
             let col = SMatrix::<f64, 8, 1>::from_fn(|a, _| x[a][i] + 0.3);
             assert!(

@@ -169,6 +169,9 @@ impl EllipseArc {
     }
 }
 
+/// A triangulated surface: vertex positions (m) and triangles (vertex indices).
+pub type TriSurface = (Vec<Vector3<f64>>, Vec<[usize; 3]>);
+
 /// Closed, outward-oriented triangulation of the surface of the half-ellipsoid
 /// x^2/a^2 + y^2/b^2 + z^2/c^2 <= 1, z >= 0 (`semi_axes` = [a, b, c], m) with edges of about
 /// `h` (m). Returns the points (m) and the triangles (point indices, counter-clockwise seen
@@ -189,10 +192,7 @@ impl EllipseArc {
 /// A ring of perimeter P has max(6, round(P / h)) points. Consecutive rings are zipped into
 /// triangles by merging their edges in the order of their midpoints' arc-length fractions,
 /// so the triangles are consistently oriented, and each edge is shared by exactly two of them.
-pub fn half_ellipsoid_surface(
-    semi_axes: [f64; 3],
-    h: f64,
-) -> Result<(Vec<Vector3<f64>>, Vec<[usize; 3]>)> {
+pub fn half_ellipsoid_surface(semi_axes: [f64; 3], h: f64) -> Result<TriSurface> {
     let [a, b, c] = semi_axes;
     if !semi_axes.iter().all(|v| v.is_finite() && *v > 0.0) {
         return Err(Error::Input(format!(

@@ -248,46 +248,6 @@ pub fn merge_duplicate_nodes(m: &mut MeshInput) -> usize {
     merged
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::geometry::{ElementShape, Mesh};
-    use nalgebra::Vector3;
-
-    #[test]
-    fn duplicate_nodes_merge_and_renumber_cells_and_sets() {
-        // Two tets sharing a face, written with the shared nodes duplicated.
-        let p = [
-            Vector3::new(0.0, 0.0, 0.0),
-            Vector3::new(1.0, 0.0, 0.0),
-            Vector3::new(0.0, 1.0, 0.0),
-            Vector3::new(0.0, 0.0, 1.0),
-            Vector3::new(1.0, 0.0, 0.0),
-            Vector3::new(0.0, 1.0, 0.0),
-            Vector3::new(0.0, 0.0, 1.0),
-            Vector3::new(1.0, 1.0, 1.0),
-        ];
-        let mut m = MeshInput {
-            mesh: Mesh {
-                nodes: p.to_vec(),
-                shape: ElementShape::Tet4,
-                cells: vec![0, 1, 2, 3, 4, 6, 5, 7],
-            },
-            node_ids: (1..=8).collect(),
-            element_ids: vec![1, 2],
-            node_sets: [("s".to_string(), vec![4, 7])].into_iter().collect(),
-            element_sets: Default::default(),
-            face_sets: Default::default(),
-            warnings: Vec::new(),
-        };
-        assert_eq!(merge_duplicate_nodes(&mut m), 3);
-        assert_eq!(m.mesh.nodes.len(), 5);
-        assert_eq!(m.mesh.cells, vec![0, 1, 2, 3, 1, 3, 2, 4]);
-        assert_eq!(m.node_sets["s"], vec![1, 4]);
-        assert_eq!(m.node_ids, vec![1, 2, 3, 4, 8]);
-    }
-}
-
 /// Renames the sets whose names ABAQUS cannot carry (',', '"', '=' or control characters, e.g.
 /// meshio's "gmsh:geometrical=1") by replacing those characters with '_' (and appending '_2',
 /// '_3', ... on a clash). Returns one message per renamed set.
@@ -333,4 +293,44 @@ pub fn inp_safe_set_names(m: &mut MeshInput) -> Vec<String> {
     fix("element set", &mut m.element_sets, &mut msgs);
     fix("face set", &mut m.face_sets, &mut msgs);
     msgs
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::{ElementShape, Mesh};
+    use nalgebra::Vector3;
+
+    #[test]
+    fn duplicate_nodes_merge_and_renumber_cells_and_sets() {
+        // Two tets sharing a face, written with the shared nodes duplicated.
+        let p = [
+            Vector3::new(0.0, 0.0, 0.0),
+            Vector3::new(1.0, 0.0, 0.0),
+            Vector3::new(0.0, 1.0, 0.0),
+            Vector3::new(0.0, 0.0, 1.0),
+            Vector3::new(1.0, 0.0, 0.0),
+            Vector3::new(0.0, 1.0, 0.0),
+            Vector3::new(0.0, 0.0, 1.0),
+            Vector3::new(1.0, 1.0, 1.0),
+        ];
+        let mut m = MeshInput {
+            mesh: Mesh {
+                nodes: p.to_vec(),
+                shape: ElementShape::Tet4,
+                cells: vec![0, 1, 2, 3, 4, 6, 5, 7],
+            },
+            node_ids: (1..=8).collect(),
+            element_ids: vec![1, 2],
+            node_sets: [("s".to_string(), vec![4, 7])].into_iter().collect(),
+            element_sets: Default::default(),
+            face_sets: Default::default(),
+            warnings: Vec::new(),
+        };
+        assert_eq!(merge_duplicate_nodes(&mut m), 3);
+        assert_eq!(m.mesh.nodes.len(), 5);
+        assert_eq!(m.mesh.cells, vec![0, 1, 2, 3, 1, 3, 2, 4]);
+        assert_eq!(m.node_sets["s"], vec![1, 4]);
+        assert_eq!(m.node_ids, vec![1, 2, 3, 4, 8]);
+    }
 }

@@ -329,9 +329,7 @@ fn locate_ascii_problem(bytes: &[u8]) -> Option<String> {
     }
     let mut tokens = lines.flat_map(|(i, l)| l.split_whitespace().map(move |t| (i + 1, t)));
     loop {
-        let Some((line, kw)) = tokens.next() else {
-            return None;
-        };
+        let (line, kw) = tokens.next()?;
         let upper = kw.to_ascii_uppercase();
         let (count, ints, what) = match upper.as_str() {
             "POINTS" => {

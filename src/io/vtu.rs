@@ -587,6 +587,28 @@ impl std::fmt::Display for XmlEscape<'_> {
     }
 }
 
+/// Writes a single-shape mesh with optional point and cell arrays (one VTU piece).
+pub fn write_mesh(
+    path: &Path,
+    mesh: &crate::geometry::Mesh,
+    point_data: Vec<DataArray>,
+    cell_data: Vec<DataArray>,
+    format: VtuFormat,
+) -> Result<()> {
+    let npc = mesh.shape.nodes_per_cell();
+    let offsets: Vec<usize> = (1..=mesh.num_cells()).map(|e| e * npc).collect();
+    let types = vec![mesh.shape.vtk_type(); mesh.num_cells()];
+    let piece = Piece {
+        points: &mesh.nodes,
+        connectivity: &mesh.cells,
+        offsets: &offsets,
+        types: &types,
+        point_data,
+        cell_data,
+    };
+    write_vtu(path, &piece, format)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -1040,26 +1062,4 @@ mod tests {
         w.finish().unwrap();
         assert_eq!(out, alt);
     }
-}
-
-/// Writes a single-shape mesh with optional point and cell arrays (one VTU piece).
-pub fn write_mesh(
-    path: &Path,
-    mesh: &crate::geometry::Mesh,
-    point_data: Vec<DataArray>,
-    cell_data: Vec<DataArray>,
-    format: VtuFormat,
-) -> Result<()> {
-    let npc = mesh.shape.nodes_per_cell();
-    let offsets: Vec<usize> = (1..=mesh.num_cells()).map(|e| e * npc).collect();
-    let types = vec![mesh.shape.vtk_type(); mesh.num_cells()];
-    let piece = Piece {
-        points: &mesh.nodes,
-        connectivity: &mesh.cells,
-        offsets: &offsets,
-        types: &types,
-        point_data,
-        cell_data,
-    };
-    write_vtu(path, &piece, format)
 }
