@@ -124,6 +124,12 @@ pub fn run_case(case: &BenchCase, opts: &BenchOptions) -> Result<Vec<BenchRow>> 
     if opts.steps == 0 {
         return Err(Error::Input("bench: --steps must be at least 1".into()));
     }
+    if opts.repeat == 0 {
+        return Err(Error::Input(
+            "bench: --repeat must be at least 1 (runs per thread count; the fastest is reported)"
+                .into(),
+        ));
+    }
     let mut rows: Vec<BenchRow> = Vec::new();
     let mut first_u: Option<Vec<Vector3<f64>>> = None;
     let cores = std::thread::available_parallelism().map_or(1, |c| c.get());
@@ -150,7 +156,7 @@ pub fn run_case(case: &BenchCase, opts: &BenchOptions) -> Result<Vec<BenchRow>> 
             .map_err(|e| Error::Input(format!("bench: cannot start {t} threads: {e}")))?;
         crate::comparison::reset_peak_memory();
         let (mut row, u) = pool.install(|| time_once(case, opts.steps, t))?;
-        for _ in 1..opts.repeat.max(1) {
+        for _ in 1..opts.repeat {
             let (r, _) = pool.install(|| time_once(case, opts.steps, t))?;
             let preprocess_s = row.preprocess_s.min(r.preprocess_s);
             if r.solve_s < row.solve_s {

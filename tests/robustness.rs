@@ -440,6 +440,26 @@ fn exit_codes_and_json_status_tell_scripts_what_happened() {
     assert_eq!(json(&out)["threads"], cores);
 }
 
+/// `bench` refuses counts that would time nothing, before any run: exit 2 and a
+/// message naming the flag.
+#[test]
+fn bench_flags_that_time_nothing_are_refused() {
+    for (flag, value, says) in [
+        ("--steps", "0", "--steps must be at least 1"),
+        ("--repeat", "0", "--repeat must be at least 1"),
+        ("--threads", "0", "thread counts must be at least 1"),
+    ] {
+        let out = Command::new(env!("CARGO_BIN_EXE_hytled"))
+            .args(["bench", "cases/cube-compression.toml", flag, value])
+            .current_dir(env!("CARGO_MANIFEST_DIR"))
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{flag} {value}: {err}");
+        assert!(err.contains(says), "{flag} {value}: {err}");
+    }
+}
+
 /// Issue 22: an output folder holds exactly one run. A rerun with fewer frames leaves no old
 /// frames; a failed rerun leaves summary.json with "status": "failed", the frames it wrote
 /// before failing (written as they are produced) and no earlier results; a
