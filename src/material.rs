@@ -36,6 +36,15 @@ pub trait Material: Send + Sync + Clone {
         }
         out
     }
+    /// Whether points the kernels take one at a time (support sizes other than the lane
+    /// blocks', e.g. MLS points) should have their stresses evaluated [`LANE_BATCH`] at a
+    /// time through [`first_pk_stress_lanes`](Self::first_pk_stress_lanes): worth it where the
+    /// stress costs more than collecting the points' F (Ogden's eigen-decomposition), and
+    /// allowed only where the lane form gives every point bitwise its scalar stress, so
+    /// results do not depend on how points are grouped.
+    fn batch_stress(&self) -> bool {
+        false
+    }
     /// Dilatational (P-) wave speed in the reference configuration, m/s. Sets the stable step.
     fn wave_speed(&self) -> f64;
     /// Mass density, kg/m^3.
@@ -50,6 +59,9 @@ pub trait Material: Send + Sync + Clone {
         Concrete::Itself(self)
     }
 }
+
+/// Points per stress batch of [`Material::batch_stress`] (the kernels' lane count).
+pub const LANE_BATCH: usize = 4;
 
 /// A material as its concrete model ([`Material::concrete`]).
 pub enum Concrete<'a, M> {
@@ -558,6 +570,11 @@ impl Material for Ogden {
         self.first_pk_lanes(f, j)
     }
 
+    /// The lane form is the scalar one (L = 1) run side by side.
+    fn batch_stress(&self) -> bool {
+        true
+    }
+
     fn wave_speed(&self) -> f64 {
         p_wave_speed(self.mu, self.kappa, self.density)
     }
@@ -629,6 +646,13 @@ impl Material for Solid {
         match self {
             Solid::NeoHookean(m) => m.first_pk_stress_lanes(f, j),
             Solid::Ogden(m) => m.first_pk_stress_lanes(f, j),
+        }
+    }
+
+    fn batch_stress(&self) -> bool {
+        match self {
+            Solid::NeoHookean(m) => m.batch_stress(),
+            Solid::Ogden(m) => m.batch_stress(),
         }
     }
 

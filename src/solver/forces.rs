@@ -41,7 +41,7 @@ const MAX_CHUNK_SLOTS: usize = 65536;
 /// Points evaluated together by the lane kernel: four f64 lanes fill an AVX register and two
 /// SSE registers, and four independent points hide the latency of each point's dependent
 /// chain (F, det F, the cube-root Newton steps, the division by J).
-const LANES: usize = 4;
+const LANES: usize = crate::material::LANE_BATCH;
 /// Nodes per task of the nodal sums and the integrator's update ([`Forces::node_forces`]);
 /// small enough that the two ends of the update loop (`two_ended`) meet near the middle
 /// (the 4,389-node cylinder has 18 blocks; with 1,024 nodes it had 5).
@@ -62,8 +62,8 @@ enum Mode {
     Other,
 }
 
-/// A run of consecutive points: `LANES` points of one [`Mode`] other than `Other`, or one
-/// point. Fixed at construction, so each point is always evaluated by the same code whatever
+/// A run of consecutive points: `LANES` points of one [`Mode`] (`Other` points only where
+/// their material batches its stress, [`Material::batch_stress`]), or one point. Fixed at construction, so each point is always evaluated by the same code whatever
 /// the number of threads.
 #[derive(Debug, Clone, Copy)]
 struct Item {
@@ -182,9 +182,16 @@ struct Plan {
 
 /// Work items covering every point once in order, cut into chunks of consecutive points
 /// (about `qp.nodes.len() / CHUNKS` slots each). Within a chunk, `LANES` consecutive points of
-/// one lane mode become a block (when `blocks`), the rest single points. The chunks do not
-/// depend on `blocks`.
-fn plan(qp: &QuadraturePoints, point_material: &[u16], num_nodes: usize, blocks: bool) -> Plan {
+/// one lane mode become a block (when `blocks`), and `LANES` consecutive `Other` points of a
+/// material whose `batch[material]` is set a stress batch; the rest single points. The
+/// chunks do not depend on `blocks`.
+fn plan(
+    qp: &QuadraturePoints,
+    point_material: &[u16],
+    batch: &[bool],
+    num_nodes: usize,
+    blocks: bool,
+) -> Plan {
     let mat = |p: usize| point_material.get(p).copied().unwrap_or(0);
     let n = qp.len();
     assert!(
@@ -209,12 +216,13 @@ fn plan(qp: &QuadraturePoints, point_material: &[u16], num_nodes: usize, blocks:
         let first_item = items.len() as u32;
         while p < end {
             let m = modes[p];
-            let block = blocks
-                && m != Mode::Other
+            let run = blocks
                 && p + LANES <= end
                 && modes[p..p + LANES].iter().all(|&x| x == m)
                 && (p..p + LANES).all(|q| mat(q) == mat(p));
-            let count = if block { LANES } else { 1 };
+            let block = run && m != Mode::Other;
+            let batched = run && m == Mode::Other && batch.get(mat(p) as usize) == Some(&true);
+            let count = if block || batched { LANES } else { 1 };
             let lane = u32::try_from(lanes.len()).expect("lane data beyond u32 entries");
             if block {
                 let a0 = qp.offsets[p];
@@ -339,7 +347,8 @@ impl<M: Material> Forces<M> {
         let anp_list = (0..qp.len() as u32)
             .filter(|&p| qp.kinds[p as usize] == PointKind::Anp)
             .collect();
-        let plan = plan(qp, &point_material, num_nodes, true);
+        let batch: Vec<bool> = materials.iter().map(|m| m.batch_stress()).collect();
+        let plan = plan(qp, &point_material, &batch, num_nodes, true);
         Forces {
             anp_offsets,
             anp_points,
@@ -684,36 +693,87 @@ impl<M: Material> Forces<M> {
             (Mode::Hourglass8, _) => {
                 self.lanes::<8, 1, true, false, AVX, K>(qp, mat, p, 0, u, cf, pj)
             }
+            (Mode::Other, LANES) => self.stress_batch::<AVX, K>(qp, mat, p, u, cf, pj),
             (Mode::Other, _) | (Mode::Anp4, _) => {
-                let (a, b) = (qp.offsets[p], qp.offsets[p + 1]);
-                let j = match b - a {
-                    8 => self.point_fixed::<8, AVX, K>(qp, mat, p, a, u, cf),
-                    4 => self.point_fixed::<4, AVX, K>(qp, mat, p, a, u, cf),
-                    _ => self.point_any::<AVX, K>(qp, mat, p, a, b, u, cf),
-                };
+                let (f, a) = self.gradient::<AVX>(qp, p, u);
+                let j = self.stress_to_chunk::<AVX, K>(qp, mat, p, a, f, cf);
                 *pj.get().add(p) = j;
                 (j, p)
             }
         }
     }
 
-    /// Point with exactly N support nodes that the lane kernel does not take (ANP tetrahedra,
-    /// 8-node mean-dilatation points): the loops unroll and the slot slices are checked once.
-    /// Returns the J used for the stress.
+    /// LANES consecutive points evaluated one at a time up to F (as single points), with their
+    /// stresses evaluated side by side ([`Material::batch_stress`]), then their slot forces
+    /// added in point order: every point gets bitwise its single-point result.
     ///
     /// # Safety
-    /// The chunk buffer of point p belongs to the caller alone, and every node id is below
-    /// `u.len()`.
+    /// As [`Self::chunk`] for the points `p0..p0 + LANES`.
     #[inline(always)]
-    unsafe fn point_fixed<const N: usize, const AVX: bool, K: Material>(
+    #[allow(clippy::too_many_arguments)]
+    unsafe fn stress_batch<const AVX: bool, K: Material>(
         &self,
         qp: &QuadraturePoints,
         mat: &K,
-        p: usize,
-        a: usize,
+        p0: usize,
         u: &[Vector3<f64>],
         cf: SharedMut<Vector3<f64>>,
-    ) -> f64 {
+        pj: SharedMut<f64>,
+    ) -> (f64, usize) {
+        let mut fl = [[0.0; LANES]; 9];
+        let mut jl = [0.0; LANES];
+        let mut first = [0; LANES];
+        for l in 0..LANES {
+            let (f, a) = self.gradient::<AVX>(qp, p0 + l, u);
+            let (f, j) = self.modified(qp, p0 + l, f);
+            for (i, e) in fl.iter_mut().enumerate() {
+                e[l] = f[(i / 3, i % 3)];
+            }
+            jl[l] = j;
+            first[l] = a;
+        }
+        let pk = mat.first_pk_stress_lanes(&fl, &jl);
+        for l in 0..LANES {
+            let p = p0 + l;
+            let pkl = Matrix3::from_fn(|r, c| pk[3 * r + c][l]) * qp.weights[p];
+            let d = &qp.dphi[first[l]..qp.offsets[p + 1]];
+            self.forces_to_chunk::<AVX>(first[l], &pkl, d, cf);
+        }
+        Self::block_j(p0, &jl, pj)
+    }
+
+    /// F of point `p` and its first slot: fixed-size loops for 8 and 4 support nodes (ANP
+    /// tetrahedra, 8-node mean-dilatation points), any size otherwise.
+    ///
+    /// # Safety
+    /// Every node id of the point is below `u.len()`.
+    #[inline(always)]
+    unsafe fn gradient<const AVX: bool>(
+        &self,
+        qp: &QuadraturePoints,
+        p: usize,
+        u: &[Vector3<f64>],
+    ) -> (Matrix3<f64>, usize) {
+        let (a, b) = (qp.offsets[p], qp.offsets[p + 1]);
+        let f = match b - a {
+            8 => Self::gradient_fixed::<8>(qp, a, u),
+            4 => Self::gradient_fixed::<4>(qp, a, u),
+            _ => Self::gradient_any::<AVX>(qp, a, b, u),
+        };
+        (f, a)
+    }
+
+    /// F of a point with exactly N support nodes from slot `a`: the loops unroll and the slot
+    /// slices are checked once.
+    ///
+    /// # Safety
+    /// Every node id of the slots is below `u.len()`.
+    #[inline(always)]
+    unsafe fn gradient_fixed<const N: usize>(
+        qp: &QuadraturePoints,
+        a: usize,
+        u: &[Vector3<f64>],
+    ) -> Matrix3<f64> {
         let ids = &qp.nodes[a..a + N];
         let d = &qp.dphi[a..a + N];
         let ul: [Vector3<f64>; N] = std::array::from_fn(|k| *u.get_unchecked(ids[k] as usize));
@@ -721,7 +781,32 @@ impl<M: Material> Forces<M> {
         for k in 0..N {
             f += ul[k] * d[k].transpose();
         }
-        self.stress_to_chunk::<AVX, K>(qp, mat, p, a, f, d, cf)
+        f
+    }
+
+    /// F of a point with any number of support nodes (slots a..b).
+    ///
+    /// # Safety
+    /// Every node id of the slots is below `u.len()`; AVX only where the CPU has AVX2.
+    #[inline(always)]
+    unsafe fn gradient_any<const AVX: bool>(
+        qp: &QuadraturePoints,
+        a: usize,
+        b: usize,
+        u: &[Vector3<f64>],
+    ) -> Matrix3<f64> {
+        let d = &qp.dphi[a..b];
+        let ids = &qp.nodes[a..b];
+        #[cfg(target_arch = "x86_64")]
+        if AVX {
+            // SAFETY: AVX is set only under chunk_avx2; ids are below u.len() (see Safety).
+            return super::lanes_avx2::any_gradient(ids, d, u.as_ptr());
+        }
+        let mut f = Matrix3::identity();
+        for (&id, dk) in ids.iter().zip(d) {
+            f += *u.get_unchecked(id as usize) * dk.transpose();
+        }
+        f
     }
 
     /// L consecutive points `p0..p0 + L` of N support nodes each (slots contiguous from
@@ -924,43 +1009,12 @@ impl<M: Material> Forces<M> {
         best
     }
 
-    /// Point with any number of support nodes (hourglass points always have 8: fixed path).
+    /// From the plain F of point `p` (slots from `a`): the stress (ANP / mean-dilatation
+    /// modified) and the slot forces w P dphi_k, added to the chunk buffer. Returns the J
+    /// used for the stress.
     ///
     /// # Safety
-    /// As [`Self::point_fixed`] for slots a..b.
-    #[inline(always)]
-    #[allow(clippy::too_many_arguments)]
-    unsafe fn point_any<const AVX: bool, K: Material>(
-        &self,
-        qp: &QuadraturePoints,
-        mat: &K,
-        p: usize,
-        a: usize,
-        b: usize,
-        u: &[Vector3<f64>],
-        cf: SharedMut<Vector3<f64>>,
-    ) -> f64 {
-        let d = &qp.dphi[a..b];
-        let ids = &qp.nodes[a..b];
-        #[cfg(target_arch = "x86_64")]
-        if AVX {
-            // SAFETY: AVX is set only under chunk_avx2; ids are below u.len() (see Safety).
-            let f = super::lanes_avx2::any_gradient(ids, d, u.as_ptr());
-            return self.stress_to_chunk::<AVX, K>(qp, mat, p, a, f, d, cf);
-        }
-        let mut f = Matrix3::identity();
-        for (&id, dk) in ids.iter().zip(d) {
-            f += *u.get_unchecked(id as usize) * dk.transpose();
-        }
-        self.stress_to_chunk::<AVX, K>(qp, mat, p, a, f, d, cf)
-    }
-
-    /// From the plain F of point `p` (slots from `a`, derivatives `d`): the stress (ANP /
-    /// mean-dilatation modified) and the slot forces w P dphi_k, added to the chunk buffer.
-    /// Returns the J used for the stress.
-    ///
-    /// # Safety
-    /// As [`Self::point_fixed`]: the point's chunk buffer belongs to the caller alone.
+    /// The point's chunk buffer belongs to the caller alone.
     #[inline(always)]
     #[allow(clippy::too_many_arguments)]
     unsafe fn stress_to_chunk<const AVX: bool, K: Material>(
@@ -970,24 +1024,39 @@ impl<M: Material> Forces<M> {
         p: usize,
         a: usize,
         f: Matrix3<f64>,
-        d: &[Vector3<f64>],
         cf: SharedMut<Vector3<f64>>,
     ) -> f64 {
         let (f, j) = self.modified(qp, p, f);
         let pk = mat.first_pk_stress(&f, j) * qp.weights[p];
+        self.forces_to_chunk::<AVX>(a, &pk, &qp.dphi[a..qp.offsets[p + 1]], cf);
+        j
+    }
+
+    /// The slot forces P dphi_k (P already times the weight) of the point whose slots start at
+    /// `a` (derivatives `d`), added to the chunk buffer.
+    ///
+    /// # Safety
+    /// The point's chunk buffer belongs to the caller alone; AVX only where the CPU has AVX2.
+    #[inline(always)]
+    unsafe fn forces_to_chunk<const AVX: bool>(
+        &self,
+        a: usize,
+        pk: &Matrix3<f64>,
+        d: &[Vector3<f64>],
+        cf: SharedMut<Vector3<f64>>,
+    ) {
         let entries = &self.buffers.slot_entry[a..a + d.len()];
         #[cfg(target_arch = "x86_64")]
         if AVX {
             // SAFETY: AVX is set only under chunk_avx2; the entries are the point's own.
-            super::lanes_avx2::any_forces(&pk, d, entries, cf.get());
-            return j;
+            super::lanes_avx2::any_forces(pk, d, entries, cf.get());
+            return;
         }
         // Column by column, the association lanes_avx2::any_forces repeats.
         let (c0, c1, c2) = (pk.column(0), pk.column(1), pk.column(2));
         for (dk, &e) in d.iter().zip(entries) {
             *cf.get().add(e as usize) += c0 * dk.x + c1 * dk.y + c2 * dk.z;
         }
-        j
     }
 
     /// Smallest det F over the points of the last evaluation, and the point that has it
@@ -1156,11 +1225,23 @@ mod tests {
         u: &[Vector3<f64>],
     ) -> Vec<(Vec<Vector3<f64>>, Vec<f64>)> {
         let mat = NeoHookean::from_young_poisson(3000.0, 0.49, 1000.0);
+        three_ways_with(mat, qp, nodes, u)
+    }
+
+    /// [`three_ways`] for any material, its stress batches ([`Material::batch_stress`])
+    /// included in the first two.
+    fn three_ways_with<M: Material>(
+        mat: M,
+        qp: &QuadraturePoints,
+        nodes: &[Vector3<f64>],
+        u: &[Vector3<f64>],
+    ) -> Vec<(Vec<Vector3<f64>>, Vec<f64>)> {
         let slots = NodeSlots::new(qp, nodes.len());
         let mut out = Vec::new();
         for (blocks, simd) in [(true, simd_available()), (true, false), (false, false)] {
-            let mut f = Forces::new(mat, qp, &slots, nodes.len());
-            let plan = plan(qp, &[], nodes.len(), blocks);
+            let batch = [mat.batch_stress()];
+            let mut f = Forces::new(mat.clone(), qp, &slots, nodes.len());
+            let plan = plan(qp, &[], &batch, nodes.len(), blocks);
             (f.items, f.lane_data, f.chunks) = (plan.items, plan.lane_data, plan.chunks);
             f.simd = simd;
             let mut nodal = vec![Vector3::zeros(); nodes.len()];
@@ -1270,16 +1351,12 @@ mod tests {
         }
     }
 
-    /// Points with 5 to 31 support nodes (the MLS and transition points' path), with AVX2
-    /// against without bitwise, and against the textbook formula f_k = w F S dphi_k.
-    #[test]
-    fn any_size_points_match_without_avx2_and_the_reference_formula() {
-        let mat = NeoHookean::from_young_poisson(3000.0, 0.49, 1000.0);
-        let mesh = box_hex(Vector3::zeros(), Vector3::new(0.1, 0.07, 0.05), [5, 3, 3]).unwrap();
-        let n = mesh.nodes.len();
+    /// 40 points with 3 to 31 support nodes on the nodes of `mesh` (4 and 8 among them, so
+    /// runs of single-evaluated points are cut by lane-mode points).
+    fn any_size_points(n: usize) -> QuadraturePoints {
         let mut qp = QuadraturePoints::with_capacity(40, 800);
         for p in 0..40usize {
-            let size = 5 + (p * 11) % 27;
+            let size = 3 + (p * 11) % 29;
             let ids: Vec<usize> = (0..size).map(|k| (p * 17 + k * 5) % n).collect();
             let d: Vec<Vector3<f64>> = (0..size)
                 .map(|k| {
@@ -1289,19 +1366,25 @@ mod tests {
                 .collect();
             qp.push(&ids, &d, 1e-6 * (1.0 + (p % 3) as f64), PointKind::Standard);
         }
-        let u: Vec<Vector3<f64>> = field(&mesh.nodes).iter().map(|v| v * 0.05).collect();
-        let runs = three_ways(&qp, &mesh.nodes, &u);
-        assert!(
-            runs[1].0 == runs[0].0 && runs[1].1 == runs[0].1,
-            "any-size points: AVX2 and SSE2 differ"
-        );
-        let mut want = vec![Vector3::zeros(); n];
+        qp
+    }
+
+    /// Nodal forces by the textbook formula f_k = w F S dphi_k, S from `pk2_stress`, and the
+    /// largest slot force; asserts the kernel's J's.
+    fn reference_forces<M: Material>(
+        mat: &M,
+        qp: &QuadraturePoints,
+        u: &[Vector3<f64>],
+        j_kernel: &[f64],
+    ) -> (Vec<Vector3<f64>>, f64) {
+        let mut want = vec![Vector3::zeros(); u.len()];
         let mut scale = 0.0f64;
-        for p in 0..qp.len() {
-            let f = deformation_gradient(&qp, p, &u);
+        assert_eq!(j_kernel.len(), qp.len());
+        for (p, &jk) in j_kernel.iter().enumerate() {
+            let f = deformation_gradient(qp, p, u);
             let j = f.determinant();
             assert!(j > 0.5, "test field inverts point {p}: J = {j}");
-            assert!((runs[0].1[p] - j).abs() < 1e-14, "J at {p}");
+            assert!((jk - j).abs() < 1e-14, "J at {p}");
             let pk: Matrix3<f64> = f * mat.pk2_stress(&f, j) * qp.weights[p];
             for s in qp.slots(p) {
                 let fk = pk * qp.dphi[s];
@@ -1309,12 +1392,64 @@ mod tests {
                 scale = scale.max(fk.norm());
             }
         }
-        let worst = runs[0]
-            .0
-            .iter()
-            .zip(&want)
+        (want, scale)
+    }
+
+    fn worst_relative(got: &[Vector3<f64>], want: &[Vector3<f64>], scale: f64) -> f64 {
+        got.iter()
+            .zip(want)
             .map(|(g, w)| (g - w).norm() / scale)
-            .fold(0.0, f64::max);
+            .fold(0.0, f64::max)
+    }
+
+    /// Points with 3 to 31 support nodes (the MLS and transition points' path), with AVX2
+    /// against without bitwise, and against the textbook formula f_k = w F S dphi_k.
+    #[test]
+    fn any_size_points_match_without_avx2_and_the_reference_formula() {
+        let mat = NeoHookean::from_young_poisson(3000.0, 0.49, 1000.0);
+        let mesh = box_hex(Vector3::zeros(), Vector3::new(0.1, 0.07, 0.05), [5, 3, 3]).unwrap();
+        let qp = any_size_points(mesh.nodes.len());
+        let u: Vec<Vector3<f64>> = field(&mesh.nodes).iter().map(|v| v * 0.05).collect();
+        let runs = three_ways(&qp, &mesh.nodes, &u);
+        assert!(
+            runs[1].0 == runs[0].0 && runs[1].1 == runs[0].1,
+            "any-size points: AVX2 and SSE2 differ"
+        );
+        let (want, scale) = reference_forces(&mat, &qp, &u, &runs[0].1);
+        let worst = worst_relative(&runs[0].0, &want, scale);
+        assert!(worst < 1e-12, "relative force difference {worst:e}");
+    }
+
+    /// Ogden points taken four at a time for the stress (`batch_stress`) give bitwise the
+    /// forces and J's of the points taken one by one, with and without AVX2, and match the
+    /// textbook formula.
+    #[test]
+    fn ogden_stress_batches_match_single_points_bitwise() {
+        let mat = crate::material::Ogden {
+            mu: 1006.7,
+            alpha: -4.7,
+            kappa: 1006.7 * 100.0,
+            density: 1040.0,
+        };
+        let mesh = box_hex(Vector3::zeros(), Vector3::new(0.1, 0.07, 0.05), [5, 3, 3]).unwrap();
+        let qp = any_size_points(mesh.nodes.len());
+        let u: Vec<Vector3<f64>> = field(&mesh.nodes).iter().map(|v| v * 0.05).collect();
+        let p = plan(&qp, &[], &[true], mesh.nodes.len(), true);
+        let batches = p
+            .items
+            .iter()
+            .filter(|it| it.mode == Mode::Other && it.count as usize == LANES)
+            .count();
+        assert!(batches >= 3, "only {batches} stress batches in the test");
+        let runs = three_ways_with(mat, &qp, &mesh.nodes, &u);
+        for (k, r) in runs.iter().enumerate().skip(1) {
+            assert!(
+                r.0 == runs[0].0 && r.1 == runs[0].1,
+                "Ogden: run {k} differs from the batched AVX2 run"
+            );
+        }
+        let (want, scale) = reference_forces(&mat, &qp, &u, &runs[0].1);
+        let worst = worst_relative(&runs[0].0, &want, scale);
         assert!(worst < 1e-12, "relative force difference {worst:e}");
     }
 }
