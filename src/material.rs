@@ -38,10 +38,11 @@ pub trait Material: Send + Sync + Clone {
     }
     /// Whether points the kernels take one at a time (support sizes other than the lane
     /// blocks', e.g. MLS points) should have their stresses evaluated [`LANE_BATCH`] at a
-    /// time through [`first_pk_stress_lanes`](Self::first_pk_stress_lanes): worth it where the
-    /// stress costs more than collecting the points' F (Ogden's eigen-decomposition), and
-    /// allowed only where the lane form gives every point bitwise its scalar stress, so
-    /// results do not depend on how points are grouped.
+    /// time through [`first_pk_stress_lanes`](Self::first_pk_stress_lanes), which overlaps
+    /// the points' dependent chains and runs their square roots and divisions as SIMD
+    /// (Ogden's eigen-decompositions: 1.6x on the MLS brain; neo-Hookean 4-13 %). Allowed only
+    /// where the lane form gives every point bitwise its scalar stress, so that results do
+    /// not depend on how points are grouped.
     fn batch_stress(&self) -> bool {
         false
     }
@@ -217,30 +218,17 @@ impl Material for NeoHookean {
 
     /// P = F S = mu J^(-2/3) (F - tr(C)/3 F^-T) + kappa J (J - 1) F^-T, with F^-T = cof(F) / J:
     /// F C^-1 = F^-T, so neither C, C^-1 nor the product F S is formed (about half the
-    /// operations of `f * pk2_stress`).
+    /// operations of `f * pk2_stress`). The lane form with one lane, so that a point gets
+    /// bitwise the same stress alone or in a block.
     #[inline(always)]
     fn first_pk_stress(&self, f: &Matrix3<f64>, j: f64) -> Matrix3<f64> {
-        let m = |r: usize, c: usize| f[(r, c)];
-        // cof(F)_rc = (-1)^(r+c) minor_rc.
-        let cof = Matrix3::new(
-            m(1, 1) * m(2, 2) - m(1, 2) * m(2, 1),
-            m(1, 2) * m(2, 0) - m(1, 0) * m(2, 2),
-            m(1, 0) * m(2, 1) - m(1, 1) * m(2, 0),
-            m(0, 2) * m(2, 1) - m(0, 1) * m(2, 2),
-            m(0, 0) * m(2, 2) - m(0, 2) * m(2, 0),
-            m(0, 1) * m(2, 0) - m(0, 0) * m(2, 1),
-            m(0, 1) * m(1, 2) - m(0, 2) * m(1, 1),
-            m(0, 2) * m(1, 0) - m(0, 0) * m(1, 2),
-            m(0, 0) * m(1, 1) - m(0, 1) * m(1, 0),
-        );
-        let r = inv_cbrt(j);
-        let mu_j = self.mu * (r * r);
-        let tr_c = f.norm_squared();
-        let b = (self.kappa * j * (j - 1.0) - mu_j * tr_c * (1.0 / 3.0)) / j;
-        f * mu_j + cof * b
+        let fl: [[f64; 1]; 9] = std::array::from_fn(|i| [f[(i / 3, i % 3)]]);
+        let p = self.first_pk_stress_lanes(&fl, &[j]);
+        Matrix3::from_fn(|r, c| p[3 * r + c][0])
     }
 
-    /// The lane form of [`first_pk_stress`](Material::first_pk_stress) above, same formula.
+    /// P at L points at once, the formula of [`first_pk_stress`](Material::first_pk_stress)
+    /// above.
     #[inline(always)]
     #[allow(clippy::needless_range_loop)] // index loops over lanes are what vectorizes
     fn first_pk_stress_lanes<const L: usize>(
@@ -280,6 +268,12 @@ impl Material for NeoHookean {
             }
         }
         out
+    }
+
+    /// Stress batches overlap the points' dependent chains (cube root, division by J): the
+    /// neo-Hookean MLS brain (29 support nodes) runs 4-13 % faster with them.
+    fn batch_stress(&self) -> bool {
+        true
     }
 
     fn wave_speed(&self) -> f64 {
@@ -990,32 +984,40 @@ mod tests {
         }
     }
 
-    /// Four Ogden points evaluated side by side give each lane bitwise its scalar stress,
-    /// whatever its neighbours (an undeformed lane converges at once, strained ones take
-    /// several sweeps, one has coincident stretches), and P = F S.
+    /// Four points evaluated side by side give each lane bitwise its scalar stress, whatever
+    /// its neighbours (an undeformed lane, for Ogden converging at once while strained ones
+    /// take several sweeps; one with coincident stretches), and P = F S: the contract of
+    /// `batch_stress` for both materials.
     #[test]
-    fn ogden_lanes_equal_the_scalar_stress_bitwise() {
-        let m = brain();
-        let mut st = 5u64;
-        for block in 0..50 {
-            let mut fs: Vec<Matrix3<f64>> = (0..4).map(|_| random_f(&mut st)).collect();
-            fs[block % 4] = Matrix3::identity();
-            fs[(block + 1) % 4] = Matrix3::from_diagonal(&nalgebra::Vector3::new(1.1, 1.1, 0.8));
-            let f: [[f64; 4]; 9] =
-                std::array::from_fn(|i| std::array::from_fn(|l| fs[l][(i / 3, i % 3)]));
-            let j: [f64; 4] = std::array::from_fn(|l| fs[l].determinant());
-            let p = m.first_pk_stress_lanes(&f, &j);
-            for l in 0..4 {
-                let one = m.first_pk_stress(&fs[l], j[l]);
-                let via_s = fs[l] * m.pk2_stress(&fs[l], j[l]);
-                for i in 0..9 {
-                    assert_eq!(p[i][l].to_bits(), one[(i / 3, i % 3)].to_bits(), "lane {l}");
-                    assert!(
-                        (one[(i / 3, i % 3)] - via_s[(i / 3, i % 3)]).abs() <= 1e-12 * one.norm()
-                    );
+    fn lanes_equal_the_scalar_stress_bitwise() {
+        fn check<M: Material>(m: &M) {
+            assert!(m.batch_stress());
+            let mut st = 5u64;
+            for block in 0..50 {
+                let mut fs: Vec<Matrix3<f64>> = (0..4).map(|_| random_f(&mut st)).collect();
+                fs[block % 4] = Matrix3::identity();
+                fs[(block + 1) % 4] =
+                    Matrix3::from_diagonal(&nalgebra::Vector3::new(1.1, 1.1, 0.8));
+                let f: [[f64; 4]; 9] =
+                    std::array::from_fn(|i| std::array::from_fn(|l| fs[l][(i / 3, i % 3)]));
+                let j: [f64; 4] = std::array::from_fn(|l| fs[l].determinant());
+                let p = m.first_pk_stress_lanes(&f, &j);
+                for l in 0..4 {
+                    let one = m.first_pk_stress(&fs[l], j[l]);
+                    let via_s = fs[l] * m.pk2_stress(&fs[l], j[l]);
+                    for i in 0..9 {
+                        assert_eq!(p[i][l].to_bits(), one[(i / 3, i % 3)].to_bits(), "lane {l}");
+                        assert!(
+                            (one[(i / 3, i % 3)] - via_s[(i / 3, i % 3)]).abs()
+                                <= 1e-12 * one.norm()
+                        );
+                    }
                 }
             }
         }
+        check(&brain());
+        check(&mat());
+        check(&Solid::Ogden(brain()));
     }
 
     /// The Jacobi eigen-decomposition reproduces random symmetric matrices (V diag V^T = A,

@@ -1420,36 +1420,39 @@ mod tests {
         assert!(worst < 1e-12, "relative force difference {worst:e}");
     }
 
-    /// Ogden points taken four at a time for the stress (`batch_stress`) give bitwise the
-    /// forces and J's of the points taken one by one, with and without AVX2, and match the
-    /// textbook formula.
+    /// Points taken four at a time for the stress (`batch_stress`) give bitwise the forces and
+    /// J's of the points taken one by one, with and without AVX2, and match the textbook
+    /// formula: Ogden and neo-Hookean.
     #[test]
-    fn ogden_stress_batches_match_single_points_bitwise() {
-        let mat = crate::material::Ogden {
+    fn stress_batches_match_single_points_bitwise() {
+        fn check<M: Material>(mat: M) {
+            let mesh = box_hex(Vector3::zeros(), Vector3::new(0.1, 0.07, 0.05), [5, 3, 3]).unwrap();
+            let qp = any_size_points(mesh.nodes.len());
+            let u: Vec<Vector3<f64>> = field(&mesh.nodes).iter().map(|v| v * 0.05).collect();
+            let p = plan(&qp, &[], &[true], mesh.nodes.len(), true);
+            let batches = p
+                .items
+                .iter()
+                .filter(|it| it.mode == Mode::Other && it.count as usize == LANES)
+                .count();
+            assert!(batches >= 3, "only {batches} stress batches in the test");
+            let runs = three_ways_with(mat.clone(), &qp, &mesh.nodes, &u);
+            for (k, r) in runs.iter().enumerate().skip(1) {
+                assert!(
+                    r.0 == runs[0].0 && r.1 == runs[0].1,
+                    "run {k} differs from the batched AVX2 run"
+                );
+            }
+            let (want, scale) = reference_forces(&mat, &qp, &u, &runs[0].1);
+            let worst = worst_relative(&runs[0].0, &want, scale);
+            assert!(worst < 1e-12, "relative force difference {worst:e}");
+        }
+        check(crate::material::Ogden {
             mu: 1006.7,
             alpha: -4.7,
             kappa: 1006.7 * 100.0,
             density: 1040.0,
-        };
-        let mesh = box_hex(Vector3::zeros(), Vector3::new(0.1, 0.07, 0.05), [5, 3, 3]).unwrap();
-        let qp = any_size_points(mesh.nodes.len());
-        let u: Vec<Vector3<f64>> = field(&mesh.nodes).iter().map(|v| v * 0.05).collect();
-        let p = plan(&qp, &[], &[true], mesh.nodes.len(), true);
-        let batches = p
-            .items
-            .iter()
-            .filter(|it| it.mode == Mode::Other && it.count as usize == LANES)
-            .count();
-        assert!(batches >= 3, "only {batches} stress batches in the test");
-        let runs = three_ways_with(mat, &qp, &mesh.nodes, &u);
-        for (k, r) in runs.iter().enumerate().skip(1) {
-            assert!(
-                r.0 == runs[0].0 && r.1 == runs[0].1,
-                "Ogden: run {k} differs from the batched AVX2 run"
-            );
-        }
-        let (want, scale) = reference_forces(&mat, &qp, &u, &runs[0].1);
-        let worst = worst_relative(&runs[0].0, &want, scale);
-        assert!(worst < 1e-12, "relative force difference {worst:e}");
+        });
+        check(NeoHookean::from_young_poisson(3000.0, 0.49, 1000.0));
     }
 }
