@@ -19,7 +19,10 @@ pub trait Material: Send + Sync + Clone {
     /// [`first_pk_stress`](Self::first_pk_stress) at L points at once, lanes last:
     /// `f[3 r + c][l]` is F_rc of lane l, `j[l]` its det F; returns P in the same layout, Pa.
     /// Kernels evaluate blocks of points through it so that the compiler can keep the lanes
-    /// in SIMD registers; the default evaluates lane by lane.
+    /// in SIMD registers (and overlap the points' dependent chains); the default evaluates
+    /// lane by lane. Every lane must get bitwise its `first_pk_stress`: kernels also batch
+    /// points of any support size (MLS, transition) through it, and results must not depend
+    /// on how points are grouped.
     #[inline(always)]
     fn first_pk_stress_lanes<const L: usize>(
         &self,
@@ -36,16 +39,6 @@ pub trait Material: Send + Sync + Clone {
         }
         out
     }
-    /// Whether points the kernels take one at a time (support sizes other than the lane
-    /// blocks', e.g. MLS points) should have their stresses evaluated [`LANE_BATCH`] at a
-    /// time through [`first_pk_stress_lanes`](Self::first_pk_stress_lanes), which overlaps
-    /// the points' dependent chains and runs their square roots and divisions as SIMD
-    /// (Ogden's eigen-decompositions: 1.6x on the MLS brain; neo-Hookean 4-13 %). Allowed only
-    /// where the lane form gives every point bitwise its scalar stress, so that results do
-    /// not depend on how points are grouped.
-    fn batch_stress(&self) -> bool {
-        false
-    }
     /// Dilatational (P-) wave speed in the reference configuration, m/s. Sets the stable step.
     fn wave_speed(&self) -> f64;
     /// Mass density, kg/m^3.
@@ -60,9 +53,6 @@ pub trait Material: Send + Sync + Clone {
         Concrete::Itself(self)
     }
 }
-
-/// Points per stress batch of [`Material::batch_stress`] (the kernels' lane count).
-pub const LANE_BATCH: usize = 4;
 
 /// A material as its concrete model ([`Material::concrete`]).
 pub enum Concrete<'a, M> {
@@ -222,8 +212,7 @@ impl Material for NeoHookean {
     /// bitwise the same stress alone or in a block.
     #[inline(always)]
     fn first_pk_stress(&self, f: &Matrix3<f64>, j: f64) -> Matrix3<f64> {
-        let fl: [[f64; 1]; 9] = std::array::from_fn(|i| [f[(i / 3, i % 3)]]);
-        let p = self.first_pk_stress_lanes(&fl, &[j]);
+        let p = self.first_pk_stress_lanes(&lanes_of(f), &[j]);
         Matrix3::from_fn(|r, c| p[3 * r + c][0])
     }
 
@@ -270,12 +259,6 @@ impl Material for NeoHookean {
         out
     }
 
-    /// Stress batches overlap the points' dependent chains (cube root, division by J): the
-    /// neo-Hookean MLS brain (29 support nodes) runs 4-13 % faster with them.
-    fn batch_stress(&self) -> bool {
-        true
-    }
-
     fn wave_speed(&self) -> f64 {
         p_wave_speed(self.mu, self.kappa, self.density)
     }
@@ -310,11 +293,8 @@ pub struct Ogden {
 impl Ogden {
     /// Principal stretches squared (eigenvalues of C = F^T F) and the principal directions.
     fn principal(f: &Matrix3<f64>) -> (nalgebra::Vector3<f64>, Matrix3<f64>) {
-        let (l2, v) = symmetric_eigen3_lanes::<1>(right_cauchy_green_lanes(&lanes_of(f)));
-        (
-            nalgebra::Vector3::from_fn(|i, _| l2[i][0]),
-            Matrix3::from_fn(|r, c| v[r][c][0]),
-        )
+        let c = right_cauchy_green_lanes(&lanes_of(f));
+        symmetric_eigen3(Matrix3::from_fn(|r, k| c[r][k][0]))
     }
 
     /// Second Piola-Kirchhoff stress S = sum_i tau_i / lambda_i^2 N_i (x) N_i at L points
@@ -564,11 +544,6 @@ impl Material for Ogden {
         self.first_pk_lanes(f, j)
     }
 
-    /// The lane form is the scalar one (L = 1) run side by side.
-    fn batch_stress(&self) -> bool {
-        true
-    }
-
     fn wave_speed(&self) -> f64 {
         p_wave_speed(self.mu, self.kappa, self.density)
     }
@@ -640,13 +615,6 @@ impl Material for Solid {
         match self {
             Solid::NeoHookean(m) => m.first_pk_stress_lanes(f, j),
             Solid::Ogden(m) => m.first_pk_stress_lanes(f, j),
-        }
-    }
-
-    fn batch_stress(&self) -> bool {
-        match self {
-            Solid::NeoHookean(m) => m.batch_stress(),
-            Solid::Ogden(m) => m.batch_stress(),
         }
     }
 
@@ -987,11 +955,10 @@ mod tests {
     /// Four points evaluated side by side give each lane bitwise its scalar stress, whatever
     /// its neighbours (an undeformed lane, for Ogden converging at once while strained ones
     /// take several sweeps; one with coincident stretches), and P = F S: the contract of
-    /// `batch_stress` for both materials.
+    /// `first_pk_stress_lanes` for both materials.
     #[test]
     fn lanes_equal_the_scalar_stress_bitwise() {
         fn check<M: Material>(m: &M) {
-            assert!(m.batch_stress());
             let mut st = 5u64;
             for block in 0..50 {
                 let mut fs: Vec<Matrix3<f64>> = (0..4).map(|_| random_f(&mut st)).collect();

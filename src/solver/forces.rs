@@ -41,7 +41,7 @@ const MAX_CHUNK_SLOTS: usize = 65536;
 /// Points evaluated together by the lane kernel: four f64 lanes fill an AVX register and two
 /// SSE registers, and four independent points hide the latency of each point's dependent
 /// chain (F, det F, the cube-root Newton steps, the division by J).
-const LANES: usize = crate::material::LANE_BATCH;
+const LANES: usize = 4;
 /// Nodes per task of the nodal sums and the integrator's update ([`Forces::node_forces`]);
 /// small enough that the two ends of the update loop (`two_ended`) meet near the middle
 /// (the 4,389-node cylinder has 18 blocks; with 1,024 nodes it had 5).
@@ -58,13 +58,14 @@ enum Mode {
     Hourglass8,
     /// Average-nodal-pressure tetrahedra: F scaled to the averaged J before the stress.
     Anp4,
-    /// Anything else, one point at a time (mean-dilatation points, other sizes).
+    /// Anything else (mean-dilatation points, other sizes): F point by point, the stresses of
+    /// four consecutive ones as one lane block.
     Other,
 }
 
-/// A run of consecutive points: `LANES` points of one [`Mode`] (`Other` points only where
-/// their material batches its stress, [`Material::batch_stress`]), or one point. Fixed at construction, so each point is always evaluated by the same code whatever
-/// the number of threads.
+/// A run of consecutive points: `LANES` points of one [`Mode`] and one material (for
+/// `Other`, a stress batch), or one point. Fixed at construction, so each point is always
+/// evaluated by the same code whatever the number of threads.
 #[derive(Debug, Clone, Copy)]
 struct Item {
     first: u32,
@@ -182,16 +183,9 @@ struct Plan {
 
 /// Work items covering every point once in order, cut into chunks of consecutive points
 /// (about `qp.nodes.len() / CHUNKS` slots each). Within a chunk, `LANES` consecutive points of
-/// one lane mode become a block (when `blocks`), and `LANES` consecutive `Other` points of a
-/// material whose `batch[material]` is set a stress batch; the rest single points. The
-/// chunks do not depend on `blocks`.
-fn plan(
-    qp: &QuadraturePoints,
-    point_material: &[u16],
-    batch: &[bool],
-    num_nodes: usize,
-    blocks: bool,
-) -> Plan {
+/// one lane mode and one material become a block (when `blocks`; for `Other` points a stress
+/// batch), the rest single points. The chunks do not depend on `blocks`.
+fn plan(qp: &QuadraturePoints, point_material: &[u16], num_nodes: usize, blocks: bool) -> Plan {
     let mat = |p: usize| point_material.get(p).copied().unwrap_or(0);
     let n = qp.len();
     assert!(
@@ -221,8 +215,7 @@ fn plan(
                 && modes[p..p + LANES].iter().all(|&x| x == m)
                 && (p..p + LANES).all(|q| mat(q) == mat(p));
             let block = run && m != Mode::Other;
-            let batched = run && m == Mode::Other && batch.get(mat(p) as usize) == Some(&true);
-            let count = if block || batched { LANES } else { 1 };
+            let count = if run { LANES } else { 1 };
             let lane = u32::try_from(lanes.len()).expect("lane data beyond u32 entries");
             if block {
                 let a0 = qp.offsets[p];
@@ -347,8 +340,7 @@ impl<M: Material> Forces<M> {
         let anp_list = (0..qp.len() as u32)
             .filter(|&p| qp.kinds[p as usize] == PointKind::Anp)
             .collect();
-        let batch: Vec<bool> = materials.iter().map(|m| m.batch_stress()).collect();
-        let plan = plan(qp, &point_material, &batch, num_nodes, true);
+        let plan = plan(qp, &point_material, num_nodes, true);
         Forces {
             anp_offsets,
             anp_points,
@@ -704,7 +696,7 @@ impl<M: Material> Forces<M> {
     }
 
     /// LANES consecutive points evaluated one at a time up to F (as single points), with their
-    /// stresses evaluated side by side ([`Material::batch_stress`]), then their slot forces
+    /// stresses evaluated side by side ([`Material::first_pk_stress_lanes`]), then their slot forces
     /// added in point order: every point gets bitwise its single-point result.
     ///
     /// # Safety
@@ -1228,8 +1220,7 @@ mod tests {
         three_ways_with(mat, qp, nodes, u)
     }
 
-    /// [`three_ways`] for any material, its stress batches ([`Material::batch_stress`])
-    /// included in the first two.
+    /// [`three_ways`] for any material.
     fn three_ways_with<M: Material>(
         mat: M,
         qp: &QuadraturePoints,
@@ -1239,9 +1230,8 @@ mod tests {
         let slots = NodeSlots::new(qp, nodes.len());
         let mut out = Vec::new();
         for (blocks, simd) in [(true, simd_available()), (true, false), (false, false)] {
-            let batch = [mat.batch_stress()];
             let mut f = Forces::new(mat.clone(), qp, &slots, nodes.len());
-            let plan = plan(qp, &[], &batch, nodes.len(), blocks);
+            let plan = plan(qp, &[], nodes.len(), blocks);
             (f.items, f.lane_data, f.chunks) = (plan.items, plan.lane_data, plan.chunks);
             f.simd = simd;
             let mut nodal = vec![Vector3::zeros(); nodes.len()];
@@ -1420,7 +1410,7 @@ mod tests {
         assert!(worst < 1e-12, "relative force difference {worst:e}");
     }
 
-    /// Points taken four at a time for the stress (`batch_stress`) give bitwise the forces and
+    /// Points taken four at a time for the stress (`Mode::Other` blocks) give bitwise the forces and
     /// J's of the points taken one by one, with and without AVX2, and match the textbook
     /// formula: Ogden and neo-Hookean.
     #[test]
@@ -1429,7 +1419,7 @@ mod tests {
             let mesh = box_hex(Vector3::zeros(), Vector3::new(0.1, 0.07, 0.05), [5, 3, 3]).unwrap();
             let qp = any_size_points(mesh.nodes.len());
             let u: Vec<Vector3<f64>> = field(&mesh.nodes).iter().map(|v| v * 0.05).collect();
-            let p = plan(&qp, &[], &[true], mesh.nodes.len(), true);
+            let p = plan(&qp, &[], mesh.nodes.len(), true);
             let batches = p
                 .items
                 .iter()
