@@ -193,6 +193,10 @@ pub struct Summary {
     pub dt_critical: f64,
     pub dt_factor: f64,
     pub steps: usize,
+    /// Relaxation: steps of the attempts abandoned after an instability (`solver.retries`;
+    /// their time is in `wall_seconds.solve`).
+    #[serde(skip_serializing_if = "is_zero")]
+    pub failed_steps: usize,
     /// Relaxation: pseudo-steps over which the load was applied.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub load_steps: Option<usize>,
@@ -237,7 +241,17 @@ pub struct Summary {
     pub relaxation: Vec<RelaxationRecord>,
 }
 
+fn is_zero(n: &usize) -> bool {
+    *n == 0
+}
+
 impl Summary {
+    /// Solve wall time per step, ms, counting the steps of attempts a restart abandoned
+    /// (their time is in the solve time).
+    pub fn ms_per_step(&self) -> f64 {
+        1e3 * self.wall_seconds.solve / (self.steps + self.failed_steps).max(1) as f64
+    }
+
     /// Human-readable summary table.
     pub fn table(&self) -> String {
         use std::fmt::Write;
@@ -314,7 +328,12 @@ impl Summary {
             },
             self.simulated_time,
             self.load_steps
-                .map_or(String::new(), |n| format!(", load over the first {n}")),
+                .map_or(String::new(), |n| format!(", load over the first {n}"))
+                + &if self.failed_steps > 0 {
+                    format!("; {} more in attempts abandoned after an instability", self.failed_steps)
+                } else {
+                    String::new()
+                },
             if self.converged {
                 ""
             } else {
@@ -328,7 +347,7 @@ impl Summary {
             self.wall_seconds.total,
             self.wall_seconds.preprocess,
             self.wall_seconds.solve,
-            1e3 * self.wall_seconds.solve / self.steps.max(1) as f64,
+            self.ms_per_step(),
             self.threads
         );
         if let Some(r) = self.relaxation.last() {

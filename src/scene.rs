@@ -991,6 +991,11 @@ pub struct SolverSpec {
     /// Relaxation: steps between lowest-frequency estimates.
     #[serde(default = "default_interval")]
     pub estimate_interval: usize,
+    /// Relaxation: restarts from the unloaded state with a 0.75x shorter step after an
+    /// instability, at most this many (None: the solver's default, 2; 0 stops at the first
+    /// instability).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub retries: Option<usize>,
 }
 
 fn default_duration() -> f64 {
@@ -1022,6 +1027,7 @@ impl Default for SolverSpec {
             tolerance: default_tolerance(),
             max_steps: default_max_steps(),
             estimate_interval: default_interval(),
+            retries: None,
         }
     }
 }
@@ -1756,6 +1762,11 @@ fn validate(s: &Scene) -> std::result::Result<(), String> {
         return Err(format!(
             "solver.tolerance = {}: must be positive (m)",
             sv.tolerance
+        ));
+    }
+    if let Some(k) = sv.retries.filter(|&k| k > 10) {
+        return Err(format!(
+            "solver.retries = {k}: at most 10 (each restart shortens the step by 0.75x; default 2)"
         ));
     }
     if !(sv.damping >= 0.0) {

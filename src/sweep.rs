@@ -541,10 +541,7 @@ fn csv_columns(varies: &[Vary], rows: &[SweepRow]) -> (Vec<String>, Vec<Vec<Stri
                         format!("{:.4}", s.wall_seconds.preprocess),
                         format!("{:.4}", s.wall_seconds.solve),
                         format!("{:.4}", s.wall_seconds.total),
-                        format!(
-                            "{:.5}",
-                            1e3 * s.wall_seconds.solve / (s.steps.max(1) as f64)
-                        ),
+                        format!("{:.5}", s.ms_per_step()),
                         s.threads.to_string(),
                     ]);
                     for name in &reactions {

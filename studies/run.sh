@@ -218,6 +218,19 @@ brain-convergence-fine() {
     --out studies/brain-convergence-fine
 }
 
+# The brain indentation with compressible tissue (nu = 0.3): does the methods' spread at
+# nu = 0.49 come from near-incompressibility (volumetric locking in the transition layer) or
+# from the driven footprint? fe, meshless, coupled with the scene's surface layer, and coupled
+# around the essential boundaries with four and with one point per transition tet.
+brain-compressible() {
+  sweep cases/brain-indentation.toml --set material.poisson_ratio=0.3 --preset "$FE_ANP" \
+    --preset 'meshless=discretization.method=meshless' \
+    --preset 'coupled-surface=discretization.method=coupled' \
+    --preset 'coupled-essential-full=discretization.method=coupled;discretization.fe_region=essential;discretization.fe_layers=1;discretization.transition_rule=full' \
+    --preset 'coupled-essential=discretization.method=coupled;discretization.fe_region=essential;discretization.fe_layers=1;discretization.transition_rule=interior' \
+    --vary discretization.size=0.006,0.0045,0.0035,0.0025 --out studies/brain-compressible
+}
+
 ALL=(speed-accuracy-compression speed-accuracy-extension speed-accuracy-shear speed-accuracy-dynamic
   speed-accuracy-cube timestep-cube timestep-cylinder incompressibility-cube
   incompressibility-cylinder large-deformation irregular-jitter irregular-halton
@@ -228,7 +241,7 @@ ALL=(speed-accuracy-compression speed-accuracy-extension speed-accuracy-shear sp
   tets-anp-gmsh-compression tets-anp-gmsh-extension tets-anp-gmsh-shear
   tets-anp-tetgen-compression tets-anp-tetgen-extension tets-anp-tetgen-shear
   tets-global-gmsh-compression tets-global-gmsh-extension tets-global-gmsh-shear
-  brain-convergence brain-convergence-fine)
+  brain-convergence brain-convergence-fine brain-compressible)
 
 if [ "${1:-}" = --list ]; then printf '%s\n' "${ALL[@]}"; exit 0; fi
 # A study name stands for its jobs.

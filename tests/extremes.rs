@@ -173,6 +173,7 @@ fn extreme_values_are_clear_errors_naming_the_key() {
         ("solver.dt_factor=0", &["dt_factor"]),
         ("solver.dt_factor=inf", &["dt_factor", "finite"]),
         ("solver.tolerance=nan", &["tolerance", "finite"]),
+        ("solver.retries=11", &["solver.retries", "at most 10"]),
         (
             "probes.corner.position=[nan,0,0]",
             &["probes.corner.position[0]"],
@@ -371,4 +372,89 @@ fn compression_and_back_returns_the_work() {
             s.reactions
         );
     }
+}
+
+#[test]
+fn relaxation_restarts_with_a_shorter_step_after_an_instability() {
+    // The cube in relaxation at 1.3 x the global step (1.04 x the reference critical step)
+    // diverges within 41 steps. With the default two retries it restarts from the unloaded
+    // state at 1.3 x 0.75 and converges to exactly what a run started at that factor gives;
+    // retries = 0 keeps the old stop, and dynamic runs never restart.
+    let relax = ["solver.mode=relaxation"];
+    let f1 = 1.3f64;
+    let f2 = f1 * hytled::solver::integrate::RETRY_FACTOR;
+    let (a, b) = (
+        format!("solver.dt_factor={f1}"),
+        format!("solver.dt_factor={f2}"),
+    );
+    let e = run(CUBE, &[relax[0], &a, "solver.retries=0"])
+        .expect_err("1.3 x diverges")
+        .to_string();
+    assert!(e.contains("diverged") && e.contains("dt_factor"), "{e}");
+    assert!(!e.contains("restart"), "{e}");
+
+    let restarted = run(CUBE, &[relax[0], &a]).expect("restarted run");
+    let direct = run(CUBE, &[relax[0], &b]).expect("run at the shorter step");
+    println!(
+        "restarted: {} steps (+{} abandoned), dt factor {}; direct: {} steps",
+        restarted.steps, restarted.failed_steps, restarted.dt_factor, direct.steps
+    );
+    assert!(restarted.converged && direct.converged);
+    assert!(restarted.failed_steps > 0);
+    assert_eq!(restarted.steps, direct.steps);
+    assert_eq!(restarted.dt, direct.dt);
+    assert_eq!(restarted.reactions, direct.reactions);
+    assert!((restarted.dt_factor - f2).abs() < 1e-12 * f2);
+    assert_eq!(restarted.warnings.len(), direct.warnings.len() + 1);
+    let note = restarted.warnings.last().unwrap();
+    assert!(note.contains("restart 1 of at most 2") && note.contains("diverged"), "{note}");
+    // The restarted run still matches the exact cube within the scene's tolerance.
+    assert!(rel_err(&restarted, "top_force") < 1e-6, "{:?}", restarted.reference);
+
+    // Retries spent: the error says how far the factor went.
+    let e = run(CUBE, &[relax[0], "solver.dt_factor=3", "solver.retries=1"])
+        .expect_err("3 and 2.25 x diverge")
+        .to_string();
+    assert!(e.contains("after 1 restart(s)") && e.contains("2.2500"), "{e}");
+    // A node driven through a fixed layer of nodes inverts its elements at half the load
+    // whatever the step: one restart fails at the same load, and the restarts end there.
+    let text = r#"
+name = "through-a-layer"
+[geometry]
+shape = "box"
+min = [0.0, 0.0, 0.0]
+max = [0.1, 0.1, 0.1]
+[discretization]
+method = "fe"
+element = "tet4"
+size = 0.0125
+[material]
+model = "neo-hookean"
+youngs_modulus = 3000.0
+poisson_ratio = 0.49
+density = 1000.0
+[boundaries.bottom]
+select = { plane = { axis = "z", value = 0.0 } }
+fix = ["all"]
+[boundaries.layer]
+select = { plane = { axis = "z", value = 0.0875 } }
+fix = ["all"]
+[boundaries.pusher]
+select = { sphere = { center = [0.05, 0.05, 0.1], radius = 0.001 } }
+displacement = { z = -0.025 }
+[solver]
+mode = "relaxation"
+"#;
+    let scene = hytled::scene::parse(text, &path("through-a-layer.toml"), &[]).unwrap();
+    let e = run_scene(&scene, &RunOptions::default())
+        .expect_err("the pushed node inverts its elements")
+        .to_string();
+    println!("{e}");
+    assert!(e.contains("inverted") && e.contains("after 1 restart(s)"), "{e}");
+    assert!(e.contains("50.0 %, 50.0 % of the load") && e.contains("no further restart"), "{e}");
+    // Dynamic runs stop at the first instability.
+    let e = run(CUBE, &["solver.mode=dynamic", "solver.duration=0.5", &a])
+        .expect_err("dynamic 1.3 x diverges")
+        .to_string();
+    assert!(!e.contains("restart"), "{e}");
 }

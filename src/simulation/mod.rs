@@ -959,6 +959,7 @@ pub fn summarize(scene: &Scene, prep: &Prepared, out: &RunOutput, total_seconds:
         .map(|(b, r)| (b, [r.x, r.y, r.z]))
         .collect();
     let mut warnings = prep.warnings.clone();
+    warnings.extend(out.restarts.iter().cloned());
     if let Some(c) = &model.contact {
         if c.worst_penetration() > c.tolerance() {
             warnings.push(format!(
@@ -1028,6 +1029,7 @@ pub fn summarize(scene: &Scene, prep: &Prepared, out: &RunOutput, total_seconds:
         dt_critical: out.dt_critical,
         dt_factor: out.dt / out.dt_critical,
         steps: out.steps,
+        failed_steps: out.failed_steps,
         simulated_time: out.simulated_time,
         status: match (out.load_steps.is_some(), out.converged) {
             (false, _) => "completed",

@@ -62,6 +62,12 @@ pub struct Settings {
     pub max_steps: usize,
     /// Relaxation: steps between estimates of the lowest frequency.
     pub estimate_interval: usize,
+    /// Relaxation: after an instability (divergence or an inverted point), start again from
+    /// the unloaded state with dt_factor x [`RETRY_FACTOR`], at most this many times. The
+    /// steady state does not depend on the pseudo-time step, and the reference stiffness
+    /// behind the critical step does not see how deformation raises the frequencies.
+    /// Dynamic runs stop at the first instability (their answer is the path).
+    pub retries: usize,
     /// Rows wanted in the time history (dynamic); relaxation records every `estimate_interval` steps.
     pub history_rows: usize,
     /// Output frames wanted (dynamic: equally spaced in time; relaxation: start and end).
@@ -89,6 +95,7 @@ impl Default for Settings {
             tolerance: 1e-7,
             max_steps: 1_000_000,
             estimate_interval: 50,
+            retries: DEFAULT_RETRIES,
             history_rows: 200,
             frames: 10,
             progress: false,
@@ -158,7 +165,13 @@ pub struct RunOutput {
     pub momentum: Momentum,
     pub strain_energy: f64,
     pub kinetic_energy: f64,
+    /// Wall time of the estimate and every attempt, frames' writing left out, s.
     pub solve_seconds: f64,
+    /// Relaxation: one note per restart after an instability (see [`Settings::retries`]).
+    pub restarts: Vec<String>,
+    /// Relaxation: steps taken by the attempts that a restart abandoned (their time is in
+    /// `solve_seconds`).
+    pub failed_steps: usize,
 }
 
 /// Momentum of the nodal masses at the start and the end of a run.
@@ -260,6 +273,16 @@ pub fn stable_step<M: Material>(model: &Model<M>) -> (f64, Critical) {
         )
     }
 }
+
+/// Each relaxation restart after an instability multiplies dt_factor by this.
+pub const RETRY_FACTOR: f64 = 0.75;
+/// A restart that fails within this fraction of the load at which the previous attempt failed
+/// (at least [`MIN_LOAD`] and before the load is complete) ends the restarts. Failures in the
+/// first few steps are all near zero load whatever their cause, so they do not count.
+const SAME_LOAD: f64 = 0.03;
+const MIN_LOAD: f64 = 0.05;
+/// Relaxation restarts at most (`solver.retries`): 0.9 -> 0.675 -> 0.506 x the critical step.
+pub const DEFAULT_RETRIES: usize = 2;
 
 /// Dynamic runs needing more steps than this are refused unless `max_steps` allows them (a
 /// mistyped dt_factor or density would otherwise run for days without a word).
@@ -375,6 +398,127 @@ fn run_on_worker<M: Material>(
     let start = Instant::now();
     // Time spent handing frames to the sink (writing files), left out of solve_seconds.
     let mut sink_seconds = 0.0;
+    let (dt_crit, critical) = critical_step(model, s.step_estimate);
+    if !(dt_crit.is_finite() && dt_crit > 0.0) {
+        return Err(Error::Input(format!("the critical time step estimate is {dt_crit} s; the discretization has no usable points")));
+    }
+    let retries = if s.mode == Mode::Relaxation {
+        s.retries
+    } else {
+        0
+    };
+    // Contact keeps run statistics (deepest penetration, points in contact): a restart
+    // begins from its state before the first attempt.
+    let contact_at_start = if retries > 0 {
+        model.contact.clone()
+    } else {
+        None
+    };
+    let mut factor = s.dt_factor;
+    let mut restarts: Vec<String> = Vec::new();
+    let mut failed_steps = 0;
+    // Load fraction at each failure: a shorter step that fails at the same load points to
+    // the load, the mesh or the material, not the step.
+    let mut failed_at: Vec<f64> = Vec::new();
+    loop {
+        let mut reached = (0, 0.0);
+        let clock = Clock {
+            start,
+            sink_seconds: &mut sink_seconds,
+            reached: &mut reached,
+        };
+        let attempt = attempt(
+            model,
+            s,
+            (dt_crit, critical),
+            factor,
+            clock,
+            sink.as_deref_mut(),
+            !restarts.is_empty(),
+        );
+        match attempt {
+            Ok(mut out) => {
+                out.restarts = restarts;
+                out.failed_steps = failed_steps;
+                return Ok(out);
+            }
+            Err(Error::Unstable(msg)) => {
+                let (steps, load) = reached;
+                let same_load = failed_at.last().is_some_and(|&l| {
+                    load < 1.0 && l >= MIN_LOAD && (l - load).abs() <= SAME_LOAD * l
+                });
+                failed_at.push(load);
+                if restarts.len() >= retries || same_load {
+                    if restarts.is_empty() {
+                        return Err(Error::Unstable(msg));
+                    }
+                    let loads: Vec<String> = failed_at
+                        .iter()
+                        .map(|l| format!("{:.1} %", 100.0 * l.min(1.0)))
+                        .collect();
+                    let why = if same_load {
+                        "; failing at the same load with a shorter step points to the load, the \
+                         mesh or the material rather than the step, so no further restart"
+                    } else {
+                        "; raise solver.retries or start from a smaller solver.dt_factor"
+                    };
+                    return Err(Error::Unstable(format!(
+                        "{msg} [after {} restart(s) with shorter steps, dt_factor {} -> {factor:.4}, \
+                         the attempts failing at {} of the load{why}]",
+                        restarts.len(),
+                        s.dt_factor,
+                        loads.join(", ")
+                    )));
+                }
+                let next = factor * RETRY_FACTOR;
+                eprintln!(
+                    "warning: relaxation unstable after {steps} steps at dt_factor {factor:.4}; \
+                     restarting from the unloaded state at {next:.4} (restart {} of at most {retries})",
+                    restarts.len() + 1
+                );
+                restarts.push(format!(
+                    "relaxation restarted from the unloaded state with solver.dt_factor = {next:.4} \
+                     (restart {} of at most {retries}, solver.retries) after {steps} steps at \
+                     dt_factor = {factor:.4}: {msg}",
+                    restarts.len() + 1
+                ));
+                failed_steps += steps;
+                if contact_at_start.is_some() {
+                    model.contact.clone_from(&contact_at_start);
+                }
+                factor = next;
+            }
+            Err(e) => return Err(e),
+        }
+    }
+}
+
+/// The run's wall clock, the time spent in the frame sink (which solve_seconds leaves out),
+/// and the steps the attempt has taken with the load fraction they reached.
+struct Clock<'a> {
+    start: Instant,
+    sink_seconds: &'a mut f64,
+    reached: &'a mut (usize, f64),
+}
+
+/// One pass of the time loop at `dt_factor` x the critical step `critical.0` (s). With
+/// `restarted`, the frame of step 0 already went to the sink and is not sent again (it is the
+/// same on every attempt: the prescribed state at load 0).
+fn attempt<M: Material>(
+    model: &mut Model<M>,
+    s: &Settings,
+    critical: (f64, Critical),
+    dt_factor: f64,
+    clock: Clock<'_>,
+    mut sink: Option<&mut FrameSink<'_, M>>,
+    restarted: bool,
+) -> Result<RunOutput> {
+    let Clock {
+        start,
+        sink_seconds,
+        reached,
+    } = clock;
+    let (dt_crit, critical) = critical;
     let n = model.nodes.len();
     // The fastest wave bounds how far a node may move in one step.
     let c = model
@@ -383,10 +527,6 @@ fn run_on_worker<M: Material>(
         .iter()
         .map(|m| m.wave_speed())
         .fold(0.0, f64::max);
-    let (dt_crit, critical) = critical_step(model, s.step_estimate);
-    if !(dt_crit.is_finite() && dt_crit > 0.0) {
-        return Err(Error::Input(format!("the critical time step estimate is {dt_crit} s; the discretization has no usable points")));
-    }
     let dynamic = s.mode == Mode::Dynamic;
     // Added to the instability messages: the global estimate has the smaller margin.
     let hint = if matches!(critical, Critical::Global(_)) {
@@ -394,7 +534,7 @@ fn run_on_worker<M: Material>(
     } else {
         ""
     };
-    let mut dt = s.dt_factor * dt_crit;
+    let mut dt = dt_factor * dt_crit;
     let total_steps = if dynamic {
         let steps = (s.duration / dt).ceil().max(1.0);
         if !(steps <= MAX_DYNAMIC_STEPS || steps <= s.max_steps as f64) {
@@ -402,7 +542,7 @@ fn run_on_worker<M: Material>(
                 "the dynamic run needs {steps:.3e} steps (duration {:.4e} s / dt {dt:.4e} s), more than \
                  {MAX_DYNAMIC_STEPS:.0e}: check solver.duration, solver.dt_factor ({}) and the material's \
                  density, or set solver.max_steps to at least that many to run it anyway",
-                s.duration, s.dt_factor
+                s.duration, dt_factor
             )));
         }
         let k = steps as usize;
@@ -671,11 +811,11 @@ fn run_on_worker<M: Material>(
                 kinetic_energy: ke,
             });
         }
-        if frame_steps.binary_search(&step).is_ok() {
+        if frame_steps.binary_search(&step).is_ok() && !(restarted && step == 0 && sink.is_some()) {
             if let Some(sink) = sink.as_mut() {
                 let t0 = Instant::now();
                 sink(model, t, &u)?;
-                sink_seconds += t0.elapsed().as_secs_f64();
+                *sink_seconds += t0.elapsed().as_secs_f64();
             } else if let Some(mut buf) = frame_bufs.pop() {
                 buf.copy_from_slice(&u);
                 frames.push((t, buf));
@@ -865,6 +1005,7 @@ fn run_on_worker<M: Material>(
         std::mem::swap(&mut u_prev, &mut u);
         std::mem::swap(&mut u, &mut u_next);
         step += 1;
+        *reached = (step, load_frac(step));
         if step.is_multiple_of(64) {
             pb.set_position(step as u64);
             if !dynamic && s.progress {
@@ -898,7 +1039,7 @@ fn run_on_worker<M: Material>(
         }
     }
     pb.finish_and_clear();
-    let solve_seconds = start.elapsed().as_secs_f64() - sink_seconds;
+    let solve_seconds = start.elapsed().as_secs_f64() - *sink_seconds;
     if !dynamic {
         if let Some(sink) = sink.as_mut() {
             sink(model, step as f64 * dt, &u)?;
@@ -939,6 +1080,8 @@ fn run_on_worker<M: Material>(
         strain_energy,
         kinetic_energy,
         solve_seconds,
+        restarts: Vec::new(),
+        failed_steps: 0,
     })
 }
 
