@@ -273,11 +273,7 @@ fn columns(rows: &[CompareRow]) -> (Vec<String>, Vec<Vec<String>>) {
                     r.peak_memory_mib
                         .map_or("n/a".into(), |m| format!("{m:.0}")),
                 );
-                c.push(match (&r.error, &r.summary) {
-                    (Some(e), _) => format!("failed: {e}"),
-                    (None, Some(s)) if !s.converged => "not converged".into(),
-                    _ => "ok".into(),
-                });
+                c.push(crate::report::row_status(r.error.as_ref(), r.summary.as_ref()));
                 c
             })
             .collect();

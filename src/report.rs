@@ -197,6 +197,9 @@ pub struct Summary {
     /// their time is in `wall_seconds.solve`).
     #[serde(skip_serializing_if = "is_zero")]
     pub failed_steps: usize,
+    /// Relaxation: restarts after an instability (`solver.retries`).
+    #[serde(skip_serializing_if = "is_zero")]
+    pub restarts: usize,
     /// Relaxation: pseudo-steps over which the load was applied.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub load_steps: Option<usize>,
@@ -239,6 +242,20 @@ pub struct Summary {
     pub warnings: Vec<String>,
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub relaxation: Vec<RelaxationRecord>,
+}
+
+/// The status cell of a sweep or comparison row: the error of a failed run, "not converged",
+/// or "ok" (with the restarts after an instability, if any).
+pub fn row_status(error: Option<&String>, summary: Option<&Summary>) -> String {
+    match (error, summary) {
+        (Some(e), _) => format!("failed: {e}"),
+        (None, Some(s)) if !s.converged => "not converged".into(),
+        (None, Some(s)) if s.restarts > 0 => format!(
+            "ok after {} restart(s), {} steps abandoned",
+            s.restarts, s.failed_steps
+        ),
+        _ => "ok".into(),
+    }
 }
 
 fn is_zero(n: &usize) -> bool {

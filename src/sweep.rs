@@ -620,11 +620,7 @@ fn percent(x: f64) -> String {
 }
 
 fn status(r: &SweepRow) -> String {
-    match (&r.error, &r.summary) {
-        (Some(e), _) => format!("failed: {e}"),
-        (None, Some(s)) if !s.converged => "not converged".into(),
-        _ => "ok".into(),
-    }
+    crate::report::row_status(r.error.as_ref(), r.summary.as_ref())
 }
 
 /// The sweep as a Markdown table (the main columns; sweep.csv has them all) followed by the

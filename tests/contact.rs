@@ -251,3 +251,30 @@ fn the_brain_shift_scene_runs_from_its_case() {
     }
     assert!((s.probes["apex"].displacement[2] + 0.002).abs() < 1e-12);
 }
+
+#[test]
+fn a_restart_after_an_instability_starts_the_contact_afresh() {
+    // The meshless cube under the plate (EBCIEM corrector and contact both) at 1.5 x the
+    // global step diverges within 41 steps; its restart at 1.5 x 0.75 must give bitwise the
+    // run started there, contact report included (the corrector and the contact sweeps keep no
+    // state between steps that the failed attempt could leave behind; the contact's run
+    // statistics are restored before a restart).
+    let f2 = 1.5 * hytled::solver::integrate::RETRY_FACTOR;
+    let b = format!("solver.dt_factor={f2}");
+    let m = "discretization.method=meshless";
+    let restarted = plate(&[m, "solver.dt_factor=1.5"]);
+    let direct = plate(&[m, &b]);
+    println!(
+        "restarted: {} + {} steps, {:?}; direct: {} steps",
+        restarted.steps, restarted.failed_steps, restarted.contact, direct.steps
+    );
+    assert_eq!(restarted.restarts, 1);
+    assert_eq!(restarted.steps, direct.steps);
+    assert_eq!(restarted.reactions, direct.reactions);
+    assert_eq!(
+        format!("{:?}", restarted.contact),
+        format!("{:?}", direct.contact)
+    );
+    let f = restarted.reactions["plate"][2];
+    assert!((f + 7.63269).abs() < 2e-3 * 7.63269, "{f}");
+}

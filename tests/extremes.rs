@@ -400,7 +400,10 @@ fn relaxation_restarts_with_a_shorter_step_after_an_instability() {
         restarted.steps, restarted.failed_steps, restarted.dt_factor, direct.steps
     );
     assert!(restarted.converged && direct.converged);
-    assert!(restarted.failed_steps > 0);
+    assert!(restarted.failed_steps > 0 && restarted.restarts == 1);
+    assert_eq!(direct.restarts, 0);
+    let status = hytled::report::row_status(None, Some(&restarted));
+    assert!(status.starts_with("ok after 1 restart(s)"), "{status}");
     assert_eq!(restarted.steps, direct.steps);
     assert_eq!(restarted.dt, direct.dt);
     assert_eq!(restarted.reactions, direct.reactions);
@@ -451,7 +454,10 @@ mode = "relaxation"
         .to_string();
     println!("{e}");
     assert!(e.contains("inverted") && e.contains("after 1 restart(s)"), "{e}");
-    assert!(e.contains("50.0 %, 50.0 % of the load") && e.contains("no further restart"), "{e}");
+    assert!(
+        e.contains("50.0 % of the load, 50.0 % of the load") && e.contains("no further restart"),
+        "{e}"
+    );
     // Dynamic runs stop at the first instability.
     let e = run(CUBE, &["solver.mode=dynamic", "solver.duration=0.5", &a])
         .expect_err("dynamic 1.3 x diverges")

@@ -1030,6 +1030,7 @@ pub fn summarize(scene: &Scene, prep: &Prepared, out: &RunOutput, total_seconds:
         dt_factor: out.dt / out.dt_critical,
         steps: out.steps,
         failed_steps: out.failed_steps,
+        restarts: out.restarts.len(),
         simulated_time: out.simulated_time,
         status: match (out.load_steps.is_some(), out.converged) {
             (false, _) => "completed",

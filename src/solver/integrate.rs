@@ -276,9 +276,12 @@ pub fn stable_step<M: Material>(model: &Model<M>) -> (f64, Critical) {
 
 /// Each relaxation restart after an instability multiplies dt_factor by this.
 pub const RETRY_FACTOR: f64 = 0.75;
-/// A restart that fails within this fraction of the load at which the previous attempt failed
-/// (at least [`MIN_LOAD`] and before the load is complete) ends the restarts. Failures in the
-/// first few steps are all near zero load whatever their cause, so they do not count.
+/// A restart that fails within this fraction of where the previous attempt failed ends the
+/// restarts. Where is the step over the load steps: the load's share while it grows, and past
+/// 1 the pseudo-time after it in units of the loading (the default load steps scale with
+/// 1 / dt, so an instability of the equilibrium path, which grows in pseudo-time whatever the
+/// step, fails at the same place). Failures within the first [`MIN_LOAD`] of the load are all
+/// near zero load whatever their cause, so they do not count.
 const SAME_LOAD: f64 = 0.03;
 const MIN_LOAD: f64 = 0.05;
 /// Relaxation restarts at most (`solver.retries`): 0.9 -> 0.675 -> 0.506 x the critical step.
@@ -444,9 +447,9 @@ fn run_on_worker<M: Material>(
             }
             Err(Error::Unstable(msg)) => {
                 let (steps, load) = reached;
-                let same_load = failed_at.last().is_some_and(|&l| {
-                    load < 1.0 && l >= MIN_LOAD && (l - load).abs() <= SAME_LOAD * l
-                });
+                let same_load = failed_at
+                    .last()
+                    .is_some_and(|&l| l >= MIN_LOAD && (l - load).abs() <= SAME_LOAD * l);
                 failed_at.push(load);
                 if restarts.len() >= retries || same_load {
                     if restarts.is_empty() {
@@ -454,17 +457,24 @@ fn run_on_worker<M: Material>(
                     }
                     let loads: Vec<String> = failed_at
                         .iter()
-                        .map(|l| format!("{:.1} %", 100.0 * l.min(1.0)))
+                        .map(|&l| {
+                            if l <= 1.0 {
+                                format!("{:.1} % of the load", 100.0 * l)
+                            } else {
+                                format!("{l:.3} x the load steps")
+                            }
+                        })
                         .collect();
                     let why = if same_load {
-                        "; failing at the same load with a shorter step points to the load, the \
-                         mesh or the material rather than the step, so no further restart"
+                        "; failing at the same point of the load path with a shorter step points \
+                         to the load, the mesh or the material rather than the step, so no further \
+                         restart"
                     } else {
                         "; raise solver.retries or start from a smaller solver.dt_factor"
                     };
                     return Err(Error::Unstable(format!(
                         "{msg} [after {} restart(s) with shorter steps, dt_factor {} -> {factor:.4}, \
-                         the attempts failing at {} of the load{why}]",
+                         the attempts failing at {}{why}]",
                         restarts.len(),
                         s.dt_factor,
                         loads.join(", ")
