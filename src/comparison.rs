@@ -273,7 +273,10 @@ fn columns(rows: &[CompareRow]) -> (Vec<String>, Vec<Vec<String>>) {
                     r.peak_memory_mib
                         .map_or("n/a".into(), |m| format!("{m:.0}")),
                 );
-                c.push(crate::report::row_status(r.error.as_ref(), r.summary.as_ref()));
+                c.push(crate::report::row_status(
+                    r.error.as_ref(),
+                    r.summary.as_ref(),
+                ));
                 c
             })
             .collect();

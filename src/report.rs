@@ -347,7 +347,10 @@ impl Summary {
             self.load_steps
                 .map_or(String::new(), |n| format!(", load over the first {n}"))
                 + &if self.failed_steps > 0 {
-                    format!("; {} more in attempts abandoned after an instability", self.failed_steps)
+                    format!(
+                        "; {} more in attempts abandoned after an instability",
+                        self.failed_steps
+                    )
                 } else {
                     String::new()
                 },

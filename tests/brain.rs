@@ -110,3 +110,31 @@ fn half_ellipsoid_needs_tetgen_validates_and_round_trips() {
         g => panic!("{g:?}"),
     }
 }
+
+#[cfg(feature = "tetgen")]
+#[test]
+fn one_point_transition_cells_under_a_concentrated_drive_are_warned_about() {
+    // The unstructured-tet coupled defaults (one point per transition tet) run 10-31 % below fe
+    // tet4-anp on the driven footprint (studies/brain-compressible): the scene is told at
+    // preparation, and not with four points or with fe.
+    let coupled = [
+        "discretization.method=coupled",
+        "discretization.fe_region=essential",
+        "discretization.fe_layers=1",
+    ];
+    let warned = |extra: &[&str]| {
+        let mut o = COARSE.to_vec();
+        o.extend_from_slice(extra);
+        let prep = prepare(&scene(&o)).unwrap_or_else(|e| panic!("{e}"));
+        prep.warnings
+            .iter()
+            .any(|w| w.contains("boundary 'indenter' drives") && w.contains("transition_rule"))
+    };
+    assert!(warned(
+        &[&coupled[..], &["discretization.transition_rule=interior"]].concat()
+    ));
+    assert!(!warned(
+        &[&coupled[..], &["discretization.transition_rule=full"]].concat()
+    ));
+    assert!(!warned(&[]));
+}

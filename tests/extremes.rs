@@ -410,15 +410,25 @@ fn relaxation_restarts_with_a_shorter_step_after_an_instability() {
     assert!((restarted.dt_factor - f2).abs() < 1e-12 * f2);
     assert_eq!(restarted.warnings.len(), direct.warnings.len() + 1);
     let note = restarted.warnings.last().unwrap();
-    assert!(note.contains("restart 1 of at most 2") && note.contains("diverged"), "{note}");
+    assert!(
+        note.contains("restart 1 of at most 2") && note.contains("diverged"),
+        "{note}"
+    );
     // The restarted run still matches the exact cube within the scene's tolerance.
-    assert!(rel_err(&restarted, "top_force") < 1e-6, "{:?}", restarted.reference);
+    assert!(
+        rel_err(&restarted, "top_force") < 1e-6,
+        "{:?}",
+        restarted.reference
+    );
 
     // Retries spent: the error says how far the factor went.
     let e = run(CUBE, &[relax[0], "solver.dt_factor=3", "solver.retries=1"])
         .expect_err("3 and 2.25 x diverge")
         .to_string();
-    assert!(e.contains("after 1 restart(s)") && e.contains("2.2500"), "{e}");
+    assert!(
+        e.contains("after 1 restart(s)") && e.contains("2.2500"),
+        "{e}"
+    );
     // A node driven through a fixed layer of nodes inverts its elements at half the load
     // whatever the step: one restart fails at the same load, and the restarts end there.
     let text = r#"
@@ -453,7 +463,10 @@ mode = "relaxation"
         .expect_err("the pushed node inverts its elements")
         .to_string();
     println!("{e}");
-    assert!(e.contains("inverted") && e.contains("after 1 restart(s)"), "{e}");
+    assert!(
+        e.contains("inverted") && e.contains("after 1 restart(s)"),
+        "{e}"
+    );
     assert!(
         e.contains("50.0 % of the load, 50.0 % of the load") && e.contains("no further restart"),
         "{e}"

@@ -248,7 +248,9 @@ pub fn settings(scene: &Scene, progress: bool) -> Settings {
         tolerance: s.tolerance,
         max_steps: s.max_steps,
         estimate_interval: s.estimate_interval,
-        retries: s.retries.unwrap_or(crate::solver::integrate::DEFAULT_RETRIES),
+        retries: s
+            .retries
+            .unwrap_or(crate::solver::integrate::DEFAULT_RETRIES),
         history_rows: scene.output.history_rows,
         frames: scene.output.frames,
         progress,
