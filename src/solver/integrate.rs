@@ -481,11 +481,14 @@ fn run_on_worker<M: Material>(
                     )));
                 }
                 let next = factor * RETRY_FACTOR;
-                eprintln!(
-                    "warning: relaxation unstable after {steps} steps at dt_factor {factor:.4}; \
-                     restarting from the unloaded state at {next:.4} (restart {} of at most {retries})",
-                    restarts.len() + 1
-                );
+                // Said as it happens where progress is shown; the summary's warnings keep it.
+                if s.progress || s.progress_lines.is_some() {
+                    eprintln!(
+                        "warning: relaxation unstable after {steps} steps at dt_factor {factor:.4}; \
+                         restarting from the unloaded state at {next:.4} (restart {} of at most {retries})",
+                        restarts.len() + 1
+                    );
+                }
                 restarts.push(format!(
                     "relaxation restarted from the unloaded state with solver.dt_factor = {next:.4} \
                      (restart {} of at most {retries}, solver.retries) after {steps} steps at \
