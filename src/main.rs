@@ -309,6 +309,26 @@ fn execute(cmd: Command) -> hytled::Result<u8> {
                     m.cloud, m.integration, m.removed_nodes, m.exact_volume
                 );
             }
+            if let Some(c) = &prep.coupled {
+                use hytled::coupling::regions::CellRole;
+                let full = if c.full_rule_cells > 0 {
+                    format!(
+                        " ({} on the full rule next to a load concentrated on a few driven nodes)",
+                        c.full_rule_cells
+                    )
+                } else {
+                    String::new()
+                };
+                println!(
+                    "  coupled: {} FE, {} transition{full} and {} meshless cells; points {} FE, {} transition, {} meshless",
+                    c.regions.cells(CellRole::Fe),
+                    c.regions.cells(CellRole::Transition),
+                    c.interior.num_cells(),
+                    c.fe_points,
+                    c.transition_points,
+                    c.meshless_points
+                );
+            }
             for b in &prep.model.boundaries {
                 println!("  boundary {:<12} {} nodes", b.name, b.nodes.len());
             }

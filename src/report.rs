@@ -143,6 +143,10 @@ pub struct CoupledInfo {
     pub fe_points: usize,
     pub transition_points: usize,
     pub meshless_points: usize,
+    /// Transition cells on the full rule near a load concentrated on a few driven nodes,
+    /// where `transition_rule = "interior"` would give them one point.
+    #[serde(skip_serializing_if = "is_zero")]
+    pub full_rule_cells: usize,
     pub basis: String,
     pub support_rule: String,
     /// What adaptive integration of the interior tets did (`integration = "adaptive"` only).

@@ -113,28 +113,43 @@ fn half_ellipsoid_needs_tetgen_validates_and_round_trips() {
 
 #[cfg(feature = "tetgen")]
 #[test]
-fn one_point_transition_cells_under_a_concentrated_drive_are_warned_about() {
-    // The unstructured-tet coupled defaults (one point per transition tet) run 10-31 % below fe
-    // tet4-anp on the driven footprint (studies/brain-compressible): the scene is told at
-    // preparation, and not with four points or with fe.
+fn transition_cells_next_to_a_concentrated_drive_take_the_full_rule() {
+    // The unstructured-tet coupled defaults give a transition tet one point; next to the
+    // indenter's few driven nodes that under-integrates (10-31 % below fe tet4-anp in
+    // studies/brain-compressible), so the cells within two of them take the full rule. The
+    // force must then be the full rule's everywhere (independent: every transition cell on four
+    // points), for far fewer points, and no warning is left.
     let coupled = [
+        "discretization.size=0.009",
         "discretization.method=coupled",
         "discretization.fe_region=essential",
         "discretization.fe_layers=1",
     ];
-    let warned = |extra: &[&str]| {
-        let mut o = COARSE.to_vec();
-        o.extend_from_slice(extra);
-        let prep = prepare(&scene(&o)).unwrap_or_else(|e| panic!("{e}"));
-        prep.warnings
-            .iter()
-            .any(|w| w.contains("boundary 'indenter' drives") && w.contains("transition_rule"))
+    let solve = |rule: &str| {
+        let scene = scene(&[&coupled[..], &[rule]].concat());
+        let mut prep = prepare(&scene).unwrap_or_else(|e| panic!("{e}"));
+        let full_cells = prep.coupled.as_ref().unwrap().full_rule_cells;
+        let out = solver::run(&mut prep.model, &settings(&scene, false))
+            .unwrap_or_else(|e| panic!("{e}"));
+        (summarize(&scene, &prep, &out, 0.0), full_cells)
     };
-    assert!(warned(
-        &[&coupled[..], &["discretization.transition_rule=interior"]].concat()
-    ));
-    assert!(!warned(
-        &[&coupled[..], &["discretization.transition_rule=full"]].concat()
-    ));
-    assert!(!warned(&[]));
+    let (local, cells) = solve("discretization.transition_rule=interior");
+    let (full, none) = solve("discretization.transition_rule=full");
+    let (fl, ff) = (
+        local.reactions["indenter"][2],
+        full.reactions["indenter"][2],
+    );
+    println!(
+        "local full rule: {cells} cells, {} points, {fl} N; full rule: {} points, {ff} N",
+        local.integration_points, full.integration_points
+    );
+    assert!(cells > 0 && none == 0);
+    assert!(local.converged && full.converged);
+    assert!((fl - ff).abs() < 5e-3 * ff.abs(), "{fl} vs {ff}");
+    assert!(local.integration_points < 2 * full.integration_points / 3);
+    assert!(
+        !local.warnings.iter().any(|w| w.contains("drives")),
+        "{:?}",
+        local.warnings
+    );
 }

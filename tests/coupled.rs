@@ -361,3 +361,50 @@ fn cylinder_extension_coupled() {
 fn cylinder_shear_coupled() {
     cylinder_case("cylinder-shear");
 }
+
+/// A tet FE shell from a mesh file with a meshless interior from a cloud file keeps one point
+/// per transition tet even next to a load concentrated on a few driven nodes (only builds on
+/// the scene's own mesh give those cells the full rule): the scene is warned, and not with
+/// the full rule.
+#[test]
+fn a_given_tet_shell_is_warned_of_a_concentrated_drive() {
+    let dir = std::env::temp_dir().join(format!("hytled-tet-shell-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let case = "cases/tet-cylinder-compression.toml";
+    let coarse = ["geometry.mesh=../meshes/cylinder-gmsh-h75.msh".to_string()];
+    let mesh = simulation::build_mesh(&scene::load(Path::new(case), &coarse).unwrap()).unwrap();
+    hytled::coupling::regions::write_split_inputs(
+        &mesh,
+        1,
+        &dir.join("shell.inp"),
+        &dir.join("interior.csv"),
+    )
+    .unwrap();
+    let text = std::fs::read_to_string(case)
+        .unwrap()
+        .replace("../meshes/cylinder-gmsh-h57.msh", "shell.inp");
+    assert!(text.contains("shell.inp"));
+    std::fs::write(dir.join("shell.toml"), text).unwrap();
+    let warned = |rule: &str| {
+        let o: Vec<String> = [
+            "discretization.method=coupled",
+            "discretization.element=tet4",
+            "discretization.cloud=file",
+            "discretization.cloud_file=interior.csv",
+            rule,
+            "boundaries.bottom.select={ plane = { axis = \"z\", value = 0.0 } }",
+            "boundaries.top.select={ sphere = { center = [0.0, 0.0, 0.1], radius = 0.012 } }",
+        ]
+        .iter()
+        .map(|s| s.to_string())
+        .collect();
+        let s = scene::load(&dir.join("shell.toml"), &o).unwrap_or_else(|e| panic!("{e}"));
+        let p = simulation::prepare(&s).unwrap_or_else(|e| panic!("{e}"));
+        println!("{rule}: {:?}", p.warnings);
+        p.warnings
+            .iter()
+            .any(|w| w.contains("boundary 'top' drives") && w.contains("transition_rule"))
+    };
+    assert!(warned("discretization.transition_rule=interior"));
+    assert!(!warned("discretization.transition_rule=full"));
+}

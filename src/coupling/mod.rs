@@ -48,6 +48,9 @@ pub struct CoupledSettings {
     pub mean_dilatation: bool,
     /// Points of the transition cells.
     pub transition_rule: TransitionRule,
+    /// Nodes of loads concentrated on a few nodes (a small driven footprint): transition
+    /// cells within two cells of them take the full rule whatever `transition_rule` says.
+    pub full_rule_near: Vec<usize>,
     /// Integration points per interior background tet (1, 4 or 5).
     pub tet_rule: crate::meshless::integration::TetRule,
     /// Adaptive integration of the interior tets (thesis chapter 5) instead of `tet_rule`
@@ -88,6 +91,9 @@ pub struct CoupledBuild {
     pub fe_points: usize,
     pub transition_points: usize,
     pub meshless_points: usize,
+    /// Transition cells given the full rule near a concentrated drive
+    /// ([`CoupledSettings::full_rule_near`]) under [`TransitionRule::Interior`].
+    pub full_rule_cells: usize,
     pub warnings: Vec<String>,
     /// What adaptive integration of the interior did (None without it).
     pub adaptive: Option<crate::report::AdaptiveInfo>,
@@ -283,6 +289,29 @@ fn transition_gauss(shape: ElementShape, s: &CoupledSettings) -> Vec<([f64; 4], 
     }
 }
 
+/// Nodes of the cells that hold one of `nodes` (their first ring): a transition cell with
+/// one of these is at most two cells from them and takes the full rule.
+fn full_rule_nodes(mesh: &Mesh, nodes: &[usize]) -> Vec<bool> {
+    let n = mesh.nodes.len();
+    let mut seed = vec![false; n];
+    for &i in nodes.iter().filter(|&&i| i < n) {
+        seed[i] = true;
+    }
+    let mut ring = seed.clone();
+    if nodes.is_empty() {
+        return ring;
+    }
+    for e in 0..mesh.num_cells() {
+        let c = mesh.cell(e);
+        if c.iter().any(|&i| seed[i]) {
+            for &i in c {
+                ring[i] = true;
+            }
+        }
+    }
+    ring
+}
+
 /// How the blended points of a transition cell are placed.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum TransitionRule {
@@ -374,9 +403,14 @@ fn transition_cell(
     support: &Support,
     mls_nodes: &[usize],
     s: &CoupledSettings,
+    full: bool,
 ) -> Result<Blended> {
     let mls = &s.mls;
-    let rule = transition_gauss(mesh.shape, s);
+    let rule = if full {
+        gauss(mesh.shape)
+    } else {
+        transition_gauss(mesh.shape, s)
+    };
     let c = mesh.cell(e);
     let x: Vec<Vector3<f64>> = c.iter().map(|&i| mesh.nodes[i]).collect();
     let interface: Vec<bool> = c
@@ -549,9 +583,21 @@ fn assemble(
     let transition_cells: Vec<usize> = (0..fe_mesh.num_cells())
         .filter(|&e| regions.cell[e] == CellRole::Transition)
         .collect();
+    let near = full_rule_nodes(&fe_mesh, &s.full_rule_near);
+    let full: Vec<bool> = transition_cells
+        .iter()
+        .map(|&e| fe_mesh.cell(e).iter().any(|&i| near[i]))
+        .collect();
+    let full_rule_cells =
+        if fe_mesh.shape == ElementShape::Tet4 && s.transition_rule == TransitionRule::Interior {
+            full.iter().filter(|&&f| f).count()
+        } else {
+            0
+        };
     let blended: Vec<Blended> = transition_cells
         .par_iter()
-        .map(|&e| transition_cell(&fe_mesh, e, &regions.node, &support, &mls_nodes, s))
+        .zip(&full)
+        .map(|(&e, &f)| transition_cell(&fe_mesh, e, &regions.node, &support, &mls_nodes, s, f))
         .collect::<Result<_>>()?;
 
     let mut adaptive_info = None;
@@ -697,6 +743,7 @@ fn assemble(
         nodes,
         fe_points: fe_qp.len(),
         transition_points: n_blended,
+        full_rule_cells,
         meshless_points: ml_qp.len(),
         fe_mesh,
         interior,
