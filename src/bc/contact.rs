@@ -251,6 +251,14 @@ impl Contact {
         self.worst
     }
 
+    /// Forgets what earlier corrections left (deepest penetration, forces, points in
+    /// contact): a relaxation that restarts after an instability begins afresh.
+    pub fn reset_statistics(&mut self) {
+        self.worst = 0.0;
+        self.forces.iter_mut().for_each(|f| *f = Vector3::zeros());
+        self.in_contact.iter_mut().for_each(|k| *k = 0);
+    }
+
     /// Points in contact with each body after the last correction.
     pub fn points_in_contact(&self) -> &[usize] {
         &self.in_contact

@@ -298,9 +298,6 @@ fn full_rule_nodes(mesh: &Mesh, nodes: &[usize]) -> Vec<bool> {
         seed[i] = true;
     }
     let mut ring = seed.clone();
-    if nodes.is_empty() {
-        return ring;
-    }
     for e in 0..mesh.num_cells() {
         let c = mesh.cell(e);
         if c.iter().any(|&i| seed[i]) {

@@ -410,13 +410,6 @@ fn run_on_worker<M: Material>(
     } else {
         0
     };
-    // Contact keeps run statistics (deepest penetration, points in contact): a restart
-    // begins from its state before the first attempt.
-    let contact_at_start = if retries > 0 {
-        model.contact.clone()
-    } else {
-        None
-    };
     let mut factor = s.dt_factor;
     let mut restarts: Vec<String> = Vec::new();
     let mut failed_steps = 0;
@@ -496,8 +489,8 @@ fn run_on_worker<M: Material>(
                     restarts.len() + 1
                 ));
                 failed_steps += steps;
-                if contact_at_start.is_some() {
-                    model.contact.clone_from(&contact_at_start);
+                if let Some(c) = model.contact.as_mut() {
+                    c.reset_statistics();
                 }
                 factor = next;
             }
@@ -507,7 +500,7 @@ fn run_on_worker<M: Material>(
 }
 
 /// The run's wall clock, the time spent in the frame sink (which solve_seconds leaves out),
-/// and the steps the attempt has taken with the load fraction they reached.
+/// and where an instability stopped the attempt (steps taken, load fraction reached).
 struct Clock<'a> {
     start: Instant,
     sink_seconds: &'a mut f64,
@@ -594,6 +587,11 @@ fn attempt<M: Material>(
         } else {
             1.0
         }
+    };
+    // An instability stops the attempt: where (steps, load fraction) goes to the restarts.
+    let mut unstable = |step: usize, msg: String| {
+        *reached = (step, load_frac(step));
+        Error::Unstable(msg)
     };
 
     let has_loads = !model.loads.is_empty();
@@ -778,7 +776,7 @@ fn attempt<M: Material>(
                 .sum::<Vector3<f64>>()
                 / sl.len().max(1) as f64;
             let id = model.point_ids[p_min];
-            return Err(Error::Unstable(format!(
+            return Err(unstable(step, format!(
                 "integration point {id} near ({:.4e}, {:.4e}, {:.4e}) m inverted (J = {min_j:.4}) at step {step}, t = {t:.6} s \
                  (dt = {dt:.4e} s, {:.3} x the critical estimate {dt_crit:.4e} s; one-point FE meshes number points as their elements). \
                  The load is too large or fast for this discretization, or the step too large: reduce solver.dt_factor \
@@ -804,7 +802,7 @@ fn attempt<M: Material>(
                 && step > 0
                 && ke > 10.0 * (external_work.abs() + se + initial_kinetic) + 1e-12
             {
-                return Err(Error::Unstable(format!(
+                return Err(unstable(step, format!(
                     "kinetic energy {ke:.4e} J exceeds ten times the work done on the body ({external_work:.4e} J) at step {step}, t = {t:.6} s: \
                      the integration is unstable with dt = {dt:.4e} s ({:.3} x the critical estimate {dt_crit:.4e} s); reduce solver.dt_factor{hint}",
                     dt / dt_crit
@@ -946,7 +944,7 @@ fn attempt<M: Material>(
             max_u = nan_max(max_u, u_next[node as usize][comp as usize].abs());
         }
         if !max_u.is_finite() || !max_du.is_finite() || max_u > 10.0 * size || max_du > max_rate {
-            return Err(Error::Unstable(format!(
+            return Err(unstable(step, format!(
                 "the solution diverged at step {step}, t = {t:.6} s (largest displacement {max_u:.3e} m, largest change in one step {max_du:.3e} m): \
                  dt = {dt:.4e} s is {:.3} x the critical estimate {dt_crit:.4e} s; reduce solver.dt_factor (default 0.9; \
                  the estimate holds for the undeformed body, and large compression lowers the critical step){hint}",
@@ -1018,7 +1016,6 @@ fn attempt<M: Material>(
         std::mem::swap(&mut u_prev, &mut u);
         std::mem::swap(&mut u, &mut u_next);
         step += 1;
-        *reached = (step, load_frac(step));
         if step.is_multiple_of(64) {
             pb.set_position(step as u64);
             if !dynamic && s.progress {
