@@ -204,6 +204,10 @@ pub struct Summary {
     /// Relaxation: restarts after an instability (`solver.retries`).
     #[serde(skip_serializing_if = "is_zero")]
     pub restarts: usize,
+    /// Dynamic: estimates of the critical step at the deformed state (`solver.step_update`);
+    /// `dt` above is the step the run started with.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub step_updates: Option<crate::solver::integrate::StepUpdates>,
     /// Relaxation: pseudo-steps over which the load was applied.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub load_steps: Option<usize>,
@@ -326,6 +330,24 @@ impl Summary {
             "time step        {:.4e} s = {:.3} x critical {:.4e} s (set by {})",
             self.dt, self.dt_factor, self.dt_critical, self.mesh.critical
         );
+        if let Some(u) = self.step_updates.filter(|u| u.estimates > 0) {
+            let what = if u.reductions > 0 {
+                format!(
+                    "step shortened {} time(s), to {:.4e} s ({:.3} x the initial; the last at t = {:.4e} s)",
+                    u.reductions,
+                    u.dt_min,
+                    u.dt_min / u.dt_initial,
+                    u.last_reduction_time
+                )
+            } else {
+                "step kept".to_string()
+            };
+            let _ = writeln!(
+                s,
+                "step updates     {} estimate(s) at the deformed state ({} force evaluations): {what}",
+                u.estimates, u.iterations
+            );
+        }
         if let Some(d) = self.momentum.as_ref().and_then(|m| m.angular_drift()) {
             let m = self
                 .momentum

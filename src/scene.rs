@@ -526,10 +526,6 @@ fn default_max_level() -> usize {
     3
 }
 
-fn default_true() -> bool {
-    true
-}
-
 fn default_interface_scale() -> f64 {
     1.5
 }
@@ -996,6 +992,14 @@ pub struct SolverSpec {
     /// instability).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub retries: Option<usize>,
+    /// Dynamic: estimate the critical step again at the deformed state during the run and
+    /// shorten the step when deformation has raised the frequencies (default true).
+    #[serde(default = "default_true")]
+    pub step_update: bool,
+}
+
+fn default_true() -> bool {
+    true
 }
 
 fn default_duration() -> f64 {
@@ -1028,6 +1032,7 @@ impl Default for SolverSpec {
             max_steps: default_max_steps(),
             estimate_interval: default_interval(),
             retries: None,
+            step_update: true,
         }
     }
 }

@@ -1087,12 +1087,14 @@ pub fn summarize(scene: &Scene, prep: &Prepared, out: &RunOutput, total_seconds:
         },
         nodes: model.nodes.len(),
         integration_points: model.points.len(),
-        dt: out.dt,
+        // The step the run started with (step_updates has the shortest one).
+        dt: out.step_updates.dt_initial,
         dt_critical: out.dt_critical,
-        dt_factor: out.dt / out.dt_critical,
+        dt_factor: out.step_updates.dt_initial / out.dt_critical,
         steps: out.steps,
         failed_steps: out.failed_steps,
         restarts: out.restarts.len(),
+        step_updates: (out.step_updates.estimates > 0).then_some(out.step_updates),
         simulated_time: out.simulated_time,
         status: match (out.load_steps.is_some(), out.converged) {
             (false, _) => "completed",

@@ -251,6 +251,7 @@ pub fn settings(scene: &Scene, progress: bool) -> Settings {
         retries: s
             .retries
             .unwrap_or(crate::solver::integrate::DEFAULT_RETRIES),
+        step_update: s.step_update,
         history_rows: scene.output.history_rows,
         frames: scene.output.frames,
         progress,

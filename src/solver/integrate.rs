@@ -68,6 +68,11 @@ pub struct Settings {
     /// behind the critical step does not see how deformation raises the frequencies.
     /// Dynamic runs stop at the first instability (their answer is the path).
     pub retries: usize,
+    /// Dynamic: estimate the critical step again at the deformed state during the run (Lanczos
+    /// on the tangent stiffness, [`super::spectrum::Lanczos`]) and shorten the step where
+    /// deformation has raised the frequencies, as ABAQUS/Explicit updates its stable
+    /// increment. See [`StepUpdates`].
+    pub step_update: bool,
     /// Rows wanted in the time history (dynamic); relaxation records every `estimate_interval` steps.
     pub history_rows: usize,
     /// Output frames wanted (dynamic: equally spaced in time; relaxation: start and end).
@@ -96,6 +101,7 @@ impl Default for Settings {
             max_steps: 1_000_000,
             estimate_interval: 50,
             retries: DEFAULT_RETRIES,
+            step_update: true,
             history_rows: 200,
             frames: 10,
             progress: false,
@@ -172,6 +178,25 @@ pub struct RunOutput {
     /// Relaxation: steps taken by the attempts that a restart abandoned (their time is in
     /// `solve_seconds`).
     pub failed_steps: usize,
+    /// Dynamic: the estimates of the critical step at the deformed state and what they did.
+    pub step_updates: StepUpdates,
+}
+
+/// Estimates of the critical step during a dynamic run ([`Settings::step_update`]).
+#[derive(Debug, Clone, Copy, Default, Serialize, Deserialize, PartialEq)]
+pub struct StepUpdates {
+    /// Estimates made at the deformed state.
+    pub estimates: usize,
+    /// Lanczos iterations (force evaluations) they took.
+    pub iterations: usize,
+    /// Times the step was shortened.
+    pub reductions: usize,
+    /// The step the run started with, s.
+    pub dt_initial: f64,
+    /// The shortest step taken, s.
+    pub dt_min: f64,
+    /// Simulated time of the last reduction, s.
+    pub last_reduction_time: f64,
 }
 
 /// Momentum of the nodal masses at the start and the end of a run.
@@ -300,6 +325,40 @@ const LANCZOS_TOLERANCE: f64 = 1e-3;
 /// Gmsh cylinder, tet4-anp, 20 % extension (relaxation): stable at 0.79 and divergent at 0.83
 /// x the reference critical step; compression and the meshless and coupled runs tolerate more.
 pub const DEFORMATION_ALLOWANCE: f64 = 0.8;
+
+/// Dynamic step updates ([`Settings::step_update`]): the first estimate at the deformed state
+/// comes after this many steps; the interval then follows how fast the estimate moves, so
+/// that omega_max changes by about [`UPDATE_CHANGE`] between estimates (the
+/// [`DEFORMATION_ALLOWANCE`] covers 25 %), within [`UPDATE_MIN`]..[`UPDATE_MAX`] steps.
+/// With 10-25 force evaluations an estimate, a run whose frequencies do not move spends
+/// 1-3 % of its steps on them.
+const UPDATE_FIRST: usize = 100;
+const UPDATE_MIN: usize = 50;
+const UPDATE_MAX: usize = 2000;
+const UPDATE_CHANGE: f64 = 0.02;
+/// An estimate is also due once a node may have moved this fraction of the distance the
+/// fastest wave covers in a critical step (about the smallest element's size) since the last
+/// one: the frequencies follow the strains, whose rate the interval's history cannot foresee
+/// when the loading speeds up.
+const UPDATE_TRAVEL: f64 = 0.25;
+/// ... up to this many times farther where estimates due to motion alone found the
+/// frequencies unchanged (back to 1 at the first estimate that finds them moving).
+const UPDATE_TRAVEL_GROWTH: f64 = 64.0;
+/// The step is shortened only when the new estimate is this much below it (1 % is within the
+/// allowance), so small wobbles of the estimate do not re-divide the run.
+const UPDATE_HYSTERESIS: f64 = 0.01;
+/// The estimates at the deformed state are fresh: they keep this fraction of 2 / omega_max
+/// instead of the reference estimate's [`DEFORMATION_ALLOWANCE`] (the controller above bounds
+/// how far the frequencies move between estimates). With the 0.8 the 20 % compression of the
+/// cylinder (fe hex8) shortened its step to 0.75x for 14 % more steps.
+const UPDATE_ALLOWANCE: f64 = 0.95;
+/// Ritz residual at which an update stops (relative; the reference estimate's is 1e-3). The
+/// residual is added to the Ritz value, so a looser stop only shortens the step, by about
+/// half of it.
+const UPDATE_TOLERANCE: f64 = 1e-2;
+/// A step that has fallen below this fraction of the initial one stops the run: a point is
+/// collapsing, and the run would take over 100x the planned steps.
+const UPDATE_MIN_RATIO: f64 = 0.01;
 
 /// Every point of the model is an average-nodal-pressure tet.
 fn all_anp<M: Material>(model: &Model<M>) -> bool {
@@ -575,10 +634,11 @@ fn attempt<M: Material>(
             .max()
             .unwrap_or(400)
     });
-    let load_frac = |step: usize| -> f64 {
+    // Dynamic: the load at time t (s); relaxation: at pseudo-step `step`.
+    let load_frac = |step: usize, t: f64| -> f64 {
         if dynamic {
             if s.load_time > 0.0 {
-                step as f64 * dt / s.load_time
+                t / s.load_time
             } else {
                 1.0
             }
@@ -589,8 +649,8 @@ fn attempt<M: Material>(
         }
     };
     // An instability stops the attempt: where (steps, load fraction) goes to the restarts.
-    let mut unstable = |step: usize, msg: String| {
-        *reached = (step, load_frac(step));
+    let mut unstable = |step: usize, t: f64, msg: String| {
+        *reached = (step, load_frac(step, t));
         Error::Unstable(msg)
     };
 
@@ -612,10 +672,10 @@ fn attempt<M: Material>(
             target[node as usize][comp as usize] = cons.amplitude[k] * cons.curve[k].value(tau);
         }
     };
-    prescribe(&mut u, load_frac(0));
+    prescribe(&mut u, load_frac(0, 0.0));
     if let Some(corr) = model.corrector.as_mut() {
         // Only the displacements matter here; the constraint force is recomputed every step.
-        corr.correct(&mut u, load_frac(0), 1.0);
+        corr.correct(&mut u, load_frac(0, 0.0), 1.0);
     }
     u_prev.copy_from_slice(&u);
     let rigid: Option<Vec<Vector3<f64>>> = s
@@ -650,12 +710,16 @@ fn attempt<M: Material>(
     } else {
         vec![0]
     };
+    // The frames' times: a shortened step re-divides the rest of the run and moves the frames
+    // still to come to the steps nearest these times.
+    let frame_times: Vec<f64> = frame_steps.iter().map(|&k| k as f64 * dt).collect();
+    let mut frame_steps = frame_steps;
     let frame_bytes = if sink.is_some() {
         0.0
     } else {
         (frame_steps.len() + 1) as f64 * n as f64 * 24.0
     };
-    let history_every = if dynamic {
+    let mut history_every = if dynamic {
         (total_steps / s.history_rows.max(1)).max(1)
     } else {
         s.estimate_interval.max(1)
@@ -695,8 +759,10 @@ fn attempt<M: Material>(
     };
     let mut frame_bufs: Vec<Vec<Vector3<f64>>> = (0..kept).map(|_| zero.clone()).collect();
     let mut frames: Vec<(f64, Vec<Vector3<f64>>)> = Vec::with_capacity(frame_bufs.len());
+    // A few rows more than planned: re-dividing the run after a shortened step rounds the
+    // row spacing.
     let mut history = Vec::with_capacity(if dynamic {
-        s.history_rows.min(total_steps) + 2
+        s.history_rows.min(total_steps) + 8
     } else {
         1024
     });
@@ -734,7 +800,30 @@ fn attempt<M: Material>(
     let mut finish = false;
     let mut step = 0usize;
     let mut last_line = 0.0f64;
-    let max_rate = c * dt;
+    let mut max_rate = c * dt;
+    // Variable step (dynamic, after a shortened step): u holds the state at `time(step)`,
+    // u_prev the one a step of dt_prev before; steps from `base.0` on are dt long.
+    let mut total_steps = total_steps;
+    let mut dt_prev = dt;
+    let mut base = (0usize, 0.0f64);
+    let time = |base: (usize, f64), dt: f64, step: usize| base.1 + (step - base.0) as f64 * dt;
+    let mut crit_now = dt_crit;
+    let mut history_base = 0usize;
+    let mut updates = StepUpdates {
+        dt_initial: dt,
+        dt_min: dt,
+        ..Default::default()
+    };
+    let mut lanczos = (dynamic && s.step_update)
+        .then(|| super::spectrum::Lanczos::new(model, LANCZOS_ITERATIONS));
+    let mut next_estimate = UPDATE_FIRST;
+    let mut interval = UPDATE_FIRST;
+    let mut lambda_last: Option<f64> = None;
+    // The largest nodal change per step summed since the last estimate (m): a bound on how far
+    // any node has moved since, whatever the interval.
+    let mut travel = 0.0f64;
+    let mut last_estimate = 0usize;
+    let mut travel_scale = 1.0f64;
     // With a corrector, the nodes it moves and the prescribed ones change after the update:
     // their step change is measured after the correction (a short serial loop), every other
     // node's during the update. A parallel pass over all nodes after the correction cost as
@@ -762,7 +851,85 @@ fn attempt<M: Material>(
     let is_late = &is_late;
 
     loop {
-        let t = step as f64 * dt;
+        let by_travel = travel > travel_scale * UPDATE_TRAVEL * c * crit_now
+            && step >= last_estimate + UPDATE_MIN;
+        let due = step >= next_estimate || by_travel;
+        if let Some(lz) = lanczos.as_mut().filter(|_| due && step < total_steps) {
+            travel = 0.0;
+            last_estimate = step;
+            let t_now = time(base, dt, step);
+            if let Some(e) = lz.estimate(model, Some(&u), UPDATE_TOLERANCE) {
+                updates.estimates += 1;
+                updates.iterations += e.iterations;
+                // The first estimate compares with the reference one where that was global.
+                let previous = lambda_last.or(matches!(critical, Critical::Global(_))
+                    .then(|| (2.0 * DEFORMATION_ALLOWANCE / dt_crit).powi(2)));
+                if let Some(l0) = previous {
+                    let change = ((e.lambda_max / l0).sqrt() - 1.0).abs();
+                    let scale = if change > 0.0 {
+                        (UPDATE_CHANGE / change).clamp(0.5, 2.0)
+                    } else {
+                        2.0
+                    };
+                    interval = ((interval as f64 * scale) as usize).clamp(UPDATE_MIN, UPDATE_MAX);
+                    // Motion without strain (a rigid rotation) moves nodes without moving the
+                    // frequencies: each estimate it triggers in vain doubles the distance.
+                    if change > UPDATE_CHANGE {
+                        travel_scale = 1.0;
+                    } else if by_travel && change < 0.25 * UPDATE_CHANGE {
+                        travel_scale = (2.0 * travel_scale).min(UPDATE_TRAVEL_GROWTH);
+                    }
+                }
+                lambda_last = Some(e.lambda_max);
+                let crit = UPDATE_ALLOWANCE * e.critical_step();
+                crit_now = crit;
+                // Only ever shorter: lengthening it again after the peak of a compression let
+                // fe hex8 at 80 % diverge while unloading (the step taken at 0.9 x an estimate
+                // that the rebound outran).
+                let target = dt_factor * crit;
+                if target < dt * (1.0 - UPDATE_HYSTERESIS) {
+                    if target < UPDATE_MIN_RATIO * updates.dt_initial {
+                        return Err(unstable(step, t_now, format!(
+                            "the critical step fell to {crit:.4e} s at step {step}, t = {t_now:.6} s, below {:.0} % of \
+                             the initial step {:.4e} s: a point is collapsing under the load (the largest frequency \
+                             has risen {:.0}x). Refine where the body is compressed most, use a slower load, or \
+                             check the boundary conditions",
+                            100.0 * UPDATE_MIN_RATIO, updates.dt_initial,
+                            (dt_crit / DEFORMATION_ALLOWANCE / e.critical_step()).max(1.0)
+                        )));
+                    }
+                    let remaining = s.duration - t_now;
+                    let k = (remaining / target).ceil().max(1.0);
+                    if !(step as f64 + k <= MAX_DYNAMIC_STEPS || step as f64 + k <= s.max_steps as f64) {
+                        return Err(unstable(step, t_now, format!(
+                            "the critical step fell to {crit:.4e} s at step {step}, t = {t_now:.6} s, and the rest of \
+                             the run would need {k:.3e} more steps: use a slower load or a coarser mesh where \
+                             the body is compressed most, or set solver.max_steps to run it anyway"
+                        )));
+                    }
+                    let k = k as usize;
+                    let new_dt = remaining / k as f64;
+                    for (fs, &ft) in frame_steps.iter_mut().zip(&frame_times) {
+                        if *fs > step {
+                            let r = ((ft - t_now) / new_dt).round().max(1.0) as usize;
+                            *fs = step + r.min(k);
+                        }
+                    }
+                    history_every = ((history_every as f64 * dt / new_dt).round() as usize).max(1);
+                    history_base = step;
+                    base = (step, t_now);
+                    total_steps = step + k;
+                    dt = new_dt;
+                    max_rate = c * dt;
+                    updates.reductions += 1;
+                    updates.last_reduction_time = t_now;
+                    updates.dt_min = updates.dt_min.min(dt);
+                    pb.set_length(total_steps as u64);
+                }
+            }
+            next_estimate = step + interval;
+        }
+        let t = time(base, dt, step);
         // Point stage only: nodal forces are gathered in the update loop below (one pass over
         // the nodes instead of two), or here on the steps that record them first.
         model.forces.compute_points(&model.points, &model.slots, &u);
@@ -776,25 +943,25 @@ fn attempt<M: Material>(
                 .sum::<Vector3<f64>>()
                 / sl.len().max(1) as f64;
             let id = model.point_ids[p_min];
-            return Err(unstable(step, format!(
+            return Err(unstable(step, t, format!(
                 "integration point {id} near ({:.4e}, {:.4e}, {:.4e}) m inverted (J = {min_j:.4}) at step {step}, t = {t:.6} s \
                  (dt = {dt:.4e} s, {:.3} x the critical estimate {dt_crit:.4e} s; one-point FE meshes number points as their elements). \
                  The load is too large or fast for this discretization, or the step too large: reduce solver.dt_factor \
-                 (large compression shortens the elements below the undeformed estimate){hint}, refine, or use a slower load",
+                 (large compression shortens the elements below the estimate, {}){hint}, refine, or use a slower load",
                 near.x, near.y, near.z,
-                dt / dt_crit
+                dt / crit_now, estimated_at(updates.estimates, last_estimate), dt_crit = crit_now
             )));
         }
         if has_loads {
-            model.loads.apply(&u, load_frac(step), &mut model.f_ext);
+            model.loads.apply(&u, load_frac(step, t), &mut model.f_ext);
         }
         let at_end =
             (dynamic && step == total_steps) || finish || (!dynamic && step >= total_steps);
-        let record = step.is_multiple_of(history_every) || at_end;
+        let record = (step - history_base).is_multiple_of(history_every) || at_end;
         if record {
             model.forces.gather(&mut f);
             let se = model.forces.strain_energy(&model.points, &model.slots, &u);
-            let ke = kinetic(&model.mass, &u, &u_prev, dt);
+            let ke = kinetic(&model.mass, &u, &u_prev, dt_prev);
             if step == 0 {
                 initial_kinetic = ke;
             }
@@ -802,10 +969,10 @@ fn attempt<M: Material>(
                 && step > 0
                 && ke > 10.0 * (external_work.abs() + se + initial_kinetic) + 1e-12
             {
-                return Err(unstable(step, format!(
+                return Err(unstable(step, t, format!(
                     "kinetic energy {ke:.4e} J exceeds ten times the work done on the body ({external_work:.4e} J) at step {step}, t = {t:.6} s: \
                      the integration is unstable with dt = {dt:.4e} s ({:.3} x the critical estimate {dt_crit:.4e} s); reduce solver.dt_factor{hint}",
-                    dt / dt_crit
+                    dt / crit_now, dt_crit = crit_now
                 )));
             }
             let reactions = model
@@ -840,9 +1007,16 @@ fn attempt<M: Material>(
         }
 
         // Update coefficients.
-        let (a, b, cc) = if dynamic {
+        let (a, b, cc) = if dynamic && dt == dt_prev {
             let h = 0.5 * s.damping * dt;
             (dt * dt / (1.0 + h), 2.0 / (1.0 + h), -(1.0 - h) / (1.0 + h))
+        } else if dynamic {
+            // Central differences with a step change: v(n+1/2) from v(n-1/2) over the mean of
+            // the two steps, with the damping at that mean.
+            let h_avg = 0.5 * (dt + dt_prev);
+            let h = 0.5 * s.damping * h_avg;
+            let q = dt / dt_prev * (1.0 - h) / (1.0 + h);
+            (dt * h_avg / (1.0 + h), 1.0 + q, -q)
         } else {
             let a = 0.25 * ((1.0 + r) * dt).powi(2);
             (a, 1.0 + r * r, -r * r)
@@ -900,13 +1074,14 @@ fn attempt<M: Material>(
             },
             |x, y| (nan_max(x.0, y.0), nan_max(x.1, y.1)),
         );
-        prescribe(&mut u_next, load_frac(step + 1));
+        let next_load = load_frac(step + 1, time(base, dt, step + 1));
+        prescribe(&mut u_next, next_load);
         if let Some(corr) = model.corrector.as_mut() {
-            corr.correct(&mut u_next, load_frac(step + 1), a);
+            corr.correct(&mut u_next, next_load, a);
             external_work += corr.work(&u_next, &u_prev);
         }
         if let Some(ct) = model.contact.as_mut() {
-            ct.correct(&mut u_next, load_frac(step + 1), a, &model.mass, &cons.mask);
+            ct.correct(&mut u_next, next_load, a, &model.mass, &cons.mask);
             external_work += ct.work(&u_next, &u_prev);
         }
         if !late.is_empty() {
@@ -922,8 +1097,11 @@ fn attempt<M: Material>(
         // Work of the boundary forces: sum (F_int + M a) . (u(n+1) - u(n-1)) / 2 over constrained DOFs.
         for &(node, comp) in cons.dofs.iter() {
             let (i, k) = (node as usize, comp as usize);
-            let inertia = if dynamic {
+            let inertia = if dynamic && dt == dt_prev {
                 model.mass[i] * (u_next[i][k] - 2.0 * u[i][k] + u_prev[i][k]) / (dt * dt)
+            } else if dynamic {
+                let (vn, vp) = ((u_next[i][k] - u[i][k]) / dt, (u[i][k] - u_prev[i][k]) / dt_prev);
+                model.mass[i] * (vn - vp) / (0.5 * (dt + dt_prev))
             } else {
                 0.0
             };
@@ -944,14 +1122,15 @@ fn attempt<M: Material>(
             max_u = nan_max(max_u, u_next[node as usize][comp as usize].abs());
         }
         if !max_u.is_finite() || !max_du.is_finite() || max_u > 10.0 * size || max_du > max_rate {
-            return Err(unstable(step, format!(
+            return Err(unstable(step, t, format!(
                 "the solution diverged at step {step}, t = {t:.6} s (largest displacement {max_u:.3e} m, largest change in one step {max_du:.3e} m): \
-                 dt = {dt:.4e} s is {:.3} x the critical estimate {dt_crit:.4e} s; reduce solver.dt_factor (default 0.9; \
-                 the estimate holds for the undeformed body, and large compression lowers the critical step){hint}",
-                dt / dt_crit
+                 dt = {dt:.4e} s is {:.3} x the critical estimate {dt_crit:.4e} s ({}); reduce solver.dt_factor (default 0.9; \
+                 the estimate holds for the body as it was when made, and large compression lowers the critical step){hint}",
+                dt / crit_now, estimated_at(updates.estimates, last_estimate), dt_crit = crit_now
             )));
         }
 
+        travel += max_du;
         if !dynamic && step + 1 >= load_steps {
             let loaded_step = step + 1 - load_steps;
             if loaded_step == 0 {
@@ -1015,6 +1194,7 @@ fn attempt<M: Material>(
 
         std::mem::swap(&mut u_prev, &mut u);
         std::mem::swap(&mut u, &mut u_next);
+        dt_prev = dt;
         step += 1;
         if step.is_multiple_of(64) {
             pb.set_position(step as u64);
@@ -1025,7 +1205,7 @@ fn attempt<M: Material>(
                 let elapsed = start.elapsed().as_secs_f64();
                 if elapsed >= last_line + every {
                     last_line = elapsed;
-                    let t = step as f64 * dt;
+                    let t = time(base, dt, step);
                     if dynamic {
                         let eta = elapsed * (total_steps.saturating_sub(step)) as f64 / step as f64;
                         eprintln!(
@@ -1040,7 +1220,7 @@ fn attempt<M: Material>(
                         };
                         eprintln!(
                             "progress: relaxation step {step} (load {:.0} %), {est} (tolerance {:.1e} m), {elapsed:.0} s elapsed",
-                            100.0 * load_frac(step).min(1.0),
+                            100.0 * load_frac(step, t).min(1.0),
                             s.tolerance
                         );
                     }
@@ -1063,7 +1243,7 @@ fn attempt<M: Material>(
     let (strain_energy, kinetic_energy) = last
         .map(|h| (h.strain_energy, h.kinetic_energy))
         .unwrap_or((0.0, 0.0));
-    let (linear_end, angular_end) = momentum(&model.mass, &model.nodes, &u, &u_prev, dt);
+    let (linear_end, angular_end) = momentum(&model.mass, &model.nodes, &u, &u_prev, dt_prev);
     Ok(RunOutput {
         momentum: Momentum {
             linear_start,
@@ -1079,7 +1259,7 @@ fn attempt<M: Material>(
         critical,
         steps: step,
         load_steps: (!dynamic).then_some(load_steps),
-        simulated_time: step as f64 * dt,
+        simulated_time: time(base, dt, step),
         converged,
         history,
         relaxation,
@@ -1092,6 +1272,7 @@ fn attempt<M: Material>(
         solve_seconds,
         restarts: Vec::new(),
         failed_steps: 0,
+        step_updates: updates,
     })
 }
 
@@ -1120,6 +1301,16 @@ pub fn keep_warm<R: Send>(f: impl FnOnce() -> R + Send) -> R {
         },
     );
     r
+}
+
+/// Where the critical step in an instability message was estimated: the reference state, or
+/// the deformed state at a step ([`Settings::step_update`]).
+fn estimated_at(estimates: usize, step: usize) -> String {
+    if estimates > 0 {
+        format!("made at step {step}")
+    } else {
+        "made at the reference state".into()
+    }
 }
 
 /// max that propagates NaN (f64::max drops it), so divergence cannot hide.

@@ -1,0 +1,118 @@
+//! The critical step estimated again at the deformed state during dynamic runs
+//! (`solver.step_update`): compressions that the reference step cannot carry complete, and
+//! agree with a run at a fixed step four times shorter than the shortest update; a run whose
+//! frequencies do not rise is bitwise the run without updates.
+
+mod common;
+use common::*;
+
+use hytled::simulation::{run_scene, RunOptions};
+
+const CYL: &str = "cases/cylinder-compression.toml";
+
+fn run(case: &str, overrides: &[&str]) -> hytled::Result<hytled::report::Summary> {
+    let o: Vec<String> = overrides.iter().map(|s| s.to_string()).collect();
+    run_scene(&hytled::scene::load(&path(case), &o)?, &RunOptions::default())
+}
+
+/// The O-grid cylinder at 4 x 2 x 8 cells compressed by 60 % over 3 s (dynamic, smooth).
+fn compression(extra: &[&str]) -> Vec<String> {
+    let mut o: Vec<String> = [
+        "discretization.divisions=[4,2,8]",
+        "references={}",
+        "boundaries.top.displacement.z=-0.06",
+    ]
+    .iter()
+    .map(|s| s.to_string())
+    .collect();
+    o.extend(extra.iter().map(|s| s.to_string()));
+    o
+}
+
+fn run_o(o: &[String]) -> hytled::Result<hytled::report::Summary> {
+    let r: Vec<&str> = o.iter().map(|s| s.as_str()).collect();
+    run(CYL, &r)
+}
+
+#[test]
+fn a_compression_the_reference_step_cannot_carry_completes_and_matches_a_short_fixed_step() {
+    // (method, element, damping, how much shorter the fixed step is than the shortest update)
+    for (method, element, damping, shorter) in [
+        ("fe", "hex8", "solver.damping=0", 4.0),
+        ("fe", "hex8", "solver.damping=2", 4.0),
+        ("fe", "tet4-anp", "solver.damping=0", 4.0),
+        // EBCIEM on the meshless nodes of both faces (2x only: 7,000 steps of 9,216 points).
+        ("meshless", "hex8", "solver.damping=0", 2.0),
+    ] {
+        let (m, el) = (
+            format!("discretization.method={method}"),
+            format!("discretization.element={element}"),
+        );
+        let fe = [m.as_str(), el.as_str(), damping];
+        let fixed = run_o(&compression(&[&fe[..], &["solver.step_update=false"]].concat()))
+            .expect_err("the reference step at 60 % compression");
+        println!("{method} {element}, {damping}, without updates: {fixed}");
+        assert!(fixed.to_string().contains("made at the reference state"), "{fixed}");
+
+        let up = run_o(&compression(&fe)).unwrap_or_else(|e| panic!("{method} {element}, {damping}: {e}"));
+        let u = up.step_updates.expect("step updates");
+        println!("{method} {element}, {damping}, with updates: {} steps, {u:?}", up.steps);
+        assert!(u.reductions > 0 && u.dt_min < 0.8 * u.dt_initial, "{u:?}");
+
+        // Independent of the updates: a fixed step shorter than their shortest.
+        let factor = format!("solver.dt_factor={}", 0.9 / shorter * u.dt_min / u.dt_initial);
+        let reference = run_o(&compression(
+            &[&fe[..], &["solver.step_update=false", &factor]].concat(),
+        ))
+        .unwrap_or_else(|e| panic!("{method} {element}, {damping}, reference: {e}"));
+        let (a, b) = (up.reactions["top"][2], reference.reactions["top"][2]);
+        let (ea, eb) = (
+            up.energy.balance_error.expect("energy balance"),
+            reference.energy.balance_error.expect("energy balance"),
+        );
+        println!(
+            "{method} {element}, {damping}: F_z {a:.9e} N with updates, {b:.9e} N at the fixed step \
+             ({} steps); energy balance error {ea:.3e} vs {eb:.3e}",
+            reference.steps
+        );
+        assert!(a < -1.0 && ((a - b) / b).abs() < 1e-5, "{a} vs {b}");
+        // The balance leaves out what damping dissipates, and the averaged pressure's forces
+        // are not the gradient of the strain energy: compare with the fixed step's.
+        assert!((ea - eb).abs() < 1e-5, "energy balance error {ea} vs {eb}");
+    }
+}
+
+#[test]
+fn updates_that_keep_the_step_leave_the_run_bitwise_unchanged() {
+    // A rigid spin: the frequencies do not move, so the estimates (due to the motion) keep
+    // the step; they must not disturb the state.
+    let spin = |up: &str| {
+        run(
+            "cases/cube-spin.toml",
+            &["solver.duration=2.0", "discretization.size=0.025", up],
+        )
+        .unwrap()
+    };
+    let (a, b) = (spin("solver.step_update=true"), spin("solver.step_update=false"));
+    let u = a.step_updates.expect("estimates");
+    assert!(u.estimates > 0 && u.reductions == 0, "{u:?}");
+    assert!(b.step_updates.is_none());
+    assert_eq!(a.steps, b.steps);
+    for (x, y) in [
+        (a.energy.kinetic, b.energy.kinetic),
+        (a.energy.strain_energy, b.energy.strain_energy),
+    ] {
+        assert_eq!(x.to_bits(), y.to_bits(), "{x} vs {y}");
+    }
+    let (ma, mb) = (a.momentum.unwrap(), b.momentum.unwrap());
+    for k in 0..3 {
+        assert_eq!(ma.angular_end[k].to_bits(), mb.angular_end[k].to_bits());
+    }
+    // Relaxation never updates (its restarts serve instead).
+    let relax = run(
+        "cases/cube-compression.toml",
+        &["solver.mode=relaxation", "discretization.size=0.025"],
+    )
+    .unwrap();
+    assert!(relax.step_updates.is_none());
+}
