@@ -147,7 +147,9 @@ pub struct RunOutput {
     /// Displacements one step before the end (velocity = (u - u_prev) / dt), m.
     pub u_prev: Vec<Vector3<f64>>,
     pub f_int: Vec<Vector3<f64>>,
+    /// The last step taken, s (shorter than the first after step updates; see `step_updates`).
     pub dt: f64,
+    /// The critical step estimated at the reference state, s.
     pub dt_critical: f64,
     /// What sets the critical step.
     pub critical: Critical,
