@@ -253,7 +253,8 @@ pub struct Summary {
 }
 
 /// The status cell of a sweep or comparison row: the error of a failed run, "not converged",
-/// or "ok" (with the restarts after an instability, if any).
+/// or "ok" (with the restarts after an instability, or how far step updates shortened the
+/// step, if any).
 pub fn row_status(error: Option<&String>, summary: Option<&Summary>) -> String {
     match (error, summary) {
         (Some(e), _) => format!("failed: {e}"),
@@ -262,6 +263,10 @@ pub fn row_status(error: Option<&String>, summary: Option<&Summary>) -> String {
             "ok after {} restart(s), {} steps abandoned",
             s.restarts, s.failed_steps
         ),
+        (None, Some(s)) => match s.step_updates.filter(|u| u.reductions > 0) {
+            Some(u) => format!("ok, step shortened to {:.3}x", u.dt_min / u.dt_initial),
+            None => "ok".into(),
+        },
         _ => "ok".into(),
     }
 }

@@ -58,6 +58,8 @@ fn a_compression_the_reference_step_cannot_carry_completes_and_matches_a_short_f
         let u = up.step_updates.expect("step updates");
         println!("{method} {element}, {damping}, with updates: {} steps, {u:?}", up.steps);
         assert!(u.reductions > 0 && u.dt_min < 0.8 * u.dt_initial, "{u:?}");
+        let status = hytled::report::row_status(None, Some(&up));
+        assert!(status.starts_with("ok, step shortened to 0."), "{status}");
 
         // Independent of the updates: a fixed step shorter than their shortest.
         let factor = format!("solver.dt_factor={}", 0.9 / shorter * u.dt_min / u.dt_initial);
