@@ -204,8 +204,8 @@ pub struct Summary {
     /// Relaxation: restarts after an instability (`solver.retries`).
     #[serde(skip_serializing_if = "is_zero")]
     pub restarts: usize,
-    /// Dynamic: estimates of the critical step at the deformed state (`solver.step_update`);
-    /// `dt` above is the step the run started with.
+    /// Estimates of the critical step at the deformed state (`solver.step_update`; relaxation
+    /// only after a restart); `dt` above is the step the run started with.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub step_updates: Option<crate::solver::integrate::StepUpdates>,
     /// Relaxation: pseudo-steps over which the load was applied.

@@ -992,8 +992,9 @@ pub struct SolverSpec {
     /// instability).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub retries: Option<usize>,
-    /// Dynamic: estimate the critical step again at the deformed state during the run and
-    /// shorten the step when deformation has raised the frequencies (default true).
+    /// Estimate the critical step again at the deformed state during the run and shorten the
+    /// step when deformation has raised the frequencies (default true): dynamic runs from the
+    /// start, relaxation after a restart.
     #[serde(default = "default_true")]
     pub step_update: bool,
 }

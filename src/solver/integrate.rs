@@ -68,10 +68,10 @@ pub struct Settings {
     /// behind the critical step does not see how deformation raises the frequencies.
     /// Dynamic runs stop at the first instability (their answer is the path).
     pub retries: usize,
-    /// Dynamic: estimate the critical step again at the deformed state during the run (Lanczos
-    /// on the tangent stiffness, [`super::spectrum::Lanczos`]) and shorten the step where
-    /// deformation has raised the frequencies, as ABAQUS/Explicit updates its stable
-    /// increment. See [`StepUpdates`].
+    /// Estimate the critical step again at the deformed state during the run (Lanczos on the
+    /// tangent stiffness, [`super::spectrum::Lanczos`]) and shorten the step where deformation
+    /// has raised the frequencies, as ABAQUS/Explicit updates its stable increment: dynamic
+    /// runs from the start, relaxation in the attempts after a restart. See [`StepUpdates`].
     pub step_update: bool,
     /// Rows wanted in the time history (dynamic); relaxation records every `estimate_interval` steps.
     pub history_rows: usize,
@@ -180,11 +180,11 @@ pub struct RunOutput {
     /// Relaxation: steps taken by the attempts that a restart abandoned (their time is in
     /// `solve_seconds`).
     pub failed_steps: usize,
-    /// Dynamic: the estimates of the critical step at the deformed state and what they did.
+    /// The estimates of the critical step at the deformed state and what they did.
     pub step_updates: StepUpdates,
 }
 
-/// Estimates of the critical step during a dynamic run ([`Settings::step_update`]).
+/// Estimates of the critical step during a run ([`Settings::step_update`]).
 #[derive(Debug, Clone, Copy, Default, Serialize, Deserialize, PartialEq)]
 pub struct StepUpdates {
     /// Estimates made at the deformed state.
@@ -535,16 +535,21 @@ fn run_on_worker<M: Material>(
                     )));
                 }
                 let next = factor * RETRY_FACTOR;
+                let how = if s.step_update {
+                    ", estimating the step again as the body deforms"
+                } else {
+                    ""
+                };
                 // Said as it happens where progress is shown; the summary's warnings keep it.
                 if s.progress || s.progress_lines.is_some() {
                     eprintln!(
                         "warning: relaxation unstable after {steps} steps at dt_factor {factor:.4}; \
-                         restarting from the unloaded state at {next:.4} (restart {} of at most {retries})",
+                         restarting from the unloaded state at {next:.4}{how} (restart {} of at most {retries})",
                         restarts.len() + 1
                     );
                 }
                 restarts.push(format!(
-                    "relaxation restarted from the unloaded state with solver.dt_factor = {next:.4} \
+                    "relaxation restarted from the unloaded state with solver.dt_factor = {next:.4}{how} \
                      (restart {} of at most {retries}, solver.retries) after {steps} steps at \
                      dt_factor = {factor:.4}: {msg}",
                     restarts.len() + 1
@@ -636,7 +641,11 @@ fn attempt<M: Material>(
             .max()
             .unwrap_or(400)
     });
-    // Dynamic: the load at time t (s); relaxation: at pseudo-step `step`.
+    // Dynamic: the load at time t (s); relaxation: at pseudo-step `step`, or once the step
+    // has been shortened (`varied`), at the pseudo-time t in steps of the first length, so
+    // that the load comes as fast in pseudo-time as planned.
+    let dt0 = dt;
+    let varied = std::cell::Cell::new(false);
     let load_frac = |step: usize, t: f64| -> f64 {
         if dynamic {
             if s.load_time > 0.0 {
@@ -645,7 +654,11 @@ fn attempt<M: Material>(
                 1.0
             }
         } else if load_steps > 0 {
-            step as f64 / load_steps as f64
+            if varied.get() {
+                t / dt0 / load_steps as f64
+            } else {
+                step as f64 / load_steps as f64
+            }
         } else {
             1.0
         }
@@ -816,8 +829,13 @@ fn attempt<M: Material>(
         dt_min: dt,
         ..Default::default()
     };
-    let mut lanczos = (dynamic && s.step_update)
+    // Relaxation updates its step only after a restart: runs that converge at the first
+    // attempt keep their fixed step (and their results).
+    let mut lanczos = (s.step_update && (dynamic || restarted))
         .then(|| super::spectrum::Lanczos::new(model, LANCZOS_ITERATIONS));
+    // Relaxation: the lowest frequency behind the rate in use (rad/s), to set the rate again
+    // for a shorter step.
+    let mut omega_in_use: Option<f64> = None;
     let mut next_estimate = UPDATE_FIRST;
     let mut interval = UPDATE_FIRST;
     let mut lambda_last: Option<f64> = None;
@@ -900,33 +918,46 @@ fn attempt<M: Material>(
                             (dt_crit / DEFORMATION_ALLOWANCE / e.critical_step()).max(1.0)
                         )));
                     }
-                    let remaining = s.duration - t_now;
-                    let k = (remaining / target).ceil().max(1.0);
-                    if !(step as f64 + k <= MAX_DYNAMIC_STEPS || step as f64 + k <= s.max_steps as f64) {
-                        return Err(unstable(step, t_now, format!(
-                            "the critical step fell to {crit:.4e} s at step {step}, t = {t_now:.6} s, and the rest of \
-                             the run would need {k:.3e} more steps: use a slower load or a coarser mesh where \
-                             the body is compressed most, or set solver.max_steps to run it anyway"
-                        )));
-                    }
-                    let k = k as usize;
-                    let new_dt = remaining / k as f64;
-                    for (fs, &ft) in frame_steps.iter_mut().zip(&frame_times) {
-                        if *fs > step {
-                            let r = ((ft - t_now) / new_dt).round().max(1.0) as usize;
-                            *fs = step + r.min(k);
+                    if dynamic {
+                        let remaining = s.duration - t_now;
+                        let k = (remaining / target).ceil().max(1.0);
+                        if !(step as f64 + k <= MAX_DYNAMIC_STEPS
+                            || step as f64 + k <= s.max_steps as f64)
+                        {
+                            return Err(unstable(step, t_now, format!(
+                                "the critical step fell to {crit:.4e} s at step {step}, t = {t_now:.6} s, and the rest of \
+                                 the run would need {k:.3e} more steps: use a slower load or a coarser mesh where \
+                                 the body is compressed most, or set solver.max_steps to run it anyway"
+                            )));
+                        }
+                        let k = k as usize;
+                        let new_dt = remaining / k as f64;
+                        for (fs, &ft) in frame_steps.iter_mut().zip(&frame_times) {
+                            if *fs > step {
+                                let r = ((ft - t_now) / new_dt).round().max(1.0) as usize;
+                                *fs = step + r.min(k);
+                            }
+                        }
+                        history_every =
+                            ((history_every as f64 * dt / new_dt).round() as usize).max(1);
+                        history_base = step;
+                        total_steps = step + k;
+                        pb.set_length(total_steps as u64);
+                        dt = new_dt;
+                    } else {
+                        // Relaxation: no end to divide; the load follows pseudo-time, and the
+                        // rate is set again for the new step.
+                        varied.set(true);
+                        dt = target;
+                        if let Some(w) = omega_in_use {
+                            r = rate_from_omega(w, dt);
                         }
                     }
-                    history_every = ((history_every as f64 * dt / new_dt).round() as usize).max(1);
-                    history_base = step;
                     base = (step, t_now);
-                    total_steps = step + k;
-                    dt = new_dt;
                     max_rate = c * dt;
                     updates.reductions += 1;
                     updates.last_reduction_time = t_now;
                     updates.dt_min = updates.dt_min.min(dt);
-                    pb.set_length(total_steps as u64);
                 }
             }
             next_estimate = step + interval;
@@ -1133,9 +1164,8 @@ fn attempt<M: Material>(
         }
 
         travel += max_du;
-        if !dynamic && step + 1 >= load_steps {
-            let loaded_step = step + 1 - load_steps;
-            if loaded_step == 0 {
+        if !dynamic && load_frac(step + 1, time(base, dt, step + 1)) >= 1.0 {
+            if ref_step == usize::MAX {
                 // Initial guess: Rayleigh quotient of the loaded shape over all DOFs.
                 let num: f64 = u.iter().zip(&f).map(|(x, y)| x.dot(y)).sum();
                 let den: f64 = u
@@ -1145,6 +1175,7 @@ fn attempt<M: Material>(
                     .sum();
                 if num > 0.0 && den > 0.0 {
                     r = rate_from_omega((num / den).sqrt(), dt);
+                    omega_in_use = Some((num / den).sqrt());
                 }
                 u_ref.copy_from_slice(&u);
                 f_ref.copy_from_slice(&f);
@@ -1166,6 +1197,7 @@ fn attempt<M: Material>(
                     let accepted = omega_prev.is_some_and(|w| (omega - w).abs() <= 0.05 * omega);
                     if accepted {
                         r = rate_from_omega(omega, dt);
+                        omega_in_use = Some(omega);
                     }
                     omega_prev = Some(omega);
                     let rp = r + 0.2 * (1.0 - r);
