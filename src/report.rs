@@ -338,7 +338,7 @@ impl Summary {
         if let Some(u) = self.step_updates.filter(|u| u.estimates > 0) {
             let what = if u.reductions > 0 {
                 format!(
-                    "step shortened {} time(s), to {:.4e} s ({:.3} x the initial; the last at t = {:.4e} s)",
+                    "step shortened {} time(s), to {:.4e} s ({:.3} x the initial; the last at t = {:.4} s)",
                     u.reductions,
                     u.dt_min,
                     u.dt_min / u.dt_initial,
