@@ -9,6 +9,10 @@
 //! difference errs by O(eps |grad z|), about 1e-8 relative here). Lanczos without
 //! reorthogonalization: loss of orthogonality only duplicates converged Ritz values and does
 //! not move the largest one.
+//!
+//! [`Lanczos::estimate`] also runs about a deformed state u (dynamic runs' step updates): K(u) z
+//! is then (F_int(u + eps z) - F_int(u)) / eps, the tangent there, material and geometric
+//! stiffness together.
 
 use nalgebra::Vector3;
 
