@@ -14,7 +14,10 @@ const CYL: &str = "cases/cylinder-compression.toml";
 
 fn run(case: &str, overrides: &[&str]) -> hytled::Result<hytled::report::Summary> {
     let o: Vec<String> = overrides.iter().map(|s| s.to_string()).collect();
-    run_scene(&hytled::scene::load(&path(case), &o)?, &RunOptions::default())
+    run_scene(
+        &hytled::scene::load(&path(case), &o)?,
+        &RunOptions::default(),
+    )
 }
 
 /// The O-grid cylinder at 4 x 2 x 8 cells compressed by 60 % over 3 s (dynamic, smooth).
@@ -51,20 +54,32 @@ fn a_compression_the_reference_step_cannot_carry_completes_and_matches_a_short_f
             format!("discretization.element={element}"),
         );
         let fe = [m.as_str(), el.as_str(), damping];
-        let fixed = run_o(&compression(&[&fe[..], &["solver.step_update=false"]].concat()))
-            .expect_err("the reference step at 60 % compression");
+        let fixed = run_o(&compression(
+            &[&fe[..], &["solver.step_update=false"]].concat(),
+        ))
+        .expect_err("the reference step at 60 % compression");
         println!("{method} {element}, {damping}, without updates: {fixed}");
-        assert!(fixed.to_string().contains("made at the reference state"), "{fixed}");
+        assert!(
+            fixed.to_string().contains("made at the reference state"),
+            "{fixed}"
+        );
 
-        let up = run_o(&compression(&fe)).unwrap_or_else(|e| panic!("{method} {element}, {damping}: {e}"));
+        let up = run_o(&compression(&fe))
+            .unwrap_or_else(|e| panic!("{method} {element}, {damping}: {e}"));
         let u = up.step_updates.expect("step updates");
-        println!("{method} {element}, {damping}, with updates: {} steps, {u:?}", up.steps);
+        println!(
+            "{method} {element}, {damping}, with updates: {} steps, {u:?}",
+            up.steps
+        );
         assert!(u.reductions > 0 && u.dt_min < 0.8 * u.dt_initial, "{u:?}");
         let status = hytled::report::row_status(None, Some(&up));
         assert!(status.starts_with("ok, step shortened to 0."), "{status}");
 
         // Independent of the updates: a fixed step shorter than their shortest.
-        let factor = format!("solver.dt_factor={}", 0.9 / shorter * u.dt_min / u.dt_initial);
+        let factor = format!(
+            "solver.dt_factor={}",
+            0.9 / shorter * u.dt_min / u.dt_initial
+        );
         let reference = run_o(&compression(
             &[&fe[..], &["solver.step_update=false", &factor]].concat(),
         ))
@@ -97,7 +112,10 @@ fn updates_that_keep_the_step_leave_the_run_bitwise_unchanged() {
         )
         .unwrap()
     };
-    let (a, b) = (spin("solver.step_update=true"), spin("solver.step_update=false"));
+    let (a, b) = (
+        spin("solver.step_update=true"),
+        spin("solver.step_update=false"),
+    );
     let u = a.step_updates.expect("estimates");
     assert!(u.estimates > 0 && u.reductions == 0, "{u:?}");
     assert!(b.step_updates.is_none());
@@ -158,7 +176,10 @@ fn relaxation_at_80_percent_converges_after_one_restart_with_updates() {
         let up = with(&[]).unwrap_or_else(|e| panic!("{method} {element}: {e}"));
         let u = up.step_updates.expect("updates in the restarted attempt");
         assert_eq!(up.restarts, 1, "{method} {element}");
-        assert!(up.converged && u.reductions > 0 && u.dt_min < 0.4 * u.dt_initial, "{u:?}");
+        assert!(
+            up.converged && u.reductions > 0 && u.dt_min < 0.4 * u.dt_initial,
+            "{u:?}"
+        );
 
         let factor = format!("solver.dt_factor={fixed_factor}");
         let reference = with(&[&factor, "solver.retries=0"])

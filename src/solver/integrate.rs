@@ -1133,7 +1133,10 @@ fn attempt<M: Material>(
             let inertia = if dynamic && dt == dt_prev {
                 model.mass[i] * (u_next[i][k] - 2.0 * u[i][k] + u_prev[i][k]) / (dt * dt)
             } else if dynamic {
-                let (vn, vp) = ((u_next[i][k] - u[i][k]) / dt, (u[i][k] - u_prev[i][k]) / dt_prev);
+                let (vn, vp) = (
+                    (u_next[i][k] - u[i][k]) / dt,
+                    (u[i][k] - u_prev[i][k]) / dt_prev,
+                );
                 model.mass[i] * (vn - vp) / (0.5 * (dt + dt_prev))
             } else {
                 0.0
