@@ -328,12 +328,11 @@ const LANCZOS_TOLERANCE: f64 = 1e-3;
 /// x the reference critical step; compression and the meshless and coupled runs tolerate more.
 pub const DEFORMATION_ALLOWANCE: f64 = 0.8;
 
-/// Dynamic step updates ([`Settings::step_update`]): the first estimate at the deformed state
-/// comes after this many steps; the interval then follows how fast the estimate moves, so
-/// that omega_max changes by about [`UPDATE_CHANGE`] between estimates (the
-/// [`DEFORMATION_ALLOWANCE`] covers 25 %), within [`UPDATE_MIN`]..[`UPDATE_MAX`] steps.
-/// With 10-25 force evaluations an estimate, a run whose frequencies do not move spends
-/// 1-3 % of its steps on them.
+/// Step updates ([`Settings::step_update`]): the first estimate at the deformed state comes
+/// after this many steps; the interval then follows how fast the estimate moves, so that
+/// omega_max changes by about [`UPDATE_CHANGE`] between estimates, within
+/// [`UPDATE_MIN`]..[`UPDATE_MAX`] steps. An estimate takes 7-22 force evaluations on average;
+/// the default cylinder compression spends 3-7 % of its steps' force evaluations on them.
 const UPDATE_FIRST: usize = 100;
 const UPDATE_MIN: usize = 50;
 const UPDATE_MAX: usize = 2000;
@@ -361,6 +360,71 @@ const UPDATE_TOLERANCE: f64 = 1e-2;
 /// A step that has fallen below this fraction of the initial one stops the run: a point is
 /// collapsing, and the run would take over 100x the planned steps.
 const UPDATE_MIN_RATIO: f64 = 0.01;
+
+/// When the step is estimated again during a run ([`Settings::step_update`]).
+struct UpdateSchedule {
+    /// The next step an estimate is due at by the interval.
+    next: usize,
+    interval: usize,
+    /// The step of the last estimate.
+    last: usize,
+    /// The last estimate of lambda_max, 1/s^2 (at first the reference one, where global).
+    lambda: Option<f64>,
+    /// The largest nodal change per step summed since the last estimate (m): a bound on how far
+    /// any node has moved since, whatever the interval.
+    travel: f64,
+    /// Multiplies [`UPDATE_TRAVEL`].
+    travel_scale: f64,
+}
+
+impl UpdateSchedule {
+    fn new(reference_lambda: Option<f64>) -> Self {
+        UpdateSchedule {
+            next: UPDATE_FIRST,
+            interval: UPDATE_FIRST,
+            last: 0,
+            lambda: reference_lambda,
+            travel: 0.0,
+            travel_scale: 1.0,
+        }
+    }
+
+    /// Whether an estimate is due at `step`, and if so whether by the distance moved (`reach`:
+    /// the distance the fastest wave covers in a critical step, m) rather than the interval.
+    fn due(&self, step: usize, reach: f64) -> Option<bool> {
+        let by_travel = self.travel > self.travel_scale * UPDATE_TRAVEL * reach
+            && step >= self.last + UPDATE_MIN;
+        (step >= self.next || by_travel).then_some(by_travel)
+    }
+
+    /// An estimate made at `step` (lambda_max, 1/s^2, None where it failed): the next interval
+    /// aims at a change of [`UPDATE_CHANGE`] in omega_max.
+    fn record(&mut self, step: usize, lambda: Option<f64>, by_travel: bool) {
+        self.travel = 0.0;
+        self.last = step;
+        if let Some(l) = lambda {
+            if let Some(l0) = self.lambda {
+                let change = ((l / l0).sqrt() - 1.0).abs();
+                let scale = if change > 0.0 {
+                    (UPDATE_CHANGE / change).clamp(0.5, 2.0)
+                } else {
+                    2.0
+                };
+                self.interval =
+                    ((self.interval as f64 * scale) as usize).clamp(UPDATE_MIN, UPDATE_MAX);
+                // Motion without strain (a rigid rotation) moves nodes without moving the
+                // frequencies: each estimate it triggers in vain doubles the distance.
+                if change > UPDATE_CHANGE {
+                    self.travel_scale = 1.0;
+                } else if by_travel && change < 0.25 * UPDATE_CHANGE {
+                    self.travel_scale = (2.0 * self.travel_scale).min(UPDATE_TRAVEL_GROWTH);
+                }
+            }
+            self.lambda = Some(l);
+        }
+        self.next = step + self.interval;
+    }
+}
 
 /// Every point of the model is an average-nodal-pressure tet.
 fn all_anp<M: Material>(model: &Model<M>) -> bool {
@@ -836,14 +900,11 @@ fn attempt<M: Material>(
     // Relaxation: the lowest frequency behind the rate in use (rad/s), to set the rate again
     // for a shorter step.
     let mut omega_in_use: Option<f64> = None;
-    let mut next_estimate = UPDATE_FIRST;
-    let mut interval = UPDATE_FIRST;
-    let mut lambda_last: Option<f64> = None;
-    // The largest nodal change per step summed since the last estimate (m): a bound on how far
-    // any node has moved since, whatever the interval.
-    let mut travel = 0.0f64;
-    let mut last_estimate = 0usize;
-    let mut travel_scale = 1.0f64;
+    // The first estimate compares with the reference one where that was global.
+    let mut schedule = UpdateSchedule::new(
+        matches!(critical, Critical::Global(_))
+            .then(|| (2.0 * DEFORMATION_ALLOWANCE / dt_crit).powi(2)),
+    );
     // With a corrector, the nodes it moves and the prescribed ones change after the update:
     // their step change is measured after the correction (a short serial loop), every other
     // node's during the update. A parallel pass over all nodes after the correction cost as
@@ -871,36 +932,14 @@ fn attempt<M: Material>(
     let is_late = &is_late;
 
     loop {
-        let by_travel = travel > travel_scale * UPDATE_TRAVEL * c * crit_now
-            && step >= last_estimate + UPDATE_MIN;
-        let due = step >= next_estimate || by_travel;
-        if let Some(lz) = lanczos.as_mut().filter(|_| due && step < total_steps) {
-            travel = 0.0;
-            last_estimate = step;
+        let due = schedule.due(step, c * crit_now);
+        if let Some((lz, by_travel)) = lanczos.as_mut().zip(due).filter(|_| step < total_steps) {
             let t_now = time(base, dt, step);
-            if let Some(e) = lz.estimate(model, Some(&u), UPDATE_TOLERANCE) {
+            let estimate = lz.estimate(model, Some(&u), UPDATE_TOLERANCE);
+            schedule.record(step, estimate.map(|e| e.lambda_max), by_travel);
+            if let Some(e) = estimate {
                 updates.estimates += 1;
                 updates.iterations += e.iterations;
-                // The first estimate compares with the reference one where that was global.
-                let previous = lambda_last.or(matches!(critical, Critical::Global(_))
-                    .then(|| (2.0 * DEFORMATION_ALLOWANCE / dt_crit).powi(2)));
-                if let Some(l0) = previous {
-                    let change = ((e.lambda_max / l0).sqrt() - 1.0).abs();
-                    let scale = if change > 0.0 {
-                        (UPDATE_CHANGE / change).clamp(0.5, 2.0)
-                    } else {
-                        2.0
-                    };
-                    interval = ((interval as f64 * scale) as usize).clamp(UPDATE_MIN, UPDATE_MAX);
-                    // Motion without strain (a rigid rotation) moves nodes without moving the
-                    // frequencies: each estimate it triggers in vain doubles the distance.
-                    if change > UPDATE_CHANGE {
-                        travel_scale = 1.0;
-                    } else if by_travel && change < 0.25 * UPDATE_CHANGE {
-                        travel_scale = (2.0 * travel_scale).min(UPDATE_TRAVEL_GROWTH);
-                    }
-                }
-                lambda_last = Some(e.lambda_max);
                 let crit = UPDATE_ALLOWANCE * e.critical_step();
                 crit_now = crit;
                 // Only ever shorter: lengthening it again after the peak of a compression let
@@ -960,7 +999,6 @@ fn attempt<M: Material>(
                     updates.dt_min = updates.dt_min.min(dt);
                 }
             }
-            next_estimate = step + interval;
         }
         let t = time(base, dt, step);
         // Point stage only: nodal forces are gathered in the update loop below (one pass over
@@ -982,7 +1020,7 @@ fn attempt<M: Material>(
                  The load is too large or fast for this discretization, or the step too large: reduce solver.dt_factor \
                  (large compression shortens the elements below the estimate, {}){hint}, refine, or use a slower load",
                 near.x, near.y, near.z,
-                dt / crit_now, estimated_at(updates.estimates, last_estimate), dt_crit = crit_now
+                dt / crit_now, estimated_at(updates.estimates, schedule.last), dt_crit = crit_now
             )));
         }
         if has_loads {
@@ -1162,11 +1200,11 @@ fn attempt<M: Material>(
                 "the solution diverged at step {step}, t = {t:.6} s (largest displacement {max_u:.3e} m, largest change in one step {max_du:.3e} m): \
                  dt = {dt:.4e} s is {:.3} x the critical estimate {dt_crit:.4e} s ({}); reduce solver.dt_factor (default 0.9; \
                  the estimate holds for the body as it was when made, and large compression lowers the critical step){hint}",
-                dt / crit_now, estimated_at(updates.estimates, last_estimate), dt_crit = crit_now
+                dt / crit_now, estimated_at(updates.estimates, schedule.last), dt_crit = crit_now
             )));
         }
 
-        travel += max_du;
+        schedule.travel += max_du;
         if !dynamic && load_frac(step + 1, time(base, dt, step + 1)) >= 1.0 {
             if ref_step == usize::MAX {
                 // Initial guess: Rayleigh quotient of the loaded shape over all DOFs.

@@ -73,7 +73,8 @@ fn top_ritz(alpha: &[f64], beta: &[f64], work: &mut [f64]) -> (f64, f64) {
         }
         n
     };
-    for _ in 0..2100 {
+    // Ends when no double lies strictly between the bounds, at the latest.
+    loop {
         let mid = 0.5 * (lo + hi);
         if !(mid > lo && mid < hi) || hi - lo <= 2.0 * tiny {
             break;
