@@ -78,7 +78,7 @@ impl Hex8Reference {
             let det = j.determinant();
             min_det = min_det.min(det);
             // adj(J)^T = det J * J^-T; dN/dX det J = adj(J)^T... written via the cofactor matrix.
-            let cof = cofactor(&j);
+            let cof = crate::geometry::cofactor(&j);
             for (a, dn) in shape_derivatives(xg).iter().enumerate() {
                 b[a] += cof * dn;
             }
@@ -115,24 +115,6 @@ impl Hex8Reference {
         let k = kappa_hg * self.volume * modulus * sum_b2 / 8.0;
         g * k.max(0.0).sqrt()
     }
-}
-
-/// Cofactor matrix of J, so that J^-T det J = cof(J) and dN/dX det J = cof(J) dN/dxi.
-fn cofactor(j: &Matrix3<f64>) -> Matrix3<f64> {
-    let c = |r0: usize, c0: usize, r1: usize, c1: usize| {
-        j[(r0, c0)] * j[(r1, c1)] - j[(r0, c1)] * j[(r1, c0)]
-    };
-    Matrix3::new(
-        c(1, 1, 2, 2),
-        -c(1, 0, 2, 2),
-        c(1, 0, 2, 1),
-        -c(0, 1, 2, 2),
-        c(0, 0, 2, 2),
-        -c(0, 0, 2, 1),
-        c(0, 1, 1, 2),
-        -c(0, 0, 1, 2),
-        c(0, 0, 1, 1),
-    )
 }
 
 /// Natural coordinates of a reference point `p` inside (or near) the element, by Newton's method.

@@ -58,9 +58,12 @@ enum Mode {
     Hourglass8,
     /// Average-nodal-pressure tetrahedra: F scaled to the averaged J before the stress.
     Anp4,
-    /// Anything else (mean-dilatation points, other sizes): F point by point, the stresses of
-    /// four consecutive ones as one lane block.
+    /// Anything else (other sizes): F point by point, the stresses of four consecutive ones
+    /// as one lane block.
     Other,
+    /// Mean-dilatation points: their stress (w P) comes from the group pass
+    /// ([`Forces::group_stresses`]), the kernel only adds their slot forces.
+    Group,
 }
 
 /// A run of consecutive points: `LANES` points of one [`Mode`] and one material (for
@@ -145,6 +148,17 @@ pub struct Forces<M: Material> {
     has_anp: bool,
     /// Weighted mean J of each mean-dilatation group.
     group_j: Vec<f64>,
+    /// Per mean-dilatation group, the index of its first point in the arrays below (one
+    /// entry per mean-dilatation point, in point order).
+    group_first: Vec<u32>,
+    /// w P of each mean-dilatation point from the last force evaluation, N m
+    /// ([`Self::group_stresses`]).
+    group_pk: Vec<Matrix3<f64>>,
+    /// Scratch of the group pass per mean-dilatation point: its own F.
+    group_f: Vec<Matrix3<f64>>,
+    /// Scratch of the group pass per mean-dilatation point: its own J, alpha = (J_mean /
+    /// J)^(1/3) and tau = P(F_bar) : F_bar / 3 (Pa).
+    group_s: Vec<[f64; 3]>,
     /// Per-point energies, reused so that energy evaluations do not allocate.
     energy_scratch: Vec<f64>,
     /// Nodes the evaluator was built for (every slot's node id is below it).
@@ -169,6 +183,7 @@ fn point_mode(qp: &QuadraturePoints, p: usize) -> Mode {
         (PointKind::Standard, 4) => Mode::Plain4,
         (PointKind::Hourglass(_), 8) => Mode::Hourglass8,
         (PointKind::Anp, 4) => Mode::Anp4,
+        (PointKind::MeanDilatation(_), _) => Mode::Group,
         _ => Mode::Other,
     }
 }
@@ -211,6 +226,7 @@ fn plan(qp: &QuadraturePoints, point_material: &[u16], num_nodes: usize, blocks:
         while p < end {
             let m = modes[p];
             let run = blocks
+                && m != Mode::Group
                 && p + LANES <= end
                 && modes[p..p + LANES].iter().all(|&x| x == m)
                 && (p..p + LANES).all(|q| mat(q) == mat(p));
@@ -341,6 +357,13 @@ impl<M: Material> Forces<M> {
             .filter(|&p| qp.kinds[p as usize] == PointKind::Anp)
             .collect();
         let plan = plan(qp, &point_material, num_nodes, true);
+        let mut group_first = Vec::with_capacity(qp.groups.len());
+        let mut in_groups = 0u32;
+        for &[a, b] in &qp.groups {
+            group_first.push(in_groups);
+            in_groups += b - a;
+        }
+        let in_groups = in_groups as usize;
         Forces {
             anp_offsets,
             anp_points,
@@ -356,6 +379,10 @@ impl<M: Material> Forces<M> {
             node_anp_inv_weight: inv_w,
             has_anp,
             group_j: vec![1.0; qp.groups.len()],
+            group_first,
+            group_pk: vec![Matrix3::zeros(); in_groups],
+            group_f: vec![Matrix3::zeros(); in_groups],
+            group_s: vec![[0.0; 3]; in_groups],
             energy_scratch: vec![0.0; qp.len()],
             num_nodes,
             min_j: (f64::INFINITY, usize::MAX),
@@ -383,6 +410,10 @@ impl<M: Material> Forces<M> {
             + size_of_val(self.anp_points.as_slice())
             + size_of_val(self.anp_list.as_slice())
             + size_of_val(self.group_j.as_slice())
+            + size_of_val(self.group_first.as_slice())
+            + size_of_val(self.group_pk.as_slice())
+            + size_of_val(self.group_f.as_slice())
+            + size_of_val(self.group_s.as_slice())
             + size_of_val(self.energy_scratch.as_slice())
             + size_of_val(self.lane_data.as_slice())
             + size_of_val(self.items.as_slice())
@@ -420,6 +451,81 @@ impl<M: Material> Forces<M> {
                     *gj = wj / w;
                 });
         }
+    }
+
+    /// The stress of every mean-dilatation point, w P into `group_pk`, and the groups' mean J.
+    ///
+    /// The energy of a group is sum_p w_p W(F_bar_p), F_bar_p = alpha_p F_p with
+    /// alpha_p = (J_mean / J_p)^(1/3) and J_mean = sum_p w_p J_p / sum_p w_p. Its exact
+    /// gradient (differentiating alpha_p through J_p and J_mean) is the first Piola-Kirchhoff
+    /// stress
+    ///
+    ///   P_p = alpha_p P(F_bar_p) + (J_p T / J_mean - tau_p) F_p^-T,
+    ///   tau_p = P(F_bar_p) : F_bar_p / 3,  T = sum_q w_q tau_q / sum_q w_q,
+    ///
+    /// which for a material split into isochoric and volumetric parts, W = W_iso(C_bar) + U(J)
+    /// (neo-Hookean, Ogden), is P_iso(F_p) + J_p U'(J_mean) F_p^-T: the mean dilatation of
+    /// Nagtegaal et al. 1974 (the volumetric part of selectively reduced integration). Taking
+    /// P(F_bar_p) alone as the stress, as an F-bar ANP does, gives forces that are not the
+    /// gradient of any energy: on the coupled cylinder compressed by 70 % and back they made
+    /// 2.9 % of the peak work out of nothing. Parallel over groups; each group's sums run in
+    /// point order, so the result does not depend on the thread count.
+    fn group_stresses(&mut self, qp: &QuadraturePoints, u: &[Vector3<f64>]) {
+        if qp.groups.is_empty() {
+            return;
+        }
+        let pk = SharedMut(self.group_pk.as_mut_ptr());
+        let fs = SharedMut(self.group_f.as_mut_ptr());
+        let ss = SharedMut(self.group_s.as_mut_ptr());
+        let (materials, point_material) = (&self.materials, &self.point_material);
+        let first = &self.group_first;
+        self.group_j
+            .par_iter_mut()
+            .with_min_len(CHUNK / 8)
+            .zip(&qp.groups)
+            .zip(first)
+            .for_each(|((gj, &[a, b]), &i0)| {
+                let (a, b, i0) = (a as usize, b as usize, i0 as usize);
+                // SAFETY: group g owns the entries i0 .. i0 + (b - a) (prefix sums of the
+                // group sizes, built in `with_materials`).
+                let (pk, fs, ss) = unsafe {
+                    (
+                        std::slice::from_raw_parts_mut(pk.get().add(i0), b - a),
+                        std::slice::from_raw_parts_mut(fs.get().add(i0), b - a),
+                        std::slice::from_raw_parts_mut(ss.get().add(i0), b - a),
+                    )
+                };
+                let (mut wj, mut w) = (0.0, 0.0);
+                for (k, p) in (a..b).enumerate() {
+                    let f = deformation_gradient(qp, p, u);
+                    let j = f.determinant();
+                    fs[k] = f;
+                    ss[k][0] = j;
+                    wj += qp.weights[p] * j;
+                    w += qp.weights[p];
+                }
+                let j_mean = wj / w;
+                *gj = j_mean;
+                let mut wt = 0.0;
+                for (k, p) in (a..b).enumerate() {
+                    let j = ss[k][0];
+                    let alpha = cbrt(j_mean / j);
+                    let fb = fs[k] * alpha;
+                    let m = point_material.get(p).copied().unwrap_or(0) as usize;
+                    let pb = materials[m].first_pk_stress(&fb, j_mean);
+                    let tau = pb.dot(&fb) / 3.0;
+                    pk[k] = pb;
+                    ss[k] = [j, alpha, tau];
+                    wt += qp.weights[p] * tau;
+                }
+                let t_mean = wt / w;
+                for (k, p) in (a..b).enumerate() {
+                    let [j, alpha, tau] = ss[k];
+                    // J F^-T, the cofactor matrix.
+                    let cof = crate::geometry::cofactor(&fs[k]);
+                    pk[k] = (pk[k] * alpha + cof * (t_mean / j_mean - tau / j)) * qp.weights[p];
+                }
+            });
     }
 
     /// Averaged nodal J for ANP points (Joldes et al. 2009): per node the volume-weighted mean of
@@ -537,7 +643,10 @@ impl<M: Material> Forces<M> {
             self.num_nodes,
             self.buffers.slot_entry.len()
         );
-        self.averages(qp, u);
+        if self.has_anp {
+            self.average_nodal_j(qp, u);
+        }
+        self.group_stresses(qp, u);
         let cf = SharedMut(self.chunk_forces.as_mut_ptr());
         let pj = SharedMut(self.point_j.as_mut_ptr());
         let this = &*self;
@@ -685,6 +794,7 @@ impl<M: Material> Forces<M> {
             (Mode::Hourglass8, _) => {
                 self.lanes::<8, 1, true, false, AVX, K>(qp, mat, p, 0, u, cf, pj)
             }
+            (Mode::Group, _) => self.group_point::<AVX>(qp, p, cf, pj),
             (Mode::Other, LANES) => self.stress_batch::<AVX, K>(qp, mat, p, u, cf, pj),
             (Mode::Other, _) | (Mode::Anp4, _) => {
                 let (f, a) = self.gradient::<AVX>(qp, p, u);
@@ -732,6 +842,32 @@ impl<M: Material> Forces<M> {
             self.forces_to_chunk::<AVX>(first[l], &pkl, d, cf);
         }
         Self::block_j(p0, &jl, pj)
+    }
+
+    /// The slot forces of mean-dilatation point `p` from its stress of the group pass; its J is
+    /// its own det F (not the group's mean, so that a Gauss point inverting inside a cell that
+    /// keeps its volume still stops the run).
+    ///
+    /// # Safety
+    /// As [`Self::chunk`] for the point `p`.
+    #[inline(never)]
+    unsafe fn group_point<const AVX: bool>(
+        &self,
+        qp: &QuadraturePoints,
+        p: usize,
+        cf: SharedMut<Vector3<f64>>,
+        pj: SharedMut<f64>,
+    ) -> (f64, usize) {
+        let PointKind::MeanDilatation(g) = qp.kinds[p] else {
+            unreachable!("group mode of a point outside the groups");
+        };
+        let g = g as usize;
+        let i = self.group_first[g] as usize + (p - qp.groups[g][0] as usize);
+        let a = qp.offsets[p];
+        self.forces_to_chunk::<AVX>(a, &self.group_pk[i], &qp.dphi[a..qp.offsets[p + 1]], cf);
+        let j = self.group_s[i][0];
+        *pj.get().add(p) = j;
+        (j, p)
     }
 
     /// F of point `p` and its first slot: fixed-size loops for 8 and 4 support nodes (ANP
@@ -1090,9 +1226,10 @@ impl<M: Material> Forces<M> {
         total
     }
 
-    /// Per point: Cauchy stress (Pa, from the stress the kernel uses: ANP / mean-dilatation F),
-    /// Green-Lagrange strain E = (F^T F - I) / 2 of the point's own F, von Mises stress (Pa)
-    /// and the stress's J.
+    /// Per point: Cauchy stress (Pa, from the stress the kernel uses: ANP F, or the
+    /// mean-dilatation P F^T / J of [`Self::group_stresses`]), Green-Lagrange strain
+    /// E = (F^T F - I) / 2 of the point's own F, von Mises stress (Pa) and the stress's J (ANP:
+    /// the averaged J; mean-dilatation points: their own det F).
     pub fn stress_fields(
         &mut self,
         qp: &QuadraturePoints,
@@ -1105,12 +1242,26 @@ impl<M: Material> Forces<M> {
             "node slots of other points"
         );
         self.averages(qp, u);
+        self.group_stresses(qp, u);
         let mut out = Fields::zeros(qp.len());
         for p in 0..qp.len() {
             let plain = deformation_gradient(qp, p, u);
-            let (f, j) = self.modified(qp, p, plain);
-            let s = self.material_at(p).pk2_stress(&f, j);
-            let c = f * s * f.transpose() / j;
+            let (c, j) = match qp.kinds[p] {
+                PointKind::MeanDilatation(g) => {
+                    let g = g as usize;
+                    let i = self.group_first[g] as usize + (p - qp.groups[g][0] as usize);
+                    let j = self.group_s[i][0];
+                    (
+                        self.group_pk[i] * plain.transpose() / (qp.weights[p] * j),
+                        j,
+                    )
+                }
+                _ => {
+                    let (f, j) = self.modified(qp, p, plain);
+                    let s = self.material_at(p).pk2_stress(&f, j);
+                    (f * s * f.transpose() / j, j)
+                }
+            };
             let e = (plain.transpose() * plain - Matrix3::identity()) * 0.5;
             out.set(p, &c, &e, j);
         }
@@ -1408,6 +1559,160 @@ mod tests {
         let (want, scale) = reference_forces(&mat, &qp, &u, &runs[0].1);
         let worst = worst_relative(&runs[0].0, &want, scale);
         assert!(worst < 1e-12, "relative force difference {worst:e}");
+    }
+
+    /// The any-size points in consecutive mean-dilatation groups of 2 to 6 points.
+    fn grouped_points(n: usize) -> QuadraturePoints {
+        let qp = any_size_points(n);
+        let mut out = QuadraturePoints::with_capacity(qp.len(), qp.nodes.len());
+        let (mut p, mut size) = (0, 2);
+        while p < qp.len() {
+            let end = (p + size).min(qp.len());
+            let pts: Vec<_> = (p..end)
+                .map(|q| {
+                    let r = qp.slots(q);
+                    let ids = qp.nodes[r.clone()].iter().map(|&x| x as usize).collect();
+                    (ids, qp.dphi[r].to_vec(), qp.weights[q])
+                })
+                .collect();
+            out.push_group(&pts);
+            p = end;
+            size = 2 + size % 5;
+        }
+        out
+    }
+
+    /// Mean-dilatation groups against Nagtegaal's closed form for the neo-Hookean solid,
+    /// P_p = mu J_p^(-2/3) (F_p - tr(C_p) / 3 F_p^-T) + J_p kappa (J_mean - 1) F_p^-T: the same
+    /// forces to 1e-12, bitwise with and without AVX2, and every point's own J.
+    #[test]
+    fn mean_dilatation_is_nagtegaal_for_the_neo_hookean_solid() {
+        let mat = NeoHookean::from_young_poisson(3000.0, 0.49, 1000.0);
+        let mesh = box_hex(Vector3::zeros(), Vector3::new(0.1, 0.07, 0.05), [5, 3, 3]).unwrap();
+        let qp = grouped_points(mesh.nodes.len());
+        let u: Vec<Vector3<f64>> = field(&mesh.nodes).iter().map(|v| v * 0.05).collect();
+        let runs = three_ways(&qp, &mesh.nodes, &u);
+        for (k, r) in runs.iter().enumerate().skip(1) {
+            assert!(r == &runs[0], "run {k} differs from the AVX2 run");
+        }
+        let mut want = vec![Vector3::zeros(); u.len()];
+        let (mut scale, mut spread) = (0.0f64, 0.0f64);
+        for &[a, b] in &qp.groups {
+            let (a, b) = (a as usize, b as usize);
+            let fs: Vec<Matrix3<f64>> = (a..b).map(|p| deformation_gradient(&qp, p, &u)).collect();
+            let w: f64 = qp.weights[a..b].iter().sum();
+            let j_mean = (a..b)
+                .map(|p| qp.weights[p] * fs[p - a].determinant())
+                .sum::<f64>()
+                / w;
+            for p in a..b {
+                let f = fs[p - a];
+                let j = f.determinant();
+                assert_eq!(runs[0].1[p], j, "the kernel's J of point {p}");
+                spread = spread.max((j / j_mean - 1.0).abs());
+                let f_inv_t = f.try_inverse().unwrap().transpose();
+                let iso = (f - f_inv_t * ((f.transpose() * f).trace() / 3.0))
+                    * (mat.mu * j.powf(-2.0 / 3.0));
+                let pk = (iso + f_inv_t * (j * mat.kappa * (j_mean - 1.0))) * qp.weights[p];
+                for s in qp.slots(p) {
+                    let fk = pk * qp.dphi[s];
+                    want[qp.nodes[s] as usize] += fk;
+                    scale = scale.max(fk.norm());
+                }
+            }
+        }
+        // The field must make the points of a group differ, or any J_mean scaling would pass.
+        assert!(spread > 0.05, "J within a group varies by {spread:e} only");
+        let worst = worst_relative(&runs[0].0, &want, scale);
+        assert!(worst < 1e-12, "relative force difference {worst:e}");
+    }
+
+    /// Internal forces are the gradient of the strain energy the run reports (the energy
+    /// balance depends on it): central differences of `strain_energy` against `compute` for
+    /// one-point hexahedra with hourglass control, points of any support size, and
+    /// mean-dilatation groups (neo-Hookean and Ogden). For the groups, the F-bar stress alone,
+    /// w P(F_bar) dphi (the stress before the correction of `group_stresses`), misses the
+    /// gradient by far more than the tolerance.
+    #[test]
+    fn forces_are_the_gradient_of_the_strain_energy() {
+        fn check<M: Material>(
+            name: &str,
+            mat: M,
+            qp: &QuadraturePoints,
+            nodes: &[Vector3<f64>],
+            u: &[Vector3<f64>],
+        ) -> f64 {
+            let slots = NodeSlots::new(qp, nodes.len());
+            let mut f = Forces::new(mat.clone(), qp, &slots, nodes.len());
+            let mut got = vec![Vector3::zeros(); nodes.len()];
+            f.compute(qp, &slots, u, &mut got);
+            let h = 1e-7;
+            let mut grad = vec![Vector3::zeros(); nodes.len()];
+            let mut v = u.to_vec();
+            for n in 0..nodes.len() {
+                for c in 0..3 {
+                    v[n][c] = u[n][c] + h;
+                    let ep = f.strain_energy(qp, &slots, &v);
+                    v[n][c] = u[n][c] - h;
+                    let em = f.strain_energy(qp, &slots, &v);
+                    v[n][c] = u[n][c];
+                    grad[n][c] = (ep - em) / (2.0 * h);
+                }
+            }
+            let scale = got.iter().map(|g| g.norm()).fold(0.0, f64::max);
+            assert!(scale > 0.0);
+            let worst = worst_relative(&got, &grad, scale);
+            println!("{name}: |F_int - dE/du| / max |F_int| = {worst:e}");
+            assert!(
+                worst < 1e-6,
+                "{name}: forces miss the energy gradient by {worst:e}"
+            );
+            // F-bar alone: w P(F_bar) dphi for the groups, the kernel's forces elsewhere.
+            let mut fbar = vec![Vector3::zeros(); nodes.len()];
+            for p in 0..qp.len() {
+                let (fb, jb) = f.stress_gradient(qp, p, u);
+                let pk = mat.first_pk_stress(&fb, jb) * qp.weights[p];
+                for s in qp.slots(p) {
+                    fbar[qp.nodes[s] as usize] += pk * qp.dphi[s];
+                }
+            }
+            worst_relative(&fbar, &grad, scale)
+        }
+        let mesh = box_hex(Vector3::zeros(), Vector3::new(0.1, 0.07, 0.05), [5, 3, 3]).unwrap();
+        let u: Vec<Vector3<f64>> = field(&mesh.nodes).iter().map(|v| v * 0.05).collect();
+        let nh = NeoHookean::from_young_poisson(3000.0, 0.45, 1000.0);
+        let ogden = crate::material::Ogden {
+            mu: 1006.7,
+            alpha: -4.7,
+            kappa: 1006.7 * 20.0,
+            density: 1040.0,
+        };
+        let hex = element_points(&mesh, ElementKind::Hex8, 0.05, 1e5).unwrap();
+        check("hex8 with hourglass", nh, &hex, &mesh.nodes, &u);
+        check(
+            "any-size points",
+            nh,
+            &any_size_points(mesh.nodes.len()),
+            &mesh.nodes,
+            &u,
+        );
+        let groups = grouped_points(mesh.nodes.len());
+        for (name, off) in [
+            (
+                "groups, neo-Hookean",
+                check("groups, neo-Hookean", nh, &groups, &mesh.nodes, &u),
+            ),
+            (
+                "groups, Ogden",
+                check("groups, Ogden", ogden, &groups, &mesh.nodes, &u),
+            ),
+        ] {
+            println!("{name}: F-bar stress alone misses the gradient by {off:e}");
+            assert!(
+                off > 1e-3,
+                "{name}: the test field cannot tell F-bar from its gradient ({off:e})"
+            );
+        }
     }
 
     /// Points taken four at a time for the stress (`Mode::Other` blocks) give bitwise the forces and

@@ -51,19 +51,19 @@ fn top_ritz(alpha: &[f64], beta: &[f64], work: &mut [f64]) -> (f64, f64) {
     let b = |i: usize| if i + 1 < k { beta[i] } else { 0.0 };
     // Gershgorin interval.
     let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
-    for i in 0..k {
+    for (i, &a) in alpha.iter().enumerate() {
         let r = b(i).abs() + if i > 0 { b(i - 1).abs() } else { 0.0 };
-        lo = lo.min(alpha[i] - r);
-        hi = hi.max(alpha[i] + r);
+        lo = lo.min(a - r);
+        hi = hi.max(a + r);
     }
     let scale = lo.abs().max(hi.abs()).max(f64::MIN_POSITIVE);
     let tiny = f64::EPSILON * scale;
     // Eigenvalues below x: the negative pivots of T - x I = L D L^T (Sylvester).
     let below = |x: f64| {
         let (mut d, mut n) = (1.0f64, 0usize);
-        for i in 0..k {
+        for (i, &a) in alpha.iter().enumerate() {
             let off = if i > 0 { b(i - 1) * b(i - 1) / d } else { 0.0 };
-            d = alpha[i] - x - off;
+            d = a - x - off;
             if d == 0.0 {
                 d = -tiny;
             }
