@@ -39,6 +39,10 @@ pub trait Material: Send + Sync + Clone {
         }
         out
     }
+    /// The volumetric part of W = W_iso(J^(-2/3) C) + U(J): (U(J), J/m^3; U'(J), the pressure
+    /// p = dU/dJ, Pa). The average-nodal-pressure tetrahedron swaps the element's own pressure
+    /// for the mean of nodal ones through it.
+    fn volumetric(&self, j: f64) -> (f64, f64);
     /// Dilatational (P-) wave speed in the reference configuration, m/s. Sets the stable step.
     fn wave_speed(&self) -> f64;
     /// Mass density, kg/m^3.
@@ -257,6 +261,15 @@ impl Material for NeoHookean {
             }
         }
         out
+    }
+
+    /// U = kappa / 2 (J - 1)^2.
+    #[inline(always)]
+    fn volumetric(&self, j: f64) -> (f64, f64) {
+        (
+            0.5 * self.kappa * (j - 1.0) * (j - 1.0),
+            self.kappa * (j - 1.0),
+        )
     }
 
     fn wave_speed(&self) -> f64 {
@@ -544,6 +557,15 @@ impl Material for Ogden {
         self.first_pk_lanes(f, j)
     }
 
+    /// U = kappa / 2 (J - 1)^2.
+    #[inline(always)]
+    fn volumetric(&self, j: f64) -> (f64, f64) {
+        (
+            0.5 * self.kappa * (j - 1.0) * (j - 1.0),
+            self.kappa * (j - 1.0),
+        )
+    }
+
     fn wave_speed(&self) -> f64 {
         p_wave_speed(self.mu, self.kappa, self.density)
     }
@@ -615,6 +637,14 @@ impl Material for Solid {
         match self {
             Solid::NeoHookean(m) => m.first_pk_stress_lanes(f, j),
             Solid::Ogden(m) => m.first_pk_stress_lanes(f, j),
+        }
+    }
+
+    #[inline]
+    fn volumetric(&self, j: f64) -> (f64, f64) {
+        match self {
+            Solid::NeoHookean(m) => m.volumetric(j),
+            Solid::Ogden(m) => m.volumetric(j),
         }
     }
 

@@ -11,7 +11,9 @@ pub enum PointKind {
     Standard,
     /// One-point hexahedron: plus the hourglass force HG u; index into `hourglass`.
     Hourglass(u32),
-    /// Average-nodal-pressure tetrahedron: J replaced by the average of nodal averages.
+    /// Average-nodal-pressure tetrahedron (Bonet & Burton 1998): the stress of its own F with
+    /// its pressure U'(J) swapped for the mean of its nodes' pressures U'(J_n), J_n the
+    /// volume-weighted mean J of the elements around node n.
     Anp,
     /// Point of a fully integrated cell with mean dilatation (Nagtegaal et al. 1974; the
     /// volumetric part of selectively reduced integration): J replaced by the weighted mean J

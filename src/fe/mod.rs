@@ -15,7 +15,7 @@ pub enum ElementKind {
     Hex8,
     /// Linear tetrahedron, one point.
     Tet4,
-    /// Average-nodal-pressure tetrahedron (Joldes et al. 2009) for near-incompressible solids.
+    /// Average-nodal-pressure tetrahedron (Bonet & Burton 1998) for near-incompressible solids.
     Tet4Anp,
 }
 
