@@ -280,6 +280,7 @@ pub fn stable_step<M: Material>(model: &Model<M>) -> (f64, Critical) {
             &model.mass,
             &model.constraints.mask,
             &moduli,
+            model.forces.point_materials(),
         );
         return (dt, Critical::Node(node));
     }

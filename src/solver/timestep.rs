@@ -89,6 +89,9 @@ pub fn nodal_time_step(
 ///   (Gershgorin). S keeps the cancellations of the averaged pressure that a per-point bound
 ///   with lambda + 2 mu cannot see.
 ///
+/// Where points of several materials meet at a node (`material`: each point's, empty: one),
+/// each material's points there form a pressure node of their own, as in the force kernel
+/// (splitting a node's g_n raises K_vol, so a bound over whole nodes would not hold there).
 /// Nodes whose three components are prescribed (`prescribed`) are left out of G (their DOFs are
 /// not integrated). Each point's mu and rho are its material's; kappa is the largest over the
 /// points (an upper bound where regions differ). Masses in kg.
@@ -98,6 +101,7 @@ pub fn anp_time_step(
     mass: &[f64],
     prescribed: &[[bool; 3]],
     moduli: &Moduli,
+    material: &[u16],
 ) -> (f64, usize) {
     let n = mass.len();
     let lam_dev = (0..qp.len())
@@ -109,14 +113,35 @@ pub fn anp_time_step(
         })
         .fold(0.0, f64::max);
     let kappa = (0..qp.len()).map(|p| moduli(p)[2]).fold(0.0, f64::max);
-    // g_n as sorted (node j, V_p b_pj summed over the points p at n that reach j).
-    let mut w = vec![0.0; n];
-    let g: Vec<Vec<(usize, nalgebra::Vector3<f64>)>> = (0..n)
-        .map(|node| {
+    let mat = |p: usize| material.get(p).copied().unwrap_or(0);
+    // Pressure nodes a (per node, one per material of the points there, as the force kernel
+    // keeps them), their volumes W_a and g_a as sorted (node j, V_p b_pj summed over the
+    // points p of a that reach j).
+    let mut w = Vec::with_capacity(n);
+    // The node of each pressure node (reported as what sets the step).
+    let mut node_of = Vec::with_capacity(n);
+    let mut g: Vec<Vec<(usize, nalgebra::Vector3<f64>)>> = Vec::with_capacity(n);
+    let mut materials = Vec::new();
+    for node in 0..n {
+        materials.clear();
+        for k in slots.range(node) {
+            let m = mat(slots.points[k] as usize);
+            if !materials.contains(&m) {
+                materials.push(m);
+            }
+        }
+        if materials.is_empty() {
+            materials.push(0);
+        }
+        for &m in &materials {
             let mut acc: Vec<(usize, nalgebra::Vector3<f64>)> = Vec::new();
+            let mut wa = 0.0;
             for k in slots.range(node) {
                 let p = slots.points[k] as usize;
-                w[node] += qp.weights[p];
+                if mat(p) != m {
+                    continue;
+                }
+                wa += qp.weights[p];
                 for s in qp.slots(p) {
                     let j = qp.nodes[s] as usize;
                     if fully_prescribed(prescribed, j) {
@@ -130,28 +155,35 @@ pub fn anp_time_step(
                 }
             }
             acc.sort_unstable_by_key(|a| a.0);
-            acc
-        })
-        .collect();
+            w.push(wa);
+            node_of.push(node);
+            g.push(acc);
+        }
+    }
+    // Per node j, the pressure nodes b with an entry g_b[j], ascending.
+    let mut reach: Vec<Vec<(usize, nalgebra::Vector3<f64>)>> = vec![Vec::new(); n];
+    for (b, gb) in g.iter().enumerate() {
+        for &(j, v) in gb {
+            reach[j].push((b, v));
+        }
+    }
+    let np = w.len();
     let mut best = (f64::INFINITY, 0);
-    let mut row: Vec<f64> = vec![0.0; n];
-    let mut seen = vec![false; n];
+    let mut row: Vec<f64> = vec![0.0; np];
+    let mut seen = vec![false; np];
     let mut touched: Vec<usize> = Vec::new();
-    for a in 0..n {
+    for a in 0..np {
         if !(w[a] > 0.0) {
             continue;
         }
-        // S_ab = sum_j g_a[j] . g_b[j] / m_j / sqrt(W_a W_b); the b with g_b[j] != 0 are the
-        // nodes that share a point with j, i.e. the entries of g_j.
+        // S_ab = sum_j g_a[j] . g_b[j] / m_j / sqrt(W_a W_b).
         for &(j, ga) in &g[a] {
-            for &(b, _) in &g[j] {
-                if let Ok(k) = g[b].binary_search_by_key(&j, |e| e.0) {
-                    if !seen[b] {
-                        seen[b] = true;
-                        touched.push(b);
-                    }
-                    row[b] += ga.dot(&g[b][k].1) / mass[j];
+            for &(b, gb) in &reach[j] {
+                if !seen[b] {
+                    seen[b] = true;
+                    touched.push(b);
                 }
+                row[b] += ga.dot(&gb) / mass[j];
             }
         }
         let mut sum = 0.0;
@@ -164,7 +196,7 @@ pub fn anp_time_step(
         let lam = lam_dev + 0.25 * kappa * sum;
         let dt = 2.0 / lam.sqrt();
         if dt < best.0 {
-            best = (dt, a);
+            best = (dt, node_of[a]);
         }
     }
     best
@@ -211,5 +243,87 @@ mod tests {
         // A node with only some components prescribed still counts.
         mask[0] = [true, true, false];
         assert_eq!(nodal_time_step(&qp, &slots, &mass, &mask, &moduli).1, 0);
+    }
+
+    /// The ANP bound against the exact critical step 2 / sqrt(lambda_max(M^-1 K)) of a small
+    /// tet block (K by central differences of the kernel's forces, which are the gradient of
+    /// an energy, so K is symmetric), bottom face fixed: safe (never above it) and within 3x,
+    /// with one material and with two (bulk moduli 1 : 8) meeting along x = 0.5, where each
+    /// keeps its own nodal pressure.
+    #[test]
+    fn anp_bound_is_safe_against_the_exact_spectrum() {
+        use crate::fe::{element_points, ElementKind};
+        use crate::material::{Material, NeoHookean};
+        use crate::solver::forces::Forces;
+        let mesh =
+            crate::geometry::shapes::box_tet(Vector3::zeros(), Vector3::repeat(1.0), [2, 2, 2])
+                .unwrap();
+        let qp = element_points(&mesh, ElementKind::Tet4Anp, 0.0, 1.0).unwrap();
+        let n = mesh.nodes.len();
+        let slots = NodeSlots::new(&qp, n);
+        let soft = NeoHookean::from_young_poisson(3000.0, 0.49, 1000.0);
+        let hard = NeoHookean {
+            kappa: 8.0 * soft.kappa,
+            ..soft
+        };
+        let halves: Vec<u16> = (0..qp.len())
+            .map(|p| {
+                let x: f64 = qp
+                    .slots(p)
+                    .map(|s| mesh.nodes[qp.nodes[s] as usize].x)
+                    .sum();
+                u16::from(x / 4.0 > 0.5)
+            })
+            .collect();
+        let mut mass = vec![0.0; n];
+        for p in 0..qp.len() {
+            for s in qp.slots(p) {
+                mass[qp.nodes[s] as usize] += soft.density * qp.weights[p] / 4.0;
+            }
+        }
+        let prescribed: Vec<[bool; 3]> = mesh.nodes.iter().map(|x| [x.z == 0.0; 3]).collect();
+        let free: Vec<usize> = (0..3 * n).filter(|&d| !prescribed[d / 3][d % 3]).collect();
+        for (name, materials, material) in [
+            ("one material", vec![soft], vec![]),
+            ("two materials", vec![soft, hard], halves),
+        ] {
+            let mut forces =
+                Forces::with_materials(materials.clone(), material.clone(), &qp, &slots, n);
+            let h = 1e-7;
+            let mut k = nalgebra::DMatrix::zeros(free.len(), free.len());
+            let (mut fp, mut fm) = (vec![Vector3::zeros(); n], vec![Vector3::zeros(); n]);
+            for (c, &d) in free.iter().enumerate() {
+                let mut u = vec![Vector3::zeros(); n];
+                u[d / 3][d % 3] = h;
+                forces.compute(&qp, &slots, &u, &mut fp);
+                u[d / 3][d % 3] = -h;
+                forces.compute(&qp, &slots, &u, &mut fm);
+                for (r, &e) in free.iter().enumerate() {
+                    k[(r, c)] = (fp[e / 3][e % 3] - fm[e / 3][e % 3])
+                        / (2.0 * h)
+                        / (mass[e / 3] * mass[d / 3]).sqrt();
+                }
+            }
+            let asym = (&k - k.transpose()).abs().max() / k.abs().max();
+            assert!(asym < 1e-6, "{name}: K not symmetric ({asym:e})");
+            let k = (&k + k.transpose()) * 0.5;
+            let lambda = k.symmetric_eigenvalues().max();
+            let exact = 2.0 / lambda.sqrt();
+            let moduli = |p: usize| {
+                let m = &materials[material.get(p).copied().unwrap_or(0) as usize];
+                let (l, mu) = m.lame();
+                [l + 2.0 * mu, mu, l + 2.0 * mu / 3.0, m.density()]
+            };
+            let (bound, _) = anp_time_step(&qp, &slots, &mass, &prescribed, &moduli, &material);
+            println!("{name}: ANP bound {bound:e} s, exact critical step {exact:e} s");
+            assert!(
+                bound <= exact,
+                "{name}: bound {bound:e} above the exact {exact:e}"
+            );
+            assert!(
+                bound > exact / 3.0,
+                "{name}: bound {bound:e} loose against {exact:e}"
+            );
+        }
     }
 }
