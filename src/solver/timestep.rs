@@ -76,8 +76,8 @@ pub fn nodal_time_step(
     best
 }
 
-/// Stable step of a model whose points are all average-nodal-pressure tets (Joldes et al.
-/// 2009), s, and the node that sets it. Linearized at the reference state the ANP stiffness
+/// Stable step of a model whose points are all average-nodal-pressure tets (Bonet & Burton
+/// 1998), s, and the node that sets it. Linearized at the reference state the ANP stiffness
 /// splits into the points' deviatoric part, with modulus 2 mu, and a volumetric part built
 /// from the nodal averages: with the nodal volumes W_n = sum of V_p over the points at n and
 /// g_n = sum over those points of V_p b_p (b_p the point's divergence row),
