@@ -474,25 +474,13 @@ impl<M: Material> Forces<M> {
         &self.point_material
     }
 
-    /// The averaged J's the modified points need (ANP nodal averages, group means).
+    /// What the modified points need before their stress: the ANP nodal pressures, and the
+    /// mean-dilatation groups' mean J and stresses.
     fn averages(&mut self, qp: &QuadraturePoints, u: &[Vector3<f64>]) {
         if self.has_anp {
             self.nodal_pressures(qp, u);
         }
-        if !qp.groups.is_empty() {
-            self.group_j
-                .par_iter_mut()
-                .with_min_len(CHUNK / 8)
-                .zip(&qp.groups)
-                .for_each(|(gj, &[a, b])| {
-                    let (mut wj, mut w) = (0.0, 0.0);
-                    for p in a as usize..b as usize {
-                        wj += qp.weights[p] * deformation_gradient(qp, p, u).determinant();
-                        w += qp.weights[p];
-                    }
-                    *gj = wj / w;
-                });
-        }
+        self.group_stresses(qp, u);
     }
 
     /// The stress of every mean-dilatation point, w P into `group_pk`, and the groups' mean J.
@@ -661,12 +649,7 @@ impl<M: Material> Forces<M> {
         p: usize,
         u: &[Vector3<f64>],
     ) -> (Matrix3<f64>, f64) {
-        self.modified(qp, p, deformation_gradient(qp, p, u))
-    }
-
-    /// (F used for the stress, its J) from the plain F of point `p` (see `stress_gradient`).
-    #[inline(always)]
-    fn modified(&self, qp: &QuadraturePoints, p: usize, f: Matrix3<f64>) -> (Matrix3<f64>, f64) {
+        let f = deformation_gradient(qp, p, u);
         let j = f.determinant();
         match qp.kinds[p] {
             PointKind::MeanDilatation(g) => {
@@ -732,10 +715,7 @@ impl<M: Material> Forces<M> {
             self.num_nodes,
             self.buffers.slot_entry.len()
         );
-        if self.has_anp {
-            self.nodal_pressures(qp, u);
-        }
-        self.group_stresses(qp, u);
+        self.averages(qp, u);
         let cf = SharedMut(self.chunk_forces.as_mut_ptr());
         let pj = SharedMut(self.point_j.as_mut_ptr());
         let this = &*self;
@@ -915,8 +895,9 @@ impl<M: Material> Forces<M> {
         let mut jl = [0.0; LANES];
         let mut first = [0; LANES];
         for l in 0..LANES {
+            // Mean-dilatation points never come here (Mode::Group): the plain F's stress.
             let (f, a) = self.gradient::<AVX>(qp, p0 + l, u);
-            let (f, j) = self.modified(qp, p0 + l, f);
+            let j = f.determinant();
             for (i, e) in fl.iter_mut().enumerate() {
                 e[l] = f[(i / 3, i % 3)];
             }
@@ -1127,12 +1108,9 @@ impl<M: Material> Forces<M> {
             for l in 0..L {
                 let mut sum = 0.0;
                 for k in 0..N {
-                    let key = if self.anp_slot_key.is_empty() {
-                        *nodes.add(l * N + k) as usize
-                    } else {
-                        *self.anp_slot_key.get_unchecked(a0 + l * N + k) as usize
-                    };
-                    sum += *self.node_p.get_unchecked(key);
+                    sum += *self
+                        .node_p
+                        .get_unchecked(self.pressure_node(qp, a0 + l * N + k));
                 }
                 s[l] = sum / N as f64 - mat.volumetric(j[l]).1;
             }
@@ -1239,9 +1217,9 @@ impl<M: Material> Forces<M> {
         best
     }
 
-    /// From the plain F of point `p` (slots from `a`): the stress (ANP / mean-dilatation
-    /// modified) and the slot forces w P dphi_k, added to the chunk buffer. Returns the J
-    /// used for the stress.
+    /// From the plain F of point `p` (slots from `a`): the stress (ANP points:
+    /// [`Self::anp_stress`]) and the slot forces w P dphi_k, added to the chunk buffer. Returns
+    /// det F.
     ///
     /// # Safety
     /// The point's chunk buffer belongs to the caller alone.
@@ -1256,12 +1234,12 @@ impl<M: Material> Forces<M> {
         f: Matrix3<f64>,
         cf: SharedMut<Vector3<f64>>,
     ) -> f64 {
-        let (pk, j) = if qp.kinds[p] == PointKind::Anp {
-            let j = f.determinant();
-            (self.anp_stress(qp, mat, p, &f, j), j)
+        // Mean-dilatation points never come here (Mode::Group).
+        let j = f.determinant();
+        let pk = if qp.kinds[p] == PointKind::Anp {
+            self.anp_stress(qp, mat, p, &f, j)
         } else {
-            let (f, j) = self.modified(qp, p, f);
-            (mat.first_pk_stress(&f, j), j)
+            mat.first_pk_stress(&f, j)
         };
         let pk = pk * qp.weights[p];
         self.forces_to_chunk::<AVX>(a, &pk, &qp.dphi[a..qp.offsets[p + 1]], cf);
@@ -1364,7 +1342,6 @@ impl<M: Material> Forces<M> {
             "node slots of other points"
         );
         self.averages(qp, u);
-        self.group_stresses(qp, u);
         let mut out = Fields::zeros(qp.len());
         for p in 0..qp.len() {
             let plain = deformation_gradient(qp, p, u);
@@ -1384,9 +1361,9 @@ impl<M: Material> Forces<M> {
                     (pk * plain.transpose() / j, j)
                 }
                 _ => {
-                    let (f, j) = self.modified(qp, p, plain);
-                    let s = self.material_at(p).pk2_stress(&f, j);
-                    (f * s * f.transpose() / j, j)
+                    let j = plain.determinant();
+                    let s = self.material_at(p).pk2_stress(&plain, j);
+                    (plain * s * plain.transpose() / j, j)
                 }
             };
             let e = (plain.transpose() * plain - Matrix3::identity()) * 0.5;
