@@ -3,12 +3,14 @@
 //! and agree with a run at a fixed step 2-4x shorter than the shortest update; relaxation at
 //! 80 % converges after one restart to the fixed short step's equilibrium; a run whose
 //! frequencies do not rise is bitwise the run without updates; shortened runs are bitwise the
-//! same for any thread count.
+//! same for any thread count; a column in uniaxial strain follows the exact spectrum to 95 %
+//! and stops with the collapse message at 99.9 %.
 
 mod common;
 use common::*;
 
 use hytled::simulation::{run_scene, RunOptions};
+use hytled::solver::integrate::{DEFORMATION_ALLOWANCE, UPDATE_ALLOWANCE};
 
 const CYL: &str = "cases/cylinder-compression.toml";
 
@@ -222,4 +224,117 @@ fn shortened_steps_are_bitwise_the_same_for_any_thread_count() {
             assert_eq!(x[k].to_bits(), y[k].to_bits());
         }
     }
+}
+
+/// A column 0.01 x 0.01 x 0.1 m of ten hex8 cells in uniaxial strain (every node held in x and
+/// y, the base in z), its top driven down by `d` m (smooth, dynamic, 20 s, 300x the slowest
+/// wave's transit: quasi-static). The deformation is homogeneous, F = diag(1, 1, l).
+fn column(d: f64) -> String {
+    format!(
+        r#"name = "column"
+description = "uniaxial strain column"
+[geometry]
+shape = "box"
+min = [0.0, 0.0, 0.0]
+max = [0.01, 0.01, 0.1]
+[discretization]
+method = "fe"
+element = "hex8"
+size = 0.01
+[material]
+model = "neo-hookean"
+youngs_modulus = 3000.0
+poisson_ratio = 0.3
+density = 1000.0
+[boundaries.lateral]
+select = {{ box = {{ min = [-1.0, -1.0, -1.0], max = [1.0, 1.0, 1.0] }} }}
+fix = ["x", "y"]
+[boundaries.bottom]
+select = {{ plane = {{ axis = "z", value = 0.0 }} }}
+fix = ["z"]
+[boundaries.top]
+select = {{ plane = {{ axis = "z", value = 0.1 }} }}
+displacement = {{ z = {} }}
+curve = "smooth"
+[solver]
+mode = "dynamic"
+duration = 20.0
+"#,
+        -d
+    )
+}
+
+/// Neo-Hookean (REFERENCE.md's form, W = mu/2 (J^-2/3 tr C - 3) + kappa/2 (J - 1)^2) in
+/// uniaxial strain l: the nominal stress dW/dl (Pa) and the tangent d2W/dl2 (Pa), written out
+/// by hand. E = 3 kPa, nu = 0.3.
+fn uniaxial_strain(l: f64) -> (f64, f64) {
+    let (e, nu) = (3000.0, 0.3);
+    let (mu, kappa) = (e / (2.0 * (1.0 + nu)), e / (3.0 * (1.0 - 2.0 * nu)));
+    let p = 0.5 * mu * (-2.0 / 3.0 * l.powf(-5.0 / 3.0) * (2.0 + l * l) + 2.0 * l.powf(1.0 / 3.0))
+        + kappa * (l - 1.0);
+    let c = mu * (10.0 / 9.0 * l.powf(-8.0 / 3.0) + 2.0 / 9.0 * l.powf(-2.0 / 3.0)) + kappa;
+    (p, c)
+}
+
+fn run_column(d: f64) -> hytled::Result<hytled::report::Summary> {
+    let sc = hytled::scene::parse(&column(d), &path("column.toml"), &[])?;
+    run_scene(&sc, &RunOptions::default())
+}
+
+#[test]
+fn a_column_crushed_to_95_percent_tracks_the_exact_spectrum_and_at_99_9_stops_clearly() {
+    // The largest frequency of a homogeneous column follows the tangent d2W/dl2: the critical
+    // step at stretch l is sqrt(C(1) / C(l)) of the initial one.
+    let s = run_column(0.095).expect("95 % uniaxial strain");
+    let l = 0.05;
+    let (p, c) = uniaxial_strain(l);
+    let top = s.reactions["top"][2];
+    assert!(
+        ((top - p * 1e-4) / (p * 1e-4)).abs() < 1e-5,
+        "top force {top} N vs exact {} N",
+        p * 1e-4
+    );
+    let exact_ratio = (uniaxial_strain(1.0).1 / c).sqrt();
+    // The initial step sits at DEFORMATION_ALLOWANCE of the initial estimate, the updates at
+    // UPDATE_ALLOWANCE of theirs: the step may fall less than the spectrum by their ratio.
+    let u = s.step_updates.as_ref().expect("step updates on by default");
+    let ratio = u.dt_min / u.dt_initial;
+    assert!(
+        ratio <= exact_ratio * UPDATE_ALLOWANCE / DEFORMATION_ALLOWANCE * 1.01
+            && ratio >= exact_ratio * 0.9,
+        "step fell to {ratio:.4} of the initial, the exact spectrum to {exact_ratio:.4}"
+    );
+    // Stable: the last step is below the exact critical step at the end (the initial one being
+    // the Lanczos estimate, dt_critical / DEFORMATION_ALLOWANCE).
+    let crit_end = s.dt_critical / DEFORMATION_ALLOWANCE * exact_ratio;
+    assert!(u.dt_min < crit_end, "{} vs critical {crit_end}", u.dt_min);
+
+    // 99.9 %: the frequency would rise about 2,000x; the run stops once the step would fall
+    // below 1 % of the initial one, that is once the frequency has risen
+    // 100 x UPDATE_ALLOWANCE / DEFORMATION_ALLOWANCE.
+    let e = run_column(0.0999)
+        .expect_err("99.9 % uniaxial strain")
+        .to_string();
+    assert!(
+        e.contains("below 1 % of the initial step") && e.contains("collapsing"),
+        "{e}"
+    );
+    let t: f64 = e
+        .split("t = ")
+        .nth(1)
+        .and_then(|r| r.split(' ').next())
+        .and_then(|v| v.parse().ok())
+        .unwrap_or_else(|| panic!("no time in: {e}"));
+    let l = 1.0 - 0.0999 / 0.1 * hytled::bc::LoadCurve::Smooth.value(t / 20.0);
+    let rise = (uniaxial_strain(l).1 / uniaxial_strain(1.0).1).sqrt();
+    let threshold = 100.0 * UPDATE_ALLOWANCE / DEFORMATION_ALLOWANCE;
+    println!(
+        "95 %: top {top:.6e} N (exact {:.6e}), step ratio {ratio:.5} (spectrum {exact_ratio:.5}); \
+         99.9 %: stopped at t = {t} s, l = {l:.5}, exact rise {rise:.1}x (threshold {threshold:.1}x)",
+        p * 1e-4
+    );
+    assert!(
+        rise > 0.97 * threshold && rise < 1.1 * threshold,
+        "stopped at t = {t} s, l = {l:.5}: exact frequency rise {rise:.1}x, threshold {threshold:.1}x"
+    );
 }

@@ -353,7 +353,7 @@ const UPDATE_HYSTERESIS: f64 = 0.01;
 /// instead of the reference estimate's [`DEFORMATION_ALLOWANCE`] (the controller above bounds
 /// how far the frequencies move between estimates). With the 0.8 the 20 % compression of the
 /// cylinder (fe hex8) shortened its step to 0.75x for 14 % more steps.
-const UPDATE_ALLOWANCE: f64 = 0.95;
+pub const UPDATE_ALLOWANCE: f64 = 0.95;
 /// Ritz residual at which an update stops (relative; the reference estimate's is 1e-3). The
 /// residual is added to the Ritz value, so a looser stop only shortens the step, by about
 /// half of it.
