@@ -1022,6 +1022,27 @@ pub fn summarize(scene: &Scene, prep: &Prepared, out: &RunOutput, total_seconds:
         .collect();
     let mut warnings = prep.warnings.clone();
     warnings.extend(out.restarts.iter().cloned());
+    let balance_error = (scene.solver.mode == Mode::Dynamic).then(|| {
+        let input = out.external_work + out.initial_kinetic;
+        let scale = input
+            .abs()
+            .max(out.peak_external_work + out.initial_kinetic);
+        (input - out.strain_energy - out.kinetic_energy - out.damping_dissipation).abs()
+            / scale.max(f64::MIN_POSITIVE)
+    });
+    if let Some(b) = balance_error.filter(|&b| b > crate::report::ENERGY_WARNING) {
+        warnings.push(format!(
+            "energy balance: {:.2} % of the work put in is unaccounted for at the end of this \
+             dynamic run (more than {:.0} %): an instability that grew without diverging, most \
+             likely; the step ended at {:.4e} s against a critical estimate of {:.4e} s at the \
+             start (solver.dt_factor {:.3}). Rerun with a smaller solver.dt_factor and compare",
+            100.0 * b,
+            100.0 * crate::report::ENERGY_WARNING,
+            out.dt,
+            out.dt_critical,
+            scene.solver.dt_factor,
+        ));
+    }
     if let Some(c) = &model.contact {
         if c.worst_penetration() > c.tolerance() {
             warnings.push(format!(
@@ -1141,15 +1162,9 @@ pub fn summarize(scene: &Scene, prep: &Prepared, out: &RunOutput, total_seconds:
             strain_energy: out.strain_energy,
             kinetic: out.kinetic_energy,
             peak_external_work: out.peak_external_work,
+            damping_dissipation: (out.damping_dissipation > 0.0).then_some(out.damping_dissipation),
             // Initial kinetic energy (initial velocities) is energy put in, like the work.
-            balance_error: (scene.solver.mode == Mode::Dynamic).then(|| {
-                let input = w + out.initial_kinetic;
-                let scale = input
-                    .abs()
-                    .max(out.peak_external_work + out.initial_kinetic);
-                (input - out.strain_energy - out.kinetic_energy).abs()
-                    / scale.max(f64::MIN_POSITIVE)
-            }),
+            balance_error,
         },
         reference,
         mesh: MeshInfo {

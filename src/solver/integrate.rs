@@ -168,6 +168,11 @@ pub struct RunOutput {
     pub peak_external_work: f64,
     /// Kinetic energy at the start (initial velocities), J.
     pub initial_kinetic: f64,
+    /// Work done against the mass-proportional damping ([`Settings::damping`]) in a dynamic
+    /// run, J: sum over steps and free DOFs of c m v(n) . (u(n+1) - u(n-1)) / 2 with the
+    /// central-difference velocity v(n) = (u(n+1) - u(n-1)) / (h(n) + h(n-1)), the force the
+    /// update applies; zero without damping.
+    pub damping_dissipation: f64,
     /// Linear (kg m/s) and angular (kg m^2/s, about the origin) momentum at the first and the
     /// last step, from the central-difference velocities.
     pub momentum: Momentum,
@@ -868,6 +873,11 @@ fn attempt<M: Material>(
 
     let mut external_work = 0.0f64;
     let mut peak_external_work = 0.0f64;
+    let mut damping_dissipation = 0.0f64;
+    // Per node block, sum of m |u(n+1) - u(n-1)|^2 over free DOFs, summed in block order after
+    // the parallel update (a sum across threads would depend on their count).
+    let damped = dynamic && s.damping > 0.0;
+    let mut damp_blocks = vec![0.0f64; if damped { n.div_ceil(NODE_BLOCK) } else { 0 }];
     let mut initial_kinetic = 0.0f64;
     // Dynamic relaxation state.
     let r_load = (1.0 - 10.0 / load_steps.max(20) as f64).clamp(0.5, 0.999);
@@ -1100,6 +1110,7 @@ fn attempt<M: Material>(
         let (u_cur, u_old) = (&u, &u_prev);
         let un_all = SharedMut(u_next.as_mut_ptr());
         let f_all = SharedMut(f.as_mut_ptr());
+        let damp_all = SharedMut(damp_blocks.as_mut_ptr());
         let (mut max_du, mut max_u) = super::two_ended::for_each_item(
             n.div_ceil(NODE_BLOCK),
             (0.0f64, 0.0f64),
@@ -1118,6 +1129,7 @@ fn attempt<M: Material>(
                     forces.node_forces(n0, f_b);
                 }
                 let mut acc = (0.0f64, 0.0f64);
+                let mut damp = 0.0f64;
                 for (j, (un, fi)) in un_b.iter_mut().zip(f_b.iter()).enumerate() {
                     let i = n0 + j;
                     // The net force F_int - F_ext (bitwise F_int without loads).
@@ -1140,7 +1152,20 @@ fn attempt<M: Material>(
                             nan_max(acc.0, mdu),
                             nan_max(acc.1, nan_max(un.x.abs(), nan_max(un.y.abs(), un.z.abs()))),
                         );
+                        if damped {
+                            let mut d2 = 0.0;
+                            for k in 0..3 {
+                                if !mask[k] {
+                                    d2 += (un[k] - u_old[i][k]).powi(2);
+                                }
+                            }
+                            damp += mass[i] * d2;
+                        }
                     }
+                }
+                if damped {
+                    // SAFETY: damp_blocks holds one slot per block; only block blk writes slot blk.
+                    unsafe { *damp_all.get().add(blk) = damp };
                 }
                 acc
             },
@@ -1165,6 +1190,19 @@ fn attempt<M: Material>(
                 max_du = nan_max(max_du, nan_max(d.x.abs(), nan_max(d.y.abs(), d.z.abs())));
                 max_u = nan_max(max_u, nan_max(a.x.abs(), nan_max(a.y.abs(), a.z.abs())));
             }
+        }
+        if damped {
+            let mut m_d2: f64 = damp_blocks.iter().sum();
+            for &i in &late {
+                let i = i as usize;
+                for k in 0..3 {
+                    if !cons.mask[i][k] {
+                        m_d2 += model.mass[i] * (u_next[i][k] - u_prev[i][k]).powi(2);
+                    }
+                }
+            }
+            // c m v(n) . (u(n+1) - u(n-1)) / 2 with v(n) = (u(n+1) - u(n-1)) / (h + h_prev).
+            damping_dissipation += s.damping * m_d2 / (2.0 * (dt + dt_prev));
         }
         // Work of the boundary forces: sum (F_int + M a) . (u(n+1) - u(n-1)) / 2 over constrained DOFs.
         for &(node, comp) in cons.dofs.iter() {
@@ -1343,6 +1381,7 @@ fn attempt<M: Material>(
         external_work,
         peak_external_work,
         initial_kinetic,
+        damping_dissipation,
         strain_energy,
         kinetic_energy,
         solve_seconds,
