@@ -196,6 +196,18 @@ impl SweepRow {
             .fold(None, |m: Option<f64>, e| Some(m.map_or(e, |m| m.max(e))))
     }
 
+    /// A run to trade on: it completed, converged where it relaxed, and its energy balance
+    /// is within [`crate::report::ENERGY_WARNING`] (a run past that grew unstable: its time
+    /// and error are no trade-off).
+    pub fn trustworthy(&self) -> bool {
+        self.summary.as_ref().is_some_and(|s| {
+            s.converged
+                && s.energy
+                    .balance_error
+                    .is_none_or(|b| b <= crate::report::ENERGY_WARNING)
+        })
+    }
+
     /// Characteristic node spacing (volume / nodes)^(1/3), m.
     pub fn spacing(&self) -> Option<f64> {
         let s = self.summary.as_ref()?;
@@ -359,11 +371,13 @@ fn progress_bar(n: usize, show: bool) -> indicatif::ProgressBar {
     bar
 }
 
-/// Marks the runs that no other run beats on both wall time and error vs reference.
+/// Marks the runs that no other run beats on both wall time and error vs reference, among the
+/// [`SweepRow::trustworthy`] ones.
 pub fn mark_pareto(rows: &mut [SweepRow]) {
     let pts: Vec<(usize, f64, f64)> = rows
         .iter()
         .enumerate()
+        .filter(|(_, r)| r.trustworthy())
         .filter_map(|(i, r)| {
             let e = r.error_vs_reference()?;
             let t = r.summary.as_ref()?.wall_seconds.total;
@@ -739,7 +753,7 @@ fn cheapest(rows: &[SweepRow]) -> String {
             ) else {
                 continue;
             };
-            if e > t || !s.converged {
+            if e > t || !r.trustworthy() {
                 continue;
             }
             let faster = best.get(&name).is_none_or(|b| {
