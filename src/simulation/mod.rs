@@ -1011,6 +1011,43 @@ pub fn element_label(scene: &Scene, prep: &Prepared) -> String {
     }
 }
 
+/// The largest |F_int - F_ext| at a free DOF over the largest |F_int| component at any node
+/// ([`crate::report::Summary::equilibrium_residual`]). Nodes a corrector or contact moves
+/// after the update carry constraint forces, not residuals, and are left out.
+fn equilibrium_residual<M: crate::material::Material>(
+    model: &crate::solver::Model<M>,
+    f_int: &[nalgebra::Vector3<f64>],
+) -> f64 {
+    let n = f_int.len().min(model.constraints.mask.len());
+    let mut moved = vec![false; n];
+    let touched = model.corrector.as_ref().map(|c| c.touched()).unwrap_or(&[]);
+    let contact = model.contact.as_ref().map(|c| c.touched()).unwrap_or(&[]);
+    for &i in touched.iter().chain(contact) {
+        if let Some(m) = moved.get_mut(i as usize) {
+            *m = true;
+        }
+    }
+    let (mut residual, mut scale) = (0.0f64, 0.0f64);
+    for i in 0..n {
+        let fe = model
+            .f_ext
+            .get(i)
+            .copied()
+            .unwrap_or_else(nalgebra::Vector3::zeros);
+        for k in 0..3 {
+            scale = scale.max(f_int[i][k].abs());
+            if !moved[i] && !model.constraints.mask[i][k] {
+                residual = residual.max((f_int[i][k] - fe[k]).abs());
+            }
+        }
+    }
+    if scale > 0.0 {
+        residual / scale
+    } else {
+        0.0
+    }
+}
+
 /// Builds the summary of a finished run.
 pub fn summarize(scene: &Scene, prep: &Prepared, out: &RunOutput, total_seconds: f64) -> Summary {
     let model = &prep.model;
@@ -1022,6 +1059,19 @@ pub fn summarize(scene: &Scene, prep: &Prepared, out: &RunOutput, total_seconds:
         .collect();
     let mut warnings = prep.warnings.clone();
     warnings.extend(out.restarts.iter().cloned());
+    let equilibrium_residual = out
+        .load_steps
+        .is_some()
+        .then(|| equilibrium_residual(model, &out.f_int));
+    if let Some(r) = equilibrium_residual.filter(|&r| r > crate::report::RESIDUAL_WARNING) {
+        warnings.push(format!(
+            "equilibrium: the largest out-of-balance force at a free node is {r:.2e} of the \
+             largest nodal force at the end of this relaxation (more than {:.0e}): the \
+             displacements are not at equilibrium to the digits shown; lower solver.tolerance \
+             or raise solver.max_steps",
+            crate::report::RESIDUAL_WARNING
+        ));
+    }
     let balance_error = (scene.solver.mode == Mode::Dynamic).then(|| {
         let input = out.external_work + out.initial_kinetic;
         let scale = input
@@ -1123,6 +1173,7 @@ pub fn summarize(scene: &Scene, prep: &Prepared, out: &RunOutput, total_seconds:
             (true, false) => "not converged",
         },
         converged: out.converged,
+        equilibrium_residual,
         threads: rayon::current_num_threads(),
         wall_seconds: WallSeconds {
             preprocess: prep.preprocess_seconds,
