@@ -280,7 +280,8 @@ pub const RESIDUAL_WARNING: f64 = 1e-3;
 
 /// The status cell of a sweep or comparison row: the error of a failed run, "not converged",
 /// or "ok" (with the restarts after an instability, or how far step updates shortened the
-/// step, if any, and the energy balance where it is off by more than [`ENERGY_WARNING`]).
+/// step, if any, and the energy balance or the equilibrium residual where they are off by more
+/// than [`ENERGY_WARNING`] / [`RESIDUAL_WARNING`]).
 pub fn row_status(error: Option<&String>, summary: Option<&Summary>) -> String {
     match (error, summary) {
         (Some(e), _) => format!("failed: {e}"),
@@ -299,6 +300,9 @@ pub fn row_status(error: Option<&String>, summary: Option<&Summary>) -> String {
                     ", but {:.2} % of the energy unaccounted for (unstable?)",
                     100.0 * b
                 ));
+            }
+            if let Some(r) = s.equilibrium_residual.filter(|&r| r > RESIDUAL_WARNING) {
+                st.push_str(&format!(", but {r:.1e} from equilibrium"));
             }
             st
         }

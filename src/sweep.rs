@@ -196,12 +196,15 @@ impl SweepRow {
             .fold(None, |m: Option<f64>, e| Some(m.map_or(e, |m| m.max(e))))
     }
 
-    /// A run to trade on: it completed, converged where it relaxed, and its energy balance
-    /// is within [`crate::report::ENERGY_WARNING`] (a run past that grew unstable: its time
-    /// and error are no trade-off).
+    /// A run to trade on: it completed, converged where it relaxed (to an equilibrium
+    /// residual within [`crate::report::RESIDUAL_WARNING`]), and its energy balance is within
+    /// [`crate::report::ENERGY_WARNING`] (a run past that grew unstable: its time and error
+    /// are no trade-off).
     pub fn trustworthy(&self) -> bool {
         self.summary.as_ref().is_some_and(|s| {
             s.converged
+                && s.equilibrium_residual
+                    .is_none_or(|r| r <= crate::report::RESIDUAL_WARNING)
                 && s.energy
                     .balance_error
                     .is_none_or(|b| b <= crate::report::ENERGY_WARNING)

@@ -615,6 +615,26 @@ fn relaxation_reports_how_far_from_equilibrium_it_stopped() {
         "{:?}",
         cut.warnings
     );
+    // A converged run that still ended that far from equilibrium (a loose solver.tolerance)
+    // would say so in a sweep's status and stay off its trade-off tables.
+    let mut loose = done.clone();
+    loose.equilibrium_residual = Some(rc);
+    let status = hytled::report::row_status(None, Some(&loose));
+    assert!(
+        status.starts_with("ok") && status.contains("from equilibrium"),
+        "{status}"
+    );
+    assert_eq!(hytled::report::row_status(None, Some(&done)), "ok");
+    let row = |s: &hytled::report::Summary| hytled::sweep::SweepRow {
+        run: 1,
+        values: Default::default(),
+        summary: Some(s.clone()),
+        error: None,
+        peak_memory_mib: None,
+        repeats: 1,
+        pareto: false,
+    };
+    assert!(row(&done).trustworthy() && !row(&loose).trustworthy());
     let dynamic = run(CUBE, &["solver.mode=dynamic", "solver.duration=0.5"]).unwrap();
     assert!(dynamic.equilibrium_residual.is_none());
 }
