@@ -521,6 +521,7 @@ fn csv_columns(varies: &[Vary], rows: &[SweepRow]) -> (Vec<String>, Vec<Vec<Stri
             "strain energy (J)",
             "kinetic energy (J)",
             "energy balance error (%)",
+            "equilibrium residual",
             "angular momentum drift",
             "min dihedral (deg)",
             "removed nodes",
@@ -593,6 +594,10 @@ fn csv_columns(varies: &[Vary], rows: &[SweepRow]) -> (Vec<String>, Vec<Vec<Stri
                             .map_or(String::new(), |e| format!("{:.5}", 100.0 * e)),
                     );
                     c.push(
+                        s.equilibrium_residual
+                            .map_or(String::new(), |r| format!("{r:.3e}")),
+                    );
+                    c.push(
                         s.momentum
                             .and_then(|m| m.angular_drift())
                             .map_or(String::new(), |d| format!("{d:.3e}")),
@@ -610,7 +615,7 @@ fn csv_columns(varies: &[Vary], rows: &[SweepRow]) -> (Vec<String>, Vec<Vec<Stri
                     );
                 }
                 None => {
-                    let n = 16 + 3 * reactions.len() + 3 * probes.len() + refs.len() + 10;
+                    let n = 16 + 3 * reactions.len() + 3 * probes.len() + refs.len() + 11;
                     c.extend(std::iter::repeat_n(String::new(), n));
                 }
             }

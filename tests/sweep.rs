@@ -68,6 +68,7 @@ fn sweep_runs_every_combination_and_keeps_failures_as_rows() {
         "discretization.method",
         "material.poisson_ratio",
         "max error (%)",
+        "equilibrium residual",
         "ms per step",
         "peak memory (MiB)",
         "pareto",
@@ -76,6 +77,37 @@ fn sweep_runs_every_combination_and_keeps_failures_as_rows() {
         assert!(lines[0].contains(col), "{col} missing: {}", lines[0]);
     }
     assert!(csv.contains("failed: "), "{csv}");
+    // Every row, failed or not, has the header's fields; relaxed rows give their residual.
+    let fields = |line: &str| {
+        let (mut out, mut cur, mut quoted, mut chars) =
+            (Vec::new(), String::new(), false, line.chars().peekable());
+        while let Some(c) = chars.next() {
+            match (c, quoted) {
+                ('"', true) if chars.peek() == Some(&'"') => {
+                    cur.push('"');
+                    chars.next();
+                }
+                ('"', _) => quoted = !quoted,
+                (',', false) => out.push(std::mem::take(&mut cur)),
+                _ => cur.push(c),
+            }
+        }
+        out.push(cur);
+        out
+    };
+    let head = fields(lines[0]);
+    let col = head
+        .iter()
+        .position(|h| h == "equilibrium residual")
+        .unwrap();
+    for (line, r) in lines[1..].iter().zip(&rows) {
+        let f = fields(line);
+        assert_eq!(f.len(), head.len(), "{line}");
+        if r.summary.is_some() {
+            let res: f64 = f[col].parse().unwrap_or_else(|_| panic!("{line}"));
+            assert!(res < hytled::report::RESIDUAL_WARNING, "{line}");
+        }
+    }
     let md = std::fs::read_to_string(dir.join("sweep.md")).unwrap();
     assert!(md.contains("| run |") && md.contains("failed: "), "{md}");
     let json: serde_json::Value =
