@@ -258,11 +258,13 @@ fn columns(rows: &[CompareRow]) -> (Vec<String>, Vec<Vec<String>>) {
                                 format!("{:.3}", 100.0 * x.relative_error)
                             }));
                         }
-                        c.push(
-                            s.energy
-                                .balance_error
-                                .map_or("n/a (relaxation)".into(), |e| format!("{:.3}", 100.0 * e)),
-                        );
+                        // Relaxation has no energy balance; its equilibrium residual stands
+                        // in for it.
+                        c.push(match (s.energy.balance_error, s.equilibrium_residual) {
+                            (Some(e), _) => format!("{:.3}", 100.0 * e),
+                            (None, Some(r)) => format!("n/a (relaxation; residual {r:.1e})"),
+                            (None, None) => "n/a (relaxation)".into(),
+                        });
                     }
                     None => {
                         let n = 6 + reactions.len() + probes.len() + refs.len() + 1;
