@@ -430,18 +430,10 @@ impl Summary {
                 "  NOT CONVERGED"
             }
         );
-        match self.equilibrium_residual {
-            Some(r) => {
-                let _ = writeln!(
-                    s,
-                    "status           {} (largest free-node residual {r:.2e} of the largest nodal force)",
-                    self.status
-                );
-            }
-            None => {
-                let _ = writeln!(s, "status           {}", self.status);
-            }
-        }
+        let residual = self.equilibrium_residual.map_or(String::new(), |r| {
+            format!(" (largest free-node residual {r:.2e} of the largest nodal force)")
+        });
+        let _ = writeln!(s, "status           {}{residual}", self.status);
         let _ = writeln!(
             s,
             "wall time        {:.3} s (preprocess {:.3} s, solve {:.3} s; {:.3} ms/step, {} threads)",

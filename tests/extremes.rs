@@ -298,22 +298,25 @@ fn exact_uniaxial_reference_is_the_published_cube_and_follows_the_material() {
     assert!(e.contains("references.force"), "{e}");
 }
 
+/// cases/cube-spin.toml with `method` at 0.025 m (one FE layer where coupled), plus `extra`.
+fn coarse_spin(method: &str, extra: &[&str]) -> hytled::report::Summary {
+    let m = format!("discretization.method={method}");
+    let mut o = vec![
+        m.as_str(),
+        "discretization.size=0.025",
+        "discretization.fe_layers=1",
+    ];
+    o.extend_from_slice(extra);
+    run("cases/cube-spin.toml", &o).unwrap_or_else(|e| panic!("{method}: {e}"))
+}
+
 #[test]
 fn free_spin_conserves_momentum_and_energy_for_every_method() {
     // Study 6 in small: cases/cube-spin.toml (1 Hz about z, no boundaries), coarse, 2 s.
     // Central differences with objective internal forces conserve linear and angular momentum
     // to round-off; the energy balance checks the integrator.
     for m in ["fe", "meshless", "coupled"] {
-        let s = run(
-            "cases/cube-spin.toml",
-            &[
-                &format!("discretization.method={m}"),
-                "discretization.size=0.025",
-                "discretization.fe_layers=1",
-                "solver.duration=2.0",
-            ],
-        )
-        .unwrap_or_else(|e| panic!("{m}: {e}"));
+        let s = coarse_spin(m, &["solver.duration=2.0"]);
         let mo = s.momentum.expect("dynamic runs report momentum");
         let drift = mo.angular_drift().unwrap();
         let l0 = mo.angular_start[2];
@@ -487,19 +490,15 @@ fn damped_translation_dissipates_the_exact_kinetic_energy_for_every_method() {
     let k0 = 0.5 * 1.0 * v0 * v0;
     let exact = k0 * (1.0 - (-2.0 * c * t_end).exp());
     for m in ["fe", "meshless", "coupled"] {
-        let s = run(
-            "cases/cube-spin.toml",
+        let s = coarse_spin(
+            m,
             &[
-                &format!("discretization.method={m}"),
-                "discretization.size=0.025",
-                "discretization.fe_layers=1",
                 "initial.angular_velocity=[0.0, 0.0, 0.0]",
                 &format!("initial.velocity=[{v0}, 0.0, 0.0]"),
                 &format!("solver.damping={c}"),
                 &format!("solver.duration={t_end}"),
             ],
-        )
-        .unwrap_or_else(|e| panic!("{m}: {e}"));
+        );
         let e = &s.energy;
         let d = e
             .damping_dissipation

@@ -1020,9 +1020,7 @@ fn equilibrium_residual<M: crate::material::Material>(
 ) -> f64 {
     let n = f_int.len().min(model.constraints.mask.len());
     let mut moved = vec![false; n];
-    let touched = model.corrector.as_ref().map(|c| c.touched()).unwrap_or(&[]);
-    let contact = model.contact.as_ref().map(|c| c.touched()).unwrap_or(&[]);
-    for &i in touched.iter().chain(contact) {
+    for i in model.corrected_nodes() {
         if let Some(m) = moved.get_mut(i as usize) {
             *m = true;
         }

@@ -432,6 +432,16 @@ impl UpdateSchedule {
     }
 }
 
+/// |a - b|^2 over the free components (`mask` false), m^2: the damping's work per unit
+/// c m / (2 (h + h_prev)) with a = u(n+1), b = u(n-1).
+#[inline(always)]
+fn free_dist2(mask: [bool; 3], a: &Vector3<f64>, b: &Vector3<f64>) -> f64 {
+    (0..3)
+        .filter(|&k| !mask[k])
+        .map(|k| (a[k] - b[k]).powi(2))
+        .sum()
+}
+
 /// Every point of the model is an average-nodal-pressure tet.
 fn all_anp<M: Material>(model: &Model<M>) -> bool {
     !model.points.is_empty()
@@ -930,13 +940,7 @@ fn attempt<M: Material>(
     // much as the correction itself on two threads (the idle worker had gone to sleep).
     // Contact corrections move their nodes after the update too.
     let late: Vec<u32> = if model.corrector.is_some() || model.contact.is_some() {
-        let mut l: Vec<u32> = Vec::new();
-        if let Some(corr) = model.corrector.as_ref() {
-            l.extend_from_slice(corr.touched());
-        }
-        if let Some(ct) = model.contact.as_ref() {
-            l.extend_from_slice(ct.touched());
-        }
+        let mut l = model.corrected_nodes();
         l.extend(cons.dofs.iter().map(|&(node, _)| node));
         l.sort_unstable();
         l.dedup();
@@ -1144,13 +1148,7 @@ fn attempt<M: Material>(
                     let i = n0 + j;
                     if late_pending && is_late[i] {
                         // The last step's share: u_cur = u(n), un = u(n-2) before the write.
-                        let mut d2 = 0.0;
-                        for k in 0..3 {
-                            if !cons.mask[i][k] {
-                                d2 += (u_cur[i][k] - un[k]).powi(2);
-                            }
-                        }
-                        damp_late += mass[i] * d2;
+                        damp_late += mass[i] * free_dist2(cons.mask[i], &u_cur[i], un);
                     }
                     // The net force F_int - F_ext (bitwise F_int without loads).
                     let fi = match f_ext {
@@ -1173,13 +1171,7 @@ fn attempt<M: Material>(
                             nan_max(acc.1, nan_max(un.x.abs(), nan_max(un.y.abs(), un.z.abs()))),
                         );
                         if damped {
-                            let mut d2 = 0.0;
-                            for k in 0..3 {
-                                if !mask[k] {
-                                    d2 += (un[k] - u_old[i][k]).powi(2);
-                                }
-                            }
-                            damp += mass[i] * d2;
+                            damp += mass[i] * free_dist2(mask, un, &u_old[i]);
                         }
                     }
                 }
@@ -1365,15 +1357,11 @@ fn attempt<M: Material>(
     pb.finish_and_clear();
     if let Some(fl) = late_factor {
         // The last update's late share: u = u(N), u_next = u(N-2) after the final swap.
-        let mut m_d2 = 0.0;
-        for &i in &late {
-            let i = i as usize;
-            for k in 0..3 {
-                if !cons.mask[i][k] {
-                    m_d2 += model.mass[i] * (u[i][k] - u_next[i][k]).powi(2);
-                }
-            }
-        }
+        let m_d2: f64 = late
+            .iter()
+            .map(|&i| i as usize)
+            .map(|i| model.mass[i] * free_dist2(cons.mask[i], &u[i], &u_next[i]))
+            .sum();
         damping_dissipation += fl * m_d2;
     }
     let solve_seconds = start.elapsed().as_secs_f64() - *sink_seconds;

@@ -306,6 +306,21 @@ impl<M: Material> Model<M> {
         out
     }
 
+    /// Nodes a corrector (EBCIEM / SEBCIEM) or a contact moves after the update, sorted and
+    /// without repeats: their forces at the end include constraint forces.
+    pub fn corrected_nodes(&self) -> Vec<u32> {
+        let mut l: Vec<u32> = Vec::new();
+        if let Some(corr) = self.corrector.as_ref() {
+            l.extend_from_slice(corr.touched());
+        }
+        if let Some(ct) = self.contact.as_ref() {
+            l.extend_from_slice(ct.touched());
+        }
+        l.sort_unstable();
+        l.dedup();
+        l
+    }
+
     /// The force each boundary applies to the body, N: the sum over its nodes of the internal
     /// minus the external nodal forces (`self.f_ext`, the last step's loads; at equilibrium
     /// F_int = F_ext + R), negative along the axis in compression as in REFERENCE.md.
