@@ -1141,14 +1141,21 @@ pub fn parse(text: &str, path: &Path, overrides: &[String]) -> Result<Scene> {
     }
     check_finite(&toml::Value::Table(value.clone()), "").map_err(err)?;
     if !overrides.is_empty() {
-        scene = toml::Value::Table(value)
-            .try_into()
-            .map_err(|e: toml::de::Error| {
+        // The merged table has no source lines to point at; name the key path instead.
+        scene = serde_path_to_error::deserialize(toml::Value::Table(value)).map_err(
+            |e: serde_path_to_error::Error<toml::de::Error>| {
+                let at = e.path().to_string();
+                let key = if at == "." {
+                    String::new()
+                } else {
+                    format!("{at}: ")
+                };
                 err(format!(
-                    "after --set overrides: {}",
-                    with_suggestion(e.message())
+                    "after --set overrides: {key}{}",
+                    with_suggestion(e.inner().message())
                 ))
-            })?;
+            },
+        )?;
     }
     scene.base_dir = path.parent().map(PathBuf::from).unwrap_or_default();
     if scene.name.is_none() {

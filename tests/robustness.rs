@@ -146,6 +146,27 @@ fn unknown_key_names_it_and_suggests_the_closest() {
 }
 
 #[test]
+fn override_errors_name_the_key_path() {
+    // A --set value of the wrong shape has no source line to point at: the key path says where.
+    let e = parse_err(&cube_text(), &["solver.dt_factor=\"fast\""]);
+    assert!(
+        e.contains("after --set overrides: solver.dt_factor: invalid type"),
+        "{e}"
+    );
+    let e = parse_err(&cube_text(), &["discretization.divisions=[1,2,3,4]"]);
+    assert!(
+        e.contains("discretization.divisions: invalid length 4"),
+        "{e}"
+    );
+    let e = parse_err(&cube_text(), &["discretization.method=\"meshles\""]);
+    assert!(
+        e.contains("discretization.method: unknown variant `meshles`")
+            && e.contains("did you mean `meshless`"),
+        "{e}"
+    );
+}
+
+#[test]
 fn empty_selection_is_an_error_naming_the_boundary() {
     let sc = scene(&["boundaries.bottom.select.plane.value=-0.1"]);
     let e = run_scene(&sc, &RunOptions::default())
