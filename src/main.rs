@@ -304,9 +304,12 @@ fn execute(cmd: Command) -> hytled::Result<u8> {
             );
             if let Some(m) = &prep.meshless {
                 let (mean, min, max) = m.support_statistics();
+                let exact = m
+                    .exact_volume
+                    .map_or(String::new(), |v| format!("; exact volume {v:.6e} m^3"));
                 println!(
-                    "  meshless: {}; {}; support {mean:.1} nodes per point (min {min}, max {max}); {} node(s) removed; exact volume {:.6e} m^3",
-                    m.cloud, m.integration, m.removed_nodes, m.exact_volume
+                    "  meshless: {}; {}; support {mean:.1} nodes per point (min {min}, max {max}); {} node(s) removed{exact}",
+                    m.cloud, m.integration, m.removed_nodes
                 );
             }
             if let Some(c) = &prep.coupled {

@@ -91,8 +91,9 @@ pub struct MeshlessInfo {
     pub integration: String,
     pub basis: String,
     pub support_rule: String,
-    /// Exact volume of the scene's shape, m^3 (compare with `mesh.volume`, the sum of weights).
-    pub exact_volume: f64,
+    /// Exact volume of the scene's shape, m^3 (compare with `mesh.volume`, the sum of weights);
+    /// null for a mesh file, which has no shape to compare with.
+    pub exact_volume: Option<f64>,
     /// What adaptive integration did (`integration = "adaptive"` only).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub adaptive: Option<AdaptiveInfo>,
@@ -339,13 +340,16 @@ impl Summary {
         );
         if let (Some(sn), Some(m)) = (&self.support_nodes, &self.meshless) {
             let _ = writeln!(s, "cloud            {}", m.cloud);
+            let exact = m.exact_volume.map_or(String::new(), |v| {
+                format!(
+                    " vs exact volume {v:.6e} m^3 ({:+.3} %)",
+                    100.0 * (self.mesh.volume / v - 1.0)
+                )
+            });
             let _ = writeln!(
                 s,
-                "integration      {}; weights {:.6e} m^3 vs exact volume {:.6e} m^3 ({:+.3} %)",
-                m.integration,
-                self.mesh.volume,
-                m.exact_volume,
-                100.0 * (self.mesh.volume / m.exact_volume - 1.0)
+                "integration      {}; weights {:.6e} m^3{exact}",
+                m.integration, self.mesh.volume
             );
             let _ = writeln!(
                 s,

@@ -1144,15 +1144,16 @@ pub fn parse(text: &str, path: &Path, overrides: &[String]) -> Result<Scene> {
         // The merged table has no source lines to point at; name the key path instead.
         scene = serde_path_to_error::deserialize(toml::Value::Table(value)).map_err(
             |e: serde_path_to_error::Error<toml::de::Error>| {
-                let at = e.path().to_string();
-                let key = if at == "." {
+                let (at, message) = (e.path().to_string(), e.inner().message());
+                // Custom checks (geometry, ...) already start with their key.
+                let key = if at == "." || message.starts_with(&format!("{at}:")) {
                     String::new()
                 } else {
                     format!("{at}: ")
                 };
                 err(format!(
                     "after --set overrides: {key}{}",
-                    with_suggestion(e.inner().message())
+                    with_suggestion(message)
                 ))
             },
         )?;

@@ -32,8 +32,8 @@ pub struct MeshlessBuild {
     pub support: Support,
     pub mls: MlsSettings,
     pub removed_nodes: usize,
-    /// Exact volume of the scene's shape, m^3.
-    pub exact_volume: f64,
+    /// Exact volume of the scene's shape, m^3 (None for a mesh file: no shape to compare with).
+    pub exact_volume: Option<f64>,
     /// How the nodes and points were made, for reports.
     pub cloud: String,
     pub integration: String,
@@ -344,7 +344,7 @@ pub fn build(settings: MeshlessSettings, protected: &ProtectedNodes) -> Result<M
                 support,
                 mls,
                 removed_nodes: removed_total,
-                exact_volume: domain.as_ref().map_or(f64::NAN, |d| d.volume()),
+                exact_volume: domain.as_ref().map(|d| d.volume()),
                 cloud: cloud_name,
                 integration: integration_name,
                 warnings,

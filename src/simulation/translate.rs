@@ -428,17 +428,21 @@ pub fn meshless_settings(scene: &Scene) -> Result<MeshlessSettings> {
             if s.discretization.element == ElementName::Hex8 {
                 s.discretization.element = ElementName::Tet4;
             }
-            CloudSource::Mesh {
-                mesh: build_mesh(&s)?,
-                description: format!(
-                    "vertices of a {} tet mesh",
-                    if d.mesher == Mesher::Tetgen {
-                        "TetGen"
+            let mesh = build_mesh(&s)?;
+            let description = match &scene.geometry {
+                Geometry::Mesh { file, .. } => format!(
+                    "vertices of the mesh file {}{}",
+                    file.display(),
+                    if mesh.shape == ElementShape::Hex8 {
+                        " (hexahedra split into six tets each)"
                     } else {
-                        "structured"
+                        ""
                     }
                 ),
-            }
+                _ if d.mesher == Mesher::Tetgen => "vertices of a TetGen tet mesh".into(),
+                _ => "vertices of a structured tet mesh".into(),
+            };
+            CloudSource::Mesh { mesh, description }
         }
         CloudKind::Lattice | CloudKind::Halton => {
             let (nodes, description, _) = generated_cloud(scene)?;
