@@ -203,7 +203,7 @@ fn time_once(
     let preprocess_s = t0.elapsed().as_secs_f64();
     let mut s = simulation::settings(&case.scene, false);
     s.mode = Mode::Dynamic;
-    let (dt_crit, _) = simulation::critical_step(&case.scene, &mut prep);
+    let (dt_crit, _) = simulation::critical_step(&case.scene, &mut prep)?;
     // The run divides the duration into whole steps of at most dt_factor x dt_crit.
     s.duration = steps as f64 * s.dt_factor * dt_crit * (1.0 - 1e-9);
     // As in a full 3 s run of ~8,000 steps with 200 history rows: energies every 40 steps.

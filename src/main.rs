@@ -290,7 +290,7 @@ fn execute(cmd: Command) -> hytled::Result<u8> {
         Command::Check { scene, set } => {
             let sc = hytled::scene::load(&scene, &set)?;
             let mut prep = simulation::prepare(&sc)?;
-            let (dt, p) = simulation::critical_step(&sc, &mut prep);
+            let (dt, p) = simulation::critical_step(&sc, &mut prep)?;
             for w in &prep.warnings {
                 eprintln!("warning: {w}");
             }

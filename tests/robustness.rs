@@ -214,6 +214,33 @@ fn inverted_element_is_an_error_naming_it() {
     );
 }
 
+/// A mesh one cell thick between two fixed faces leaves no free degree of freedom: no frequency
+/// bounds the step and there is nothing to solve. The error says so (it said "critical time
+/// step inf s; no usable points", and `check` called the scene valid).
+#[test]
+fn a_model_with_every_node_prescribed_is_refused_with_the_reason() {
+    let o = ["discretization.divisions=[1,1,1]".to_string()];
+    let sc = hytled::scene::load(&path("cases/cylinder-compression.toml"), &o).unwrap();
+    let e = run_scene(&sc, &RunOptions::default())
+        .expect_err("nothing free")
+        .to_string();
+    assert!(
+        e.contains("every degree of freedom of the 16 nodes is prescribed")
+            && e.contains("(bottom, top)")
+            && e.contains("refine the discretization"),
+        "{e}"
+    );
+    let out = Command::new(env!("CARGO_BIN_EXE_hytled"))
+        .args(["check", "cases/cylinder-compression.toml", "--set", &o[0]])
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(err.contains("every degree of freedom"), "{err}");
+    assert!(!String::from_utf8_lossy(&out.stdout).contains("valid"));
+}
+
 #[test]
 fn invalid_values_are_clear_errors() {
     let e = parse_err(

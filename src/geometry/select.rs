@@ -154,7 +154,8 @@ impl Selection {
                         })
                         .fold(f64::INFINITY, f64::min);
                     return Err(Error::Input(format!(
-                        "{what}: cylinder along {axis:?} through {center:?} of radius {radius} m                          ({axis:?} in [{lo_a}, {hi_a}] m) selects no node (nearest node is                          {nearest:.6e} m away; the model spans {:?}..{:?} m)",
+                        "{what}: cylinder along {axis:?} through {center:?} of radius {radius} m ({axis:?} in [{lo_a}, {hi_a}] m) \
+                         selects no node (nearest node is {nearest:.6e} m away; the model spans {:?}..{:?} m)",
                         lo.as_slice(),
                         hi.as_slice()
                     )));
@@ -314,7 +315,8 @@ mod tests {
         assert!(
             e.contains("boundary 'indenter'")
                 && e.contains("selects no node")
-                && e.contains("1.000000e-3 m away"),
+                && e.contains("1.000000e-3 m away")
+                && !e.contains("  "),
             "{e}"
         );
         // Bad radius, crossed bounds.

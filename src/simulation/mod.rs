@@ -986,9 +986,14 @@ pub fn solve(prep: &mut Prepared, settings: &Settings) -> Result<RunOutput> {
 }
 
 /// The critical time step of a prepared scene, s, and what sets it, by the scene's estimate
-/// (`solver.time_step`).
-pub fn critical_step(scene: &Scene, prep: &mut Prepared) -> (f64, solver::integrate::Critical) {
-    solver::integrate::critical_step(&mut prep.model, scene.solver.time_step)
+/// (`solver.time_step`); an error where there is none (every degree of freedom prescribed).
+pub fn critical_step(
+    scene: &Scene,
+    prep: &mut Prepared,
+) -> Result<(f64, solver::integrate::Critical)> {
+    let (dt, critical) = solver::integrate::critical_step(&mut prep.model, scene.solver.time_step);
+    solver::integrate::check_critical_step(&prep.model, dt)?;
+    Ok((dt, critical))
 }
 
 /// "fe", "coupled" or "meshless".

@@ -307,6 +307,28 @@ pub fn stable_step<M: Material>(model: &Model<M>) -> (f64, Critical) {
     }
 }
 
+/// Refuses a critical step `dt` (s) that is not finite and positive, saying why: most often
+/// every degree of freedom is prescribed (a mesh one element across between two constrained
+/// faces), which leaves no frequency to bound the step and nothing to solve.
+pub fn check_critical_step<M: Material>(model: &Model<M>, dt: f64) -> Result<()> {
+    if dt.is_finite() && dt > 0.0 {
+        return Ok(());
+    }
+    if model.constraints.mask.iter().flatten().all(|&c| c) {
+        let names: Vec<&str> = model.boundaries.iter().map(|b| b.name.as_str()).collect();
+        return Err(Error::Input(format!(
+            "every degree of freedom of the {} nodes is prescribed by the boundaries ({}): no node is free to move, \
+             so there is nothing to solve; refine the discretization (divisions, size) so that nodes lie between \
+             the constrained ones, or constrain fewer components",
+            model.nodes.len(),
+            names.join(", ")
+        )));
+    }
+    Err(Error::Input(format!(
+        "the critical time step estimate is {dt} s; the discretization has no usable points"
+    )))
+}
+
 /// Each relaxation restart after an instability multiplies dt_factor by this.
 pub const RETRY_FACTOR: f64 = 0.75;
 /// A restart that fails within this fraction of where the previous attempt failed ends the
@@ -543,9 +565,7 @@ fn run_on_worker<M: Material>(
     // Time spent handing frames to the sink (writing files), left out of solve_seconds.
     let mut sink_seconds = 0.0;
     let (dt_crit, critical) = critical_step(model, s.step_estimate);
-    if !(dt_crit.is_finite() && dt_crit > 0.0) {
-        return Err(Error::Input(format!("the critical time step estimate is {dt_crit} s; the discretization has no usable points")));
-    }
+    check_critical_step(model, dt_crit)?;
     let retries = if s.mode == Mode::Relaxation {
         s.retries
     } else {
