@@ -1336,6 +1336,12 @@ pub fn apply_override(
     }
     let value = match toml::from_str::<toml::Table>(&format!("v = {raw}")) {
         Ok(mut t) => t.remove("v").unwrap_or(toml::Value::String(raw.into())),
+        // TOML refuses numbers past f64 (1e400); taken as a string they would read "expected f64".
+        Err(_) if raw.parse::<f64>().is_ok() => {
+            return Err(format!(
+                "{raw} is not a finite number (f64 spans about 1e-308 to 1e308)"
+            ))
+        }
         Err(_) => toml::Value::String(raw.into()),
     };
     let parts: Vec<&str> = key.split('.').collect();

@@ -153,6 +153,11 @@ fn override_errors_name_the_key_path() {
         e.contains("after --set overrides: solver.dt_factor: invalid type"),
         "{e}"
     );
+    let e = parse_err(&cube_text(), &["solver.duration=1e400"]);
+    assert!(
+        e.contains("--set solver.duration=1e400: 1e400 is not a finite number"),
+        "{e}"
+    );
     let e = parse_err(&cube_text(), &["discretization.divisions=[1,2,3,4]"]);
     assert!(
         e.contains("discretization.divisions: invalid length 4"),
