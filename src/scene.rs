@@ -1362,8 +1362,20 @@ pub fn apply_override(
     Ok(())
 }
 
-/// Appends "did you mean ...?" to serde's unknown-field / unknown-variant messages.
+/// Appends "did you mean ...?" to serde's unknown-field / unknown-variant messages, and says
+/// "a table" where serde names an internal type ("expected struct SolverSpec").
 fn with_suggestion(msg: &str) -> String {
+    if let Some(start) = msg.find("expected struct ") {
+        let rest = &msg[start + "expected struct ".len()..];
+        let end = rest
+            .find(|c: char| !c.is_alphanumeric() && c != '_')
+            .unwrap_or(rest.len());
+        return format!(
+            "{}expected a table (a [section] or {{ key = value, ... }}){}",
+            &msg[..start],
+            &rest[end..]
+        );
+    }
     for marker in ["unknown field `", "unknown variant `"] {
         if let Some(start) = msg.find(marker) {
             let rest = &msg[start + marker.len()..];

@@ -158,6 +158,11 @@ fn override_errors_name_the_key_path() {
         e.contains("--set solver.duration=1e400: 1e400 is not a finite number"),
         "{e}"
     );
+    let e = parse_err(&cube_text(), &["solver=3"]);
+    assert!(
+        e.contains("solver: invalid type: integer `3`, expected a table") && !e.contains("Spec"),
+        "{e}"
+    );
     let e = parse_err(&cube_text(), &["discretization.divisions=[1,2,3,4]"]);
     assert!(
         e.contains("discretization.divisions: invalid length 4"),
