@@ -1133,14 +1133,25 @@ pub fn parse(text: &str, path: &Path, overrides: &[String]) -> Result<Scene> {
         message,
     };
     // Deserialise the file as written first, so schema errors carry its line numbers.
-    let mut scene: Scene =
-        toml::from_str(text).map_err(|e| err(with_suggestion(&e.to_string())))?;
+    let mut scene: Scene = toml::from_str(text).map_err(|e| {
+        let hint = toml::from_str::<toml::Table>(text)
+            .ok()
+            .and_then(|t| name_hint(&t))
+            .map_or(String::new(), |h| format!("\n  {h}"));
+        err(format!(
+            "{}{hint}",
+            with_suggestion(&e.to_string()).trim_end()
+        ))
+    })?;
     let mut value: toml::Table = toml::from_str(text).map_err(|e| err(e.to_string()))?;
     for o in overrides {
         apply_override(&mut value, o).map_err(|m| err(format!("--set {o}: {m}")))?;
     }
     check_finite(&toml::Value::Table(value.clone()), "").map_err(err)?;
     if !overrides.is_empty() {
+        if let Some(h) = name_hint(&value) {
+            return Err(err(format!("after --set overrides: {h}")));
+        }
         // The merged table has no source lines to point at; name the key path instead.
         scene = serde_path_to_error::deserialize(toml::Value::Table(value)).map_err(
             |e: serde_path_to_error::Error<toml::de::Error>| {
@@ -1165,6 +1176,36 @@ pub fn parse(text: &str, path: &Path, overrides: &[String]) -> Result<Scene> {
     validate(&scene).map_err(err)?;
     resolve_exact(&mut scene).map_err(err)?;
     Ok(scene)
+}
+
+/// For a key that takes a name but got a number, array or bool (`support = 8` meant as
+/// `support_nodes = 8`), "KEY: expected a name in quotes, one of `a`, `b`": serde says only
+/// "wanted string or table". The names come from deserialising again with "?" at that key.
+fn name_hint(table: &toml::Table) -> Option<String> {
+    let e =
+        serde_path_to_error::deserialize::<_, Scene>(toml::Value::Table(table.clone())).err()?;
+    let message = e.inner().message();
+    if !(message.contains("unit variant") || message.contains("wanted string or table")) {
+        return None;
+    }
+    let mut probe = table.clone();
+    let mut segments = e.path().iter().peekable();
+    let mut cur = &mut probe;
+    while let Some(seg) = segments.next() {
+        let serde_path_to_error::Segment::Map { key } = seg else {
+            return None;
+        };
+        if segments.peek().is_none() {
+            cur.insert(key.clone(), toml::Value::String("?".into()));
+            break;
+        }
+        cur = cur.get_mut(key)?.as_table_mut()?;
+    }
+    let again = serde_path_to_error::deserialize::<_, Scene>(toml::Value::Table(probe)).err()?;
+    let m = again.inner().message();
+    let marker = "unknown variant `?`, expected ";
+    let names = &m[m.find(marker)? + marker.len()..];
+    Some(format!("{}: expected a name in quotes, {names}", e.path()))
 }
 
 /// Computes the value of every `exact = "uniaxial"` reference: a box with one face (a plane

@@ -637,3 +637,39 @@ fn relaxation_reports_how_far_from_equilibrium_it_stopped() {
     let dynamic = run(CUBE, &["solver.mode=dynamic", "solver.duration=0.5"]).unwrap();
     assert!(dynamic.equilibrium_residual.is_none());
 }
+
+/// Damping 1e6 1/s holds the cylinder back while its top is driven down 2 cm in 0.15 s: the
+/// top layer is crushed (a physical result of such damping, not an unstable step) and the
+/// error names the damping as a cause; a lightly damped run that fails does not.
+#[test]
+fn an_inversion_under_heavy_damping_names_the_damping() {
+    let e = run(
+        CYL,
+        &[
+            "discretization.divisions=[4,2,8]",
+            "solver.duration=0.15",
+            "solver.damping=1e6",
+        ],
+    )
+    .expect_err("crushed")
+    .to_string();
+    assert!(
+        e.contains("inverted")
+            && e.contains("lower solver.damping (c = 1000000 1/s, c x load time = 1.500e5)"),
+        "{e}"
+    );
+    // 99 % in 0.3 s with c = 1 1/s (c T = 0.3): inverted, and the damping is not the cause.
+    let e = run(
+        CYL,
+        &[
+            "discretization.divisions=[4,2,8]",
+            "solver.duration=0.3",
+            "solver.damping=1",
+            "boundaries.top.displacement.z=-0.099",
+        ],
+    )
+    .expect_err("crushed")
+    .to_string();
+    assert!(e.contains("inverted"), "{e}");
+    assert!(!e.contains("solver.damping"), "{e}");
+}

@@ -158,6 +158,21 @@ fn override_errors_name_the_key_path() {
         e.contains("--set solver.duration=1e400: 1e400 is not a finite number"),
         "{e}"
     );
+    // A key taking a name given a number: the names it takes (serde said "unit variant").
+    let e = parse_err(&cube_text(), &["discretization.support=8"]);
+    assert!(
+        e.contains("discretization.support: expected a name in quotes, `radius` or `nearest`"),
+        "{e}"
+    );
+    let e = parse_err(
+        &cube_text().replace("mode = \"relaxation\"", "mode = 1"),
+        &[],
+    );
+    assert!(
+        e.contains("line")
+            && e.contains("solver.mode: expected a name in quotes, `dynamic` or `relaxation`"),
+        "{e}"
+    );
     let e = parse_err(&cube_text(), &["solver=3"]);
     assert!(
         e.contains("solver: invalid type: integer `3`, expected a table") && !e.contains("Spec"),

@@ -706,6 +706,20 @@ fn attempt<M: Material>(
     } else {
         ""
     };
+    // Heavy damping holds the body back while a driven boundary moves on: the elements next
+    // to it are crushed whatever the step (the [8,4,20] cylinder compressed in 0.15 s at
+    // c = 1e5 1/s inverts with the step cut to 1/70 of the initial). Said where c T is large
+    // enough for that to be a cause.
+    let damping_hint = if dynamic && s.damping * s.load_time > 100.0 {
+        format!(
+            "; or lower solver.damping (c = {} 1/s, c x load time = {:.3e}): a boundary driven faster than \
+             the damped body can follow crushes the elements next to it",
+            s.damping,
+            s.damping * s.load_time
+        )
+    } else {
+        String::new()
+    };
     let mut dt = dt_factor * dt_crit;
     let total_steps = if dynamic {
         let steps = (s.duration / dt).ceil().max(1.0);
@@ -1061,7 +1075,7 @@ fn attempt<M: Material>(
                 "integration point {id} near ({:.4e}, {:.4e}, {:.4e}) m inverted (J = {min_j:.4}) at step {step}, t = {t:.6} s \
                  (dt = {dt:.4e} s, {:.3} x the critical estimate {dt_crit:.4e} s; one-point FE meshes number points as their elements). \
                  The load is too large or fast for this discretization, or the step too large: reduce solver.dt_factor \
-                 (large compression shortens the elements below the estimate, {}){hint}, refine, or use a slower load",
+                 (large compression shortens the elements below the estimate, {}){hint}, refine, or use a slower load{damping_hint}",
                 near.x, near.y, near.z,
                 dt / crit_now, estimated_at(updates.estimates, schedule.last), dt_crit = crit_now
             )));
