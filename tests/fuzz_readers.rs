@@ -1,5 +1,6 @@
-//! Random byte mutations of real sample files fed to every reader: errors are fine, panics are
-//! not (proptest; 48 cases per reader to keep the suite fast, PROPTEST_CASES raises it).
+//! Random byte mutations of real sample files fed to every reader, and of the committed scene
+//! files (bytes, and values replaced through `--set`) fed to the scene parser: errors are fine,
+//! panics are not (proptest; 48 cases per test to keep the suite fast, PROPTEST_CASES raises it).
 
 use std::path::{Path, PathBuf};
 
@@ -86,5 +87,87 @@ proptest! {
             let b = mutate(data(f), &e);
             let _ = hytled::io::vtk::parse_vtk(&b, Path::new(name));
         }
+    }
+}
+
+proptest! {
+    #![proptest_config(config())]
+
+    /// Scene files: byte mutations of every committed case, parsed and validated (the mesh
+    /// and the run are left out: their inputs are fuzzed above).
+    #[test]
+    fn scene_parser_never_panics(e in edits()) {
+        let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("cases");
+        let mut files: Vec<_> = std::fs::read_dir(&dir).unwrap().map(|f| f.unwrap().path()).collect();
+        files.sort();
+        for f in files {
+            let b = mutate(std::fs::read(&f).unwrap(), &e);
+            let _ = hytled::scene::parse(&String::from_utf8_lossy(&b), &f, &[]);
+        }
+    }
+}
+
+/// Dotted paths of every value in a TOML table (array elements excluded).
+fn leaf_paths(t: &toml::Table, prefix: &str, out: &mut Vec<String>) {
+    for (k, v) in t {
+        let p = if prefix.is_empty() {
+            k.clone()
+        } else {
+            format!("{prefix}.{k}")
+        };
+        match v {
+            toml::Value::Table(sub) => leaf_paths(sub, &p, out),
+            _ => out.push(p),
+        }
+    }
+}
+
+const VALUES: &[&str] = &[
+    "0",
+    "-1",
+    "1",
+    "2",
+    "0.5",
+    "-0.5",
+    "1e308",
+    "-1e308",
+    "1e-300",
+    "9223372036854775807",
+    "-9223372036854775808",
+    "nan",
+    "inf",
+    "true",
+    "\"\"",
+    "\"x\"",
+    "\"all\"",
+    "[]",
+    "[0]",
+    "[1, 2]",
+    "[0, 0, 0]",
+    "[-1, -1, -1]",
+    "[1e308, 1, 1]",
+    "[\"x\"]",
+    "{}",
+    "{ x = 1 }",
+    "[[1, 2], [3]]",
+    "\"../no/such/file.vtu\"",
+];
+
+proptest! {
+    #![proptest_config(config())]
+
+    /// Scene values: one to three values of a committed case replaced by odd ones (zero,
+    /// negative, huge, NaN, wrong type, empty) through `--set`, parsed and validated.
+    #[test]
+    fn scene_values_never_panic(picks in prop::collection::vec((any::<prop::sample::Index>(), 0..VALUES.len()), 1..4), case in any::<prop::sample::Index>()) {
+        let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("cases");
+        let mut files: Vec<_> = std::fs::read_dir(&dir).unwrap().map(|f| f.unwrap().path()).collect();
+        files.sort();
+        let f = case.get(&files);
+        let text = std::fs::read_to_string(f).unwrap();
+        let mut paths = Vec::new();
+        leaf_paths(&toml::from_str(&text).unwrap(), "", &mut paths);
+        let sets: Vec<String> = picks.iter().map(|(i, v)| format!("{}={}", i.get(&paths), VALUES[*v])).collect();
+        let _ = hytled::scene::parse(&text, f, &sets);
     }
 }
