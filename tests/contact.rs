@@ -12,6 +12,10 @@ use hytled::simulation::{prepare, run_scene, settings, RunOptions};
 /// face and moves 20 mm down: frictionless, so the top slides and the exact solution is the
 /// homogeneous one of REFERENCE.md (F_z = -7.63269 N, lateral stretch a = 1.11574668).
 fn plate(extra: &[&str]) -> Summary {
+    plate_run(extra).unwrap_or_else(|e| panic!("{extra:?}: {e}"))
+}
+
+fn plate_run(extra: &[&str]) -> hytled::Result<Summary> {
     let mut o: Vec<String> = [
         "boundaries.top=",
         "references={}",
@@ -37,7 +41,7 @@ fn plate(extra: &[&str]) -> Summary {
     std::fs::write(&file, text).unwrap();
     o.retain(|s| s != "boundaries.top=");
     let sc = hytled::scene::load(&file, &o).unwrap_or_else(|e| panic!("{e}"));
-    run_scene(&sc, &RunOptions::default()).unwrap_or_else(|e| panic!("{extra:?}: {e}"))
+    run_scene(&sc, &RunOptions::default())
 }
 
 /// A rigid frictionless plate compressing the cube by 20 % gives the exact uniaxial reaction
@@ -278,4 +282,41 @@ fn a_restart_after_an_instability_starts_the_contact_afresh() {
     );
     let f = restarted.reactions["plate"][2];
     assert!((f + 7.63269).abs() < 2e-3 * 7.63269, "{f}");
+}
+
+/// A rigid body that starts inside the body: a little (0.1 mm) is pushed out and the run
+/// converges to the same reaction; deeper than half the distance a wave crosses in a step
+/// (20 mm into the 25 mm cells) is refused before the first step, saying by how much to move
+/// it (it diverged at step 0 on every restart). A run that fails anyway carries the setup's
+/// warning about the overlap in its message.
+#[test]
+fn a_rigid_body_starting_inside_the_body_is_pushed_out_or_refused() {
+    let touching = plate(&[]);
+    let overlap = |z: f64| format!("contact.plate.point=[0.0, 0.0, {z}]");
+    let shallow = plate(&[&overlap(0.0999)]);
+    assert!(shallow.converged);
+    assert!(shallow
+        .warnings
+        .iter()
+        .any(|w| w.contains("contact 'plate' starts 1.000e-4 m inside")));
+    // The same 20 mm of travel from 0.1 mm further in: 0.5 % more compression.
+    let (f0, f1) = (
+        touching.reactions["plate"][2],
+        shallow.reactions["plate"][2],
+    );
+    println!("plate touching: F_z = {f0} N; 0.1 mm in: {f1} N");
+    assert!(f1 < f0 && (f1 / f0 - 1.0) < 0.02, "{f0} {f1}");
+    let e = plate_run(&[&overlap(0.08)]).expect_err("deep").to_string();
+    assert!(
+        e.contains("contact 'plate' starts 2.000e-2 m inside the body")
+            && e.contains("move it by at least 2.000e-2 m"),
+        "{e}"
+    );
+    let e = plate_run(&[&overlap(0.0999), "solver.dt_factor=4", "solver.retries=0"])
+        .expect_err("unstable")
+        .to_string();
+    assert!(
+        e.contains("the setup warned: contact 'plate' starts 1.000e-4 m inside"),
+        "{e}"
+    );
 }

@@ -270,6 +270,22 @@ impl Contact {
         body.motion * body.curve.value(tau)
     }
 
+    /// The deepest point of the undeformed body inside a rigid body displaced to load fraction
+    /// `tau`: (depth m, body name, reference position m); None where none is inside.
+    pub fn deepest_at_rest(&self, tau: f64) -> Option<(f64, &str, Vector3<f64>)> {
+        let mut best: Option<(f64, &str, Vector3<f64>)> = None;
+        for (b, body) in self.bodies.iter().enumerate() {
+            let d = self.body_displacement(b, tau);
+            for p in &self.points[b] {
+                let depth = body.shape.signed_depth(&p.x, &d).0;
+                if depth > best.map_or(0.0, |x| x.0) {
+                    best = Some((depth, body.name.as_str(), p.x));
+                }
+            }
+        }
+        best
+    }
+
     /// Pushes the points inside a rigid body (displaced to load fraction `tau`) back to its
     /// surface by correcting `u` (m), with masses `mass` (kg) and the update's force
     /// coefficient `a` (s^2). Components in `fixed` (prescribed DOFs) are not moved.

@@ -128,8 +128,9 @@ pub(super) fn scene_contact(
             .fold(0.0f64, f64::max);
         if deepest > tolerance {
             warnings.push(format!(
-                "{what} starts {deepest:.3e} m inside the body's surface; the first steps push \
-                 the surface out (move the rigid body or its curve's start)"
+                "{what} starts {deepest:.3e} m inside the body's surface; the first correction pushes \
+                 the surface out in one step (deeper than half the distance a wave crosses in a step is \
+                 refused; move the rigid body or its curve's start)"
             ));
         }
         bodies.push(body);

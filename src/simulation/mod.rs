@@ -940,7 +940,8 @@ pub fn run_scene(scene: &Scene, opts: &RunOptions) -> Result<Summary> {
         let mut settings = settings(scene, opts.progress);
         settings.progress_lines = opts.progress_lines;
         let Some(d) = &dir else {
-            let out = solver::run(&mut prep.model, &settings)?;
+            let out = solver::run(&mut prep.model, &settings)
+                .map_err(|e| with_setup_warnings(e, &prep.warnings))?;
             return Ok(summarize(scene, &prep, &out, t0.elapsed().as_secs_f64()));
         };
         // Frames go to disk as they are produced: a run that fails leaves those before the
@@ -966,7 +967,7 @@ pub fn run_scene(scene: &Scene, opts: &RunOptions) -> Result<Summary> {
         )?;
         let run = solver::run_streaming(model, &settings, &mut |m, t, u| frames.write(m, t, u));
         frames.write_series()?;
-        let out = run?;
+        let out = run.map_err(|e| with_setup_warnings(e, &prep.warnings))?;
         let summary = summarize(scene, &prep, &out, t0.elapsed().as_secs_f64());
         write_results(&staging, &name, &prep, &out, &summary, opts.vtu_format)?;
         d.commit()?;
@@ -982,7 +983,20 @@ pub fn run_scene(scene: &Scene, opts: &RunOptions) -> Result<Summary> {
 /// relaxation convergence (see [`solver::run`]); commands built on the pipeline solve through
 /// this, so the pipeline stays the one place that knows both the scene and the solver.
 pub fn solve(prep: &mut Prepared, settings: &Settings) -> Result<RunOutput> {
-    solver::run(&mut prep.model, settings)
+    solver::run(&mut prep.model, settings).map_err(|e| with_setup_warnings(e, &prep.warnings))
+}
+
+/// A run that fails takes the preparation's warnings along in its message: they are printed
+/// with the summary, which a failed run never reaches, and they often name the cause (a
+/// rigid body that starts inside the body, removed meshless nodes).
+fn with_setup_warnings(e: Error, warnings: &[String]) -> Error {
+    match e {
+        Error::Unstable(msg) if !warnings.is_empty() => Error::Unstable(format!(
+            "{msg}\n  the setup warned: {}",
+            warnings.join("\n  the setup warned: ")
+        )),
+        e => e,
+    }
 }
 
 /// The critical time step of a prepared scene, s, and what sets it, by the scene's estimate
