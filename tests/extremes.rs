@@ -673,3 +673,39 @@ fn an_inversion_under_heavy_damping_names_the_damping() {
     assert!(e.contains("inverted"), "{e}");
     assert!(!e.contains("solver.damping"), "{e}");
 }
+
+/// An initial velocity on nodes a boundary holds is an impact at t = 0: warned, naming the
+/// boundary and the speed; a free spin (no boundary) and a velocity along a free component
+/// are not.
+#[test]
+fn an_initial_velocity_against_a_boundary_is_warned() {
+    let warned = |case: &str, o: &[&str]| {
+        let p = hytled::simulation::prepare(&load(case, o).unwrap()).unwrap();
+        p.warnings
+            .into_iter()
+            .find(|w| w.contains("[initial] motion"))
+    };
+    let base = ["discretization.divisions=[4,2,8]"];
+    let w = warned(CYL, &[base[0], "initial.velocity=[0.0, 0.0, 1.0]"]).expect("warned");
+    assert!(
+        w.contains("boundary 'bottom'") && w.contains("1.000e0 m/s"),
+        "{w}"
+    );
+    assert!(warned("cases/cube-spin.toml", &[]).is_none());
+    // The cube's symmetry planes hold x on x = 0 and y on y = 0, its base and top z: a
+    // velocity along x is warned (symmetry_x), and not once that plane holds y instead.
+    let w = warned(
+        CUBE,
+        &["solver.mode=dynamic", "initial.velocity=[0.5, 0.0, 0.0]"],
+    );
+    assert!(w.is_some_and(|w| w.contains("boundary 'symmetry_x'") && w.contains("5.000e-1 m/s")));
+    let w = warned(
+        CUBE,
+        &[
+            "solver.mode=dynamic",
+            "boundaries.symmetry_x.fix=[\"y\"]",
+            "initial.velocity=[0.5, 0.0, 0.0]",
+        ],
+    );
+    assert!(w.is_none(), "{w:?}");
+}
