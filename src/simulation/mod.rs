@@ -1033,13 +1033,15 @@ fn with_setup_warnings(e: Error, warnings: &[String]) -> Error {
 }
 
 /// The critical time step of a prepared scene, s, and what sets it, by the scene's estimate
-/// (`solver.time_step`); an error where there is none (every degree of freedom prescribed).
+/// (`solver.time_step`); an error where there is none (every degree of freedom prescribed) or
+/// where a rigid body starts too deep inside the body for the scene's step.
 pub fn critical_step(
     scene: &Scene,
     prep: &mut Prepared,
 ) -> Result<(f64, solver::integrate::Critical)> {
     let (dt, critical) = solver::integrate::critical_step(&mut prep.model, scene.solver.time_step);
     solver::integrate::check_critical_step(&prep.model, dt)?;
+    solver::integrate::check_contact_start(&prep.model, scene.solver.dt_factor * dt)?;
     Ok((dt, critical))
 }
 
