@@ -310,28 +310,30 @@ fn a_rigid_body_starting_inside_the_body_is_pushed_out_or_refused() {
     println!("plate touching: F_z = {f0} N; 0.1 mm in: {f1} N; 20.1 mm travel: {f2} N");
     assert!(f1 < f0 && (f1 / f2 - 1.0).abs() < 1e-5, "{f0} {f1} {f2}");
     let e = plate_run(&[&overlap(0.08)]).expect_err("deep").to_string();
-    // `hytled check` says the same before any step.
-    let out = std::process::Command::new(env!("CARGO_BIN_EXE_hytled"))
-        .args([
-            "check",
-            "cases/brain-contact.toml",
-            "--set",
-            "contact.indenter.center=[0.0, 0.0, 0.0275]",
-        ])
-        .current_dir(env!("CARGO_MANIFEST_DIR"))
-        .output()
-        .unwrap();
-    let err = String::from_utf8_lossy(&out.stderr);
-    assert_eq!(out.status.code(), Some(2), "{err}");
-    assert!(
-        err.contains("contact 'indenter' starts 1.000e-3 m inside the body"),
-        "{err}"
-    );
     assert!(
         e.contains("contact 'plate' starts 2.000e-2 m inside the body")
             && e.contains("move it by at least 2.000e-2 m"),
         "{e}"
     );
+    // `hytled check` says the same before any step (the brain: TetGen meshes it).
+    if cfg!(feature = "tetgen") {
+        let out = std::process::Command::new(env!("CARGO_BIN_EXE_hytled"))
+            .args([
+                "check",
+                "cases/brain-contact.toml",
+                "--set",
+                "contact.indenter.center=[0.0, 0.0, 0.0275]",
+            ])
+            .current_dir(env!("CARGO_MANIFEST_DIR"))
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{err}");
+        assert!(
+            err.contains("contact 'indenter' starts 1.000e-3 m inside the body"),
+            "{err}"
+        );
+    }
     let e = plate_run(&[&overlap(0.0999), "solver.dt_factor=4", "solver.retries=0"])
         .expect_err("unstable")
         .to_string();
