@@ -92,7 +92,7 @@ impl Selection {
                         .fold(f64::INFINITY, f64::min);
                     return Err(Error::Input(format!(
                         "{what}: plane {axis:?} = {value} m selects no node (tolerance {tol:.3e} m; nearest node is {nearest:.6e} m away; \
-                         the model spans {:?}..{:?})",
+                         the model spans {axis:?} {:.6e}..{:.6e} m)",
                         lo[k], hi[k]
                     )));
                 }
@@ -153,11 +153,17 @@ impl Selection {
                             dr.hypot(dt)
                         })
                         .fold(f64::INFINITY, f64::min);
+                    let span = match (min, max) {
+                        (Some(a), Some(b)) => format!(" ({axis:?} in [{a}, {b}] m)"),
+                        (Some(a), None) => format!(" ({axis:?} >= {a} m)"),
+                        (None, Some(b)) => format!(" ({axis:?} <= {b} m)"),
+                        (None, None) => String::new(),
+                    };
                     return Err(Error::Input(format!(
-                        "{what}: cylinder along {axis:?} through {center:?} of radius {radius} m ({axis:?} in [{lo_a}, {hi_a}] m) \
-                         selects no node (nearest node is {nearest:.6e} m away; the model spans {:?}..{:?} m)",
-                        lo.as_slice(),
-                        hi.as_slice()
+                        "{what}: cylinder along {axis:?} through {center:?} of radius {radius} m{span} \
+                         selects no node (nearest node is {nearest:.6e} m away; the model spans X {:.6e}..{:.6e}, \
+                         Y {:.6e}..{:.6e}, Z {:.6e}..{:.6e} m)",
+                        lo.x, hi.x, lo.y, hi.y, lo.z, hi.z
                     )));
                 }
                 sel
@@ -316,6 +322,7 @@ mod tests {
             e.contains("boundary 'indenter'")
                 && e.contains("selects no node")
                 && e.contains("1.000000e-3 m away")
+                && e.contains("(Z >= 0.005 m)")
                 && !e.contains("  "),
             "{e}"
         );
