@@ -219,6 +219,40 @@ fn main() -> ExitCode {
 
 /// Starts the global thread pool with `--threads n`: at least 1, at most the machine's cores
 /// (more would only add contention; a warning says so).
+/// Prints the preparation's stages (`log::info!` in the library) as progress lines on
+/// stderr, with the seconds since the command started: meshing, shape functions and the
+/// critical-step estimate take seconds to minutes on organ-scale scenes before the time
+/// loop's own progress begins.
+struct StageLines {
+    start: std::time::Instant,
+}
+
+impl log::Log for StageLines {
+    fn enabled(&self, m: &log::Metadata) -> bool {
+        m.level() <= log::Level::Info && m.target().starts_with("hytled")
+    }
+    fn log(&self, r: &log::Record) {
+        if self.enabled(r.metadata()) {
+            eprintln!(
+                "progress: {} ({:.1} s elapsed)",
+                r.args(),
+                self.start.elapsed().as_secs_f64()
+            );
+        }
+    }
+    fn flush(&self) {}
+}
+
+fn show_stages() {
+    let logger = StageLines {
+        start: std::time::Instant::now(),
+    };
+    // Once per process: the leaked box lives as long as the program.
+    if log::set_logger(Box::leak(Box::new(logger))).is_ok() {
+        log::set_max_level(log::LevelFilter::Info);
+    }
+}
+
 fn start_threads(threads: Option<usize>) -> hytled::Result<()> {
     let Some(n) = threads else { return Ok(()) };
     if n == 0 {
@@ -262,6 +296,9 @@ fn execute(cmd: Command) -> hytled::Result<u8> {
                     .or((!std::io::stderr().is_terminal()).then_some(10.0)),
                 vtu_format: vtu_format.into(),
             };
+            if opts.progress || opts.progress_lines.is_some() {
+                show_stages();
+            }
             let summary = simulation::run_scene(&sc, &opts)?;
             for w in &summary.warnings {
                 eprintln!("warning: {w}");

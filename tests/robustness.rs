@@ -642,7 +642,8 @@ fn an_unbounded_dynamic_run_is_refused_before_it_starts() {
 }
 
 /// Issue 22: with stderr not a terminal (here a pipe), progress comes as plain lines
-/// (`--progress-every`, default 10 s there): step, time or load, error estimate, time left.
+/// (`--progress-every`, default 10 s there): step, time or load, error estimate, time left;
+/// before them, the preparation's stages (meshing, points, critical step).
 #[test]
 fn batch_runs_print_plain_progress_lines() {
     for (mode, want) in [("dynamic", "left"), ("relaxation", "error estimate")] {
@@ -668,6 +669,20 @@ fn batch_runs_print_plain_progress_lines() {
         assert!(
             !err.contains('\r') && !err.contains('\u{1b}'),
             "no bar control codes: {err}"
+        );
+        // The preparation's stages come first, with the time since the start.
+        let stages: Vec<&str> = err
+            .lines()
+            .take_while(|l| !l.contains(" step ") || l.contains("critical"))
+            .collect();
+        assert!(
+            stages
+                .iter()
+                .any(|l| l.starts_with("progress: preparing the fe discretization ("))
+                && stages
+                    .iter()
+                    .any(|l| l.starts_with("progress: critical step ") && l.contains("s elapsed)")),
+            "{err}"
         );
     }
 }

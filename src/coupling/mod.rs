@@ -462,6 +462,11 @@ fn transition_cell(
 /// tets of the meshless interior.
 pub fn build(mesh: Mesh, s: &CoupledSettings) -> Result<CoupledBuild> {
     check_shape(s, mesh.shape)?;
+    log::info!(
+        "coupled build on {} nodes, {} cells: FE layers, transition, meshless interior",
+        mesh.nodes.len(),
+        mesh.num_cells()
+    );
     let regions = regions::split(&mesh, s.fe_layers, &s.fe_region)?;
     let pick = |keep: &dyn Fn(CellRole) -> bool| Mesh {
         nodes: mesh.nodes.clone(),

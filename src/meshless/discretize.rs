@@ -234,6 +234,11 @@ pub fn adaptive_tet_points(
 /// boundary condition or a probe: removing one of those is an error.
 pub fn build(settings: MeshlessSettings, protected: &ProtectedNodes) -> Result<MeshlessBuild> {
     let (background, cloud_name, rest) = nodes_and_tets(settings)?;
+    log::info!(
+        "meshless cloud: {} nodes, {} background tets; integration points",
+        background.nodes.len(),
+        background.num_cells()
+    );
     let MeshlessRest {
         domain,
         integration,
@@ -317,6 +322,10 @@ pub fn build(settings: MeshlessSettings, protected: &ProtectedNodes) -> Result<M
     for _round in 0..4 {
         let nodes: Vec<Vector3<f64>> = keep.iter().map(|&i| background.nodes[i]).collect();
         let support = full.subset(&keep)?;
+        log::info!(
+            "supports and MLS shape functions at {} points",
+            positions.len()
+        );
         let points = build_points(&support, &mls, &positions, &weights)?;
         let counts = support_counts(&points, nodes.len());
         let low: Vec<usize> = (0..nodes.len()).filter(|&i| counts[i] < 2).collect();

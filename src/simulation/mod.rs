@@ -264,6 +264,10 @@ fn initial_velocity_warning(scene: &Scene, p: &Prepared) -> Option<String> {
 
 /// Meshes the scene, builds the quadrature points, masses, constraints and probes.
 pub fn prepare(scene: &Scene) -> Result<Prepared> {
+    log::info!(
+        "preparing the {} discretization",
+        format!("{:?}", scene.discretization.method).to_lowercase()
+    );
     let mut p = match scene.discretization.method {
         Method::Meshless => prepare_meshless(scene)?,
         Method::Coupled => prepare_coupled(scene)?,
@@ -367,6 +371,11 @@ fn prepare_fe(scene: &Scene) -> Result<Prepared> {
     let kind: ElementKind = scene.discretization.element.into();
     let (lambda, mu) = mat.lame();
     let (kappa_hg, modulus) = scene.discretization.hourglass_scale(lambda, mu);
+    log::info!(
+        "mesh: {} nodes, {} elements; element derivatives",
+        mesh.nodes.len(),
+        mesh.num_cells()
+    );
     let mut points = fe::element_points(&mesh, kind, kappa_hg, modulus)
         .map_err(|e| name_file_element(e, input.as_ref()))?;
     let places = regions::Places {
@@ -405,6 +414,7 @@ fn prepare_fe(scene: &Scene) -> Result<Prepared> {
         })
         .collect::<Result<Vec<_>>>()?;
     let min_dihedral = quality::min_dihedral_angle(&mesh);
+    log::info!("masses, boundaries, loads");
     let mut model = Model::with_materials(
         mesh.nodes.clone(),
         points,

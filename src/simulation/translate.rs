@@ -45,7 +45,14 @@ pub fn build_mesh(scene: &Scene) -> Result<Mesh> {
         if shape != ElementShape::Tet4 {
             return Err(Error::Input("discretization.mesher = 'tetgen' makes tetrahedra: use element = 'tet4' or 'tet4-anp'".into()));
         }
-        return tetgen_mesh(scene);
+        log::info!("meshing with TetGen");
+        let m = tetgen_mesh(scene)?;
+        log::info!(
+            "TetGen mesh: {} nodes, {} tets",
+            m.nodes.len(),
+            m.num_cells()
+        );
+        return Ok(m);
     }
     match &scene.geometry {
         Geometry::Box { min, max } => {

@@ -598,8 +598,13 @@ fn run_on_worker<M: Material>(
     let start = Instant::now();
     // Time spent handing frames to the sink (writing files), left out of solve_seconds.
     let mut sink_seconds = 0.0;
+    log::info!(
+        "critical step estimate ({})",
+        format!("{:?}", s.step_estimate).to_lowercase()
+    );
     let (dt_crit, critical) = critical_step(model, s.step_estimate);
     check_critical_step(model, dt_crit)?;
+    log::info!("critical step {dt_crit:.4e} s; time loop");
     let retries = if s.mode == Mode::Relaxation {
         s.retries
     } else {
