@@ -148,47 +148,58 @@ fn unknown_key_names_it_and_suggests_the_closest() {
 #[test]
 fn override_errors_name_the_key_path() {
     // A --set value of the wrong shape has no source line to point at: the key path says where.
-    let e = parse_err(&cube_text(), &["solver.dt_factor=\"fast\""]);
-    assert!(
-        e.contains("after --set overrides: solver.dt_factor: invalid type"),
-        "{e}"
-    );
-    let e = parse_err(&cube_text(), &["solver.duration=1e400"]);
-    assert!(
-        e.contains("--set solver.duration=1e400: 1e400 is not a finite number"),
-        "{e}"
-    );
-    // A key taking a name given a number: the names it takes (serde said "unit variant").
-    let e = parse_err(&cube_text(), &["discretization.support=8"]);
-    assert!(
-        e.contains("discretization.support: expected a name in quotes, `radius` or `nearest`"),
-        "{e}"
-    );
-    let e = parse_err(
-        &cube_text().replace("mode = \"relaxation\"", "mode = 1"),
-        &[],
-    );
-    assert!(
-        e.contains("line")
-            && e.contains("solver.mode: expected a name in quotes, `dynamic` or `relaxation`"),
-        "{e}"
-    );
-    let e = parse_err(&cube_text(), &["solver=3"]);
-    assert!(
-        e.contains("solver: invalid type: integer `3`, expected a table") && !e.contains("Spec"),
-        "{e}"
-    );
-    let e = parse_err(&cube_text(), &["discretization.divisions=[1,2,3,4]"]);
-    assert!(
-        e.contains("discretization.divisions: invalid length 4"),
-        "{e}"
-    );
-    let e = parse_err(&cube_text(), &["discretization.method=\"meshles\""]);
-    assert!(
-        e.contains("discretization.method: unknown variant `meshles`")
-            && e.contains("did you mean `meshless`"),
-        "{e}"
-    );
+    // A key taking a name given a number lists the names (serde said "unit variant"), in the
+    // file as through --set.
+    let in_file = cube_text().replace("mode = \"relaxation\"", "mode = 1");
+    for (text, set, wants) in [
+        (
+            None,
+            "solver.dt_factor=\"fast\"",
+            &["after --set overrides: solver.dt_factor: invalid type"][..],
+        ),
+        (
+            None,
+            "solver.duration=1e400",
+            &["--set solver.duration=1e400: 1e400 is not a finite number"],
+        ),
+        (
+            None,
+            "discretization.support=8",
+            &["discretization.support: expected a name in quotes, `radius` or `nearest`"],
+        ),
+        (
+            Some(&in_file),
+            "",
+            &[
+                "line",
+                "solver.mode: expected a name in quotes, `dynamic` or `relaxation`",
+            ],
+        ),
+        (
+            None,
+            "solver=3",
+            &["solver: invalid type: integer `3`, expected a table"],
+        ),
+        (
+            None,
+            "discretization.divisions=[1,2,3,4]",
+            &["discretization.divisions: invalid length 4"],
+        ),
+        (
+            None,
+            "discretization.method=\"meshles\"",
+            &[
+                "discretization.method: unknown variant `meshles`",
+                "did you mean `meshless`",
+            ],
+        ),
+    ] {
+        let sets: Vec<&str> = [set].into_iter().filter(|s| !s.is_empty()).collect();
+        let e = parse_err(text.map_or(&cube_text(), |t| t), &sets);
+        for w in wants {
+            assert!(e.contains(w) && !e.contains("Spec"), "{set}: {e}");
+        }
+    }
 }
 
 #[test]

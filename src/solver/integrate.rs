@@ -329,6 +329,16 @@ pub fn check_critical_step<M: Material>(model: &Model<M>, dt: f64) -> Result<()>
     )))
 }
 
+/// The fastest dilatational wave speed of the model's materials, m/s.
+fn fastest_wave<M: Material>(model: &Model<M>) -> f64 {
+    model
+        .forces
+        .materials
+        .iter()
+        .map(|m| m.wave_speed())
+        .fold(0.0, f64::max)
+}
+
 /// Refuses a rigid body that starts deeper inside the body than half the distance the fastest
 /// wave crosses in a step of `dt` (s). The first correction pushes the surface out in one
 /// step; deeper than that it reads as divergence at step 0 on every restart (the brain
@@ -342,12 +352,7 @@ pub fn check_contact_start<M: Material>(model: &Model<M>, dt: f64) -> Result<()>
     else {
         return Ok(());
     };
-    let c = model
-        .forces
-        .materials
-        .iter()
-        .map(|m| m.wave_speed())
-        .fold(0.0, f64::max);
+    let c = fastest_wave(model);
     if depth > 0.5 * c * dt {
         return Err(Error::Input(format!(
             "contact '{name}' starts {depth:.3e} m inside the body (surface point at ({:.4e}, {:.4e}, {:.4e}) m), \
@@ -732,12 +737,7 @@ fn attempt<M: Material>(
     let (dt_crit, critical) = critical;
     let n = model.nodes.len();
     // The fastest wave bounds how far a node may move in one step.
-    let c = model
-        .forces
-        .materials
-        .iter()
-        .map(|m| m.wave_speed())
-        .fold(0.0, f64::max);
+    let c = fastest_wave(model);
     let dynamic = s.mode == Mode::Dynamic;
     // Added to the instability messages: the global estimate has the smaller margin.
     let hint = if matches!(critical, Critical::Global(_)) {
