@@ -884,7 +884,9 @@ mod tests {
         assert!(tetgen_box(lo, hi, Some(-1.0), None).is_err());
         assert!(tetgen_box(lo, hi, Some(1e-20), None).is_err());
         assert!(tetgen_box(lo, hi, None, Some(0.5)).is_err());
-        let e = tetgen_box(lo, hi, None, Some(1.05)).unwrap_err().to_string();
+        let e = tetgen_box(lo, hi, None, Some(1.05))
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("must lie in [1.1, 1e6]"), "{e}");
         assert!(tetgen_cylinder(1.0, 1.0, 2, None, None).is_err());
         assert!(tetgen_cylinder(0.0, 1.0, 8, None, None).is_err());
