@@ -334,10 +334,10 @@ pub fn tetgen_half_ellipsoid(
 /// An element the snap leaves below this share of the volume TetGen gave it has the moves of
 /// its snapped nodes halved (again, up to [`SNAP_HALVINGS`] times). Coarse brain meshes
 /// (h = 7 and 8 mm) had an element inverted by the full move, and at 7.5 / 9 / 10 / 15 mm
-/// elements flattened to 1.01 / 0.69 / 1.13 / 1.48 deg dihedral angles (critical steps 4x
-/// shorter than their neighbours' sizes). With 0.5: 3 to 41 points move part of the way at
-/// h >= 7 mm, the smallest angle is 3.9-5.2 deg, and the meshes at h <= 6.5 mm are bitwise
-/// those of the full move (no element falls below half its volume there).
+/// elements flattened to 1.01 / 0.69 / 1.13 / 1.48 deg dihedral angles (critical steps 2.5 to
+/// 4.5x shorter than with this bound). With 0.5: 3 to 41 points move part of the way at
+/// h >= 7 mm, the smallest angle is 3.9-5.2 deg there, and the meshes at h <= 6.5 mm are
+/// bitwise those of the full move (no element falls below half its volume there).
 const SNAP_MIN_SHARE: f64 = 0.5;
 /// Halvings of a snapped node's move at most; after them the node stays where TetGen put it.
 const SNAP_HALVINGS: u32 = 12;
