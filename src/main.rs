@@ -217,8 +217,6 @@ fn main() -> ExitCode {
     }
 }
 
-/// Starts the global thread pool with `--threads n`: at least 1, at most the machine's cores
-/// (more would only add contention; a warning says so).
 /// Prints the preparation's stages (`log::info!` in the library) as progress lines on
 /// stderr, with the seconds since the command started: meshing, shape functions and the
 /// critical-step estimate take seconds to minutes on organ-scale scenes before the time
@@ -253,6 +251,8 @@ fn show_stages() {
     }
 }
 
+/// Starts the global thread pool with `--threads n`: at least 1, at most the machine's cores
+/// (more would only add contention; a warning says so).
 fn start_threads(threads: Option<usize>) -> hytled::Result<()> {
     let Some(n) = threads else { return Ok(()) };
     if n == 0 {

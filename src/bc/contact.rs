@@ -270,17 +270,15 @@ impl Contact {
         body.motion * body.curve.value(tau)
     }
 
-    /// The deepest point of the undeformed body inside a rigid body displaced to load fraction
-    /// `tau`: (depth m, body name, reference position m); None where none is inside.
-    pub fn deepest_at_rest(&self, tau: f64) -> Option<(f64, &str, Vector3<f64>)> {
-        let mut best: Option<(f64, &str, Vector3<f64>)> = None;
-        for (b, body) in self.bodies.iter().enumerate() {
-            let d = self.body_displacement(b, tau);
-            for p in &self.points[b] {
-                let depth = body.shape.signed_depth(&p.x, &d).0;
-                if depth > best.map_or(0.0, |x| x.0) {
-                    best = Some((depth, body.name.as_str(), p.x));
-                }
+    /// The deepest point of the undeformed body inside rigid body `b` displaced to load
+    /// fraction `tau`: (depth m, reference position m); None where none is inside.
+    pub fn deepest_at_rest(&self, b: usize, tau: f64) -> Option<(f64, Vector3<f64>)> {
+        let d = self.body_displacement(b, tau);
+        let mut best: Option<(f64, Vector3<f64>)> = None;
+        for p in &self.points[b] {
+            let depth = self.bodies[b].shape.signed_depth(&p.x, &d).0;
+            if depth > best.map_or(0.0, |x| x.0) {
+                best = Some((depth, p.x));
             }
         }
         best

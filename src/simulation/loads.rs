@@ -121,27 +121,20 @@ pub(super) fn scene_contact(
             motion: Vector3::from(c.motion),
             curve: load_curve(scene, &c.curve)?,
         };
-        let d0 = body.motion * body.curve.value(0.0);
-        let deepest = pts
-            .iter()
-            .map(|p| body.shape.signed_depth(&p.x, &d0).0)
-            .fold(0.0f64, f64::max);
-        if deepest > tolerance {
-            warnings.push(format!(
-                "{what} starts {deepest:.3e} m inside the body's surface; the first correction pushes \
-                 the surface out in one step (deeper than half the distance a wave crosses in a step is \
-                 refused; move the rigid body or its curve's start)"
-            ));
-        }
         bodies.push(body);
         points.push(pts);
     }
-    Ok(Some(Contact::new(
-        bodies,
-        points,
-        d.nodes().len(),
-        tolerance,
-    )?))
+    let contact = Contact::new(bodies, points, d.nodes().len(), tolerance)?;
+    for (b, name) in contact.names().enumerate() {
+        if let Some((deepest, _)) = contact.deepest_at_rest(b, 0.0).filter(|x| x.0 > tolerance) {
+            warnings.push(format!(
+                "contact '{name}' starts {deepest:.3e} m inside the body's surface; the first correction \
+                 pushes the surface out in one step (deeper than half the distance a wave crosses in a \
+                 step is refused; move the rigid body or its curve's start)"
+            ));
+        }
+    }
+    Ok(Some(contact))
 }
 
 /// Penetration a contact correction may leave, as a fraction of the body's bounding-box

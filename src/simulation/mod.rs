@@ -247,8 +247,7 @@ fn initial_velocity_warning(scene: &Scene, p: &Prepared) -> Option<String> {
         for &n in &b.nodes {
             let v0 = v + w.cross(&(p.model.nodes[n] - c));
             for k in 0..3 {
-                let held = b.components[k].is_some() || b.node_values.is_some();
-                if held && v0[k].abs() > worst.map_or(0.0, |x| x.0) {
+                if b.components[k].is_some() && v0[k].abs() > worst.map_or(0.0, |x| x.0) {
                     worst = Some((v0[k].abs(), b.name.as_str()));
                 }
             }

@@ -345,16 +345,13 @@ fn fastest_wave<M: Material>(model: &Model<M>) -> f64 {
 /// indentation 1 mm in: "diverged at step 0", three times). Measured there (c dt =
 /// 3.7e-4 m): 2e-4 m in converges, 3e-4 m diverges at step 22.
 pub fn check_contact_start<M: Material>(model: &Model<M>, dt: f64) -> Result<()> {
-    let Some((depth, name, x)) = model
-        .contact
-        .as_ref()
-        .and_then(|ct| ct.deepest_at_rest(0.0))
-    else {
+    let Some(ct) = model.contact.as_ref() else {
         return Ok(());
     };
     let c = fastest_wave(model);
-    if depth > 0.5 * c * dt {
-        return Err(Error::Input(format!(
+    for (b, name) in ct.names().enumerate() {
+        if let Some((depth, x)) = ct.deepest_at_rest(b, 0.0).filter(|d| d.0 > 0.5 * c * dt) {
+            return Err(Error::Input(format!(
             "contact '{name}' starts {depth:.3e} m inside the body (surface point at ({:.4e}, {:.4e}, {:.4e}) m), \
              deeper than the {:.3e} m a wave crosses in half a step, so the first correction cannot push the \
              surface out without tearing it: start the rigid body outside or touching the body (move it by at \
@@ -364,6 +361,7 @@ pub fn check_contact_start<M: Material>(model: &Model<M>, dt: f64) -> Result<()>
             x.z,
             0.5 * c * dt
         )));
+        }
     }
     Ok(())
 }
@@ -1325,11 +1323,9 @@ fn attempt<M: Material>(
             // far) is not diverging: judge the step's change without its rigid part, and the
             // size by the deformed body's extent. Only here, so normal steps pay nothing.
             let (change, extent) = deformation_change(&model.mass, &model.nodes, &u, &u_next);
+            max_du = change;
             if change <= max_rate && extent <= 10.0 * size {
-                max_du = change;
                 max_u = 0.0;
-            } else {
-                max_du = change;
             }
         }
         if !max_u.is_finite() || !max_du.is_finite() || max_u > 10.0 * size || max_du > max_rate {
@@ -1535,8 +1531,6 @@ fn estimated_at(estimates: usize, step: usize) -> String {
     }
 }
 
-/// max that propagates NaN (f64::max drops it), so divergence cannot hide.
-#[inline]
 /// The largest component of one step's displacement change `u_next - u` (m) left after
 /// removing its mass-weighted best-fit rigid motion (translation a and small rotation theta
 /// about the centre of mass of the current positions: I theta = sum m r x (du - a)), and the
@@ -1581,6 +1575,8 @@ fn deformation_change(
     (change, (hi - lo).norm())
 }
 
+/// max that propagates NaN (f64::max drops it), so divergence cannot hide.
+#[inline]
 fn nan_max(a: f64, b: f64) -> f64 {
     if a.is_nan() || b.is_nan() {
         f64::NAN
