@@ -1,0 +1,605 @@
+//! Time loops: explicit central differences (dynamics) and adaptive dynamic relaxation
+//! (Joldes, Wittek & Miller 2011) written as one update
+//! u(n+1) = A M^-1 (F_ext - F_int) + B u(n) + C u(n-1), with displacement conditions enforced
+//! at the end of each step.
+
+mod attempt;
+mod energy;
+mod record;
+mod relaxation;
+mod schedule;
+
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Instant;
+
+use nalgebra::Vector3;
+use serde::{Deserialize, Serialize};
+
+use super::timestep::critical_time_step;
+use super::Model;
+use crate::material::Material;
+use crate::{Error, Result};
+use attempt::{attempt, Clock};
+pub use schedule::UPDATE_ALLOWANCE;
+
+/// Which problem the loop solves.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum Mode {
+    /// Explicit dynamics over `duration` seconds.
+    #[default]
+    Dynamic,
+    /// Steady state by adaptive dynamic relaxation.
+    Relaxation,
+}
+
+/// How the critical step is estimated (see [`critical_step`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum StepEstimate {
+    /// The per-point and nodal bounds (safe upper bounds on the largest frequency of the
+    /// reference stiffness; 1.3-2.5x conservative, most where supports are large).
+    Bounds,
+    /// Lanczos on the reference stiffness ([`super::spectrum`]), never below the bounds' step.
+    #[default]
+    Global,
+}
+
+/// Integrator settings. Times in s, displacements in m.
+#[derive(Debug, Clone)]
+pub struct Settings {
+    pub mode: Mode,
+    /// Dynamic: simulated time T, s.
+    pub duration: f64,
+    /// Dynamic: time over which load curves run from 0 to 1, s.
+    pub load_time: f64,
+    /// Relaxation: pseudo-steps over which load curves run from 0 to 1 (None: the larger of
+    /// 400 and the shear-wave crossing time of the body in steps, see [`auto_load_steps`]).
+    pub load_steps: Option<usize>,
+    /// dt = dt_factor x the critical step estimate.
+    pub dt_factor: f64,
+    /// How the critical step is estimated.
+    pub step_estimate: StepEstimate,
+    /// Mass-proportional damping coefficient (dynamic), 1/s.
+    pub damping: f64,
+    /// Relaxation: stop when the estimated displacement error stays below this for 100 steps, m.
+    pub tolerance: f64,
+    /// Relaxation: give up after this many steps (reported as not converged).
+    pub max_steps: usize,
+    /// Relaxation: steps between estimates of the lowest frequency.
+    pub estimate_interval: usize,
+    /// Relaxation: after an instability (divergence or an inverted point), start again from
+    /// the unloaded state with dt_factor x [`RETRY_FACTOR`], at most this many times. The
+    /// steady state does not depend on the pseudo-time step, and the reference stiffness
+    /// behind the critical step does not see how deformation raises the frequencies.
+    /// Dynamic runs stop at the first instability (their answer is the path).
+    pub retries: usize,
+    /// Estimate the critical step again at the deformed state during the run (Lanczos on the
+    /// tangent stiffness, [`super::spectrum::Lanczos`]) and shorten the step where deformation
+    /// has raised the frequencies, as ABAQUS/Explicit updates its stable increment: dynamic
+    /// runs from the start, relaxation in the attempts after a restart. See [`StepUpdates`].
+    pub step_update: bool,
+    /// Rows wanted in the time history (dynamic); relaxation records every `estimate_interval` steps.
+    pub history_rows: usize,
+    /// Output frames wanted (dynamic: equally spaced in time; relaxation: start and end).
+    pub frames: usize,
+    pub progress: bool,
+    /// Print a plain progress line to stderr about every this many seconds.
+    pub progress_lines: Option<f64>,
+    /// Dynamic: initial nodal velocities, m/s (default: at rest).
+    pub initial_velocity: Option<Vec<Vector3<f64>>>,
+    /// Dynamic: a rigid initial motion (velocity m/s, angular velocity rad/s, centre m), used
+    /// when `initial_velocity` is not given.
+    pub initial_motion: Option<[Vector3<f64>; 3]>,
+}
+
+impl Default for Settings {
+    fn default() -> Self {
+        Settings {
+            mode: Mode::Dynamic,
+            duration: 3.0,
+            load_time: 3.0,
+            load_steps: None,
+            dt_factor: 0.9,
+            step_estimate: StepEstimate::Global,
+            damping: 0.0,
+            tolerance: 1e-7,
+            max_steps: 1_000_000,
+            estimate_interval: 50,
+            retries: DEFAULT_RETRIES,
+            step_update: true,
+            history_rows: 200,
+            frames: 10,
+            progress: false,
+            progress_lines: None,
+            initial_velocity: None,
+            initial_motion: None,
+        }
+    }
+}
+
+/// One row of the time history.
+#[derive(Debug, Clone, Serialize)]
+pub struct HistoryRow {
+    pub step: usize,
+    /// Simulated (dynamic) or pseudo (relaxation) time, s.
+    pub time: f64,
+    /// Reaction of each boundary, N.
+    pub reactions: Vec<[f64; 3]>,
+    /// Work of the boundary forces, J.
+    pub external_work: f64,
+    pub strain_energy: f64,
+    pub kinetic_energy: f64,
+}
+
+/// One record of the dynamic-relaxation parameters.
+#[derive(Debug, Clone, Serialize)]
+pub struct RelaxationRecord {
+    pub step: usize,
+    /// Estimated lowest circular frequency, rad/s.
+    pub omega_min: f64,
+    /// Convergence rate in use.
+    pub r: f64,
+    /// Whether this estimate was accepted (agreed with the previous one).
+    pub accepted: bool,
+    /// Estimated distance to the converged solution, m.
+    pub error_estimate: f64,
+}
+
+/// What a run produces.
+#[derive(Debug, Clone)]
+pub struct RunOutput {
+    pub u: Vec<Vector3<f64>>,
+    /// Displacements one step before the end (velocity = (u - u_prev) / dt), m.
+    pub u_prev: Vec<Vector3<f64>>,
+    pub f_int: Vec<Vector3<f64>>,
+    /// The last step taken, s (shorter than the first after step updates; see `step_updates`).
+    pub dt: f64,
+    /// The critical step estimated at the reference state, s.
+    pub dt_critical: f64,
+    /// What sets the critical step.
+    pub critical: Critical,
+    pub steps: usize,
+    /// Relaxation: the pseudo-steps the load took (None for dynamic runs).
+    pub load_steps: Option<usize>,
+    pub simulated_time: f64,
+    pub converged: bool,
+    pub history: Vec<HistoryRow>,
+    pub relaxation: Vec<RelaxationRecord>,
+    /// (time, displacement) snapshots for output frames.
+    pub frames: Vec<(f64, Vec<Vector3<f64>>)>,
+    pub external_work: f64,
+    /// Largest |external work| reached during the run, J (the scale of the energy balance when
+    /// a load comes back, when the final work is near zero).
+    pub peak_external_work: f64,
+    /// Kinetic energy at the start (initial velocities), J.
+    pub initial_kinetic: f64,
+    /// Work done against the mass-proportional damping ([`Settings::damping`]) in a dynamic
+    /// run, J: sum over steps and free DOFs of c m v(n) . (u(n+1) - u(n-1)) / 2 with the
+    /// central-difference velocity v(n) = (u(n+1) - u(n-1)) / (h(n) + h(n-1)), the force the
+    /// update applies; zero without damping.
+    pub damping_dissipation: f64,
+    /// Linear (kg m/s) and angular (kg m^2/s, about the origin) momentum at the first and the
+    /// last step, from the central-difference velocities.
+    pub momentum: Momentum,
+    pub strain_energy: f64,
+    pub kinetic_energy: f64,
+    /// Wall time of the estimate and every attempt, frames' writing left out, s.
+    pub solve_seconds: f64,
+    /// Relaxation: one note per restart after an instability (see [`Settings::retries`]).
+    pub restarts: Vec<String>,
+    /// Relaxation: steps taken by the attempts that a restart abandoned (their time is in
+    /// `solve_seconds`).
+    pub failed_steps: usize,
+    /// The estimates of the critical step at the deformed state and what they did.
+    pub step_updates: StepUpdates,
+}
+
+/// Estimates of the critical step during a run ([`Settings::step_update`]).
+#[derive(Debug, Clone, Copy, Default, Serialize, Deserialize, PartialEq)]
+pub struct StepUpdates {
+    /// Estimates made at the deformed state.
+    pub estimates: usize,
+    /// Lanczos iterations (force evaluations) they took.
+    pub iterations: usize,
+    /// Times the step was shortened.
+    pub reductions: usize,
+    /// The step the run started with, s.
+    pub dt_initial: f64,
+    /// The shortest step taken, s.
+    pub dt_min: f64,
+    /// Simulated time of the last reduction, s.
+    pub last_reduction_time: f64,
+}
+
+/// Momentum of the nodal masses at the start and the end of a run.
+#[derive(Debug, Clone, Copy, Default, Serialize, Deserialize)]
+pub struct Momentum {
+    pub linear_start: [f64; 3],
+    pub linear_end: [f64; 3],
+    pub angular_start: [f64; 3],
+    pub angular_end: [f64; 3],
+}
+
+impl Momentum {
+    /// |L_end - L_start| / |L_start| (None when the body starts without angular momentum).
+    pub fn angular_drift(&self) -> Option<f64> {
+        let (a, b) = (
+            Vector3::from(self.angular_start),
+            Vector3::from(self.angular_end),
+        );
+        (a.norm() > 0.0).then(|| (b - a).norm() / a.norm())
+    }
+}
+
+/// The bound that sets the critical step (see [`super::timestep`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Critical {
+    /// The per-point bound, at this quadrature point.
+    Point(usize),
+    /// The nodal bound, at this node.
+    Node(usize),
+    /// The global (Lanczos) estimate, after this many iterations.
+    Global(usize),
+}
+
+impl std::fmt::Display for Critical {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Critical::Point(p) => write!(f, "point {p}"),
+            Critical::Node(n) => write!(f, "node {n}"),
+            Critical::Global(k) => write!(f, "the global estimate, {k} Lanczos iterations"),
+        }
+    }
+}
+
+/// Critical step of the model, s, and what sets it: both the per-point and the nodal bound
+/// hold for the reference stiffness, so the larger step (the tighter bound) is taken. The nodal
+/// bound is much tighter where supports are large (meshless about 1.5x, blended points 2-2.4x).
+pub fn stable_step<M: Material>(model: &Model<M>) -> (f64, Critical) {
+    let moduli = |p: usize| model.point_moduli(p);
+    if all_anp(model) {
+        // Average nodal pressure: the bound that sees the averaging (timestep::anp_time_step).
+        let (dt, node) = super::timestep::anp_time_step(
+            &model.points,
+            &model.slots,
+            &model.mass,
+            &model.constraints.mask,
+            &moduli,
+            model.forces.point_materials(),
+        );
+        return (dt, Critical::Node(node));
+    }
+    let (dt_point, crit_point) = critical_time_step(&model.points, &moduli);
+    let (dt_node, crit_node) = super::timestep::nodal_time_step(
+        &model.points,
+        &model.slots,
+        &model.mass,
+        &model.constraints.mask,
+        &moduli,
+    );
+    if dt_node > dt_point {
+        (dt_node, Critical::Node(crit_node))
+    } else {
+        (
+            dt_point,
+            Critical::Point(model.point_ids[crit_point] as usize),
+        )
+    }
+}
+
+/// Refuses a critical step `dt` (s) that is not finite and positive, saying why: most often
+/// every degree of freedom is prescribed (a mesh one element across between two constrained
+/// faces), which leaves no frequency to bound the step and nothing to solve.
+pub fn check_critical_step<M: Material>(model: &Model<M>, dt: f64) -> Result<()> {
+    if dt.is_finite() && dt > 0.0 {
+        return Ok(());
+    }
+    if model.constraints.mask.iter().flatten().all(|&c| c) {
+        let names: Vec<&str> = model.boundaries.iter().map(|b| b.name.as_str()).collect();
+        return Err(Error::Input(format!(
+            "every degree of freedom of the {} nodes is prescribed by the boundaries ({}): no node is free to move, \
+             so there is nothing to solve; refine the discretization (divisions, size) so that nodes lie between \
+             the constrained ones, or constrain fewer components",
+            model.nodes.len(),
+            names.join(", ")
+        )));
+    }
+    Err(Error::Input(format!(
+        "the critical time step estimate is {dt} s; the discretization has no usable points"
+    )))
+}
+
+/// The fastest dilatational wave speed of the model's materials, m/s.
+fn fastest_wave<M: Material>(model: &Model<M>) -> f64 {
+    model
+        .forces
+        .materials
+        .iter()
+        .map(|m| m.wave_speed())
+        .fold(0.0, f64::max)
+}
+
+/// Refuses a rigid body that starts deeper inside the body than half the distance the fastest
+/// wave crosses in a step of `dt` (s). The first correction pushes the surface out in one
+/// step; deeper than that it reads as divergence at step 0 on every restart (the brain
+/// indentation 1 mm in: "diverged at step 0", three times). Measured there (c dt =
+/// 3.7e-4 m): 2e-4 m in converges, 3e-4 m diverges at step 22.
+pub fn check_contact_start<M: Material>(model: &Model<M>, dt: f64) -> Result<()> {
+    let Some(ct) = model.contact.as_ref() else {
+        return Ok(());
+    };
+    let c = fastest_wave(model);
+    for (b, name) in ct.names().enumerate() {
+        if let Some((depth, x)) = ct.deepest_at_rest(b, 0.0).filter(|d| d.0 > 0.5 * c * dt) {
+            return Err(Error::Input(format!(
+            "contact '{name}' starts {depth:.3e} m inside the body (surface point at ({:.4e}, {:.4e}, {:.4e}) m), \
+             deeper than the {:.3e} m a wave crosses in half a step, so the first correction cannot push the \
+             surface out without tearing it: start the rigid body outside or touching the body (move it by at \
+             least {depth:.3e} m)",
+            x.x,
+            x.y,
+            x.z,
+            0.5 * c * dt
+        )));
+        }
+    }
+    Ok(())
+}
+
+/// Each relaxation restart after an instability multiplies dt_factor by this.
+pub const RETRY_FACTOR: f64 = 0.75;
+/// A restart that fails within this fraction of where the previous attempt failed ends the
+/// restarts. Where is the step over the load steps: the load's share while it grows, and past
+/// 1 the pseudo-time after it in units of the loading (the default load steps scale with
+/// 1 / dt, so an instability of the equilibrium path, which grows in pseudo-time whatever the
+/// step, fails at the same place). Failures within the first [`MIN_LOAD`] of the load are all
+/// near zero load whatever their cause, so they do not count.
+const SAME_LOAD: f64 = 0.03;
+const MIN_LOAD: f64 = 0.05;
+/// Relaxation restarts at most (`solver.retries`): 0.9 -> 0.675 -> 0.506 x the critical step.
+pub const DEFAULT_RETRIES: usize = 2;
+
+/// Lanczos iterations at most for the global estimate, and its stopping tolerance on the
+/// Ritz residual (relative).
+const LANCZOS_ITERATIONS: usize = 60;
+const LANCZOS_TOLERANCE: f64 = 1e-3;
+/// The global estimate's step is this fraction of 2 / omega_max(K_0): the reference
+/// stiffness does not see how deformation raises the frequencies. Measured on the 4,208-node
+/// Gmsh cylinder, tet4-anp, 20 % extension (relaxation): stable at 0.79 and divergent at 0.83
+/// x the reference critical step; compression and the meshless and coupled runs tolerate more.
+pub const DEFORMATION_ALLOWANCE: f64 = 0.8;
+
+/// Every point of the model is an average-nodal-pressure tet.
+fn all_anp<M: Material>(model: &Model<M>) -> bool {
+    !model.points.is_empty()
+        && model
+            .points
+            .kinds
+            .iter()
+            .all(|&k| k == crate::quadrature::PointKind::Anp)
+}
+
+/// Critical step of the model, s, and what sets it. [`StepEstimate::Bounds`]: [`stable_step`].
+/// Models of tet4-anp elements only keep their own bound ([`super::timestep::anp_time_step`])
+/// under either setting: their critical step falls faster with deformation than the
+/// allowance covers (4,208-node Gmsh cylinder, 20 % extension: divergent at 0.83 x the
+/// reference critical step; 8,743 nodes: divergent at 0.72 x), and the bound, 0.72 x the
+/// global estimate there, ran every case of the tet study.
+/// [`StepEstimate::Global`]: [`DEFORMATION_ALLOWANCE`] x 2 / sqrt(lambda) with lambda the Lanczos estimate of the largest
+/// eigenvalue of M^-1 K_0 on the free DOFs, rounded up by its residual
+/// ([`super::spectrum::largest_eigenvalue`]); the bounds' step where that is longer (the
+/// bounds are safe, so a shorter global step would be a failed estimate). Costs up to 60
+/// force evaluations.
+pub fn critical_step<M: Material>(model: &mut Model<M>, how: StepEstimate) -> (f64, Critical) {
+    let bounds = stable_step(model);
+    if how == StepEstimate::Bounds || all_anp(model) {
+        return bounds;
+    }
+    match super::spectrum::largest_eigenvalue(model, LANCZOS_ITERATIONS, LANCZOS_TOLERANCE) {
+        Some(e) if DEFORMATION_ALLOWANCE * e.critical_step() > bounds.0 => (
+            DEFORMATION_ALLOWANCE * e.critical_step(),
+            Critical::Global(e.iterations),
+        ),
+        _ => bounds,
+    }
+}
+
+/// Default relaxation load steps: the larger of 400 and the number of steps of length `dt` (s)
+/// a shear wave (speed sqrt(mu / rho)) takes to cross the body's largest extent `length` (m).
+/// Relaxation follows a fictitious dynamic path; loading it faster than the body can shear
+/// drives shear shocks that tear near-incompressible meshes (measured: the cylinder at
+/// nu = 0.4999 with 4,389-node tet4-anp diverged in 207 steps with 400 load steps and converged
+/// with 2,000).
+pub fn auto_load_steps(length: f64, mu: f64, density: f64, dt: f64) -> usize {
+    let crossing = length / (mu / density).sqrt() / dt;
+    if crossing.is_finite() {
+        crossing.ceil().clamp(400.0, 1e7) as usize
+    } else {
+        400
+    }
+}
+
+/// Runs the model to the end of the dynamic interval or to relaxation convergence.
+/// Fails with a clear message when the solution diverges or a point inverts.
+///
+/// The loop runs on a worker of the current rayon pool (the global one when called from
+/// outside a pool): its parallel loops then fork through the worker's own queue, which
+/// allocates nothing, instead of injecting jobs from outside, which allocates a queue block
+/// every 63 jobs. The time loop allocates only when it records: a history row (a fixed number
+/// per dynamic run) and, in relaxation, a frequency estimate every `estimate_interval` steps;
+/// the steps between allocate nothing (tests/allocation.rs).
+pub fn run<M: Material>(model: &mut Model<M>, s: &Settings) -> Result<RunOutput> {
+    run_on_pool(model, s, None)
+}
+
+/// Receives each output frame as the run produces it: the model (for stresses), the time (s)
+/// and the displacements (m). An error from it stops the run.
+pub type FrameSink<'a, M> =
+    dyn FnMut(&mut Model<M>, f64, &[Vector3<f64>]) -> Result<()> + Send + 'a;
+
+/// [`run`], handing each output frame to `sink` when it is produced instead of keeping it
+/// (`RunOutput::frames` is then empty): long runs hold no frames in memory, and a run that
+/// fails has already delivered the frames up to the failure. The time spent in `sink` is not
+/// counted in `solve_seconds`.
+pub fn run_streaming<M: Material>(
+    model: &mut Model<M>,
+    s: &Settings,
+    sink: &mut FrameSink<'_, M>,
+) -> Result<RunOutput> {
+    run_on_pool(model, s, Some(sink))
+}
+
+fn run_on_pool<M: Material>(
+    model: &mut Model<M>,
+    s: &Settings,
+    sink: Option<&mut FrameSink<'_, M>>,
+) -> Result<RunOutput> {
+    if rayon::current_thread_index().is_some() {
+        run_on_worker(model, s, sink)
+    } else {
+        rayon::scope(|_| run_on_worker(model, s, sink))
+    }
+}
+
+fn run_on_worker<M: Material>(
+    model: &mut Model<M>,
+    s: &Settings,
+    mut sink: Option<&mut FrameSink<'_, M>>,
+) -> Result<RunOutput> {
+    let start = Instant::now();
+    // Time spent handing frames to the sink (writing files), left out of solve_seconds.
+    let mut sink_seconds = 0.0;
+    log::info!(
+        "critical step estimate ({})",
+        format!("{:?}", s.step_estimate).to_lowercase()
+    );
+    let (dt_crit, critical) = critical_step(model, s.step_estimate);
+    check_critical_step(model, dt_crit)?;
+    log::info!("critical step {dt_crit:.4e} s; time loop");
+    let retries = if s.mode == Mode::Relaxation {
+        s.retries
+    } else {
+        0
+    };
+    let mut factor = s.dt_factor;
+    let mut restarts: Vec<String> = Vec::new();
+    let mut failed_steps = 0;
+    // Load fraction at each failure: a shorter step that fails at the same load points to
+    // the load, the mesh or the material, not the step.
+    let mut failed_at: Vec<f64> = Vec::new();
+    loop {
+        let mut reached = (0, 0.0);
+        let clock = Clock {
+            start,
+            sink_seconds: &mut sink_seconds,
+            reached: &mut reached,
+        };
+        let attempt = attempt(
+            model,
+            s,
+            (dt_crit, critical),
+            factor,
+            clock,
+            sink.as_deref_mut(),
+            !restarts.is_empty(),
+        );
+        match attempt {
+            Ok(mut out) => {
+                out.restarts = restarts;
+                out.failed_steps = failed_steps;
+                return Ok(out);
+            }
+            Err(Error::Unstable(msg)) => {
+                let (steps, load) = reached;
+                let same_load = failed_at
+                    .last()
+                    .is_some_and(|&l| l >= MIN_LOAD && (l - load).abs() <= SAME_LOAD * l);
+                failed_at.push(load);
+                if restarts.len() >= retries || same_load {
+                    if restarts.is_empty() {
+                        return Err(Error::Unstable(msg));
+                    }
+                    let loads: Vec<String> = failed_at
+                        .iter()
+                        .map(|&l| {
+                            if l <= 1.0 {
+                                format!("{:.1} % of the load", 100.0 * l)
+                            } else {
+                                format!("{l:.3} x the load steps")
+                            }
+                        })
+                        .collect();
+                    let why = if same_load {
+                        "; failing at the same point of the load path with a shorter step points \
+                         to the load, the mesh or the material rather than the step, so no further \
+                         restart"
+                    } else {
+                        "; raise solver.retries or start from a smaller solver.dt_factor"
+                    };
+                    return Err(Error::Unstable(format!(
+                        "{msg} [after {} restart(s) with shorter steps, dt_factor {} -> {factor:.4}, \
+                         the attempts failing at {}{why}]",
+                        restarts.len(),
+                        s.dt_factor,
+                        loads.join(", ")
+                    )));
+                }
+                let next = factor * RETRY_FACTOR;
+                let how = if s.step_update {
+                    ", estimating the step again as the body deforms"
+                } else {
+                    ""
+                };
+                // Said as it happens where progress is shown; the summary's warnings keep it.
+                if s.progress || s.progress_lines.is_some() {
+                    eprintln!(
+                        "warning: relaxation unstable after {steps} steps at dt_factor {factor:.4}; \
+                         restarting from the unloaded state at {next:.4}{how} (restart {} of at most {retries})",
+                        restarts.len() + 1
+                    );
+                }
+                restarts.push(format!(
+                    "relaxation restarted from the unloaded state with solver.dt_factor = {next:.4}{how} \
+                     (restart {} of at most {retries}, solver.retries) after {steps} steps at \
+                     dt_factor = {factor:.4}: {msg}",
+                    restarts.len() + 1
+                ));
+                failed_steps += steps;
+                if let Some(c) = model.contact.as_mut() {
+                    c.reset_statistics();
+                }
+                factor = next;
+            }
+            Err(e) => return Err(e),
+        }
+    }
+}
+
+/// Runs `f` on this thread while, with more than one thread in the pool, another worker
+/// spins until it returns. A worker idle for a few tens of microseconds goes to sleep, and
+/// waking it costs about as much again on a virtual machine: serial parts of a step as long
+/// as the SEBCIEM solve (about 50 us on the meshless cylinder) otherwise made the next
+/// parallel loop wait for its second thread. [`super::Corrector::correct`] runs its serial
+/// parts through this.
+pub fn keep_warm<R: Send>(f: impl FnOnce() -> R + Send) -> R {
+    if rayon::current_num_threads() < 2 {
+        return f();
+    }
+    let done = AtomicBool::new(false);
+    let (r, ()) = rayon::join(
+        || {
+            let r = f();
+            done.store(true, Ordering::Release);
+            r
+        },
+        // Popped by this thread itself when no worker took it: `done` is then already set.
+        || {
+            while !done.load(Ordering::Acquire) {
+                std::hint::spin_loop();
+            }
+        },
+    );
+    r
+}
