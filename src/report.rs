@@ -270,7 +270,7 @@ pub struct Summary {
 /// energy through is counted (external and correction work, strain, kinetic, damping), so a
 /// larger gap is an instability that grew without tripping the divergence checks. Measured:
 /// completed runs of the studies stay below 0.1 % (80 % compression and back: 0.08 % at
-/// most), while fe hex8 at dt_factor 1.1 on the [4,2,8] cylinder (20 %, dynamic; the step
+/// most), while fe hex8 at dt_factor 1.1 on the \[4,2,8\] cylinder (20 %, dynamic; the step
 /// past the critical one once the compression raises the frequencies) ends 47 % off with a
 /// reaction 25 % too large.
 pub const ENERGY_WARNING: f64 = 0.01;

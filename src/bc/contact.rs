@@ -288,7 +288,7 @@ impl Contact {
     /// surface by correcting `u` (m), with masses `mass` (kg) and the update's force
     /// coefficient `a` (s^2). Components in `fixed` (prescribed DOFs) are not moved.
     ///
-    /// Projected Gauss-Seidel (over-relaxed by [`OMEGA`] where rows share nodes): each point's
+    /// Projected Gauss-Seidel (over-relaxed by `OMEGA` where rows share nodes): each point's
     /// multiplier lambda >= 0 changes by depth / (a
     /// sum_j phi_j^2 |n_free|^2 / m_j), clipped at zero, so a point that a neighbour's
     /// correction pushed too far gets its own push back; the first sweep visits every point,

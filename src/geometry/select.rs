@@ -28,7 +28,7 @@ pub type SetLookup<'a> = dyn Fn(&str) -> std::result::Result<Vec<Vector3<f64>>, 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase", deny_unknown_fields)]
 pub enum Selection {
-    /// Nodes with X[axis] = value within `tolerance` (default 1e-6 x the model's bounding-box diagonal).
+    /// Nodes with X\[axis\] = value within `tolerance` (default 1e-6 x the model's bounding-box diagonal).
     Plane {
         axis: Axis,
         value: f64,

@@ -299,7 +299,7 @@ fn zip_rings(u: &[usize], l: &[usize], tris: &mut Vec<[usize; 3]>) {
 /// (Steiner points on surface triangles and rim edges) are moved onto the curved surface
 /// afterwards: onto the base plane z = 0 exactly, and radially in the scaled coordinates
 /// (x/a, y/b, z/c) onto the ellipsoid, part of the way where the whole way would crush an
-/// element (see [`SNAP_MIN_SHARE`]). Every other surface vertex then lies on the base plane or
+/// element (below half its TetGen volume, `SNAP_MIN_SHARE`). Every other surface vertex then lies on the base plane or
 /// the ellipsoid. See the module documentation
 /// for `max_volume` (m^3) and `radius_edge_ratio`.
 pub fn tetgen_half_ellipsoid(

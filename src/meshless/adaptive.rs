@@ -271,7 +271,7 @@ fn refine<const D: usize>(
 /// # Errors
 /// A mesh that is not Tet4, a cell with a missing node or non-positive volume (named), bad
 /// settings (tolerance not positive and finite, subdivision not 2/4/8, max_level above
-/// [`MAX_LEVEL`]), or the first error of `f` in cell order.
+/// [`max_level_for`]), or the first error of `f` in cell order.
 pub fn adaptive_points<const D: usize>(
     mesh: &Mesh,
     s: &AdaptiveSettings,

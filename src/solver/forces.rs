@@ -1327,7 +1327,7 @@ impl<M: Material> Forces<M> {
     }
 
     /// Per point: Cauchy stress P F^T / J (Pa) of the stress the kernel uses (ANP:
-    /// [`Self::anp_stress`]; mean-dilatation points: [`Self::group_stresses`]), Green-Lagrange
+    /// the nodal-pressure stress `anp_stress`; mean-dilatation points: the group stress of `group_stresses`), Green-Lagrange
     /// strain E = (F^T F - I) / 2, von Mises stress (Pa) and J = det F, all of the point's own
     /// F.
     pub fn stress_fields(

@@ -175,8 +175,8 @@ impl<M: Material> Model<M> {
         })
     }
 
-    /// Sets the model's loads. Gravity takes the lumped masses as they are now, so call this
-    /// after [`Self::set_lumped_volumes`].
+    /// Sets the model's loads. Gravity takes the lumped masses the model was built
+    /// with (the points' volumes times their densities).
     pub fn set_loads(&mut self, loads: Vec<Load>) -> Result<()> {
         self.loads = Loads::new(loads, &self.mass)?;
         self.f_ext = if self.loads.is_empty() {

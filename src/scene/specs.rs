@@ -1,0 +1,462 @@
+//! The other tables of a scene: materials and regions, boundaries, loads, measured
+//! displacements, contact, curves, solver, probes, references, initial motion and output.
+
+use std::path::PathBuf;
+
+use serde::{Deserialize, Serialize};
+
+use crate::geometry::select::Selection;
+use crate::solver::Mode;
+
+/// `[material]`: neo-Hookean or one-term Ogden from (E, nu) or (mu, kappa), plus density.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MaterialSpec {
+    /// "neo-hookean" (default) or "ogden".
+    #[serde(default = "default_model")]
+    pub model: String,
+    /// Young's modulus E, Pa (small strain).
+    #[serde(default)]
+    pub youngs_modulus: Option<f64>,
+    /// Poisson's ratio nu (small strain).
+    #[serde(default)]
+    pub poisson_ratio: Option<f64>,
+    /// Shear modulus mu, Pa.
+    #[serde(default)]
+    pub shear_modulus: Option<f64>,
+    /// Bulk modulus kappa, Pa.
+    #[serde(default)]
+    pub bulk_modulus: Option<f64>,
+    /// Ogden exponent alpha (non-zero; -4.7 for brain, Miller and Chinzei 2002).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub alpha: Option<f64>,
+    /// Density, kg/m^3.
+    pub density: f64,
+}
+
+fn default_model() -> String {
+    "neo-hookean".into()
+}
+
+impl MaterialSpec {
+    /// (mu, kappa) in Pa from (E, nu) or (mu, kappa).
+    fn moduli(&self) -> (f64, f64) {
+        match (self.youngs_modulus, self.poisson_ratio) {
+            (Some(e), Some(nu)) => (e / (2.0 * (1.0 + nu)), e / (3.0 * (1.0 - 2.0 * nu))),
+            _ => (
+                self.shear_modulus.unwrap_or(0.0),
+                self.bulk_modulus.unwrap_or(0.0),
+            ),
+        }
+    }
+
+    /// The neo-Hookean material these keys describe: from (E, nu) or (mu, kappa).
+    pub fn neo_hookean(&self) -> crate::material::NeoHookean {
+        match (self.youngs_modulus, self.poisson_ratio) {
+            (Some(e), Some(nu)) => {
+                crate::material::NeoHookean::from_young_poisson(e, nu, self.density)
+            }
+            _ => {
+                let (mu, kappa) = self.moduli();
+                crate::material::NeoHookean {
+                    mu,
+                    kappa,
+                    density: self.density,
+                }
+            }
+        }
+    }
+
+    /// The material these keys describe.
+    pub fn solid(&self) -> crate::material::Solid {
+        use crate::material::{Ogden, Solid};
+        match self.model.as_str() {
+            "ogden" => {
+                let (mu, kappa) = self.moduli();
+                Solid::Ogden(Ogden {
+                    mu,
+                    alpha: self.alpha.unwrap_or(2.0),
+                    kappa,
+                    density: self.density,
+                })
+            }
+            _ => Solid::NeoHookean(self.neo_hookean()),
+        }
+    }
+
+    /// These keys with a region's given keys in their place. A region that gives E or nu
+    /// takes the other of the pair from here (likewise mu and kappa); giving both pairs is an
+    /// error the validation reports.
+    pub fn with(&self, r: &RegionSpec) -> MaterialSpec {
+        let mut m = self.clone();
+        if let Some(model) = &r.model {
+            m.model = model.clone();
+        }
+        let e_nu = r.youngs_modulus.is_some() || r.poisson_ratio.is_some();
+        let mu_kappa = r.shear_modulus.is_some() || r.bulk_modulus.is_some();
+        if e_nu {
+            m.youngs_modulus = r.youngs_modulus.or(self.youngs_modulus);
+            m.poisson_ratio = r.poisson_ratio.or(self.poisson_ratio);
+            if !mu_kappa {
+                (m.shear_modulus, m.bulk_modulus) = (None, None);
+            }
+        }
+        if mu_kappa {
+            m.shear_modulus = r.shear_modulus.or(self.shear_modulus);
+            m.bulk_modulus = r.bulk_modulus.or(self.bulk_modulus);
+            if !e_nu {
+                (m.youngs_modulus, m.poisson_ratio) = (None, None);
+            }
+        }
+        m.alpha = r.alpha.or(m.alpha);
+        m.density = r.density.unwrap_or(m.density);
+        m
+    }
+}
+
+/// `[regions.NAME]`: a tissue region with its own material. Points of the region (by
+/// `select`, a box, sphere or cylinder tested at the point, or `elements`, an element set of
+/// the mesh file) take `[material]` with the keys given here in place of its own.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RegionSpec {
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub select: Option<Selection>,
+    /// An element set of the mesh file.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub elements: Option<String>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub model: Option<String>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub youngs_modulus: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub poisson_ratio: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub shear_modulus: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub bulk_modulus: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub alpha: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub density: Option<f64>,
+}
+
+/// A displacement component name.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Component {
+    X,
+    Y,
+    Z,
+    All,
+}
+
+/// Prescribed final displacement per component, m.
+#[derive(Debug, Clone, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Displacement {
+    pub x: Option<f64>,
+    pub y: Option<f64>,
+    pub z: Option<f64>,
+}
+
+/// `[boundaries.NAME]`.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BoundarySpec {
+    pub select: Selection,
+    /// Components held at zero.
+    #[serde(default)]
+    pub fix: Vec<Component>,
+    /// Components driven to these values along `curve`.
+    #[serde(default)]
+    pub displacement: Option<Displacement>,
+    /// A built-in curve ("smooth", "ramp", "constant", "smooth-return") or the name of a
+    /// `[curves.NAME]` table.
+    #[serde(default = "default_curve")]
+    pub curve: String,
+}
+
+fn default_curve() -> String {
+    "smooth".into()
+}
+
+/// `[loads.NAME]`: one load, scaled by its curve. Exactly one of `gravity`, `force`,
+/// `traction` or `pressure`; the last three act on `select` (nodes for `force`, the boundary
+/// faces whose corners are all selected for `traction` and `pressure`).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LoadSpec {
+    /// Body force: the acceleration of gravity, m/s^2 (e.g. [0, 0, -9.81]); every node gets
+    /// its lumped mass times it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub gravity: Option<[f64; 3]>,
+    /// Force on each selected node, N.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub force: Option<[f64; 3]>,
+    /// Dead traction on the selected faces, Pa (force per reference area, fixed direction).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub traction: Option<[f64; 3]>,
+    /// Follower pressure on the selected faces, Pa, along the deformed inward normal
+    /// (positive pushes into the body).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub pressure: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub select: Option<Selection>,
+    /// As a boundary's `curve` (default "smooth").
+    #[serde(default = "default_curve")]
+    pub curve: String,
+}
+
+impl LoadSpec {
+    /// The load acts on faces (traction, pressure).
+    pub fn on_faces(&self) -> bool {
+        self.traction.is_some() || self.pressure.is_some()
+    }
+}
+
+/// `[measured.NAME]`: displacements measured on the surface (e.g. registered from
+/// intra-operative images), prescribed node by node along `curve`: `file` holds `x, y, z, ux,
+/// uy, uz` per line (each point taken by the nearest surface node within `tolerance`) or `id,
+/// ux, uy, uz` (node ids of the mesh file), in m. An essential boundary named NAME.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MeasuredSpec {
+    /// The file, relative to the scene file.
+    pub file: PathBuf,
+    /// Largest distance from a measured point to the surface node that takes it, m (default
+    /// 1e-3 x the body's bounding-box diagonal).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub tolerance: Option<f64>,
+    #[serde(default = "default_curve")]
+    pub curve: String,
+}
+
+/// `[contact.NAME]`: a rigid body moved by `motion` along `curve`, which the body's surface
+/// points touch without friction (the body stays outside it): `shape = "plane"` with `point`
+/// and `normal` (pointing to the body), `"sphere"` with `center` and `radius`, or
+/// `"cylinder"` with `center`, `axis`, `radius` and optional `min` / `max` (the extent along
+/// the axis from `center`, flat ends). `select` limits the surface points that may touch it.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ContactSpec {
+    pub shape: String,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub point: Option<[f64; 3]>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub normal: Option<[f64; 3]>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub center: Option<[f64; 3]>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub radius: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub axis: Option<[f64; 3]>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub min: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub max: Option<f64>,
+    /// The rigid body's displacement at the end of its curve, m.
+    #[serde(default)]
+    pub motion: [f64; 3],
+    #[serde(default = "default_curve")]
+    pub curve: String,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub select: Option<Selection>,
+}
+
+impl ContactSpec {
+    /// The rigid surface these keys describe (validated: every key its shape needs is there).
+    pub fn rigid_shape(&self) -> crate::bc::contact::RigidShape {
+        use crate::bc::contact::RigidShape;
+        let v = |a: Option<[f64; 3]>| nalgebra::Vector3::from(a.unwrap_or_default());
+        match self.shape.as_str() {
+            "plane" => RigidShape::Plane {
+                point: v(self.point),
+                normal: v(self.normal).normalize(),
+            },
+            "sphere" => RigidShape::Sphere {
+                center: v(self.center),
+                radius: self.radius.unwrap_or(0.0),
+            },
+            _ => RigidShape::Cylinder {
+                center: v(self.center),
+                axis: v(self.axis).normalize(),
+                radius: self.radius.unwrap_or(0.0),
+                min: self.min,
+                max: self.max,
+            },
+        }
+    }
+}
+
+/// `[curves.NAME]`: a tabulated load curve, (time s, factor of the final value) pairs, linear
+/// between them and held beyond them, given inline (`points`) or in a CSV file (`file`, two
+/// columns; relative to the scene file). Relaxation maps `solver.load_time` onto its load steps.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CurveSpec {
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub points: Option<Vec<[f64; 2]>>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub file: Option<PathBuf>,
+}
+
+/// `[solver]`.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SolverSpec {
+    #[serde(default)]
+    pub mode: Mode,
+    /// Dynamic: simulated time, s.
+    #[serde(default = "default_duration")]
+    pub duration: f64,
+    /// Dynamic: time over which the load curves run, s (default: the duration).
+    #[serde(default)]
+    pub load_time: Option<f64>,
+    /// Relaxation: pseudo-steps over which the load curves run (default: the larger of 400 and
+    /// the steps a shear wave takes to cross the body, so near-incompressible bodies are not
+    /// loaded faster than they can shear).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub load_steps: Option<usize>,
+    #[serde(default = "default_dt_factor")]
+    pub dt_factor: f64,
+    /// `"global"` (default: Lanczos on the reference stiffness) or `"bounds"` (the per-point
+    /// and nodal bounds, 1.3-2.5x more conservative).
+    #[serde(default)]
+    pub time_step: crate::solver::StepEstimate,
+    /// Mass-proportional damping, 1/s (dynamic).
+    #[serde(default)]
+    pub damping: f64,
+    /// Relaxation convergence tolerance on the estimated displacement error, m.
+    #[serde(default = "default_tolerance")]
+    pub tolerance: f64,
+    #[serde(default = "default_max_steps")]
+    pub max_steps: usize,
+    /// Relaxation: steps between lowest-frequency estimates.
+    #[serde(default = "default_interval")]
+    pub estimate_interval: usize,
+    /// Relaxation: restarts from the unloaded state with a 0.75x shorter step after an
+    /// instability, at most this many (None: the solver's default, 2; 0 stops at the first
+    /// instability).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub retries: Option<usize>,
+    /// Estimate the critical step again at the deformed state during the run and shorten the
+    /// step when deformation has raised the frequencies (default true): dynamic runs from the
+    /// start, relaxation after a restart.
+    #[serde(default = "default_true")]
+    pub step_update: bool,
+}
+
+pub(super) fn default_true() -> bool {
+    true
+}
+
+fn default_duration() -> f64 {
+    3.0
+}
+fn default_dt_factor() -> f64 {
+    0.9
+}
+fn default_tolerance() -> f64 {
+    1e-7
+}
+fn default_max_steps() -> usize {
+    1_000_000
+}
+fn default_interval() -> usize {
+    50
+}
+
+impl Default for SolverSpec {
+    fn default() -> Self {
+        SolverSpec {
+            mode: Mode::Dynamic,
+            duration: default_duration(),
+            load_time: None,
+            load_steps: None,
+            dt_factor: default_dt_factor(),
+            time_step: Default::default(),
+            damping: 0.0,
+            tolerance: default_tolerance(),
+            max_steps: default_max_steps(),
+            estimate_interval: default_interval(),
+            retries: None,
+            step_update: true,
+        }
+    }
+}
+
+/// `[probes.NAME]`: a material point whose displacement is reported, or (`select`) the mean
+/// displacement of a selection of nodes (e.g. `select = { set = "tip" }`).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ProbeSpec {
+    /// Reference position, m.
+    #[serde(default)]
+    pub position: Option<[f64; 3]>,
+    /// Nodes whose displacements are averaged.
+    #[serde(default)]
+    pub select: Option<Selection>,
+}
+
+/// `[references.NAME]`: a published or exact value to compare with.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ReferenceSpec {
+    /// `reaction.BOUNDARY.x|y|z` (N) or `probe.NAME.x|y|z` (m).
+    pub quantity: String,
+    /// The reference value (N or m). Filled in from `exact` when that is given.
+    #[serde(default)]
+    pub value: Option<f64>,
+    /// `"uniaxial"`: the exact homogeneous solution of a box stretched or compressed along one
+    /// axis with free lateral faces (REFERENCE.md "Cube"), computed from the scene's material,
+    /// box and prescribed displacement, so it follows `--set material.poisson_ratio=...`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub exact: Option<String>,
+    #[serde(default)]
+    pub source: Option<String>,
+}
+
+/// `[initial]`: the body starts with the rigid velocity field v(X) = velocity +
+/// angular_velocity x (X - center) on its free DOFs (dynamic runs only).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct InitialSpec {
+    /// Translational velocity, m/s.
+    #[serde(default)]
+    pub velocity: [f64; 3],
+    /// Angular velocity, rad/s (e.g. [0, 0, 6.283185307179586] spins at 1 Hz about z).
+    #[serde(default)]
+    pub angular_velocity: [f64; 3],
+    /// Centre of the rotation, m.
+    #[serde(default)]
+    pub center: [f64; 3],
+}
+
+/// `[output]`.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct OutputSpec {
+    /// VTU frames (dynamic: equally spaced in time).
+    #[serde(default = "default_frames")]
+    pub frames: usize,
+    /// Rows in the time-history CSV (dynamic).
+    #[serde(default = "default_history")]
+    pub history_rows: usize,
+}
+
+fn default_frames() -> usize {
+    10
+}
+fn default_history() -> usize {
+    200
+}
+
+impl Default for OutputSpec {
+    fn default() -> Self {
+        OutputSpec {
+            frames: default_frames(),
+            history_rows: default_history(),
+        }
+    }
+}

@@ -1,0 +1,574 @@
+//! Checks of a parsed scene that serde cannot express, and the exact references it implies.
+
+use super::{
+    BoundarySpec, CloudKind, Displacement, Geometry, IntegrationKind, MaterialSpec, MeshFormat,
+    Method, Scene, MAX_ELEMENTS,
+};
+use crate::geometry::select::Selection;
+use crate::solver::Mode;
+
+/// Computes the value of every `exact = "uniaxial"` reference: a box with one face (a plane
+/// selection at the box's min or max along axis k) driven by d along k stretches by
+/// lambda = 1 + d / L_k; the lateral stretch a and sigma_kk come from
+/// [`crate::material::uniaxial_stretch`]. Reactions along k on either end face are
+/// +-sigma_kk times the deformed cross-section; probe displacements are (stretch - 1) times
+/// the probe's distance from the box's min corner.
+pub(super) fn resolve_exact(s: &mut Scene) -> std::result::Result<(), String> {
+    let names: Vec<String> = s
+        .references
+        .iter()
+        .filter(|(_, r)| r.exact.is_some())
+        .map(|(n, _)| n.clone())
+        .collect();
+    for name in names {
+        let r = &s.references[&name];
+        let kind = r.exact.clone().unwrap_or_default();
+        let fail = |why: String| format!("references.{name}: exact = '{kind}': {why}");
+        if kind != "uniaxial" {
+            return Err(fail("the known exact solution is 'uniaxial'".into()));
+        }
+        let Geometry::Box { min, max } = s.geometry else {
+            return Err(fail("needs geometry.shape = 'box'".into()));
+        };
+        // The driven face: the one boundary with a prescribed displacement on a face of the box
+        // (conditions inside the box, such as a plane held at the exact field, are ignored).
+        let on_face = |b: &BoundarySpec| match &b.select {
+            Selection::Plane { axis, value, .. } => {
+                let k = axis.index();
+                let tol = 1e-9 * (max[k] - min[k]);
+                ((value - max[k]).abs() <= tol)
+                    .then_some((k, true))
+                    .or_else(|| ((value - min[k]).abs() <= tol).then_some((k, false)))
+            }
+            _ => None,
+        };
+        let driven: Vec<(&String, &BoundarySpec, usize, bool)> = s
+            .boundaries
+            .iter()
+            .filter(|(_, b)| b.displacement.is_some())
+            .filter_map(|(n, b)| on_face(b).map(|(k, at_max)| (n, b, k, at_max)))
+            .collect();
+        let [(bname, b, k, at_max)] = driven[..] else {
+            return Err(fail(format!(
+                "needs exactly one boundary with a displacement on a face of the box (found {})",
+                driven.len()
+            )));
+        };
+        let d = b.displacement.clone().unwrap_or(Displacement {
+            x: None,
+            y: None,
+            z: None,
+        });
+        let comps = [d.x, d.y, d.z];
+        if (0..3).any(|c| c != k && comps[c].is_some_and(|v| v != 0.0)) {
+            return Err(fail(format!(
+                "boundary '{bname}' must be driven along its normal only"
+            )));
+        }
+        let len = max[k] - min[k];
+        let dk = comps[k].unwrap_or(0.0);
+        let stretch = 1.0 + if at_max { dk } else { -dk } / len;
+        if !(stretch > 0.0) {
+            return Err(fail(format!(
+                "the stretch 1 + d / L = {stretch} must be positive"
+            )));
+        }
+        if !s.regions.is_empty() {
+            return Err(fail(
+                "the exact uniaxial solution holds for one material; this scene has regions".into(),
+            ));
+        }
+        let (a, _, sigma) = match s.material.solid() {
+            crate::material::Solid::NeoHookean(m) => crate::material::uniaxial_stretch(&m, stretch),
+            crate::material::Solid::Ogden(m) => m.uniaxial(stretch),
+        };
+        let parts: Vec<&str> = r.quantity.split('.').collect();
+        let c = match parts[2] {
+            "x" => 0,
+            "y" => 1,
+            _ => 2,
+        };
+        let value = match parts[0] {
+            "reaction" if c == k => {
+                let Some(Selection::Plane { axis, value, .. }) =
+                    s.boundaries.get(parts[1]).map(|b| &b.select)
+                else {
+                    return Err(fail(format!("boundary '{}' must select a face", parts[1])));
+                };
+                if axis.index() != k {
+                    return Err(fail(format!(
+                        "boundary '{}' is not an end face along {}",
+                        parts[1],
+                        ["x", "y", "z"][k]
+                    )));
+                }
+                let area: f64 = (0..3)
+                    .filter(|&i| i != k)
+                    .map(|i| a * (max[i] - min[i]))
+                    .product();
+                let sign = if (value - max[k]).abs() < (value - min[k]).abs() {
+                    1.0
+                } else {
+                    -1.0
+                };
+                sign * sigma * area
+            }
+            "reaction" => {
+                return Err(fail(
+                    "lateral reactions vanish exactly; a relative error against 0 is undefined"
+                        .into(),
+                ))
+            }
+            _ => {
+                let Some(pos) = s.probes.get(parts[1]).and_then(|p| p.position) else {
+                    return Err(fail(format!("probe '{}' needs a `position`", parts[1])));
+                };
+                let st = if c == k { stretch } else { a };
+                (st - 1.0) * (pos[c] - min[c])
+            }
+        };
+        if let Some(r) = s.references.get_mut(&name) {
+            r.value = Some(value);
+        }
+    }
+    Ok(())
+}
+
+/// The model name, moduli and density of a material (`key` names it in errors).
+fn check_material(m: &MaterialSpec, key: &str) -> std::result::Result<(), String> {
+    match m.model.as_str() {
+        "neo-hookean" => {
+            if m.alpha.is_some() && key == "material" {
+                return Err(format!("{key}.alpha is the Ogden exponent; set model = 'ogden' or remove it"));
+            }
+        }
+        "ogden" => match m.alpha {
+            Some(a) if a != 0.0 => {}
+            _ => {
+                return Err(format!(
+                    "{key}: model = 'ogden' needs `alpha`, a non-zero exponent (-4.7 for brain tissue, \
+                     Miller and Chinzei 2002)"
+                ))
+            }
+        },
+        other => {
+            return Err(format!(
+                "{key}.model = '{other}': the available models are 'neo-hookean' and 'ogden'"
+            ))
+        }
+    }
+    if !(m.density > 0.0) {
+        return Err(format!(
+            "{key}.density = {}: must be positive (kg/m^3)",
+            m.density
+        ));
+    }
+    match (m.youngs_modulus, m.poisson_ratio, m.shear_modulus, m.bulk_modulus) {
+        (Some(e), Some(nu), None, None) => {
+            if !(e > 0.0) || !(nu > -1.0 && nu < 0.5) {
+                return Err(format!("{key}: need youngs_modulus > 0 (got {e}) and -1 < poisson_ratio < 0.5 (got {nu})"));
+            }
+        }
+        (None, None, Some(mu), Some(k)) => {
+            if !(mu > 0.0 && k > 0.0) {
+                return Err(format!("{key}: shear_modulus ({mu}) and bulk_modulus ({k}) must be positive (Pa)"));
+            }
+        }
+        _ => return Err(format!("{key}: give either youngs_modulus and poisson_ratio, or shear_modulus and bulk_modulus")),
+    }
+    Ok(())
+}
+
+/// A curve name must be built in or a `[curves.NAME]` table.
+fn check_curve(s: &Scene, key: &str, name: &str) -> std::result::Result<(), String> {
+    if crate::bc::LoadCurve::builtin(name).is_some() || s.curves.contains_key(name) {
+        return Ok(());
+    }
+    let mut known: Vec<&str> = crate::bc::LoadCurve::BUILTIN.to_vec();
+    known.extend(s.curves.keys().map(String::as_str));
+    Err(format!(
+        "{key} = '{name}': no such curve; use one of {} or add a [curves.{name}] table",
+        known.join(", ")
+    ))
+}
+
+/// Physical and structural checks that serde cannot express.
+pub(super) fn validate(s: &Scene) -> std::result::Result<(), String> {
+    match &s.geometry {
+        Geometry::Box { min, max } => {
+            if (0..3).any(|k| !(max[k] > min[k])) {
+                return Err(format!(
+                    "geometry: box max {max:?} must exceed min {min:?} in every coordinate"
+                ));
+            }
+        }
+        Geometry::Cylinder { radius, height } => {
+            if !(*radius > 0.0 && *height > 0.0) {
+                return Err(format!("geometry: cylinder radius ({radius}) and height ({height}) must be positive (m)"));
+            }
+        }
+        Geometry::HalfEllipsoid { semi_axes } => {
+            if !semi_axes.iter().all(|v| v.is_finite() && *v > 0.0) {
+                return Err(format!("geometry: half_ellipsoid semi_axes {semi_axes:?} must be positive and finite (m)"));
+            }
+        }
+        Geometry::Mesh {
+            file,
+            format,
+            units,
+            ..
+        } => {
+            if !(*units > 0.0 && units.is_finite()) {
+                return Err(format!("geometry.units = {units}: must be a positive factor to metres (0.001 for a mesh in mm)"));
+            }
+            if format.is_none() && MeshFormat::from_path(file).is_none() {
+                return Err(format!(
+                    "geometry.mesh = '{}': unknown extension; use .inp, .msh, .vtk or .vtu, or set geometry.format",
+                    file.display()
+                ));
+            }
+        }
+    }
+    let d = &s.discretization;
+    if let Some(h) = d.size {
+        if !(h > 0.0) {
+            return Err(format!(
+                "discretization.size = {h}: must be a positive length in m"
+            ));
+        }
+    }
+    if let Some(div) = d.divisions {
+        if div.contains(&0) {
+            return Err(format!(
+                "discretization.divisions = {div:?}: every division must be at least 1"
+            ));
+        }
+        let [a, b, c] = div.map(|k| k as f64);
+        // The cylinder's O-grid has n_inner^2 + 4 n_inner n_radial cells per layer, the box
+        // nx ny nz (tets: 6 per hex, checked at the hex count as the element limit is).
+        let n = match &s.geometry {
+            Geometry::Cylinder { .. } => (a * a + 4.0 * a * b) * c,
+            _ => a * b * c,
+        };
+        if n > MAX_ELEMENTS {
+            return Err(format!(
+                "discretization.divisions = {div:?} gives {n:.3e} cells, more than the limit of \
+                 {MAX_ELEMENTS:.0e}; use fewer divisions"
+            ));
+        }
+    }
+    let extent = match &s.geometry {
+        Geometry::Box { min, max } => Some([max[0] - min[0], max[1] - min[1], max[2] - min[2]]),
+        Geometry::Cylinder { radius, height } => Some([2.0 * radius, 2.0 * radius, *height]),
+        Geometry::HalfEllipsoid { semi_axes: a } => Some([2.0 * a[0], 2.0 * a[1], a[2]]),
+        Geometry::Mesh { .. } => None,
+    };
+    if let (Some(e), Some(h), None) = (extent, d.size, d.divisions) {
+        let n: f64 = e.iter().map(|l| (l / h).max(1.0)).product();
+        if n > MAX_ELEMENTS {
+            return Err(format!(
+                "discretization.size = {h} m gives about {n:.3e} cells over the {:.3} x {:.3} x \
+                 {:.3} m shape, more than the limit of {MAX_ELEMENTS:.0e}; lengths are in metres \
+                 (is the size given in mm?)",
+                e[0], e[1], e[2]
+            ));
+        }
+    }
+    if let Some(k) = d.tets_per_point_given {
+        if !(1.0..=1000.0).contains(&k) {
+            return Err(format!(
+                "discretization.tets_per_point = {k}: must be between 1 (one rule per tet) and 1000"
+            ));
+        }
+        if d.integration != IntegrationKind::Tets {
+            return Err(format!(
+                "discretization.tets_per_point = {k} merges background-tet points; it needs \
+                 integration = 'tets' (this scene has {:?})",
+                d.integration
+            ));
+        }
+    }
+    if ![1, 4, 5].contains(&d.tet_rule()) {
+        return Err(format!(
+            "discretization.tet_rule = {}: the tetrahedron rules have 1, 4 or 5 points",
+            d.tet_rule()
+        ));
+    }
+    if d.method == Method::Coupled && !(d.interface_scale >= 1.0 && d.interface_scale <= 4.0) {
+        return Err(format!(
+            "discretization.interface_scale = {}: use a factor in [1, 4] (default 1.5)",
+            d.interface_scale
+        ));
+    }
+    let file_cloud = d.method != Method::Fe && d.cloud == CloudKind::File;
+    let mesh_geometry = matches!(s.geometry, Geometry::Mesh { .. });
+    if d.size.is_none() && d.divisions.is_none() && !file_cloud && !mesh_geometry {
+        return Err("discretization: give `size` (target element length, m) or `divisions`".into());
+    }
+    if !(d.jitter >= 0.0 && d.jitter < 0.5) {
+        return Err(format!(
+            "discretization.jitter = {}: must lie in [0, 0.5) (fraction of the node spacing)",
+            d.jitter
+        ));
+    }
+    if !(d.point_ratio > 0.0) {
+        return Err(format!(
+            "discretization.point_ratio = {}: must be positive (integration points per node)",
+            d.point_ratio
+        ));
+    }
+    if !(d.tolerance > 0.0 && d.tolerance.is_finite()) {
+        return Err(format!(
+            "discretization.tolerance = {}: must be a positive relative accuracy (e.g. 0.001)",
+            d.tolerance
+        ));
+    }
+    if ![2, 4, 8].contains(&d.subdivision) {
+        return Err(format!(
+            "discretization.subdivision = {}: use 2 (longest-edge bisection), 4 (three edge midpoints) or 8 (all six)",
+            d.subdivision
+        ));
+    }
+    let deepest = crate::meshless::adaptive::max_level_for(d.subdivision);
+    if d.max_level > deepest {
+        return Err(format!(
+            "discretization.max_level = {}: at most {deepest} with subdivision = {} (a cell may split into at most 2^18 leaves)",
+            d.max_level, d.subdivision
+        ));
+    }
+    if !(d.mu >= 0.0) || !(d.min_rcond > 0.0 && d.min_rcond < 1.0) {
+        return Err(format!(
+            "discretization: mu ({}) must be >= 0 and min_rcond ({}) in (0, 1)",
+            d.mu, d.min_rcond
+        ));
+    }
+    if d.cloud == CloudKind::File && d.cloud_file.is_none() {
+        return Err(
+            "discretization.cloud = 'file' needs cloud_file = \"path/to/nodes.csv\"".into(),
+        );
+    }
+    if !(d.min_spacing > 0.0) {
+        return Err(format!(
+            "discretization.min_spacing = {}: must be positive (fraction of size)",
+            d.min_spacing
+        ));
+    }
+    if let Some(h) = d.hourglass.filter(|h| !(*h >= 0.0)) {
+        return Err(format!(
+            "discretization.hourglass = {h}: must be >= 0 (default 0.51 with hourglass_modulus = 'shear', 0.01 with 'p-wave')"
+        ));
+    }
+    check_material(&s.material, "material")?;
+    for (name, r) in &s.regions {
+        let key = format!("regions.{name}");
+        match (&r.select, &r.elements) {
+            (Some(Selection::Plane { .. }), _) | (Some(Selection::Set(_)), _) => {
+                return Err(format!(
+                    "{key}.select: a region is a volume; use a box, sphere or cylinder (or \
+                     `elements = \"SET\"` for an element set of the mesh file)"
+                ))
+            }
+            (Some(_), None) | (None, Some(_)) => {}
+            _ => {
+                return Err(format!(
+                    "{key}: give either `select = {{ box | sphere | cylinder = ... }}` or `elements = \"SET\"`"
+                ))
+            }
+        }
+        check_material(&s.material.with(r), &key)?;
+    }
+    for (name, c) in &s.curves {
+        if crate::bc::LoadCurve::builtin(name).is_some() {
+            return Err(format!(
+                "curves.{name}: '{name}' is a built-in curve; give the table another name"
+            ));
+        }
+        if c.points.is_some() == c.file.is_some() {
+            return Err(format!(
+                "curves.{name}: give either `points = [[t, factor], ...]` (t in s) or `file = \"curve.csv\"`"
+            ));
+        }
+    }
+    for (name, b) in &s.boundaries {
+        check_curve(s, &format!("boundaries.{name}.curve"), &b.curve)?;
+    }
+    for (name, m) in &s.measured {
+        let key = format!("measured.{name}");
+        check_curve(s, &format!("{key}.curve"), &m.curve)?;
+        if s.boundaries.contains_key(name) || s.contact.contains_key(name) {
+            return Err(format!(
+                "{key}: a boundary or rigid body has the same name; reactions are reported by name, so give it another"
+            ));
+        }
+        if let Some(t) = m.tolerance.filter(|t| !(*t > 0.0)) {
+            return Err(format!(
+                "{key}.tolerance = {t}: must be a positive distance (m)"
+            ));
+        }
+    }
+    for (name, c) in &s.contact {
+        let key = format!("contact.{name}");
+        check_curve(s, &format!("{key}.curve"), &c.curve)?;
+        if s.boundaries.contains_key(name) {
+            return Err(format!(
+                "{key}: a boundary has the same name; reactions are reported by name, so give the rigid body another"
+            ));
+        }
+        let positive = |v: Option<f64>| v.is_some_and(|r| r > 0.0);
+        let nonzero = |v: Option<[f64; 3]>| v.is_some_and(|a| a.iter().any(|&x| x != 0.0));
+        let (need, ok, allowed): (&str, bool, &[&str]) = match c.shape.as_str() {
+            "plane" => (
+                "`point = [x, y, z]` and a non-zero `normal` (pointing to the body)",
+                c.point.is_some() && nonzero(c.normal),
+                &["point", "normal"],
+            ),
+            "sphere" => (
+                "`center` and `radius` > 0 (m)",
+                c.center.is_some() && positive(c.radius),
+                &["center", "radius"],
+            ),
+            "cylinder" => (
+                "`center`, a non-zero `axis` and `radius` > 0 (m); `min` < `max` along the axis when given",
+                c.center.is_some()
+                    && nonzero(c.axis)
+                    && positive(c.radius)
+                    && !matches!((c.min, c.max), (Some(a), Some(b)) if !(a < b)),
+                &["center", "axis", "radius", "min", "max"],
+            ),
+            other => {
+                return Err(format!(
+                    "{key}.shape = '{other}': use \"plane\", \"sphere\" or \"cylinder\""
+                ))
+            }
+        };
+        if !ok {
+            return Err(format!("{key}: a {} needs {need}", c.shape));
+        }
+        let given = [
+            ("point", c.point.is_some()),
+            ("normal", c.normal.is_some()),
+            ("center", c.center.is_some()),
+            ("radius", c.radius.is_some()),
+            ("axis", c.axis.is_some()),
+            ("min", c.min.is_some()),
+            ("max", c.max.is_some()),
+        ];
+        if let Some((k, _)) = given.iter().find(|(k, g)| *g && !allowed.contains(k)) {
+            return Err(format!("{key}.{k} does not apply to a {}", c.shape));
+        }
+    }
+    for (name, l) in &s.loads {
+        check_curve(s, &format!("loads.{name}.curve"), &l.curve)?;
+        let given = [
+            l.gravity.is_some(),
+            l.force.is_some(),
+            l.traction.is_some(),
+            l.pressure.is_some(),
+        ];
+        if given.iter().filter(|&&g| g).count() != 1 {
+            return Err(format!(
+                "loads.{name}: give exactly one of `gravity = [gx, gy, gz]` (m/s^2), `force = [fx, fy, fz]` \
+                 (N per node), `traction = [tx, ty, tz]` (Pa) or `pressure = p` (Pa)"
+            ));
+        }
+        match (l.gravity.is_some(), l.select.is_some()) {
+            (true, true) => {
+                return Err(format!(
+                    "loads.{name}: gravity acts on the whole body; remove `select`"
+                ))
+            }
+            (false, false) => {
+                return Err(format!(
+                "loads.{name}: needs `select = {{ ... }}` (the nodes or boundary faces it acts on)"
+            ))
+            }
+            _ => {}
+        }
+    }
+    for (name, b) in &s.boundaries {
+        if b.fix.is_empty()
+            && b.displacement
+                .as_ref()
+                .is_none_or(|d| d.x.is_none() && d.y.is_none() && d.z.is_none())
+        {
+            return Err(format!("boundaries.{name}: neither `fix` nor `displacement` is given, so it constrains nothing"));
+        }
+    }
+    let sv = &s.solver;
+    if !(sv.dt_factor > 0.0) {
+        return Err(format!(
+            "solver.dt_factor = {}: must be positive (default 0.9)",
+            sv.dt_factor
+        ));
+    }
+    if !(sv.duration > 0.0) {
+        return Err(format!(
+            "solver.duration = {}: must be positive (s)",
+            sv.duration
+        ));
+    }
+    if !(sv.tolerance > 0.0) {
+        return Err(format!(
+            "solver.tolerance = {}: must be positive (m)",
+            sv.tolerance
+        ));
+    }
+    if let Some(k) = sv.retries.filter(|&k| k > 10) {
+        return Err(format!(
+            "solver.retries = {k}: at most 10 (each restart shortens the step by 0.75x; default 2)"
+        ));
+    }
+    if !(sv.damping >= 0.0) {
+        return Err(format!(
+            "solver.damping = {}: must be >= 0 (1/s)",
+            sv.damping
+        ));
+    }
+    for (name, p) in &s.probes {
+        if p.position.is_some() == p.select.is_some() {
+            return Err(format!(
+                "probes.{name}: give either `position = [x, y, z]` (m) or `select = {{ ... }}`"
+            ));
+        }
+    }
+    if s.initial.is_some() && s.solver.mode != Mode::Dynamic {
+        return Err(
+            "[initial] motion needs solver.mode = \"dynamic\" (relaxation seeks a steady state)"
+                .into(),
+        );
+    }
+    for (name, r) in &s.references {
+        if r.value.is_some() == r.exact.is_some() {
+            return Err(format!(
+                "references.{name}: give either `value` (N or m) or `exact = \"uniaxial\"`"
+            ));
+        }
+        if r.value.is_some_and(|v| v == 0.0) {
+            return Err(format!(
+                "references.{name}.value = 0: a relative error against 0 is undefined; compare a \
+                 non-zero quantity"
+            ));
+        }
+        let parts: Vec<&str> = r.quantity.split('.').collect();
+        let ok = parts.len() == 3
+            && matches!(parts[2], "x" | "y" | "z")
+            && match parts[0] {
+                "reaction" => {
+                    s.boundaries.contains_key(parts[1])
+                        || s.contact.contains_key(parts[1])
+                        || s.measured.contains_key(parts[1])
+                }
+                "probe" => s.probes.contains_key(parts[1]),
+                _ => false,
+            };
+        if !ok {
+            return Err(format!(
+                "references.{name}.quantity = '{}': expected reaction.BOUNDARY.x|y|z or probe.NAME.x|y|z naming a boundary ({}) or probe ({})",
+                r.quantity,
+                s.boundaries.keys().cloned().collect::<Vec<_>>().join(", "),
+                s.probes.keys().cloned().collect::<Vec<_>>().join(", ")
+            ));
+        }
+    }
+    Ok(())
+}
