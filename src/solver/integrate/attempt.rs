@@ -5,7 +5,8 @@ use std::time::Instant;
 
 use nalgebra::Vector3;
 
-use super::energy::{free_dist2, kinetic, momentum, Ledger};
+use super::energy::{kinetic, momentum, Ledger};
+use super::predict::{nan_max, Predictor};
 use super::record::{Progress, Recorder, Report, PROGRESS_STEPS};
 use super::relaxation::Relaxation;
 use super::schedule::{
@@ -17,7 +18,7 @@ use super::{
 };
 use crate::material::Material;
 use crate::solver::forces::NODE_BLOCK;
-use crate::solver::{Model, SharedMut};
+use crate::solver::Model;
 use crate::{Error, Result};
 
 /// Dynamic runs needing more steps than this are refused unless `max_steps` allows them (a
@@ -451,75 +452,21 @@ pub(super) fn attempt<M: Material>(
             break;
         }
 
-        let (a, b, cc) = time.coefficients(s.damping, relax.r);
-        // Parallel over node blocks, from both ends as the point stage (`two_ended`); max is
-        // order-independent, so the result is thread-count independent.
-        let (mass, forces) = (&model.mass, &model.forces);
-        let f_ext = has_loads.then_some(model.f_ext.as_slice());
-        let (u_cur, u_old) = (&u, &u_prev);
-        let un_all = SharedMut(u_next.as_mut_ptr());
-        let f_all = SharedMut(f.as_mut_ptr());
-        let damp_slots = ledger.slots();
-        let late_pending = ledger.late_pending();
-        let (mut max_du, mut max_u) = super::super::two_ended::for_each_item(
-            n.div_ceil(NODE_BLOCK),
-            (0.0f64, 0.0f64),
-            |blk| {
-                let n0 = blk * NODE_BLOCK;
-                let len = NODE_BLOCK.min(n - n0);
-                // SAFETY: u_next and f hold n vectors and are borrowed mutably for the loop;
-                // block blk is nodes n0..n0 + len, which no other item touches.
-                let (un_b, f_b) = unsafe {
-                    (
-                        std::slice::from_raw_parts_mut(un_all.get().add(n0), len),
-                        std::slice::from_raw_parts_mut(f_all.get().add(n0), len),
-                    )
-                };
-                if !record {
-                    forces.node_forces(n0, f_b);
-                }
-                let mut acc = (0.0f64, 0.0f64);
-                let (mut damp, mut damp_late) = (0.0f64, 0.0f64);
-                for (j, (un, fi)) in un_b.iter_mut().zip(f_b.iter()).enumerate() {
-                    let i = n0 + j;
-                    if late_pending && is_late[i] {
-                        // The last step's share: u_cur = u(n), un = u(n-2) before the write.
-                        damp_late += mass[i] * free_dist2(cons.mask[i], &u_cur[i], un);
-                    }
-                    // The net force F_int - F_ext (bitwise F_int without loads).
-                    let fi = match f_ext {
-                        Some(e) => fi - e[i],
-                        None => *fi,
-                    };
-                    let inv_m = a / mass[i];
-                    let mask = cons.mask[i];
-                    let mut mdu = 0.0f64;
-                    for k in 0..3 {
-                        if !mask[k] {
-                            let v = -inv_m * fi[k] + b * u_cur[i][k] + cc * u_old[i][k];
-                            un[k] = v;
-                            mdu = nan_max(mdu, (v - u_cur[i][k]).abs());
-                        }
-                    }
-                    if !is_late[i] {
-                        acc = (
-                            nan_max(acc.0, mdu),
-                            nan_max(acc.1, nan_max(un.x.abs(), nan_max(un.y.abs(), un.z.abs()))),
-                        );
-                        if damped {
-                            damp += mass[i] * free_dist2(mask, un, &u_old[i]);
-                        }
-                    }
-                }
-                if damped {
-                    // SAFETY: a damped run's ledger holds one slot per block and outlives
-                    // the loop; only block blk writes slot blk.
-                    unsafe { damp_slots.write(blk, damp, damp_late) };
-                }
-                acc
-            },
-            |x, y| (nan_max(x.0, y.0), nan_max(x.1, y.1)),
-        );
+        let coefficients = time.coefficients(s.damping, relax.r);
+        let a = coefficients.0;
+        let predictor = Predictor {
+            mass: &model.mass,
+            forces: &model.forces,
+            f_ext: has_loads.then_some(model.f_ext.as_slice()),
+            mask: &cons.mask,
+            is_late,
+            coefficients,
+            gathered: record,
+            damped,
+            late_pending: ledger.late_pending(),
+            damping: ledger.slots(),
+        };
+        let (mut max_du, mut max_u) = predictor.update((&u, &u_prev), &mut u_next, &mut f);
         let next_load = time.load(step + 1);
         prescribe(&mut u_next, next_load);
         if let Some(corr) = model.corrector.as_mut() {
@@ -546,7 +493,7 @@ pub(super) fn attempt<M: Material>(
         ledger.add_step_work(
             (cons, &model.mass),
             &f,
-            f_ext,
+            has_loads.then_some(model.f_ext.as_slice()),
             [&u_next, &u, &u_prev],
             &time,
         );
@@ -697,14 +644,4 @@ fn deformation_change(
         change = nan_max(change, d.amax());
     }
     (change, (hi - lo).norm())
-}
-
-/// max that propagates NaN (f64::max drops it), so divergence cannot hide.
-#[inline]
-fn nan_max(a: f64, b: f64) -> f64 {
-    if a.is_nan() || b.is_nan() {
-        f64::NAN
-    } else {
-        a.max(b)
-    }
 }

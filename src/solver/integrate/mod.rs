@@ -5,6 +5,7 @@
 
 mod attempt;
 mod energy;
+mod predict;
 mod record;
 mod relaxation;
 mod schedule;
