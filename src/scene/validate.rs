@@ -194,6 +194,18 @@ fn check_curve(s: &Scene, key: &str, name: &str) -> std::result::Result<(), Stri
 
 /// Physical and structural checks that serde cannot express.
 pub(super) fn validate(s: &Scene) -> std::result::Result<(), String> {
+    check_geometry(s)?;
+    check_discretization(s)?;
+    check_materials_and_curves(s)?;
+    check_conditions(s)?;
+    check_solver(s)?;
+    check_outputs(s)?;
+    Ok(())
+}
+
+/// The geometry: a box with positive extent, positive shape sizes, a mesh file with a positive
+/// unit factor and a known format.
+fn check_geometry(s: &Scene) -> std::result::Result<(), String> {
     match &s.geometry {
         Geometry::Box { min, max } => {
             if (0..3).any(|k| !(max[k] > min[k])) {
@@ -229,6 +241,11 @@ pub(super) fn validate(s: &Scene) -> std::result::Result<(), String> {
             }
         }
     }
+    Ok(())
+}
+
+/// `[discretization]`: sizes, divisions and the element count they give, rules, supports and the meshless and coupled settings.
+fn check_discretization(s: &Scene) -> std::result::Result<(), String> {
     let d = &s.discretization;
     if let Some(h) = d.size {
         if !(h > 0.0) {
@@ -358,6 +375,11 @@ pub(super) fn validate(s: &Scene) -> std::result::Result<(), String> {
             "discretization.hourglass = {h}: must be >= 0 (default 0.51 with hourglass_modulus = 'shear', 0.01 with 'p-wave')"
         ));
     }
+    Ok(())
+}
+
+/// The material, each region's material and selection, and the tabulated curves.
+fn check_materials_and_curves(s: &Scene) -> std::result::Result<(), String> {
     check_material(&s.material, "material")?;
     for (name, r) in &s.regions {
         let key = format!("regions.{name}");
@@ -389,6 +411,11 @@ pub(super) fn validate(s: &Scene) -> std::result::Result<(), String> {
             ));
         }
     }
+    Ok(())
+}
+
+/// Boundaries, measured displacements, contact and loads: selections, values and the curves they name.
+fn check_conditions(s: &Scene) -> std::result::Result<(), String> {
     for (name, b) in &s.boundaries {
         check_curve(s, &format!("boundaries.{name}.curve"), &b.curve)?;
     }
@@ -494,6 +521,11 @@ pub(super) fn validate(s: &Scene) -> std::result::Result<(), String> {
             return Err(format!("boundaries.{name}: neither `fix` nor `displacement` is given, so it constrains nothing"));
         }
     }
+    Ok(())
+}
+
+/// `[solver]`: step factor, duration, tolerance, retries and damping.
+fn check_solver(s: &Scene) -> std::result::Result<(), String> {
     let sv = &s.solver;
     if !(sv.dt_factor > 0.0) {
         return Err(format!(
@@ -524,6 +556,11 @@ pub(super) fn validate(s: &Scene) -> std::result::Result<(), String> {
             sv.damping
         ));
     }
+    Ok(())
+}
+
+/// Probes, initial motion and references.
+fn check_outputs(s: &Scene) -> std::result::Result<(), String> {
     for (name, p) in &s.probes {
         if p.position.is_some() == p.select.is_some() {
             return Err(format!(

@@ -5,7 +5,7 @@
 use nalgebra::Vector3;
 
 use super::super::SharedMut;
-use super::attempt::Timeline;
+use super::timeline::Timeline;
 use crate::bc::Constraints;
 
 /// |a - b|^2 over the free components (`mask` false), m^2: the damping's work per unit

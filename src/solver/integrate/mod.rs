@@ -9,6 +9,7 @@ mod predict;
 mod record;
 mod relaxation;
 mod schedule;
+mod timeline;
 
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
