@@ -4,7 +4,7 @@ use std::io::IsTerminal;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
-use clap::{Parser, Subcommand, ValueEnum};
+use clap::{Args, Parser, Subcommand, ValueEnum};
 
 use hytled::error::exit;
 use hytled::io::vtu::VtuFormat;
@@ -48,154 +48,186 @@ impl From<VtuArg> for VtuFormat {
 #[derive(Subcommand)]
 enum Command {
     /// Run a scene and print a summary (or JSON).
-    Run {
-        /// Scene file (TOML), e.g. cases/cylinder-compression.toml.
-        scene: PathBuf,
-        /// Override a scene value by its dotted path, e.g. --set discretization.element=tet4-anp.
-        #[arg(long = "set", value_name = "KEY.PATH=VALUE")]
-        set: Vec<String>,
-        /// Write VTU frames + .pvd, history.csv and summary.json to this directory.
-        #[arg(long)]
-        out: Option<PathBuf>,
-        /// Print one JSON object on stdout instead of the table.
-        #[arg(long)]
-        json: bool,
-        /// Worker threads (default: all cores). Results are identical for any count.
-        #[arg(long)]
-        threads: Option<usize>,
-        /// VTU encoding.
-        #[arg(long, value_enum, default_value = "binary")]
-        vtu_format: VtuArg,
-        /// Seconds between plain progress lines on stderr (default 10 when stderr is not a
-        /// terminal, e.g. batch jobs and logs; a terminal shows a bar instead).
-        #[arg(long, value_name = "SECONDS")]
-        progress_every: Option<f64>,
-    },
+    Run(RunArgs),
     /// Run a scene with each discretization (FE, coupled, meshless) and print one table of
     /// cost and error against the scene's references.
-    Compare {
-        scene: PathBuf,
-        /// Comma-separated methods: fe, coupled, meshless.
-        #[arg(long, default_value = "fe,coupled,meshless")]
-        methods: String,
-        #[arg(long = "set", value_name = "KEY.PATH=VALUE")]
-        set: Vec<String>,
-        /// Print a JSON array of the per-method results instead of the table.
-        #[arg(long)]
-        json: bool,
-        /// Write each run's outputs to DIR/METHOD, plus compare.csv, compare.md, reactions.svg.
-        #[arg(long)]
-        out: Option<PathBuf>,
-        /// Worker threads (default: all cores).
-        #[arg(long)]
-        threads: Option<usize>,
-        #[arg(long, value_enum, default_value = "binary")]
-        vtu_format: VtuArg,
-    },
+    Compare(CompareArgs),
     /// Run a scene once per combination of varied values (the speed/accuracy trade): one row
     /// per run with error vs reference, wall times, steps, dt, nodes, points and memory; a
     /// failed run is a row with its error. Writes sweep.csv/.md/.json and error plots to --out.
-    Sweep {
-        scene: PathBuf,
-        /// KEY.PATH=V1,V2,... (any --set path; repeat for a cartesian product), e.g.
-        /// --vary discretization.method=fe,coupled --vary discretization.divisions=[4,2,8],[6,3,12]
-        #[arg(long = "vary", value_name = "KEY.PATH=V1,V2,...")]
-        vary: Vec<String>,
-        /// A named group of overrides, NAME=key.path=v;key.path=v (repeat: the presets form one
-        /// varied dimension, `preset`), e.g. --preset 'mmls=discretization.method=meshless;discretization.basis=quadratic'
-        #[arg(long = "preset", value_name = "NAME=KEY.PATH=V;...")]
-        preset: Vec<String>,
-        /// Fixed overrides applied to every run.
-        #[arg(long = "set", value_name = "KEY.PATH=VALUE")]
-        set: Vec<String>,
-        /// Run each combination N times and report the fastest (wall times only differ).
-        #[arg(long, default_value_t = 1)]
-        repeat: usize,
-        /// Write sweep.csv, sweep.md, sweep.json, error_vs_time.svg and error_vs_spacing.svg.
-        #[arg(long)]
-        out: Option<PathBuf>,
-        /// Also write every run's full outputs (VTU, history, summary) to DIR/runs/NNN.
-        #[arg(long)]
-        keep_outputs: bool,
-        /// Print the rows as a JSON array instead of the table.
-        #[arg(long)]
-        json: bool,
-        /// Worker threads (default: all cores).
-        #[arg(long)]
-        threads: Option<usize>,
-        #[arg(long, value_enum, default_value = "binary")]
-        vtu_format: VtuArg,
-    },
+    Sweep(SweepArgs),
     /// Time whole runs: preprocessing, ms per step, ns per point-step, real-time factor, peak
     /// memory, bytes per point, thread scaling (and a check that every thread count gives
     /// bitwise the same result). Without SCENE: the Horton 2010 meshless cylinder (4,389 nodes,
     /// 2 points per node, 8 support nodes), one-point hex8 on the same nodes, and coupled.
-    Bench {
-        /// Scene files (default: the three cylinder cases).
-        scenes: Vec<PathBuf>,
-        #[arg(long = "set", value_name = "KEY.PATH=VALUE")]
-        set: Vec<String>,
-        /// Comma-separated thread counts (default: 1, powers of two, all cores).
-        #[arg(long, value_delimiter = ',')]
-        threads: Option<Vec<usize>>,
-        /// Explicit time steps per run.
-        #[arg(long, default_value_t = 2000)]
-        steps: usize,
-        /// Runs per thread count; the fastest is reported.
-        #[arg(long, default_value_t = 3)]
-        repeat: usize,
-        /// Print the rows as JSON instead of the table.
-        #[arg(long)]
-        json: bool,
-    },
+    Bench(BenchArgs),
     /// Validate a scene (schema, selections, mesh, probes) without running it.
-    Check {
-        scene: PathBuf,
-        #[arg(long = "set", value_name = "KEY.PATH=VALUE")]
-        set: Vec<String>,
-    },
+    Check(CheckArgs),
     /// Print a Markdown table from run summaries (files written by `run --json` or summary.json).
-    Table {
-        /// JSON summary files.
-        #[arg(required = true)]
-        summaries: Vec<PathBuf>,
-    },
+    Table(TableArgs),
     /// Convert a mesh file (.inp, .msh, .vtk, .vtu) with its named sets to .vtu or .inp.
-    Convert {
-        /// Input mesh.
-        input: PathBuf,
-        /// Output mesh (.vtu or .inp).
-        output: PathBuf,
-        /// VTU encoding (ascii and binary read back with VTK readers and hytled).
-        #[arg(long, value_enum, default_value = "binary")]
-        vtu_format: VtuArg,
-    },
+    Convert(ConvertArgs),
     /// Mesh a scene's geometry and write it as VTU (default meshes/NAME-ELEMENT.vtu).
-    Mesh {
-        scene: PathBuf,
-        #[arg(long = "set", value_name = "KEY.PATH=VALUE")]
-        set: Vec<String>,
-        /// Output file (.vtu).
-        #[arg(long)]
-        out: Option<PathBuf>,
-        /// VTU encoding.
-        #[arg(long, value_enum, default_value = "binary")]
-        vtu_format: VtuArg,
-        /// Also write the inputs of a mixed coupled scene made from this mesh: the outer
-        /// `discretization.fe_layers` cell layers as FE_LAYER.inp and the interior-only nodes as
-        /// CLOUD.csv (x,y,z in m).
-        #[arg(long, num_args = 2, value_names = ["FE_LAYER.inp", "CLOUD.csv"])]
-        split: Option<Vec<PathBuf>>,
-    },
+    Mesh(MeshArgs),
+}
+
+/// Arguments of `hytled run`.
+#[derive(Args)]
+struct RunArgs {
+    /// Scene file (TOML), e.g. cases/cylinder-compression.toml.
+    scene: PathBuf,
+    /// Override a scene value by its dotted path, e.g. --set discretization.element=tet4-anp.
+    #[arg(long = "set", value_name = "KEY.PATH=VALUE")]
+    set: Vec<String>,
+    /// Write VTU frames + .pvd, history.csv and summary.json to this directory.
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// Print one JSON object on stdout instead of the table.
+    #[arg(long)]
+    json: bool,
+    /// Worker threads (default: all cores). Results are identical for any count.
+    #[arg(long)]
+    threads: Option<usize>,
+    /// VTU encoding.
+    #[arg(long, value_enum, default_value = "binary")]
+    vtu_format: VtuArg,
+    /// Seconds between plain progress lines on stderr (default 10 when stderr is not a
+    /// terminal, e.g. batch jobs and logs; a terminal shows a bar instead).
+    #[arg(long, value_name = "SECONDS")]
+    progress_every: Option<f64>,
+}
+
+/// Arguments of `hytled compare`.
+#[derive(Args)]
+struct CompareArgs {
+    scene: PathBuf,
+    /// Comma-separated methods: fe, coupled, meshless.
+    #[arg(long, default_value = "fe,coupled,meshless")]
+    methods: String,
+    #[arg(long = "set", value_name = "KEY.PATH=VALUE")]
+    set: Vec<String>,
+    /// Print a JSON array of the per-method results instead of the table.
+    #[arg(long)]
+    json: bool,
+    /// Write each run's outputs to DIR/METHOD, plus compare.csv, compare.md, reactions.svg.
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// Worker threads (default: all cores).
+    #[arg(long)]
+    threads: Option<usize>,
+    #[arg(long, value_enum, default_value = "binary")]
+    vtu_format: VtuArg,
+}
+
+/// Arguments of `hytled sweep`.
+#[derive(Args)]
+struct SweepArgs {
+    scene: PathBuf,
+    /// KEY.PATH=V1,V2,... (any --set path; repeat for a cartesian product), e.g.
+    /// --vary discretization.method=fe,coupled --vary discretization.divisions=[4,2,8],[6,3,12]
+    #[arg(long = "vary", value_name = "KEY.PATH=V1,V2,...")]
+    vary: Vec<String>,
+    /// A named group of overrides, NAME=key.path=v;key.path=v (repeat: the presets form one
+    /// varied dimension, `preset`), e.g. --preset 'mmls=discretization.method=meshless;discretization.basis=quadratic'
+    #[arg(long = "preset", value_name = "NAME=KEY.PATH=V;...")]
+    preset: Vec<String>,
+    /// Fixed overrides applied to every run.
+    #[arg(long = "set", value_name = "KEY.PATH=VALUE")]
+    set: Vec<String>,
+    /// Run each combination N times and report the fastest (wall times only differ).
+    #[arg(long, default_value_t = 1)]
+    repeat: usize,
+    /// Write sweep.csv, sweep.md, sweep.json, error_vs_time.svg and error_vs_spacing.svg.
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// Also write every run's full outputs (VTU, history, summary) to DIR/runs/NNN.
+    #[arg(long)]
+    keep_outputs: bool,
+    /// Print the rows as a JSON array instead of the table.
+    #[arg(long)]
+    json: bool,
+    /// Worker threads (default: all cores).
+    #[arg(long)]
+    threads: Option<usize>,
+    #[arg(long, value_enum, default_value = "binary")]
+    vtu_format: VtuArg,
+}
+
+/// Arguments of `hytled bench`.
+#[derive(Args)]
+struct BenchArgs {
+    /// Scene files (default: the three cylinder cases).
+    scenes: Vec<PathBuf>,
+    #[arg(long = "set", value_name = "KEY.PATH=VALUE")]
+    set: Vec<String>,
+    /// Comma-separated thread counts (default: 1, powers of two, all cores).
+    #[arg(long, value_delimiter = ',')]
+    threads: Option<Vec<usize>>,
+    /// Explicit time steps per run.
+    #[arg(long, default_value_t = 2000)]
+    steps: usize,
+    /// Runs per thread count; the fastest is reported.
+    #[arg(long, default_value_t = 3)]
+    repeat: usize,
+    /// Print the rows as JSON instead of the table.
+    #[arg(long)]
+    json: bool,
+}
+
+/// Arguments of `hytled check`.
+#[derive(Args)]
+struct CheckArgs {
+    scene: PathBuf,
+    #[arg(long = "set", value_name = "KEY.PATH=VALUE")]
+    set: Vec<String>,
+}
+
+/// Arguments of `hytled table`.
+#[derive(Args)]
+struct TableArgs {
+    /// JSON summary files.
+    #[arg(required = true)]
+    summaries: Vec<PathBuf>,
+}
+
+/// Arguments of `hytled convert`.
+#[derive(Args)]
+struct ConvertArgs {
+    /// Input mesh.
+    input: PathBuf,
+    /// Output mesh (.vtu or .inp).
+    output: PathBuf,
+    /// VTU encoding (ascii and binary read back with VTK readers and hytled).
+    #[arg(long, value_enum, default_value = "binary")]
+    vtu_format: VtuArg,
+}
+
+/// Arguments of `hytled mesh`.
+#[derive(Args)]
+struct MeshArgs {
+    scene: PathBuf,
+    #[arg(long = "set", value_name = "KEY.PATH=VALUE")]
+    set: Vec<String>,
+    /// Output file (.vtu).
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// VTU encoding.
+    #[arg(long, value_enum, default_value = "binary")]
+    vtu_format: VtuArg,
+    /// Also write the inputs of a mixed coupled scene made from this mesh: the outer
+    /// `discretization.fe_layers` cell layers as FE_LAYER.inp and the interior-only nodes as
+    /// CLOUD.csv (x,y,z in m).
+    #[arg(long, num_args = 2, value_names = ["FE_LAYER.inp", "CLOUD.csv"])]
+    split: Option<Vec<PathBuf>>,
 }
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let json = match &cli.command {
-        Command::Run { json, .. }
-        | Command::Compare { json, .. }
-        | Command::Sweep { json, .. }
-        | Command::Bench { json, .. } => *json,
+        Command::Run(a) => a.json,
+        Command::Compare(a) => a.json,
+        Command::Sweep(a) => a.json,
+        Command::Bench(a) => a.json,
         _ => false,
     };
     match execute(cli.command) {
@@ -273,367 +305,400 @@ fn start_threads(threads: Option<usize>) -> hytled::Result<()> {
 
 fn execute(cmd: Command) -> hytled::Result<u8> {
     match cmd {
-        Command::Run {
-            scene,
-            set,
-            out,
-            json,
-            threads,
-            vtu_format,
-            progress_every,
-        } => {
-            start_threads(threads)?;
-            if progress_every.is_some_and(|p| !(p >= 0.0 && p.is_finite())) {
-                return Err(hytled::Error::Input(
-                    "--progress-every must be a number of seconds, 0 or more".into(),
-                ));
-            }
-            let sc = hytled::scene::load(&scene, &set)?;
-            let opts = RunOptions {
-                out: out.clone(),
-                progress: !json && std::io::stderr().is_terminal(),
-                progress_lines: progress_every
-                    .or((!std::io::stderr().is_terminal()).then_some(10.0)),
-                vtu_format: vtu_format.into(),
-            };
-            if opts.progress || opts.progress_lines.is_some() {
-                show_stages();
-            }
-            let summary = simulation::run_scene(&sc, &opts)?;
-            for w in &summary.warnings {
-                eprintln!("warning: {w}");
-            }
-            if json {
-                println!(
-                    "{}",
-                    serde_json::to_string_pretty(&summary).unwrap_or_default()
-                );
-            } else {
-                print!("{}", summary.table());
-                if let Some(dir) = out {
-                    println!("outputs written to {}", dir.display());
-                }
-            }
-            if summary.status == "not converged" {
-                eprintln!(
-                    "error: relaxation did not converge in {} steps (solver.max_steps); the results are \
-                     not in equilibrium: raise solver.max_steps or check the load and the constraints",
-                    summary.steps
-                );
-                return Ok(exit::NOT_CONVERGED);
-            }
-            Ok(exit::SUCCESS)
-        }
-        Command::Check { scene, set } => {
-            let sc = hytled::scene::load(&scene, &set)?;
-            let mut prep = simulation::prepare(&sc)?;
-            let (dt, p) = simulation::critical_step(&sc, &mut prep)?;
-            for w in &prep.warnings {
-                eprintln!("warning: {w}");
-            }
-            println!("{}: valid", scene.display());
-            println!(
-                "  nodes {}, elements {}, integration points {} (total weight {:.6e} m^3)",
-                prep.model.nodes.len(),
-                prep.mesh.num_cells(),
-                prep.model.points.len(),
-                prep.model.points.total_weight()
-            );
-            if let Some(m) = &prep.meshless {
-                let (mean, min, max) = m.support_statistics();
-                let exact = m
-                    .exact_volume
-                    .map_or(String::new(), |v| format!("; exact volume {v:.6e} m^3"));
-                println!(
-                    "  meshless: {}; {}; support {mean:.1} nodes per point (min {min}, max {max}); {} node(s) removed{exact}",
-                    m.cloud, m.integration, m.removed_nodes
-                );
-            }
-            if let Some(c) = &prep.coupled {
-                use hytled::coupling::regions::CellRole;
-                let full = if c.full_rule_cells > 0 {
-                    format!(
-                        " ({} on the full rule next to a load concentrated on a few driven nodes)",
-                        c.full_rule_cells
-                    )
-                } else {
-                    String::new()
-                };
-                println!(
-                    "  coupled: {} FE, {} transition{full} and {} meshless cells; points {} FE, {} transition, {} meshless",
-                    c.regions.cells(CellRole::Fe),
-                    c.regions.cells(CellRole::Transition),
-                    c.interior.num_cells(),
-                    c.fe_points,
-                    c.transition_points,
-                    c.meshless_points
-                );
-            }
-            for b in &prep.model.boundaries {
-                println!("  boundary {:<12} {} nodes", b.name, b.nodes.len());
-            }
-            for (name, count) in &prep.regions {
-                println!("  region {name:<14} {count} integration points");
-            }
-            for name in prep.model.loads.names() {
-                println!("  load {name}");
-            }
-            if let Some(c) = &prep.model.contact {
-                for (b, name) in c.names().enumerate() {
-                    println!(
-                        "  contact {name:<13} {} candidate surface points",
-                        c.candidates(b)
-                    );
-                }
-            }
-            for pr in &prep.probes {
-                if pr.element == usize::MAX {
-                    println!(
-                        "  probe {:<15} interpolated from {} nodes",
-                        pr.name,
-                        pr.nodes.len()
-                    );
-                } else {
-                    println!("  probe {:<15} in element {}", pr.name, pr.element);
-                }
-            }
-            if let Some((a, e)) = prep.min_dihedral {
-                println!("  min dihedral angle {a:.2} deg (element {e})");
-            }
-            println!(
-                "  critical time step {dt:.4e} s (set by {p}); dt = {:.4e} s",
-                dt * sc.solver.dt_factor
-            );
-            Ok(exit::SUCCESS)
-        }
-        Command::Convert {
-            input,
-            output,
-            vtu_format,
-        } => {
-            let mut m = hytled::io::mesh_file::read_mesh(&input, None, 1.0)?;
-            if hytled::scene::MeshFormat::from_path(&output) == Some(hytled::scene::MeshFormat::Inp)
-            {
-                let renamed = hytled::io::mesh_file::inp_safe_set_names(&mut m);
-                m.warnings.extend(renamed);
-            }
-            for w in &m.warnings {
-                eprintln!("warning: {w}");
-            }
-            hytled::io::mesh_file::write_mesh_file(&output, &m, vtu_format.into())?;
-            println!(
-                "{} -> {}: {} nodes, {} cells, {} node sets, {} element sets, {} face sets",
-                input.display(),
-                output.display(),
-                m.mesh.nodes.len(),
-                m.mesh.num_cells(),
-                m.node_sets.len(),
-                m.element_sets.len(),
-                m.face_sets.len()
-            );
-            Ok(exit::SUCCESS)
-        }
-        Command::Bench {
-            scenes,
-            set,
-            threads,
-            steps,
-            repeat,
-            json,
-        } => {
-            use hytled::bench;
-            let cases = if scenes.is_empty() {
-                bench::default_cases(&set)?
-            } else {
-                scenes
-                    .iter()
-                    .map(|p| {
-                        let scene = hytled::scene::load(p, &set)?;
-                        Ok(bench::BenchCase {
-                            label: p.display().to_string(),
-                            scene,
-                        })
-                    })
-                    .collect::<hytled::Result<Vec<_>>>()?
-            };
-            let opts = bench::BenchOptions {
-                steps,
-                threads: threads.unwrap_or_else(bench::default_threads),
-                repeat,
-                progress: true,
-            };
-            let mut rows = Vec::new();
-            for c in &cases {
-                rows.extend(bench::run_case(c, &opts)?);
-            }
-            if json {
-                println!(
-                    "{}",
-                    serde_json::to_string_pretty(&rows).unwrap_or_default()
-                );
-            } else {
-                println!("{}", bench::table(&rows));
-                println!("SI units; times are wall-clock seconds on this machine.");
-            }
-            Ok(exit::SUCCESS)
-        }
-        Command::Compare {
-            scene,
-            methods,
-            set,
-            json,
-            out,
-            threads,
-            vtu_format,
-        } => {
-            start_threads(threads)?;
-            let methods = hytled::comparison::parse_methods(&methods)?;
-            let opts = hytled::comparison::CompareOptions {
-                out,
-                vtu_format: vtu_format.into(),
-                progress: true,
-            };
-            let rows = hytled::comparison::run_compare(&scene, &set, &methods, &opts)?;
-            if json {
-                println!(
-                    "{}",
-                    serde_json::to_string_pretty(&rows).map_err(|e| hytled::Error::Input(
-                        format!("cannot serialise the comparison: {e}")
-                    ))?
-                );
-            } else {
-                print!("{}", hytled::comparison::table(&rows));
-            }
-            for r in &rows {
-                if let Some(s) = &r.summary {
-                    for w in &s.warnings {
-                        eprintln!("warning ({}): {w}", r.method);
-                    }
-                }
-            }
-            if rows.iter().all(|r| r.error.is_some()) {
-                return Err(hytled::Error::Input("compare: every method failed".into()));
-            }
-            Ok(exit::SUCCESS)
-        }
-        Command::Sweep {
-            scene,
-            vary,
-            preset,
-            set,
-            repeat,
-            out,
-            keep_outputs,
-            json,
-            threads,
-            vtu_format,
-        } => {
-            start_threads(threads)?;
-            if repeat == 0 {
-                return Err(hytled::Error::Input(
-                    "--repeat 0: give at least 1 run per combination".into(),
-                ));
-            }
-            if keep_outputs && out.is_none() {
-                return Err(hytled::Error::Input(
-                    "--keep-outputs needs --out DIR to write the runs to".into(),
-                ));
-            }
-            let varies = vary
-                .iter()
-                .map(|v| hytled::sweep::parse_vary(v))
-                .collect::<hytled::Result<Vec<_>>>()?;
-            let mut presets = std::collections::BTreeMap::new();
-            for p in &preset {
-                let (name, sets) = hytled::sweep::parse_preset(p)?;
-                if presets.insert(name.clone(), sets).is_some() {
-                    return Err(hytled::Error::Input(format!(
-                        "--preset {name} is given twice"
-                    )));
-                }
-            }
-            let opts = hytled::sweep::SweepOptions {
-                presets,
-                out,
-                repeat,
-                keep_outputs,
-                vtu_format: vtu_format.into(),
-                progress: true,
-            };
-            let rows = hytled::sweep::run_sweep(&scene, &set, &varies, &opts)?;
-            if json {
-                println!(
-                    "{}",
-                    serde_json::to_string_pretty(&rows).map_err(|e| hytled::Error::Input(
-                        format!("cannot serialise the sweep: {e}")
-                    ))?
-                );
-            } else {
-                let dims = hytled::sweep::dimensions(&varies, &opts.presets);
-                print!("{}", hytled::sweep::table(&dims, &rows));
-            }
-            if rows.iter().all(|r| r.error.is_some()) {
-                return Err(hytled::Error::Input("sweep: every run failed".into()));
-            }
-            Ok(exit::SUCCESS)
-        }
-        Command::Table { summaries } => {
-            let mut vals = Vec::new();
-            for p in &summaries {
-                let text = std::fs::read_to_string(p).map_err(|e| hytled::Error::io(p, e))?;
-                let v: serde_json::Value = serde_json::from_str(&text).map_err(|e| {
-                    hytled::Error::Input(format!("{}: not a JSON run summary: {e}", p.display()))
-                })?;
-                vals.push(v);
-            }
-            print!("{}", hytled::report::markdown_table(&vals));
-            Ok(exit::SUCCESS)
-        }
-        Command::Mesh {
-            scene,
-            set,
-            out,
-            vtu_format,
-            split,
-        } => {
-            let sc = hytled::scene::load(&scene, &set)?;
-            let mesh = simulation::build_mesh(&sc)?;
-            let path = out.unwrap_or_else(|| {
-                PathBuf::from(format!(
-                    "meshes/{}-{}.vtu",
-                    sc.name.clone().unwrap_or_default(),
-                    hytled::fe::ElementKind::from(sc.discretization.element).name()
-                ))
-            });
-            if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
-                std::fs::create_dir_all(dir).map_err(|e| hytled::Error::io(dir, e))?;
-            }
-            hytled::io::vtu::write_mesh(&path, &mesh, vec![], vec![], vtu_format.into())?;
-            println!(
-                "{}: {} nodes, {} elements",
-                path.display(),
-                mesh.nodes.len(),
-                mesh.num_cells()
-            );
-            if let Some((a, e)) = hytled::geometry::quality::min_dihedral_angle(&mesh) {
-                println!("min dihedral angle {a:.2} deg (element {e})");
-            }
-            if let Some(paths) = split {
-                let (fe_path, cloud_path) = (&paths[0], &paths[1]);
-                let (n_fe, n_cloud) = hytled::coupling::regions::write_split_inputs(
-                    &mesh,
-                    sc.discretization.fe_layers(),
-                    fe_path,
-                    cloud_path,
-                )?;
-                println!(
-                    "{}: FE layer ({} layer(s)), {n_fe} nodes; {}: {n_cloud} interior nodes",
-                    fe_path.display(),
-                    sc.discretization.fe_layers(),
-                    cloud_path.display()
-                );
-            }
-            Ok(exit::SUCCESS)
+        Command::Run(a) => run(a),
+        Command::Check(a) => check(a),
+        Command::Convert(a) => convert(a),
+        Command::Bench(a) => bench(a),
+        Command::Compare(a) => compare(a),
+        Command::Sweep(a) => sweep(a),
+        Command::Table(a) => table(a),
+        Command::Mesh(a) => mesh(a),
+    }
+}
+
+/// `hytled run`; the exit code.
+fn run(
+    RunArgs {
+        scene,
+        set,
+        out,
+        json,
+        threads,
+        vtu_format,
+        progress_every,
+    }: RunArgs,
+) -> hytled::Result<u8> {
+    start_threads(threads)?;
+    if progress_every.is_some_and(|p| !(p >= 0.0 && p.is_finite())) {
+        return Err(hytled::Error::Input(
+            "--progress-every must be a number of seconds, 0 or more".into(),
+        ));
+    }
+    let sc = hytled::scene::load(&scene, &set)?;
+    let opts = RunOptions {
+        out: out.clone(),
+        progress: !json && std::io::stderr().is_terminal(),
+        progress_lines: progress_every.or((!std::io::stderr().is_terminal()).then_some(10.0)),
+        vtu_format: vtu_format.into(),
+    };
+    if opts.progress || opts.progress_lines.is_some() {
+        show_stages();
+    }
+    let summary = simulation::run_scene(&sc, &opts)?;
+    for w in &summary.warnings {
+        eprintln!("warning: {w}");
+    }
+    if json {
+        println!(
+            "{}",
+            serde_json::to_string_pretty(&summary).unwrap_or_default()
+        );
+    } else {
+        print!("{}", summary.table());
+        if let Some(dir) = out {
+            println!("outputs written to {}", dir.display());
         }
     }
+    if summary.status == "not converged" {
+        eprintln!(
+            "error: relaxation did not converge in {} steps (solver.max_steps); the results are \
+             not in equilibrium: raise solver.max_steps or check the load and the constraints",
+            summary.steps
+        );
+        return Ok(exit::NOT_CONVERGED);
+    }
+    Ok(exit::SUCCESS)
+}
+
+/// `hytled check`; the exit code.
+fn check(CheckArgs { scene, set }: CheckArgs) -> hytled::Result<u8> {
+    let sc = hytled::scene::load(&scene, &set)?;
+    let mut prep = simulation::prepare(&sc)?;
+    let (dt, p) = simulation::critical_step(&sc, &mut prep)?;
+    for w in &prep.warnings {
+        eprintln!("warning: {w}");
+    }
+    println!("{}: valid", scene.display());
+    println!(
+        "  nodes {}, elements {}, integration points {} (total weight {:.6e} m^3)",
+        prep.model.nodes.len(),
+        prep.mesh.num_cells(),
+        prep.model.points.len(),
+        prep.model.points.total_weight()
+    );
+    if let Some(m) = &prep.meshless {
+        let (mean, min, max) = m.support_statistics();
+        let exact = m
+            .exact_volume
+            .map_or(String::new(), |v| format!("; exact volume {v:.6e} m^3"));
+        println!(
+            "  meshless: {}; {}; support {mean:.1} nodes per point (min {min}, max {max}); {} node(s) removed{exact}",
+            m.cloud, m.integration, m.removed_nodes
+        );
+    }
+    if let Some(c) = &prep.coupled {
+        use hytled::coupling::regions::CellRole;
+        let full = if c.full_rule_cells > 0 {
+            format!(
+                " ({} on the full rule next to a load concentrated on a few driven nodes)",
+                c.full_rule_cells
+            )
+        } else {
+            String::new()
+        };
+        println!(
+            "  coupled: {} FE, {} transition{full} and {} meshless cells; points {} FE, {} transition, {} meshless",
+            c.regions.cells(CellRole::Fe),
+            c.regions.cells(CellRole::Transition),
+            c.interior.num_cells(),
+            c.fe_points,
+            c.transition_points,
+            c.meshless_points
+        );
+    }
+    for b in &prep.model.boundaries {
+        println!("  boundary {:<12} {} nodes", b.name, b.nodes.len());
+    }
+    for (name, count) in &prep.regions {
+        println!("  region {name:<14} {count} integration points");
+    }
+    for name in prep.model.loads.names() {
+        println!("  load {name}");
+    }
+    if let Some(c) = &prep.model.contact {
+        for (b, name) in c.names().enumerate() {
+            println!(
+                "  contact {name:<13} {} candidate surface points",
+                c.candidates(b)
+            );
+        }
+    }
+    for pr in &prep.probes {
+        if pr.element == usize::MAX {
+            println!(
+                "  probe {:<15} interpolated from {} nodes",
+                pr.name,
+                pr.nodes.len()
+            );
+        } else {
+            println!("  probe {:<15} in element {}", pr.name, pr.element);
+        }
+    }
+    if let Some((a, e)) = prep.min_dihedral {
+        println!("  min dihedral angle {a:.2} deg (element {e})");
+    }
+    println!(
+        "  critical time step {dt:.4e} s (set by {p}); dt = {:.4e} s",
+        dt * sc.solver.dt_factor
+    );
+    Ok(exit::SUCCESS)
+}
+
+/// `hytled convert`; the exit code.
+fn convert(
+    ConvertArgs {
+        input,
+        output,
+        vtu_format,
+    }: ConvertArgs,
+) -> hytled::Result<u8> {
+    let mut m = hytled::io::mesh_file::read_mesh(&input, None, 1.0)?;
+    if hytled::scene::MeshFormat::from_path(&output) == Some(hytled::scene::MeshFormat::Inp) {
+        let renamed = hytled::io::mesh_file::inp_safe_set_names(&mut m);
+        m.warnings.extend(renamed);
+    }
+    for w in &m.warnings {
+        eprintln!("warning: {w}");
+    }
+    hytled::io::mesh_file::write_mesh_file(&output, &m, vtu_format.into())?;
+    println!(
+        "{} -> {}: {} nodes, {} cells, {} node sets, {} element sets, {} face sets",
+        input.display(),
+        output.display(),
+        m.mesh.nodes.len(),
+        m.mesh.num_cells(),
+        m.node_sets.len(),
+        m.element_sets.len(),
+        m.face_sets.len()
+    );
+    Ok(exit::SUCCESS)
+}
+
+/// `hytled bench`; the exit code.
+fn bench(
+    BenchArgs {
+        scenes,
+        set,
+        threads,
+        steps,
+        repeat,
+        json,
+    }: BenchArgs,
+) -> hytled::Result<u8> {
+    use hytled::bench;
+    let cases = if scenes.is_empty() {
+        bench::default_cases(&set)?
+    } else {
+        scenes
+            .iter()
+            .map(|p| {
+                let scene = hytled::scene::load(p, &set)?;
+                Ok(bench::BenchCase {
+                    label: p.display().to_string(),
+                    scene,
+                })
+            })
+            .collect::<hytled::Result<Vec<_>>>()?
+    };
+    let opts = bench::BenchOptions {
+        steps,
+        threads: threads.unwrap_or_else(bench::default_threads),
+        repeat,
+        progress: true,
+    };
+    let mut rows = Vec::new();
+    for c in &cases {
+        rows.extend(bench::run_case(c, &opts)?);
+    }
+    if json {
+        println!(
+            "{}",
+            serde_json::to_string_pretty(&rows).unwrap_or_default()
+        );
+    } else {
+        println!("{}", bench::table(&rows));
+        println!("SI units; times are wall-clock seconds on this machine.");
+    }
+    Ok(exit::SUCCESS)
+}
+
+/// `hytled compare`; the exit code.
+fn compare(
+    CompareArgs {
+        scene,
+        methods,
+        set,
+        json,
+        out,
+        threads,
+        vtu_format,
+    }: CompareArgs,
+) -> hytled::Result<u8> {
+    start_threads(threads)?;
+    let methods = hytled::comparison::parse_methods(&methods)?;
+    let opts = hytled::comparison::CompareOptions {
+        out,
+        vtu_format: vtu_format.into(),
+        progress: true,
+    };
+    let rows = hytled::comparison::run_compare(&scene, &set, &methods, &opts)?;
+    if json {
+        println!(
+            "{}",
+            serde_json::to_string_pretty(&rows).map_err(|e| hytled::Error::Input(format!(
+                "cannot serialise the comparison: {e}"
+            )))?
+        );
+    } else {
+        print!("{}", hytled::comparison::table(&rows));
+    }
+    for r in &rows {
+        if let Some(s) = &r.summary {
+            for w in &s.warnings {
+                eprintln!("warning ({}): {w}", r.method);
+            }
+        }
+    }
+    if rows.iter().all(|r| r.error.is_some()) {
+        return Err(hytled::Error::Input("compare: every method failed".into()));
+    }
+    Ok(exit::SUCCESS)
+}
+
+/// `hytled sweep`; the exit code.
+fn sweep(
+    SweepArgs {
+        scene,
+        vary,
+        preset,
+        set,
+        repeat,
+        out,
+        keep_outputs,
+        json,
+        threads,
+        vtu_format,
+    }: SweepArgs,
+) -> hytled::Result<u8> {
+    start_threads(threads)?;
+    if repeat == 0 {
+        return Err(hytled::Error::Input(
+            "--repeat 0: give at least 1 run per combination".into(),
+        ));
+    }
+    if keep_outputs && out.is_none() {
+        return Err(hytled::Error::Input(
+            "--keep-outputs needs --out DIR to write the runs to".into(),
+        ));
+    }
+    let varies = vary
+        .iter()
+        .map(|v| hytled::sweep::parse_vary(v))
+        .collect::<hytled::Result<Vec<_>>>()?;
+    let mut presets = std::collections::BTreeMap::new();
+    for p in &preset {
+        let (name, sets) = hytled::sweep::parse_preset(p)?;
+        if presets.insert(name.clone(), sets).is_some() {
+            return Err(hytled::Error::Input(format!(
+                "--preset {name} is given twice"
+            )));
+        }
+    }
+    let opts = hytled::sweep::SweepOptions {
+        presets,
+        out,
+        repeat,
+        keep_outputs,
+        vtu_format: vtu_format.into(),
+        progress: true,
+    };
+    let rows = hytled::sweep::run_sweep(&scene, &set, &varies, &opts)?;
+    if json {
+        println!(
+            "{}",
+            serde_json::to_string_pretty(&rows)
+                .map_err(|e| hytled::Error::Input(format!("cannot serialise the sweep: {e}")))?
+        );
+    } else {
+        let dims = hytled::sweep::dimensions(&varies, &opts.presets);
+        print!("{}", hytled::sweep::table(&dims, &rows));
+    }
+    if rows.iter().all(|r| r.error.is_some()) {
+        return Err(hytled::Error::Input("sweep: every run failed".into()));
+    }
+    Ok(exit::SUCCESS)
+}
+
+/// `hytled table`; the exit code.
+fn table(TableArgs { summaries }: TableArgs) -> hytled::Result<u8> {
+    let mut vals = Vec::new();
+    for p in &summaries {
+        let text = std::fs::read_to_string(p).map_err(|e| hytled::Error::io(p, e))?;
+        let v: serde_json::Value = serde_json::from_str(&text).map_err(|e| {
+            hytled::Error::Input(format!("{}: not a JSON run summary: {e}", p.display()))
+        })?;
+        vals.push(v);
+    }
+    print!("{}", hytled::report::markdown_table(&vals));
+    Ok(exit::SUCCESS)
+}
+
+/// `hytled mesh`; the exit code.
+fn mesh(
+    MeshArgs {
+        scene,
+        set,
+        out,
+        vtu_format,
+        split,
+    }: MeshArgs,
+) -> hytled::Result<u8> {
+    let sc = hytled::scene::load(&scene, &set)?;
+    let mesh = simulation::build_mesh(&sc)?;
+    let path = out.unwrap_or_else(|| {
+        PathBuf::from(format!(
+            "meshes/{}-{}.vtu",
+            sc.name.clone().unwrap_or_default(),
+            hytled::fe::ElementKind::from(sc.discretization.element).name()
+        ))
+    });
+    if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).map_err(|e| hytled::Error::io(dir, e))?;
+    }
+    hytled::io::vtu::write_mesh(&path, &mesh, vec![], vec![], vtu_format.into())?;
+    println!(
+        "{}: {} nodes, {} elements",
+        path.display(),
+        mesh.nodes.len(),
+        mesh.num_cells()
+    );
+    if let Some((a, e)) = hytled::geometry::quality::min_dihedral_angle(&mesh) {
+        println!("min dihedral angle {a:.2} deg (element {e})");
+    }
+    if let Some(paths) = split {
+        let (fe_path, cloud_path) = (&paths[0], &paths[1]);
+        let (n_fe, n_cloud) = hytled::coupling::regions::write_split_inputs(
+            &mesh,
+            sc.discretization.fe_layers(),
+            fe_path,
+            cloud_path,
+        )?;
+        println!(
+            "{}: FE layer ({} layer(s)), {n_fe} nodes; {}: {n_cloud} interior nodes",
+            fe_path.display(),
+            sc.discretization.fe_layers(),
+            cloud_path.display()
+        );
+    }
+    Ok(exit::SUCCESS)
 }
