@@ -1,0 +1,303 @@
+//! The summary of a finished run: what was solved, its results against the references, its
+//! energy balance and cost.
+
+use std::collections::BTreeMap;
+
+use crate::report::{
+    Comparison, CoupledInfo, Energy, MeshInfo, MeshlessInfo, ProbeResult, Summary, SupportNodes,
+    WallSeconds,
+};
+use crate::scene::Scene;
+use crate::solver::{Mode, RunOutput};
+
+use super::Prepared;
+
+/// "fe", "coupled" or "meshless".
+pub fn method_name(prep: &Prepared) -> &'static str {
+    if prep.meshless.is_some() {
+        "meshless"
+    } else if prep.coupled.is_some() {
+        "coupled"
+    } else {
+        "fe"
+    }
+}
+
+/// The element or basis of a prepared scene: "hex8", "mls", "hex8+mls", ...
+pub fn element_label(scene: &Scene, prep: &Prepared) -> String {
+    match (&prep.meshless, &prep.coupled) {
+        (Some(_), _) => basis_name(scene).into(),
+        (None, Some(_)) => format!("{}+{}", prep.kind.name(), basis_name(scene)),
+        (None, None) => prep.kind.name().into(),
+    }
+}
+
+/// The largest |F_int - F_ext| at a free DOF over the largest |F_int| component at any node
+/// ([`crate::report::Summary::equilibrium_residual`]). Nodes a corrector or contact moves
+/// after the update carry constraint forces, not residuals, and are left out.
+fn equilibrium_residual<M: crate::material::Material>(
+    model: &crate::solver::Model<M>,
+    f_int: &[nalgebra::Vector3<f64>],
+) -> f64 {
+    let n = f_int.len().min(model.constraints.mask.len());
+    let mut moved = vec![false; n];
+    for i in model.corrected_nodes() {
+        if let Some(m) = moved.get_mut(i as usize) {
+            *m = true;
+        }
+    }
+    let (mut residual, mut scale) = (0.0f64, 0.0f64);
+    for i in 0..n {
+        let fe = model
+            .f_ext
+            .get(i)
+            .copied()
+            .unwrap_or_else(nalgebra::Vector3::zeros);
+        for k in 0..3 {
+            scale = scale.max(f_int[i][k].abs());
+            if !moved[i] && !model.constraints.mask[i][k] {
+                residual = residual.max((f_int[i][k] - fe[k]).abs());
+            }
+        }
+    }
+    if scale > 0.0 {
+        residual / scale
+    } else {
+        0.0
+    }
+}
+
+/// Builds the summary of a finished run.
+pub fn summarize(scene: &Scene, prep: &Prepared, out: &RunOutput, total_seconds: f64) -> Summary {
+    let model = &prep.model;
+    let reactions: BTreeMap<String, [f64; 3]> = model
+        .reaction_names()
+        .into_iter()
+        .zip(model.reactions(&out.f_int))
+        .map(|(b, r)| (b, [r.x, r.y, r.z]))
+        .collect();
+    let mut warnings = prep.warnings.clone();
+    warnings.extend(out.restarts.iter().cloned());
+    let equilibrium_residual = out
+        .load_steps
+        .is_some()
+        .then(|| equilibrium_residual(model, &out.f_int));
+    if let Some(r) = equilibrium_residual.filter(|&r| r > crate::report::RESIDUAL_WARNING) {
+        warnings.push(format!(
+            "equilibrium: the largest out-of-balance force at a free node is {r:.2e} of the \
+             largest nodal force at the end of this relaxation (more than {:.0e}): the \
+             displacements are not at equilibrium to the digits shown; lower solver.tolerance \
+             or raise solver.max_steps",
+            crate::report::RESIDUAL_WARNING
+        ));
+    }
+    let balance_error = (scene.solver.mode == Mode::Dynamic).then(|| {
+        let input = out.external_work + out.initial_kinetic;
+        let scale = input
+            .abs()
+            .max(out.peak_external_work + out.initial_kinetic);
+        (input - out.strain_energy - out.kinetic_energy - out.damping_dissipation).abs()
+            / scale.max(f64::MIN_POSITIVE)
+    });
+    if let Some(b) = balance_error.filter(|&b| b > crate::report::ENERGY_WARNING) {
+        warnings.push(format!(
+            "energy balance: {:.2} % of the work put in is unaccounted for at the end of this \
+             dynamic run (more than {:.0} %): an instability that grew without diverging, most \
+             likely; the step ended at {:.4e} s against a critical estimate of {:.4e} s at the \
+             start (solver.dt_factor {:.3}). Rerun with a smaller solver.dt_factor and compare",
+            100.0 * b,
+            100.0 * crate::report::ENERGY_WARNING,
+            out.dt,
+            out.dt_critical,
+            scene.solver.dt_factor,
+        ));
+    }
+    if let Some(c) = &model.contact {
+        if c.worst_penetration() > c.tolerance() {
+            warnings.push(format!(
+                "contact: a step left a surface point {:.3e} m inside a rigid body, more than the \
+                 tolerance {:.1e} m (the corrections did not converge within their sweeps; a \
+                 sharp edge of the rigid surface or a large step per load increment)",
+                c.worst_penetration(),
+                c.tolerance()
+            ));
+        }
+    }
+    let probes: BTreeMap<String, ProbeResult> = prep
+        .probes
+        .iter()
+        .map(|p| {
+            let d = p.displacement(&out.u);
+            (
+                p.name.clone(),
+                ProbeResult {
+                    position: [p.position.x, p.position.y, p.position.z],
+                    displacement: [d.x, d.y, d.z],
+                },
+            )
+        })
+        .collect();
+    let reference = scene
+        .references
+        .iter()
+        .filter_map(|(name, r)| {
+            let parts: Vec<&str> = r.quantity.split('.').collect();
+            let k = match parts.get(2) {
+                Some(&"x") => 0,
+                Some(&"y") => 1,
+                _ => 2,
+            };
+            let computed = match parts[0] {
+                "reaction" => reactions.get(parts[1])?[k],
+                _ => probes.get(parts[1])?.displacement[k],
+            };
+            let value = r.value?;
+            let relative_error = (computed - value).abs() / value.abs().max(f64::MIN_POSITIVE);
+            Some((
+                name.clone(),
+                Comparison {
+                    quantity: r.quantity.clone(),
+                    value,
+                    computed,
+                    relative_error,
+                    source: r.source.clone(),
+                },
+            ))
+        })
+        .collect();
+    let w = out.external_work;
+    Summary {
+        scene: scene.name.clone().unwrap_or_default(),
+        units: "SI: m, kg, s, N, Pa, J",
+        method: method_name(prep).into(),
+        element: element_label(scene, prep),
+        mode: match scene.solver.mode {
+            Mode::Dynamic => "dynamic".into(),
+            Mode::Relaxation => "relaxation".into(),
+        },
+        nodes: model.nodes.len(),
+        integration_points: model.points.len(),
+        // The step the run started with (step_updates has the shortest one).
+        dt: out.step_updates.dt_initial,
+        dt_critical: out.dt_critical,
+        dt_factor: out.step_updates.dt_initial / out.dt_critical,
+        steps: out.steps,
+        failed_steps: out.failed_steps,
+        restarts: out.restarts.len(),
+        step_updates: (out.step_updates.estimates > 0).then_some(out.step_updates),
+        simulated_time: out.simulated_time,
+        status: match (out.load_steps.is_some(), out.converged) {
+            (false, _) => "completed",
+            (true, true) => "converged",
+            (true, false) => "not converged",
+        },
+        converged: out.converged,
+        equilibrium_residual,
+        threads: rayon::current_num_threads(),
+        wall_seconds: WallSeconds {
+            preprocess: prep.preprocess_seconds,
+            solve: out.solve_seconds,
+            total: total_seconds,
+        },
+        reactions,
+        contact: model
+            .contact
+            .as_ref()
+            .map(|c| {
+                c.names()
+                    .enumerate()
+                    .map(|(b, name)| {
+                        (
+                            name.to_string(),
+                            crate::report::ContactInfo {
+                                points_in_contact: c.points_in_contact()[b],
+                                max_penetration: c.worst_penetration(),
+                                tolerance: c.tolerance(),
+                            },
+                        )
+                    })
+                    .collect()
+            })
+            .unwrap_or_default(),
+        loads: model
+            .loads
+            .names()
+            .iter()
+            .zip(model.loads.totals())
+            .map(|(n, t)| (n.clone(), [t.x, t.y, t.z]))
+            .collect(),
+        probes,
+        energy: Energy {
+            external_work: w,
+            strain_energy: out.strain_energy,
+            kinetic: out.kinetic_energy,
+            peak_external_work: out.peak_external_work,
+            damping_dissipation: (out.damping_dissipation > 0.0).then_some(out.damping_dissipation),
+            // Initial kinetic energy (initial velocities) is energy put in, like the work.
+            balance_error,
+        },
+        reference,
+        mesh: MeshInfo {
+            elements: prep.mesh.num_cells(),
+            min_dihedral_deg: prep.min_dihedral.map(|m| m.0),
+            min_dihedral_element: prep.min_dihedral.map(|m| m.1),
+            critical: out.critical,
+            volume: model.points.total_weight(),
+        },
+        support_nodes: prep
+            .meshless
+            .as_ref()
+            .map(|m| m.support_statistics())
+            .or_else(|| prep.coupled.as_ref().map(|c| c.support_statistics()))
+            .map(|(mean, min, max)| SupportNodes { mean, min, max }),
+        removed_nodes: prep.meshless.as_ref().map(|m| m.removed_nodes),
+        bc_method: prep.bc_method.map(|b| b.name().to_string()),
+        meshless: prep.meshless.as_ref().map(|m| MeshlessInfo {
+            cloud: m.cloud.clone(),
+            integration: m.integration.clone(),
+            basis: basis_long(scene),
+            support_rule: m.support.describe(),
+            exact_volume: m.exact_volume,
+            adaptive: m.adaptive.clone(),
+        }),
+        coupled: prep.coupled.as_ref().map(|c| {
+            use crate::coupling::{CellRole, NodeRole};
+            CoupledInfo {
+                fe_layers: scene.discretization.fe_layers(),
+                fe_cells: c.regions.cells(CellRole::Fe),
+                transition_cells: c.regions.cells(CellRole::Transition),
+                meshless_cells: c.interior.num_cells(),
+                fe_nodes: c.regions.nodes(NodeRole::Fe),
+                interface_nodes: c.regions.nodes(NodeRole::Interface),
+                meshless_nodes: c.regions.nodes(NodeRole::Meshless),
+                fe_points: c.fe_points,
+                transition_points: c.transition_points,
+                meshless_points: c.meshless_points,
+                full_rule_cells: c.full_rule_cells,
+                basis: basis_long(scene),
+                support_rule: c.support.describe(),
+                adaptive: c.adaptive.clone(),
+            }
+        }),
+        warnings,
+        relaxation: out.relaxation.clone(),
+        load_steps: out.load_steps,
+        momentum: (scene.mode_is_dynamic()).then_some(out.momentum),
+    }
+}
+
+fn basis_name(scene: &Scene) -> &'static str {
+    match scene.discretization.basis {
+        crate::scene::Basis::Linear => "mls",
+        crate::scene::Basis::Quadratic => "mmls",
+    }
+}
+
+fn basis_long(scene: &Scene) -> String {
+    match scene.discretization.basis {
+        crate::scene::Basis::Linear => "linear MLS".into(),
+        crate::scene::Basis::Quadratic => {
+            format!("quadratic MMLS (mu = {:e})", scene.discretization.mu)
+        }
+    }
+}
