@@ -56,3 +56,45 @@ fn cube_tet4_anp_on_a_tetgen_mesh_matches_exact_solution() {
     let f = s.reactions["top"][2];
     assert!((f - -7.63269).abs() / 7.63269 < 0.005, "top reaction {f} N");
 }
+
+/// A probe over a node selection averages the displacement interpolated at the selected nodes
+/// (the MLS or blended shape functions there, not the nodal parameters): over the top face of
+/// the exact cube that is u_z = -0.02 m and u_x = u_y = (a - 1) 0.05 m, the face's centroid
+/// being at x = y = 0.05 m, for every method.
+#[test]
+fn face_probes_average_the_exact_displacement() {
+    let exact_ux = (1.11574668 - 1.0) * 0.05;
+    for method in ["fe", "meshless", "coupled"] {
+        let s = run_case(
+            "cases/cube-compression.toml",
+            &[
+                &format!("discretization.method={method}"),
+                "probes.face={ select = { plane = { axis = \"z\", value = 0.1 } } }",
+            ],
+        );
+        let p = &s.probes["face"];
+        println!(
+            "{method}: face probe at {:?} m, u = {:?} m",
+            p.position, p.displacement
+        );
+        for k in 0..2 {
+            assert!(
+                (p.position[k] - 0.05).abs() < 1e-12,
+                "{method}: {:?}",
+                p.position
+            );
+            let e = (p.displacement[k] - exact_ux).abs() / exact_ux;
+            assert!(
+                e < 2e-3,
+                "{method}: u[{k}] = {} m, exact {exact_ux} m",
+                p.displacement[k]
+            );
+        }
+        assert!((p.position[2] - 0.1).abs() < 1e-12);
+        assert!(
+            (p.displacement[2] + 0.02).abs() < 1e-9,
+            "{method}: {:?}",
+            p.displacement
+        );
+    }
+}

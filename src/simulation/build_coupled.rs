@@ -21,7 +21,7 @@ use super::surface::Discretized;
 use super::translate::{load_mesh_input, material, scene_path};
 use super::{
     add_loads_and_contact, body_mesh, boundaries, centroid, hourglass_modulus, imposition,
-    name_file_element, regions, select_nodes, set_probe, translate, Prepared,
+    mean_probe, name_file_element, regions, select_nodes, translate, Prepared,
 };
 
 /// Warnings for the boundaries that drive a load concentrated on a few nodes
@@ -208,18 +208,7 @@ pub(super) fn prepare_coupled(scene: &Scene) -> Result<Prepared> {
                     &format!("probe '{name}'"),
                     input.as_ref(),
                 )?;
-                let mut acc: BTreeMap<usize, f64> = BTreeMap::new();
-                for &i in &ids {
-                    for &(j, w) in &vertex[i] {
-                        *acc.entry(j).or_default() += w / ids.len() as f64;
-                    }
-                }
-                let mut pr = set_probe(name, &build.nodes, acc.into_iter().collect());
-                pr.position = ids
-                    .iter()
-                    .fold(Vector3::zeros(), |a, &i| a + build.nodes[i])
-                    / ids.len() as f64;
-                Ok(pr)
+                mean_probe(name, &build.nodes, &ids, |i| Ok(vertex[i].clone()))
             }
             (None, Some(x)) => {
                 let x = Vector3::from(x);

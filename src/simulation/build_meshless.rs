@@ -1,7 +1,6 @@
 //! A meshless run's preparation: the node cloud, integration points and supports, boundaries
 //! (EBCIEM / SEBCIEM where not interpolating), probes and loads.
 
-use std::collections::BTreeMap;
 use std::time::Instant;
 
 use nalgebra::Vector3;
@@ -17,7 +16,7 @@ use crate::{Error, Result};
 use super::surface::Discretized;
 use super::translate::{cloud_sets, load_mesh_input, meshless_settings};
 use super::{
-    add_loads_and_contact, boundaries, imposition, regions, select_nodes, set_probe, translate,
+    add_loads_and_contact, boundaries, imposition, mean_probe, regions, select_nodes, translate,
     Prepared,
 };
 
@@ -96,20 +95,10 @@ pub(super) fn prepare_meshless(scene: &Scene) -> Result<Prepared> {
                     &format!("probe '{name}'"),
                     input.as_ref(),
                 )?;
-                let mut acc: BTreeMap<usize, f64> = BTreeMap::new();
-                for &i in &ids {
+                return mean_probe(name, &build.nodes, &ids, |i| {
                     let s = build.shape_values(&build.nodes[i], &|| format!("probe '{name}'"))?;
-                    for (&j, &w) in s.ids.iter().zip(&s.phi) {
-                        *acc.entry(j).or_default() += w / ids.len() as f64;
-                    }
-                }
-                let mut pr = set_probe(name, &build.nodes, acc.into_iter().collect());
-                let c = ids
-                    .iter()
-                    .fold(Vector3::zeros(), |a, &i| a + build.nodes[i])
-                    / ids.len() as f64;
-                pr.position = c;
-                return Ok(pr);
+                    Ok(s.ids.into_iter().zip(s.phi).collect())
+                });
             }
             let position = p.position.unwrap_or_default();
             let x = Vector3::from(position);

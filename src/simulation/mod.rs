@@ -1,5 +1,6 @@
 //! The pipeline of one run: scene -> mesh -> quadrature points -> model -> solver -> outputs.
 
+use std::collections::BTreeMap;
 use std::path::PathBuf;
 use std::time::Instant;
 
@@ -72,6 +73,24 @@ fn select_nodes(
     };
     let sets: Option<&crate::geometry::select::SetLookup> = input.map(|_| &lookup as _);
     sel.select_with(nodes, what, sets)
+}
+
+/// A probe that averages the displacements interpolated at the selected nodes `ids`:
+/// `weights(i)` gives the (node, shape-function value) pairs that interpolate node i (its MLS or
+/// blended shape functions). Its position is the centroid of the selected nodes.
+fn mean_probe<W>(name: &str, nodes: &[Vector3<f64>], ids: &[usize], weights: W) -> Result<Probe>
+where
+    W: Fn(usize) -> Result<Vec<(usize, f64)>>,
+{
+    let mut acc: BTreeMap<usize, f64> = BTreeMap::new();
+    for &i in ids {
+        for (j, w) in weights(i)? {
+            *acc.entry(j).or_default() += w / ids.len() as f64;
+        }
+    }
+    let mut pr = set_probe(name, nodes, acc.into_iter().collect());
+    pr.position = ids.iter().fold(Vector3::zeros(), |a, &i| a + nodes[i]) / ids.len() as f64;
+    Ok(pr)
 }
 
 /// A probe that averages nodal values with the given (node, weight) pairs; its position is the
