@@ -1,0 +1,941 @@
+//! ABAQUS/CAE's parts, assembly and instances: placed copies merged into one body.
+
+use std::collections::{BTreeMap, HashMap, HashSet};
+
+use nalgebra::Vector3;
+
+use crate::geometry::{ElementShape, Mesh};
+use crate::io::model::MeshInput;
+use crate::{Error, Result};
+
+use super::build::{build_input, Body};
+use super::elements::{element_face, num_faces, shape_name};
+use super::lines::{fields, parse_keyword, Files, Line, Loc};
+use super::parser::{blocks, upper, Block, ElemRef, Item, Label, Notes, Parser, SetEvent, Target};
+use super::values::parse_coord;
+
+/// Whether the file uses parts and an assembly.
+pub(super) fn has_parts(lines: &[Line]) -> bool {
+    lines.iter().any(|l| {
+        l.keyword
+            && matches!(
+                parse_keyword(&l.text).name.as_str(),
+                "PART" | "ASSEMBLY" | "INSTANCE"
+            )
+    })
+}
+
+struct PartDef<'l, 'a> {
+    pub(super) name: String,
+    pub(super) loc: Loc,
+    pub(super) body: Vec<Block<'l, 'a>>,
+}
+
+struct InstanceDef<'l, 'a> {
+    pub(super) name: String,
+    pub(super) part: String,
+    pub(super) loc: Loc,
+    /// The positioning lines (translation, rotation).
+    pub(super) place: &'l [Line<'a>],
+    /// Keywords between *Instance and *End Instance (reference points, sets).
+    pub(super) body: Vec<Block<'l, 'a>>,
+}
+
+/// Where the keyword blocks of an assembly file go.
+#[derive(Clone, Copy)]
+enum Region {
+    Top,
+    Part(usize),
+    Assembly,
+    Instance(usize),
+    Step,
+}
+
+/// An instance's placement: translation, then rotation about the axis through points a and b
+/// by an angle in degrees (right-hand rule about a -> b), as ABAQUS applies them.
+struct Placement {
+    pub(super) translation: Vector3<f64>,
+    pub(super) rotation: Option<(Vector3<f64>, nalgebra::Rotation3<f64>)>,
+}
+
+impl Placement {
+    fn parse(inst: &InstanceDef, files: &Files) -> Result<Placement> {
+        let what = format!("*Instance {}", inst.name);
+        let numbers = |l: &Line, n: usize, meaning: &str| -> Result<Vec<f64>> {
+            let f = fields(&l.text);
+            if f.len() > n {
+                return Err(files.err(
+                    l.loc,
+                    format!(
+                        "{what}: {} fields on the {meaning} line; it has {n}",
+                        f.len()
+                    ),
+                ));
+            }
+            let mut v = vec![0.0; n];
+            for (k, s) in f.iter().enumerate() {
+                if !s.is_empty() {
+                    v[k] = parse_coord(s)
+                        .map_err(|m| files.err(l.loc, format!("{what} {meaning} line: {m}")))?;
+                }
+            }
+            Ok(v)
+        };
+        let mut p = Placement {
+            translation: Vector3::zeros(),
+            rotation: None,
+        };
+        if let Some(l) = inst.place.first() {
+            let t = numbers(l, 3, "translation (dx, dy, dz)")?;
+            p.translation = Vector3::new(t[0], t[1], t[2]);
+        }
+        if let Some(l) = inst.place.get(1) {
+            let r = numbers(l, 7, "rotation (xa, ya, za, xb, yb, zb, angle)")?;
+            let a = Vector3::new(r[0], r[1], r[2]);
+            let b = Vector3::new(r[3], r[4], r[5]);
+            if r[6] != 0.0 {
+                let axis = nalgebra::Unit::try_new(b - a, 0.0).ok_or_else(|| {
+                    files.err(
+                        l.loc,
+                        format!("{what}: the rotation axis points a and b coincide"),
+                    )
+                })?;
+                p.rotation = Some((
+                    a,
+                    nalgebra::Rotation3::from_axis_angle(&axis, r[6].to_radians()),
+                ));
+            }
+        }
+        if let Some(l) = inst.place.get(2) {
+            return Err(files.err(
+                l.loc,
+                format!(
+                    "{what}: more than two positioning lines (translation, rotation); hytled reads those two"
+                ),
+            ));
+        }
+        Ok(p)
+    }
+
+    fn apply(&self, x: &Vector3<f64>) -> Vector3<f64> {
+        let y = x + self.translation;
+        match &self.rotation {
+            Some((a, r)) => a + r * (y - a),
+            None => y,
+        }
+    }
+}
+
+/// Adds "[instance 'I' of part 'P']" to an input error.
+fn in_instance(e: Error, inst: &InstanceDef) -> Error {
+    match e {
+        Error::Input(m) => Error::Input(format!(
+            "{m} [instance '{}' of part '{}']",
+            inst.name, inst.part
+        )),
+        other => other,
+    }
+}
+
+/// Node and element ids of one instance read, with their positions in the merged mesh.
+struct InstanceMaps {
+    pub(super) node_index: HashMap<u64, usize>,
+    pub(super) elem_index: HashMap<u64, (ElemRef, Loc)>,
+}
+
+/// Reads a file with `*Part`s and an `*Assembly`: every instance is a copy of its part's
+/// nodes, elements and sets, placed by its translation/rotation lines; see the module docs.
+pub(super) fn parse_assembly(lines: &[Line], files: &Files) -> Result<MeshInput> {
+    let (pre, all) = blocks(lines);
+    let mut top: Vec<Block> = Vec::new();
+    let mut parts: Vec<PartDef> = Vec::new();
+    let mut instances: Vec<InstanceDef> = Vec::new();
+    let mut assembly: Vec<Block> = Vec::new();
+    let mut region = Region::Top;
+    for b in all {
+        match (region, b.kw.name.as_str()) {
+            (Region::Step, "ENDSTEP") => {
+                top.push(b);
+                region = Region::Top;
+            }
+            (Region::Step, _) => top.push(b),
+            (_, "STEP") => {
+                top.push(b);
+                region = Region::Step;
+            }
+            (_, "PART") => {
+                if let Region::Part(i) = region {
+                    return Err(files.err(
+                        b.loc,
+                        format!(
+                            "{} inside part '{}' (line {}): its *End Part is missing",
+                            b.kw.shown, parts[i].name, parts[i].loc.line
+                        ),
+                    ));
+                }
+                let name = b.kw.get("NAME").unwrap_or("").to_string();
+                if name.is_empty() {
+                    return Err(files.err(b.loc, format!("{} without NAME=<name>", b.kw.shown)));
+                }
+                if let Some(p) = parts.iter().find(|p| p.name.eq_ignore_ascii_case(&name)) {
+                    return Err(files.err(
+                        b.loc,
+                        format!(
+                            "part '{name}' is defined twice (first at {})",
+                            files.at(p.loc)
+                        ),
+                    ));
+                }
+                parts.push(PartDef {
+                    name,
+                    loc: b.loc,
+                    body: Vec::new(),
+                });
+                region = Region::Part(parts.len() - 1);
+            }
+            (_, "ENDPART") | (_, "ENDASSEMBLY") => region = Region::Top,
+            (_, "ASSEMBLY") | (_, "ENDINSTANCE") => region = Region::Assembly,
+            (_, "INSTANCE") => {
+                let name = b.kw.get("NAME").unwrap_or("").to_string();
+                if name.is_empty() {
+                    return Err(files.err(b.loc, format!("{} without NAME=<name>", b.kw.shown)));
+                }
+                if let Some(i) = instances
+                    .iter()
+                    .find(|i| i.name.eq_ignore_ascii_case(&name))
+                {
+                    return Err(files.err(
+                        b.loc,
+                        format!(
+                            "instance '{name}' is defined twice (first at {})",
+                            files.at(i.loc)
+                        ),
+                    ));
+                }
+                instances.push(InstanceDef {
+                    name,
+                    part: b.kw.get("PART").unwrap_or("").to_string(),
+                    loc: b.loc,
+                    place: b.data,
+                    body: Vec::new(),
+                });
+                region = Region::Instance(instances.len() - 1);
+            }
+            (Region::Part(i), _) => parts[i].body.push(b),
+            (Region::Instance(i), _) => instances[i].body.push(b),
+            (Region::Assembly, _) => assembly.push(b),
+            (Region::Top, _) => top.push(b),
+        }
+    }
+
+    let mut notes = Notes {
+        pre_keyword_lines: pre,
+        ..Notes::default()
+    };
+    // Bodies to merge: mesh data outside parts (plain set names), then every instance.
+    let mut bodies: Vec<(Option<&InstanceDef>, Body)> = Vec::new();
+    let mut p = Parser::new(files);
+    for b in &top {
+        p.keyword(&b.kw, b.loc, b.data)?;
+    }
+    if !p.nodes.is_empty() || !p.vol_ids.is_empty() || !p.surf.is_empty() {
+        let (body, n) = p.resolve()?;
+        notes.absorb(n);
+        bodies.push((None, body));
+    } else {
+        notes.absorb(p.notes);
+    }
+    for inst in &instances {
+        let part = parts
+            .iter()
+            .find(|p| p.name.eq_ignore_ascii_case(&inst.part));
+        let own_nodes = inst.body.iter().any(|b| b.kw.name == "NODE");
+        if part.is_none() && !own_nodes {
+            return Err(files.err(
+                inst.loc,
+                format!(
+                    "*Instance {}: part '{}' is not defined (no *Part, name={} before the assembly)",
+                    inst.name, inst.part, inst.part
+                ),
+            ));
+        }
+        let mut p = Parser::new(files);
+        for b in part
+            .map_or(&[][..], |p| &p.body[..])
+            .iter()
+            .chain(&inst.body)
+        {
+            p.keyword(&b.kw, b.loc, b.data)
+                .map_err(|e| in_instance(e, inst))?;
+        }
+        let (mut body, n) = p.resolve().map_err(|e| in_instance(e, inst))?;
+        notes.absorb(n);
+        let place = Placement::parse(inst, files)?;
+        for (k, x) in body.mesh.nodes.iter_mut().enumerate() {
+            *x = place.apply(x);
+            if !x.iter().all(|v| v.is_finite()) {
+                return Err(files.err(
+                    inst.loc,
+                    format!(
+                        "*Instance {}: node {} is not finite after the translation/rotation",
+                        inst.name,
+                        body.node_ids.get(k).copied().unwrap_or(0)
+                    ),
+                ));
+            }
+        }
+        bodies.push((Some(inst), body));
+    }
+
+    // Merge the bodies of the first shape read.
+    let mut shape: Option<(ElementShape, String)> = None;
+    let mut skipped: HashSet<String> = HashSet::new();
+    let mut nodes = Vec::new();
+    let mut node_ids = Vec::new();
+    let mut cells = Vec::new();
+    let mut vol_ids = Vec::new();
+    let mut faces: Vec<Vec<usize>> = Vec::new();
+    let mut nsets: HashMap<String, (String, Vec<usize>)> = HashMap::new();
+    let mut elsets: HashMap<String, ElsetAcc> = HashMap::new();
+    let mut surfaces: HashMap<String, (String, Vec<Vec<usize>>)> = HashMap::new();
+    let mut maps: HashMap<String, InstanceMaps> = HashMap::new();
+    // Part-level set names (kind, upper-case name) -> (qualified key, name) for each instance.
+    let mut local: BTreeMap<(u8, String), Vec<(String, String)>> = BTreeMap::new();
+    // Element index ranges of the instances, for messages.
+    let mut ranges: Vec<(usize, usize, String)> = Vec::new();
+    let mut listing: Vec<String> = Vec::new();
+    for (inst, body) in bodies {
+        let who = inst.map_or_else(
+            || "mesh data outside *Part".to_string(),
+            |i| format!("instance '{}' (part '{}')", i.name, i.part),
+        );
+        match (body.shape, &shape) {
+            (None, _) => {
+                notes.warnings.push(format!(
+                    "{who} has no volume elements (C3D8*/C3D4*); skipped"
+                ));
+                if let Some(i) = inst {
+                    skipped.insert(upper(&i.name));
+                }
+                continue;
+            }
+            (Some(s), Some((s0, first))) if s != *s0 => {
+                notes.warnings.push(format!(
+                    "{who} is {} but {first} is {}; hytled reads one element shape, so it was skipped",
+                    shape_name(s),
+                    shape_name(*s0)
+                ));
+                if let Some(i) = inst {
+                    skipped.insert(upper(&i.name));
+                }
+                continue;
+            }
+            (Some(s), None) => shape = Some((s, who.clone())),
+            _ => {}
+        }
+        let (no, co, fo) = (nodes.len(), vol_ids.len(), faces.len());
+        let shift = |r: ElemRef| match r {
+            ElemRef::Vol(i) => ElemRef::Vol(i + co),
+            ElemRef::Face(i) => ElemRef::Face(i + fo),
+            ElemRef::Ignored => ElemRef::Ignored,
+        };
+        nodes.extend_from_slice(&body.mesh.nodes);
+        node_ids.extend_from_slice(&body.node_ids);
+        cells.extend(body.mesh.cells.iter().map(|&c| c + no));
+        vol_ids.extend_from_slice(&body.vol_ids);
+        faces.extend(
+            body.faces
+                .iter()
+                .map(|f| f.iter().map(|&i| i + no).collect::<Vec<usize>>()),
+        );
+        let (prefix, shown) = match inst {
+            Some(i) => (format!("{}.", upper(&i.name)), format!("{}.", i.name)),
+            None => (String::new(), String::new()),
+        };
+        for (key, (name, v)) in body.nsets {
+            let q = format!("{prefix}{key}");
+            if inst.is_some() {
+                local
+                    .entry((0, key))
+                    .or_default()
+                    .push((q.clone(), name.clone()));
+            }
+            nsets.insert(
+                q,
+                (
+                    format!("{shown}{name}"),
+                    v.iter().map(|&i| i + no).collect(),
+                ),
+            );
+        }
+        for (key, acc) in body.elsets {
+            let q = format!("{prefix}{key}");
+            if inst.is_some() {
+                local
+                    .entry((1, key))
+                    .or_default()
+                    .push((q.clone(), acc.name.clone()));
+            }
+            elsets.insert(
+                q,
+                ElsetAcc {
+                    name: format!("{shown}{}", acc.name),
+                    vol: acc.vol.iter().map(|&i| i + co).collect(),
+                    faces: acc.faces.iter().map(|&i| i + fo).collect(),
+                    ignored: acc.ignored,
+                },
+            );
+        }
+        for (key, (name, fs)) in body.surfaces {
+            let q = format!("{prefix}{key}");
+            if inst.is_some() {
+                local
+                    .entry((2, key))
+                    .or_default()
+                    .push((q.clone(), name.clone()));
+            }
+            let fs = fs
+                .iter()
+                .map(|f| f.iter().map(|&i| i + no).collect())
+                .collect();
+            surfaces.insert(q, (format!("{shown}{name}"), fs));
+        }
+        let name = inst.map_or_else(String::new, |i| i.name.clone());
+        listing.push(format!(
+            "{who}: nodes {no}..{}, elements {co}..{}",
+            nodes.len(),
+            vol_ids.len()
+        ));
+        ranges.push((co, vol_ids.len(), name.clone()));
+        if let Some(i) = inst {
+            maps.insert(
+                upper(&i.name),
+                InstanceMaps {
+                    node_index: body.node_index.iter().map(|(&k, &v)| (k, v + no)).collect(),
+                    elem_index: body
+                        .elem_index
+                        .iter()
+                        .map(|(&k, &(r, l))| (k, (shift(r), l)))
+                        .collect(),
+                },
+            );
+        }
+    }
+    let Some((shape, _)) = shape else {
+        return Err(Error::Input(format!(
+            "{}: no volume elements (C3D8*/C3D4*) found in any part instance; hytled needs a hexahedral or tetrahedral volume mesh",
+            files.name(0)
+        )));
+    };
+    let mesh = Mesh {
+        nodes,
+        shape,
+        cells,
+    };
+
+    // Assembly-level sets and surfaces, in file order.
+    let empty_nodes = HashMap::new();
+    let empty_elems = HashMap::new();
+    let single = (maps.len() == 1).then(|| maps.values().next()).flatten();
+    let mut asm = Parser::new(files);
+    for b in &assembly {
+        let kw = &b.kw;
+        let (instance, event) = match kw.name.as_str() {
+            "NODE" | "ELEMENT" => {
+                notes.assembly_nodes_skipped += b.data.len();
+                continue;
+            }
+            "NSET" | "ELSET" => {
+                let key = if kw.name == "NSET" { "NSET" } else { "ELSET" };
+                let name = kw.get(key).unwrap_or("").to_string();
+                if name.is_empty() {
+                    return Err(files.err(b.loc, format!("{} without {key}=<name>", kw.shown)));
+                }
+                let instance = match kw.get("INSTANCE") {
+                    Some(i) if skipped.contains(&upper(i)) => {
+                        notes
+                            .assembly_sets_skipped
+                            .push(format!("{name} (instance {i})"));
+                        continue;
+                    }
+                    Some(i) if !maps.contains_key(&upper(i)) => {
+                        return Err(files.err(
+                            b.loc,
+                            format!(
+                                "{} {name}: INSTANCE={i} is not an instance of the assembly",
+                                kw.shown
+                            ),
+                        ))
+                    }
+                    Some(i) => Some(i.to_string()),
+                    None => None,
+                };
+                asm.set_block(kw, key == "NSET", name.clone(), b.loc, b.data)?;
+                let Some(ev) = asm.events.pop() else { continue };
+                let ids = match &ev {
+                    SetEvent::Nset { items, .. } | SetEvent::Elset { items, .. } => items
+                        .iter()
+                        .any(|(it, _)| matches!(it, Item::Id(_) | Item::Gen(..))),
+                    _ => false,
+                };
+                if instance.is_none() && ids {
+                    // Ids without INSTANCE= are assembly nodes/elements (reference points).
+                    notes.assembly_sets_skipped.push(name);
+                    continue;
+                }
+                (instance, ev)
+            }
+            "SURFACE" => {
+                let Some(name) = asm.surface_name(kw, b.loc)? else {
+                    continue;
+                };
+                asm.surface_block(name, b.data)?;
+                let Some(ev) = asm.events.pop() else { continue };
+                (None, ev)
+            }
+            _ => {
+                asm.notes.skip_keyword(kw);
+                continue;
+            }
+        };
+        let (node_index, elem_index) = match (&instance, single) {
+            (Some(i), _) => match maps.get(&upper(i)) {
+                Some(m) => (&m.node_index, &m.elem_index),
+                None => (&empty_nodes, &empty_elems),
+            },
+            // A surface listing element ids with a single instance: that instance's ids.
+            (None, Some(m)) => (&m.node_index, &m.elem_index),
+            (None, None) => (&empty_nodes, &empty_elems),
+        };
+        let mut r = Resolver::new(files, node_index, elem_index, &mesh, &faces);
+        r.nsets = std::mem::take(&mut nsets);
+        r.elsets = std::mem::take(&mut elsets);
+        r.surfaces = std::mem::take(&mut surfaces);
+        if let Some(i) = &instance {
+            r.prefix = Some(upper(i));
+            r.ctx = format!(" (in instance '{i}')");
+        }
+        let res = r.event(&event);
+        nsets = r.nsets;
+        elsets = r.elsets;
+        surfaces = r.surfaces;
+        res?;
+    }
+    notes.absorb(asm.notes);
+
+    // Plain names for part-level sets that only one instance has and the assembly does not
+    // define (so single-instance models keep the names of their part).
+    for ((kind, key), defs) in local {
+        let [(q, name)] = &defs[..] else { continue };
+        match kind {
+            0 if !nsets.contains_key(&key) => {
+                if let Some((_, v)) = nsets.get(q).cloned() {
+                    nsets.insert(key, (name.clone(), v));
+                }
+            }
+            1 if !elsets.contains_key(&key) => {
+                if let Some(mut acc) = elsets.get(q).cloned() {
+                    acc.name = name.clone();
+                    elsets.insert(key, acc);
+                }
+            }
+            2 if !surfaces.contains_key(&key) => {
+                if let Some((_, f)) = surfaces.get(q).cloned() {
+                    surfaces.insert(key, (name.clone(), f));
+                }
+            }
+            _ => {}
+        }
+    }
+    if listing.len() > 1 {
+        notes.warnings.push(format!(
+            "{} part instances read (node ids repeat across instances; positions in the mesh): {}",
+            listing.len(),
+            listing.join("; ")
+        ));
+    }
+
+    let body = Body {
+        mesh,
+        shape: Some(shape),
+        node_ids,
+        node_index: HashMap::new(),
+        vol_ids,
+        elem_index: HashMap::new(),
+        faces,
+        nsets,
+        elsets,
+        surfaces,
+    };
+    let ids = body.vol_ids.clone();
+    Ok(build_input(body, notes, |e| {
+        let id = ids.get(e).copied().unwrap_or(0);
+        match ranges.iter().find(|(a, b, _)| (*a..*b).contains(&e)) {
+            Some((_, _, n)) if !n.is_empty() => format!("element {id} of instance '{n}'"),
+            _ => format!("element {id}"),
+        }
+    }))
+}
+
+/// An element set being resolved: volume cells, surface elements, and whether it listed
+/// ignored (line/point) elements.
+#[derive(Default, Clone)]
+pub(super) struct ElsetAcc {
+    pub(super) name: String,
+    pub(super) vol: Vec<usize>,
+    pub(super) faces: Vec<usize>,
+    pub(super) ignored: bool,
+}
+
+pub(super) struct Resolver<'a> {
+    pub(super) files: &'a Files,
+    pub(super) node_index: &'a HashMap<u64, usize>,
+    pub(super) elem_index: &'a HashMap<u64, (ElemRef, Loc)>,
+    pub(super) mesh: &'a Mesh,
+    pub(super) faces: &'a [Vec<usize>],
+    /// Keyed by upper-case name: (name as first written, node indices).
+    pub(super) nsets: HashMap<String, (String, Vec<usize>)>,
+    pub(super) elsets: HashMap<String, ElsetAcc>,
+    pub(super) surfaces: HashMap<String, (String, Vec<Vec<usize>>)>,
+    /// Upper-case instance name whose sets are looked up first (assembly sets with INSTANCE=).
+    pub(super) prefix: Option<String>,
+    /// Added to error messages (the instance).
+    pub(super) ctx: String,
+}
+
+/// Finds a set by name, case-insensitively, also as `instance.name`.
+pub(super) fn find<'m, T>(map: &'m HashMap<String, T>, name: &str) -> Option<&'m T> {
+    let key = upper(name);
+    map.get(&key)
+        .or_else(|| key.rsplit_once('.').and_then(|(_, short)| map.get(short)))
+}
+
+impl<'a> Resolver<'a> {
+    pub(super) fn new(
+        files: &'a Files,
+        node_index: &'a HashMap<u64, usize>,
+        elem_index: &'a HashMap<u64, (ElemRef, Loc)>,
+        mesh: &'a Mesh,
+        faces: &'a [Vec<usize>],
+    ) -> Self {
+        Resolver {
+            files,
+            node_index,
+            elem_index,
+            mesh,
+            faces,
+            nsets: HashMap::new(),
+            elsets: HashMap::new(),
+            surfaces: HashMap::new(),
+            prefix: None,
+            ctx: String::new(),
+        }
+    }
+
+    pub(super) fn err(&self, loc: Loc, msg: impl std::fmt::Display) -> Error {
+        self.files.err(loc, format!("{msg}{}", self.ctx))
+    }
+
+    /// A set by name: first as a set of the instance in `prefix`, then as [`find`] does.
+    fn lookup<'m, T>(&self, map: &'m HashMap<String, T>, name: &str) -> Option<&'m T> {
+        self.prefix
+            .as_ref()
+            .and_then(|p| map.get(&format!("{p}.{}", upper(name))))
+            .or_else(|| find(map, name))
+    }
+
+    fn elset_entry(&mut self, name: &str) -> &mut ElsetAcc {
+        self.elsets.entry(upper(name)).or_insert_with(|| ElsetAcc {
+            name: name.to_string(),
+            ..Default::default()
+        })
+    }
+
+    fn node(&self, id: u64, set: &str, loc: Loc) -> Result<usize> {
+        self.node_index
+            .get(&id)
+            .copied()
+            .ok_or_else(|| self.err(loc, format!("*NSET {set}: node {id} is not defined")))
+    }
+
+    fn elem(&self, id: u64, what: &str, loc: Loc) -> Result<ElemRef> {
+        self.elem_index
+            .get(&id)
+            .map(|(r, _)| *r)
+            .ok_or_else(|| self.err(loc, format!("{what}: element {id} is not defined")))
+    }
+
+    pub(super) fn event(&mut self, ev: &SetEvent) -> Result<()> {
+        match ev {
+            SetEvent::NodeBlock { name, start, end } => {
+                let e = self
+                    .nsets
+                    .entry(upper(name))
+                    .or_insert_with(|| (name.clone(), Vec::new()));
+                e.1.extend(*start..*end);
+            }
+            SetEvent::ElemBlock { name, refs } => {
+                let acc = self.elset_entry(name);
+                for r in refs {
+                    add_ref(acc, *r);
+                }
+            }
+            SetEvent::Nset {
+                name,
+                loc,
+                items,
+                elset,
+            } => {
+                let mut v = Vec::new();
+                for (item, iloc) in items {
+                    match item {
+                        Item::Id(id) => v.push(self.node(*id, name, *iloc)?),
+                        Item::Gen(a, b, s) => {
+                            let mut k = *a;
+                            while k <= *b {
+                                v.push(self.node(k, name, *iloc)?);
+                                match k.checked_add(*s) {
+                                    Some(n) => k = n,
+                                    None => break,
+                                }
+                            }
+                        }
+                        Item::Name(other) => match self.lookup(&self.nsets, other) {
+                            Some((_, nodes)) => v.extend(sorted_unique(nodes)),
+                            None => {
+                                return Err(self.err(
+                                    *iloc,
+                                    format!(
+                                        "*NSET {name}: '{other}' is neither a node id nor a node set defined above"
+                                    ),
+                                ))
+                            }
+                        },
+                    }
+                }
+                if let Some(es) = elset {
+                    let Some(acc) = self.lookup(&self.elsets, es) else {
+                        return Err(self.err(
+                            *loc,
+                            format!("*NSET {name}: ELSET={es} is not an element set defined above"),
+                        ));
+                    };
+                    let acc = acc.deduped();
+                    for &c in &acc.vol {
+                        if c < self.mesh.num_cells() {
+                            v.extend_from_slice(self.mesh.cell(c));
+                        }
+                    }
+                    for &f in &acc.faces {
+                        if let Some(face) = self.faces.get(f) {
+                            v.extend_from_slice(face);
+                        }
+                    }
+                }
+                let e = self
+                    .nsets
+                    .entry(upper(name))
+                    .or_insert_with(|| (name.clone(), Vec::new()));
+                e.1.extend(v);
+            }
+            SetEvent::Elset { name, items } => {
+                let mut add = ElsetAcc::default();
+                let what = format!("*ELSET {name}");
+                for (item, iloc) in items {
+                    match item {
+                        Item::Id(id) => add_ref(&mut add, self.elem(*id, &what, *iloc)?),
+                        Item::Gen(a, b, s) => {
+                            let mut k = *a;
+                            while k <= *b {
+                                add_ref(&mut add, self.elem(k, &what, *iloc)?);
+                                match k.checked_add(*s) {
+                                    Some(n) => k = n,
+                                    None => break,
+                                }
+                            }
+                        }
+                        Item::Name(other) => match self.lookup(&self.elsets, other) {
+                            Some(o) => {
+                                let o = o.deduped();
+                                add.vol.extend(o.vol);
+                                add.faces.extend(o.faces);
+                                add.ignored |= o.ignored;
+                            }
+                            None => {
+                                return Err(self.err(
+                                    *iloc,
+                                    format!(
+                                        "{what}: '{other}' is neither an element id nor an element set defined above"
+                                    ),
+                                ))
+                            }
+                        },
+                    }
+                }
+                let acc = self.elset_entry(name);
+                acc.vol.extend(add.vol);
+                acc.faces.extend(add.faces);
+                acc.ignored |= add.ignored;
+            }
+            SetEvent::Surface { name, entries } => {
+                let mut out: Vec<Vec<usize>> = Vec::new();
+                for (target, label, loc) in entries {
+                    let members: ElsetAcc = match target {
+                        Target::Id(id) => {
+                            let mut a = ElsetAcc::default();
+                            add_ref(&mut a, self.elem(*id, &format!("*SURFACE {name}"), *loc)?);
+                            a
+                        }
+                        Target::Name(set) => match self.lookup(&self.elsets, set) {
+                            Some(a) => a.deduped(),
+                            None => {
+                                return Err(self.err(
+                                    *loc,
+                                    format!(
+                                    "*SURFACE {name}: '{set}' is not an element set defined above"
+                                ),
+                                ))
+                            }
+                        },
+                    };
+                    self.surface_faces(name, &members, *label, *loc, &mut out)?;
+                }
+                let e = self
+                    .surfaces
+                    .entry(upper(name))
+                    .or_insert_with(|| (name.clone(), Vec::new()));
+                e.1.extend(out);
+            }
+        }
+        Ok(())
+    }
+
+    fn surface_faces(
+        &self,
+        name: &str,
+        members: &ElsetAcc,
+        label: Option<Label>,
+        loc: Loc,
+        out: &mut Vec<Vec<usize>>,
+    ) -> Result<()> {
+        let shape = self.mesh.shape;
+        let ncells = self.mesh.num_cells();
+        let cells: Vec<usize> = members
+            .vol
+            .iter()
+            .copied()
+            .filter(|&c| c < ncells)
+            .collect();
+        match label {
+            Some(Label::S(k)) => {
+                if !members.faces.is_empty() {
+                    return Err(self.err(
+                        loc,
+                        format!(
+                            "*SURFACE {name}: face label S{} given for surface (CPS/S/R3D/M3D) elements; use SPOS/SNEG or no label",
+                            k + 1
+                        ),
+                    ));
+                }
+                let Some(local) = element_face(shape, k) else {
+                    return Err(self.err(
+                        loc,
+                        format!(
+                            "*SURFACE {name}: face S{} does not exist on {} elements (S1..S{})",
+                            k + 1,
+                            shape_name(shape),
+                            num_faces(shape)
+                        ),
+                    ));
+                };
+                for c in cells {
+                    let cell = self.mesh.cell(c);
+                    out.push(local.iter().filter_map(|&i| cell.get(i).copied()).collect());
+                }
+            }
+            Some(Label::Pos) | Some(Label::Neg) => {
+                if !cells.is_empty() {
+                    return Err(self.err(
+                        loc,
+                        format!(
+                            "*SURFACE {name}: SPOS/SNEG apply to surface elements; use S1..S{} for {} elements",
+                            num_faces(shape),
+                            shape_name(shape)
+                        ),
+                    ));
+                }
+            }
+            None => {
+                // Free faces of the listed volume elements.
+                let mut count: HashMap<Vec<usize>, usize> = HashMap::new();
+                let mut all = Vec::new();
+                for &c in &cells {
+                    let cell = self.mesh.cell(c);
+                    for k in 0..num_faces(shape) {
+                        if let Some(local) = element_face(shape, k) {
+                            let f: Vec<usize> =
+                                local.iter().filter_map(|&i| cell.get(i).copied()).collect();
+                            let mut key = f.clone();
+                            key.sort_unstable();
+                            *count.entry(key.clone()).or_insert(0) += 1;
+                            all.push((key, f));
+                        }
+                    }
+                }
+                out.extend(
+                    all.into_iter()
+                        .filter(|(key, _)| count.get(key) == Some(&1))
+                        .map(|(_, f)| f),
+                );
+            }
+        }
+        let reverse = matches!(label, Some(Label::Neg));
+        for &f in &members.faces {
+            if let Some(face) = self.faces.get(f) {
+                let mut v = face.clone();
+                if reverse {
+                    if let Some(rest) = v.get_mut(1..) {
+                        rest.reverse();
+                    }
+                }
+                out.push(v);
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Sorted, without repeats.
+fn sorted_unique(v: &[usize]) -> Vec<usize> {
+    let mut w = v.to_vec();
+    w.sort_unstable();
+    w.dedup();
+    w
+}
+
+/// First occurrences, in order.
+fn first_occurrences(v: &[usize]) -> Vec<usize> {
+    let mut seen = HashSet::with_capacity(v.len());
+    v.iter().copied().filter(|&i| seen.insert(i)).collect()
+}
+
+impl ElsetAcc {
+    /// A copy without repeated members (a set referencing itself grows linearly, not
+    /// exponentially).
+    fn deduped(&self) -> ElsetAcc {
+        ElsetAcc {
+            name: self.name.clone(),
+            vol: sorted_unique(&self.vol),
+            faces: first_occurrences(&self.faces),
+            ignored: self.ignored,
+        }
+    }
+}
+
+fn add_ref(acc: &mut ElsetAcc, r: ElemRef) {
+    match r {
+        ElemRef::Vol(i) => acc.vol.push(i),
+        ElemRef::Face(i) => acc.faces.push(i),
+        ElemRef::Ignored => acc.ignored = true,
+    }
+}
