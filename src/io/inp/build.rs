@@ -6,9 +6,9 @@ use crate::geometry::quality::tet_signed_volume;
 use crate::geometry::{ElementShape, Mesh};
 use crate::io::model::MeshInput;
 
-use super::assembly::ElsetAcc;
+use super::events::{ElemRef, Notes};
 use super::lines::Loc;
-use super::parser::{ElemRef, Notes};
+use super::sets::ElsetAcc;
 
 /// A mesh body with its sets, resolved.
 pub(super) struct Body {

@@ -316,3 +316,39 @@ impl Flattener {
         Ok(())
     }
 }
+
+pub(super) fn upper(s: &str) -> String {
+    s.to_ascii_uppercase()
+}
+
+/// A keyword line with its data lines.
+pub(super) struct Block<'l, 'a> {
+    pub(super) kw: Keyword,
+    pub(super) loc: Loc,
+    pub(super) data: &'l [Line<'a>],
+}
+
+/// The keyword blocks of a list of lines, and the number of data lines before the first
+/// keyword.
+pub(super) fn blocks<'l, 'a>(lines: &'l [Line<'a>]) -> (usize, Vec<Block<'l, 'a>>) {
+    let mut out = Vec::new();
+    let mut pre = 0;
+    let mut i = 0;
+    while let Some(l) = lines.get(i) {
+        i += 1;
+        if !l.keyword {
+            pre += 1;
+            continue;
+        }
+        let start = i;
+        while lines.get(i).is_some_and(|d| !d.keyword) {
+            i += 1;
+        }
+        out.push(Block {
+            kw: parse_keyword(&l.text),
+            loc: l.loc,
+            data: lines.get(start..i).unwrap_or(&[]),
+        });
+    }
+    (pre, out)
+}

@@ -62,14 +62,17 @@
 
 use std::path::Path;
 
-use super::model::MeshInput;
 use crate::{Error, Result};
+
+use super::model::MeshInput;
 
 mod assembly;
 mod build;
 mod elements;
+mod events;
 mod lines;
 mod parser;
+mod sets;
 mod values;
 mod write;
 

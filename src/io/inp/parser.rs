@@ -1,6 +1,6 @@
 //! The parser state: one body's nodes, elements, sets and surfaces read keyword by keyword.
 
-use std::collections::{BTreeMap, HashMap};
+use std::collections::HashMap;
 
 use nalgebra::Vector3;
 
@@ -8,157 +8,12 @@ use crate::geometry::{ElementShape, Mesh};
 use crate::io::model::MeshInput;
 use crate::{Error, Result};
 
-use super::assembly::Resolver;
 use super::build::{build_input, Body};
 use super::elements::{classify, shape_name, ElemKind};
-use super::lines::{fields, parse_keyword, Files, Keyword, Line, Loc};
+use super::events::{ElemRef, Item, Label, Mode, Notes, SetEvent, SurfElem, Target};
+use super::lines::{blocks, fields, upper, Files, Keyword, Line, Loc};
+use super::sets::Resolver;
 use super::values::{parse_coord, parse_id};
-
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub(super) enum ElemRef {
-    Vol(usize),
-    Face(usize),
-    Ignored,
-}
-
-#[derive(Debug, Clone)]
-pub(super) enum Item {
-    Id(u64),
-    Gen(u64, u64, u64),
-    Name(String),
-}
-
-#[derive(Debug, Clone, Copy)]
-pub(super) enum Label {
-    S(usize),
-    Pos,
-    Neg,
-}
-
-#[derive(Debug, Clone)]
-pub(super) enum Target {
-    Id(u64),
-    Name(String),
-}
-
-/// Set definitions, resolved in file order once every node and element is known.
-pub(super) enum SetEvent {
-    NodeBlock {
-        name: String,
-        start: usize,
-        end: usize,
-    },
-    ElemBlock {
-        name: String,
-        refs: Vec<ElemRef>,
-    },
-    Nset {
-        name: String,
-        loc: Loc,
-        items: Vec<(Item, Loc)>,
-        elset: Option<String>,
-    },
-    Elset {
-        name: String,
-        items: Vec<(Item, Loc)>,
-    },
-    Surface {
-        name: String,
-        entries: Vec<(Target, Option<Label>, Loc)>,
-    },
-}
-
-pub(super) struct SurfElem {
-    pub(super) id: u64,
-    pub(super) nodes: Vec<u64>,
-    pub(super) loc: Loc,
-}
-
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub(super) enum Mode {
-    Top,
-    Step,
-}
-
-/// What the reader tells the user besides the mesh, gathered over every part read.
-#[derive(Default)]
-pub(super) struct Notes {
-    pub(super) warnings: Vec<String>,
-    /// Skipped keywords: (normalized name, name as written), first occurrence of each.
-    pub(super) skipped: Vec<(String, String)>,
-    pub(super) ignored_types: BTreeMap<String, usize>,
-    pub(super) extra_node_fields: usize,
-    pub(super) pre_keyword_lines: usize,
-    pub(super) assembly_nodes_skipped: usize,
-    pub(super) assembly_sets_skipped: Vec<String>,
-}
-
-impl Notes {
-    pub(super) fn skip_keyword(&mut self, kw: &Keyword) {
-        if !self.skipped.iter().any(|(n, _)| *n == kw.name) {
-            self.skipped.push((kw.name.clone(), kw.shown.clone()));
-        }
-    }
-
-    /// Adds the notes of another part read (each warning once).
-    pub(super) fn absorb(&mut self, o: Notes) {
-        for w in o.warnings {
-            if !self.warnings.contains(&w) {
-                self.warnings.push(w);
-            }
-        }
-        for (n, shown) in o.skipped {
-            if !self.skipped.iter().any(|(m, _)| *m == n) {
-                self.skipped.push((n, shown));
-            }
-        }
-        for (ty, n) in o.ignored_types {
-            *self.ignored_types.entry(ty).or_insert(0) += n;
-        }
-        self.extra_node_fields += o.extra_node_fields;
-        self.pre_keyword_lines += o.pre_keyword_lines;
-        self.assembly_nodes_skipped += o.assembly_nodes_skipped;
-        self.assembly_sets_skipped.extend(o.assembly_sets_skipped);
-    }
-
-    pub(super) fn into_warnings(self) -> Vec<String> {
-        let mut warnings = self.warnings;
-        if self.pre_keyword_lines > 0 {
-            warnings.push(format!(
-                "{} data line(s) before the first keyword were ignored",
-                self.pre_keyword_lines
-            ));
-        }
-        if self.extra_node_fields > 0 {
-            warnings.push(format!(
-                "{} *NODE line(s) have more than 3 coordinates; the extra fields were ignored",
-                self.extra_node_fields
-            ));
-        }
-        for (ty, n) in &self.ignored_types {
-            warnings.push(format!(
-                "ignored {n} element(s) of type {ty} (line/point elements are not part of a volume mesh)"
-            ));
-        }
-        if self.assembly_nodes_skipped > 0 {
-            warnings.push(format!(
-                "{} node/element line(s) defined in the assembly (reference points?) were skipped",
-                self.assembly_nodes_skipped
-            ));
-        }
-        if !self.assembly_sets_skipped.is_empty() {
-            warnings.push(format!(
-                "assembly-level set(s) of assembly nodes (no INSTANCE=) or of skipped instances were skipped: {}",
-                self.assembly_sets_skipped.join(", ")
-            ));
-        }
-        if !self.skipped.is_empty() {
-            let names: Vec<&str> = self.skipped.iter().map(|(_, s)| s.as_str()).collect();
-            warnings.push(format!("skipped keywords: {}", names.join(", ")));
-        }
-        warnings
-    }
-}
 
 /// Reads the nodes, elements and sets of one mesh body: a whole file without parts, or one
 /// part (with its instance's own lines) of an assembly.
@@ -178,42 +33,6 @@ pub(super) struct Parser<'f> {
     pub(super) events: Vec<SetEvent>,
     pub(super) notes: Notes,
     pub(super) mode: Mode,
-}
-
-pub(super) fn upper(s: &str) -> String {
-    s.to_ascii_uppercase()
-}
-
-/// A keyword line with its data lines.
-pub(super) struct Block<'l, 'a> {
-    pub(super) kw: Keyword,
-    pub(super) loc: Loc,
-    pub(super) data: &'l [Line<'a>],
-}
-
-/// The keyword blocks of a list of lines, and the number of data lines before the first
-/// keyword.
-pub(super) fn blocks<'l, 'a>(lines: &'l [Line<'a>]) -> (usize, Vec<Block<'l, 'a>>) {
-    let mut out = Vec::new();
-    let mut pre = 0;
-    let mut i = 0;
-    while let Some(l) = lines.get(i) {
-        i += 1;
-        if !l.keyword {
-            pre += 1;
-            continue;
-        }
-        let start = i;
-        while lines.get(i).is_some_and(|d| !d.keyword) {
-            i += 1;
-        }
-        out.push(Block {
-            kw: parse_keyword(&l.text),
-            loc: l.loc,
-            data: lines.get(start..i).unwrap_or(&[]),
-        });
-    }
-    (pre, out)
 }
 
 impl<'f> Parser<'f> {

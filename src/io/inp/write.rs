@@ -9,7 +9,7 @@ use crate::io::model::MeshInput;
 use crate::{Error, Result};
 
 use super::elements::shape_name;
-use super::parser::upper;
+use super::lines::upper;
 
 /// A name as a parameter value: quoted when it has blanks; error when `.inp` cannot carry it.
 fn name_value(kind: &str, name: &str, path: &Path) -> Result<String> {
