@@ -163,7 +163,6 @@ pub(super) fn attempt<M: Material>(
         s.tolerance,
     );
     let mut step = 0usize;
-    let mut max_rate = c * dt;
     let mut crit_now = dt_crit;
     let mut updates = StepUpdates {
         dt_initial: dt,
@@ -243,7 +242,6 @@ pub(super) fn attempt<M: Material>(
                     } else {
                         relax.shorten(time.dt);
                     }
-                    max_rate = c * time.dt;
                     updates.reductions += 1;
                     updates.last_reduction_time = t_now;
                     updates.dt_min = updates.dt_min.min(time.dt);
@@ -252,6 +250,7 @@ pub(super) fn attempt<M: Material>(
         }
         let t = time.time(step);
         let dt = time.dt;
+        let max_rate = c * dt;
         // Point stage only: nodal forces are gathered in the update loop below (one pass over
         // the nodes instead of two), or here on the steps that record them first.
         model.forces.compute_points(&model.points, &model.slots, &u);
