@@ -185,6 +185,27 @@ fn override_errors_name_the_key_path() {
             "discretization.divisions=[1,2,3,4]",
             &["discretization.divisions: invalid length 4"],
         ),
+        // serde writes 1e300 out in full (301 digits): shown as 1e300, in the file too.
+        (
+            None,
+            "discretization.divisions=-1e300",
+            &["discretization.divisions: invalid type: floating point `-1e300`, expected"],
+        ),
+        (
+            Some(&cube_text().replace("size = 0.0125", "divisions = 1e300")),
+            "",
+            &["line", "invalid type: floating point `1e300`, expected"],
+        ),
+        (
+            None,
+            "solver.load_steps=2.5",
+            &["solver.load_steps: invalid type: floating point `2.5`, expected a whole number, 0 or more"],
+        ),
+        (
+            None,
+            "solver.dt_factor=[1]",
+            &["solver.dt_factor: invalid type: sequence, expected a number"],
+        ),
         (
             None,
             "discretization.method=\"meshles\"",
