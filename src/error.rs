@@ -6,16 +6,16 @@ use std::path::PathBuf;
 #[derive(Debug, thiserror::Error)]
 pub enum Error {
     /// A scene file that cannot be read or does not follow the schema.
-    #[error("{file}: {message}")]
+    #[error("{file}: {}", short_numbers(message))]
     Scene { file: PathBuf, message: String },
     /// A geometric input or selection that cannot be used.
-    #[error("{0}")]
+    #[error("{}", short_numbers(.0))]
     Input(String),
     /// An element or integration point with non-positive volume.
     #[error("element {element} is inverted or degenerate: volume {volume:.6e} m^3, not positive or below 1e-12 of its size cubed; check its node order and coordinates (a node far from the others makes a needle)")]
     InvalidElement { element: usize, volume: f64 },
     /// The explicit integrator diverged.
-    #[error("{0}")]
+    #[error("{}", short_numbers(.0))]
     Unstable(String),
     /// File system errors, with the path involved.
     #[error("{path}: {source}")]
@@ -24,6 +24,40 @@ pub enum Error {
         #[source]
         source: std::io::Error,
     },
+}
+
+/// A message with its extreme numbers in scientific notation. Rust (and serde) print an f64 in
+/// full decimal: a scene's `1e300` as 301 digits, `1e-300` as 0.000...1. A number of more than 20
+/// digits is longer than any u64 (node and element ids), so it is such an f64: it is shown as
+/// `1e300`; shorter numbers are left as written.
+pub fn short_numbers(message: &str) -> String {
+    let b = message.as_bytes();
+    let mut out = String::with_capacity(message.len());
+    let (mut copied, mut i) = (0, 0);
+    while i < b.len() {
+        let starts = b[i].is_ascii_digit()
+            && (i == 0 || !(b[i - 1].is_ascii_alphanumeric() || matches!(b[i - 1], b'.' | b'_')));
+        if !starts {
+            i += 1;
+            continue;
+        }
+        let mut j = i;
+        while j < b.len() && (b[j].is_ascii_digit() || b[j] == b'.') {
+            j += 1;
+        }
+        // A full stop after the number ends the sentence.
+        let end = if b[j - 1] == b'.' { j - 1 } else { j };
+        let token = &message[i..end];
+        let digits = token.bytes().filter(u8::is_ascii_digit).count();
+        if let (true, Ok(v)) = (digits > 20, token.parse::<f64>()) {
+            out.push_str(&message[copied..i]);
+            out.push_str(&format!("{v:e}"));
+            copied = end;
+        }
+        i = j;
+    }
+    out.push_str(&message[copied..]);
+    out
 }
 
 /// Result with the hytled error type.
@@ -72,5 +106,27 @@ impl Error {
             path: path.into(),
             source,
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn extreme_numbers_are_shown_in_scientific_notation() {
+        let huge = format!("{}", 1e300);
+        let tiny = format!("{}", 2.5e-300);
+        assert_eq!(huge.len(), 301);
+        let e = Error::Input(format!("dilatation {huge}; spacing -{tiny} m."));
+        assert_eq!(e.to_string(), "dilatation 1e300; spacing -2.5e-300 m.");
+        // Ids and ordinary numbers stay as written, the largest u64 included.
+        let ok = "node 18446744073709551615 at 0.30000000000000004 m, x1000000000000000000000000, v1.2.3";
+        assert_eq!(short_numbers(ok), ok);
+        let s = Error::Scene {
+            file: "a.toml".into(),
+            message: format!("size = {}: too small", 1e-30),
+        };
+        assert_eq!(s.to_string(), "a.toml: size = 1e-30: too small");
     }
 }

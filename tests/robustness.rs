@@ -324,6 +324,26 @@ fn invalid_values_are_clear_errors() {
             vec!["solver.time_step=exact"],
             "expected `bounds` or `global`",
         ),
+        (
+            vec!["discretization.dilatation=1e300"],
+            "discretization.dilatation = 1e300: must lie in (0.5, 20)",
+        ),
+        (
+            vec!["discretization.support_nodes=3"],
+            "discretization.support_nodes = 3: at least 4",
+        ),
+        (
+            vec!["discretization.alpha=0.5"],
+            "discretization.alpha = 0.5: must be at least 1",
+        ),
+        (
+            vec!["solver.dt_factor=11"],
+            "solver.dt_factor = 11: at most 10",
+        ),
+        (
+            vec!["discretization.size=1e-300"],
+            "discretization.size = 1e-300 m gives about",
+        ),
     ] {
         let e = parse_err(&cube_text(), &sets);
         assert!(e.contains(want), "{sets:?}: {e}");

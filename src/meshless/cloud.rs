@@ -436,7 +436,7 @@ pub fn halton_fill(
     let surface_error = |n: usize| {
         Error::Input(format!(
             "the surface alone takes more than {n} nodes at the minimum spacing {s} m, more \
-             than the requested count {count}; raise the count or the minimum spacing"
+             than the node count {count}; a larger minimum spacing or count fits"
         ))
     };
 

@@ -233,7 +233,7 @@ pub fn apply_override(
 /// "a table" where serde names an internal type ("expected struct SolverSpec") and what a number
 /// must be where it names a Rust type ("expected usize").
 fn with_suggestion(msg: &str) -> String {
-    let mut plain = short_floats(msg);
+    let mut plain = msg.to_string();
     for (rust, words) in [
         ("expected usize", "expected a whole number, 0 or more"),
         ("expected u64", "expected a whole number, 0 or more"),
@@ -293,21 +293,4 @@ fn with_suggestion(msg: &str) -> String {
         }
     }
     msg.to_string()
-}
-
-/// serde prints an unexpected float in full (`divisions = 1e300`: "invalid type: floating point
-/// `1000...0`", 301 digits): such a number is shown in scientific notation instead.
-fn short_floats(msg: &str) -> String {
-    const MARK: &str = "floating point `";
-    let Some(start) = msg.find(MARK) else {
-        return msg.to_string();
-    };
-    let rest = &msg[start + MARK.len()..];
-    let Some(end) = rest.find('`') else {
-        return msg.to_string();
-    };
-    match rest[..end].parse::<f64>() {
-        Ok(v) if end > 16 => format!("{}{MARK}{v:e}{}", &msg[..start], &rest[end..]),
-        _ => msg.to_string(),
-    }
 }

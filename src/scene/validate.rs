@@ -370,6 +370,25 @@ fn check_discretization(s: &Scene) -> std::result::Result<(), String> {
             d.min_spacing
         ));
     }
+    // Checked again where the supports are built; here the message names the key.
+    if let Some(x) = d.dilatation.filter(|x| !(*x > 0.5 && *x < 20.0)) {
+        return Err(format!(
+            "discretization.dilatation = {x}: must lie in (0.5, 20) (influence radius / mean \
+             neighbour distance; 1.6 linear, 2.0 quadratic by default)"
+        ));
+    }
+    if let Some(n) = d.support_nodes.filter(|&n| n < 4) {
+        return Err(format!(
+            "discretization.support_nodes = {n}: at least 4 nodes (8 linear, 16 quadratic by default)"
+        ));
+    }
+    if !(d.alpha >= 1.0) {
+        return Err(format!(
+            "discretization.alpha = {}: must be at least 1 (weight radius / distance of the farthest \
+             support node; default 10)",
+            d.alpha
+        ));
+    }
     if let Some(h) = d.hourglass.filter(|h| !(*h >= 0.0)) {
         return Err(format!(
             "discretization.hourglass = {h}: must be >= 0 (default 0.51 with hourglass_modulus = 'shear', 0.01 with 'p-wave')"
@@ -530,6 +549,16 @@ fn check_solver(s: &Scene) -> std::result::Result<(), String> {
     if !(sv.dt_factor > 0.0) {
         return Err(format!(
             "solver.dt_factor = {}: must be positive (default 0.9)",
+            sv.dt_factor
+        ));
+    }
+    // The conservative bounds (tet4-anp's) leave a factor of 2-3 at most: 10 is past any
+    // stable step, and a mistyped factor would otherwise run to a divergence in seconds of
+    // simulated time per step.
+    if sv.dt_factor > 10.0 {
+        return Err(format!(
+            "solver.dt_factor = {}: at most 10 (the step as a fraction of the critical step \
+             estimate; above 1 only conservative estimates stay stable; default 0.9)",
             sv.dt_factor
         ));
     }

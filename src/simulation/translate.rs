@@ -381,8 +381,16 @@ pub fn generated_cloud(scene: &Scene) -> Result<(Vec<Vector3<f64>>, String, f64)
             // Fill to saturation (random sequential packing at 0.85 h is about as dense as the
             // lattice of spacing h); the cap only bounds the work.
             let count = 3 * cloud::jittered_lattice(domain, h, 0.0, 0)?.len();
+            let nodes =
+                cloud::halton_fill(domain, count, d.min_spacing * h, d.seed).map_err(|e| {
+                    Error::Input(format!(
+                    "discretization.cloud = 'halton' with min_spacing = {} (x size {h} m): {e}; \
+                     min_spacing is a fraction of size (default 0.85)",
+                    d.min_spacing
+                ))
+                })?;
             Ok((
-                cloud::halton_fill(domain, count, d.min_spacing * h, d.seed)?,
+                nodes,
                 format!(
                     "Halton fill, min spacing {:.4e} m, seed {}",
                     d.min_spacing * h,
