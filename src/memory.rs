@@ -2,6 +2,8 @@
 //! the machine into an input error naming the setting to change (instead of an abort in the
 //! allocator).
 
+use std::path::{Path, PathBuf};
+
 use crate::{Error, Result};
 
 /// Bytes in a GiB.
@@ -10,25 +12,100 @@ pub const GIB: f64 = 1024.0 * 1024.0 * 1024.0;
 /// Share of the available memory one run may plan to hold.
 pub const SHARE: f64 = 0.8;
 
-/// Memory a run may use, bytes: the system's available memory (Linux: MemAvailable of
-/// /proc/meminfo), or the environment's `HYTLED_MEMORY_LIMIT` (bytes) where that is smaller, for
-/// shared machines; None when neither is known.
+/// Memory a run may use, bytes: the least of the system's available memory (Linux: MemAvailable
+/// of /proc/meminfo), what the process's memory cgroups leave (limit minus usage, in its cgroup
+/// and every parent: containers and batch jobs such as Slurm's, whose limit MemAvailable does
+/// not show), the address space `ulimit -v` leaves (limit minus VmSize), and the environment's
+/// `HYTLED_MEMORY_LIMIT` (bytes, for shared machines); None when none is known.
 pub fn available() -> Option<f64> {
-    let system = std::fs::read_to_string("/proc/meminfo")
-        .ok()
-        .and_then(|text| {
-            let line = text.lines().find(|l| l.starts_with("MemAvailable:"))?;
-            let kib: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
-            Some(kib * 1024.0)
-        });
+    let read = |p: &Path| std::fs::read_to_string(p).ok();
+    let system = read(Path::new("/proc/meminfo")).and_then(|t| meminfo_available(&t));
+    let cgroup = read(Path::new("/proc/self/cgroup")).and_then(|t| cgroup_left(&t, read));
+    let address = match (
+        read(Path::new("/proc/self/limits")),
+        read(Path::new("/proc/self/status")),
+    ) {
+        (Some(l), Some(s)) => address_space_left(&l, &s),
+        _ => None,
+    };
     let limit = std::env::var("HYTLED_MEMORY_LIMIT")
         .ok()
         .and_then(|v| v.trim().parse::<f64>().ok())
         .filter(|v| *v > 0.0);
-    match (system, limit) {
-        (Some(a), Some(b)) => Some(a.min(b)),
-        (a, b) => a.or(b),
+    [system, cgroup, address, limit]
+        .into_iter()
+        .flatten()
+        .reduce(f64::min)
+}
+
+/// MemAvailable of /proc/meminfo, bytes.
+fn meminfo_available(meminfo: &str) -> Option<f64> {
+    let line = meminfo.lines().find(|l| l.starts_with("MemAvailable:"))?;
+    let kib: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kib * 1024.0)
+}
+
+/// Limits at or above this are "no limit" (cgroup v1 writes 2^63 rounded down to a page).
+const NO_LIMIT: f64 = (1u64 << 60) as f64;
+
+/// The least (limit - usage) over the memory cgroups of /proc/self/cgroup and their parents,
+/// bytes: cgroup v2 (`0::/path`: memory.max, "max" for none, and memory.current under
+/// /sys/fs/cgroup) and v1 (`N:...memory...:/path`: memory.limit_in_bytes and
+/// memory.usage_in_bytes under /sys/fs/cgroup/memory). `read` gives a file's text.
+fn cgroup_left(proc_cgroup: &str, read: impl Fn(&Path) -> Option<String>) -> Option<f64> {
+    let number = |p: PathBuf| -> Option<f64> {
+        read(&p)?
+            .trim()
+            .parse::<f64>()
+            .ok()
+            .filter(|v| *v < NO_LIMIT)
+    };
+    let mut least: Option<f64> = None;
+    for line in proc_cgroup.lines() {
+        let mut f = line.splitn(3, ':');
+        let (Some(id), Some(controllers), Some(path)) = (f.next(), f.next(), f.next()) else {
+            continue;
+        };
+        let (root, limit, usage) = if id == "0" && controllers.is_empty() {
+            ("/sys/fs/cgroup", "memory.max", "memory.current")
+        } else if controllers.split(',').any(|c| c == "memory") {
+            (
+                "/sys/fs/cgroup/memory",
+                "memory.limit_in_bytes",
+                "memory.usage_in_bytes",
+            )
+        } else {
+            continue;
+        };
+        // The cgroup and each parent up to the root of the mount.
+        let mut dir = Some(Path::new(path.trim()));
+        while let Some(d) = dir {
+            let at = Path::new(root).join(d.strip_prefix("/").unwrap_or(d));
+            if let (Some(l), Some(u)) = (number(at.join(limit)), number(at.join(usage))) {
+                let left = (l - u).max(0.0);
+                least = Some(least.map_or(left, |x| x.min(left)));
+            }
+            dir = d.parent();
+        }
     }
+    least
+}
+
+/// The address space `ulimit -v` leaves: the soft "Max address space" of /proc/self/limits
+/// minus VmSize of /proc/self/status, bytes; None when unlimited.
+fn address_space_left(limits: &str, status: &str) -> Option<f64> {
+    let line = limits
+        .lines()
+        .find(|l| l.starts_with("Max address space"))?;
+    let soft: f64 = line
+        .trim_start_matches("Max address space")
+        .split_whitespace()
+        .next()?
+        .parse()
+        .ok()?;
+    let vm = status.lines().find(|l| l.starts_with("VmSize:"))?;
+    let kib: f64 = vm.split_whitespace().nth(1)?.parse().ok()?;
+    Some((soft - kib * 1024.0).max(0.0))
 }
 
 /// Refuses a plan that would hold `need` bytes when that is more than [`SHARE`] of the
@@ -58,5 +135,69 @@ pub fn size(bytes: f64) -> String {
         format!("{:.0} kiB", bytes / KIB)
     } else {
         format!("{bytes:.0} bytes")
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::collections::HashMap;
+
+    #[test]
+    fn meminfo_gives_the_available_bytes() {
+        let t = "MemTotal:       24684084 kB\nMemFree:  100 kB\nMemAvailable:   23122432 kB\n";
+        assert_eq!(meminfo_available(t), Some(23122432.0 * 1024.0));
+        assert_eq!(meminfo_available("MemTotal: 1 kB\n"), None);
+    }
+
+    #[test]
+    fn cgroup_limits_of_the_group_and_its_parents_count() {
+        let files: HashMap<&str, &str> = [
+            // v2: the job's parent holds the limit (8 GiB, 1 GiB used), the step has none.
+            ("/sys/fs/cgroup/slurm/job_7/memory.max", "8589934592\n"),
+            ("/sys/fs/cgroup/slurm/job_7/memory.current", "1073741824\n"),
+            ("/sys/fs/cgroup/slurm/job_7/step_0/memory.max", "max\n"),
+            ("/sys/fs/cgroup/slurm/job_7/step_0/memory.current", "5\n"),
+            // v1, unlimited (2^63 rounded to a page) and limited (3 GiB, 2 GiB used).
+            (
+                "/sys/fs/cgroup/memory/a/memory.limit_in_bytes",
+                "9223372036854771712\n",
+            ),
+            ("/sys/fs/cgroup/memory/a/memory.usage_in_bytes", "1000\n"),
+            (
+                "/sys/fs/cgroup/memory/b/memory.limit_in_bytes",
+                "3221225472\n",
+            ),
+            (
+                "/sys/fs/cgroup/memory/b/memory.usage_in_bytes",
+                "2147483648\n",
+            ),
+        ]
+        .into();
+        let read = |p: &Path| files.get(p.to_str()?).map(|s| s.to_string());
+        let gib = 1024.0 * 1024.0 * 1024.0;
+        assert_eq!(
+            cgroup_left("0::/slurm/job_7/step_0\n", read),
+            Some(7.0 * gib)
+        );
+        assert_eq!(cgroup_left("4:memory:/a\n0::/\n", read), None);
+        assert_eq!(cgroup_left("4:cpu,memory:/b\n", read), Some(gib));
+        assert_eq!(
+            cgroup_left("4:memory:/b\n0::/slurm/job_7/step_0\n", read),
+            Some(gib)
+        );
+        assert_eq!(cgroup_left("4:cpu:/b\nnonsense\n", read), None);
+    }
+
+    #[test]
+    fn ulimit_v_leaves_the_limit_less_what_is_mapped() {
+        let status = "Name: hytled\nVmPeak: 9 kB\nVmSize:   204800 kB\n";
+        let limited = "Limit Soft Hard Units\nMax address space         1073741824           unlimited            bytes\n";
+        let open = "Max address space         unlimited            unlimited            bytes\n";
+        assert_eq!(
+            address_space_left(limited, status),
+            Some(1073741824.0 - 204800.0 * 1024.0)
+        );
+        assert_eq!(address_space_left(open, status), None);
     }
 }

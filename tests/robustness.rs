@@ -934,6 +934,43 @@ fn meshless_point_table_is_checked_against_the_memory() {
     );
 }
 
+/// A limit MemAvailable does not show (here `ulimit -v`; a container's or a batch job's cgroup
+/// likewise) is planned for: the run stops with the memory message and exit code 2 instead of
+/// aborting in the allocator, as it did when only MemAvailable was read (1.14 GiB of point
+/// table under a 1.43 GiB address-space limit).
+#[test]
+fn an_address_space_limit_is_planned_for() {
+    if !Path::new("/proc/self/limits").exists() {
+        println!("skipped: no /proc/self/limits (not Linux)");
+        return;
+    }
+    let out = Command::new("bash")
+        .arg("-c")
+        .arg("ulimit -v 1500000 && exec \"$@\"")
+        .arg("hytled")
+        .arg(env!("CARGO_BIN_EXE_hytled"))
+        .arg("run")
+        .arg(path("cases/cube-compression.toml"))
+        .args([
+            "--threads",
+            "2",
+            "--set",
+            "discretization.method=meshless",
+            "--set",
+            "discretization.size=0.004",
+        ])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("meshless point table (375000 integration points")
+            && err.contains("more than 80 % of the")
+            && !err.contains("panicked"),
+        "{err}"
+    );
+}
+
 /// Issue 22, readability: reaction and probe columns are labelled, relaxation's time is called a
 /// pseudo-time and its energy difference is put down to damping, and `hytled table` shows "-"
 /// (not NaN) for a scene without references.
