@@ -341,6 +341,18 @@ fn invalid_values_are_clear_errors() {
             "solver.dt_factor = 11: at most 10",
         ),
         (
+            vec!["boundaries.symmetry_x.select.plane.tolerance=-1"],
+            "boundaries.symmetry_x.select: plane tolerance = -1: must be >= 0",
+        ),
+        (
+            vec!["boundaries.top.select={box={min=[0,0,0.2],max=[1,1,0.1]}}"],
+            "boundaries.top.select: box min = [0.0, 0.0, 0.2] and max = [1.0, 1.0, 0.1]",
+        ),
+        (
+            vec!["boundaries.top.select={sphere={center=[0,0,0],radius=0}}"],
+            "boundaries.top.select: radius = 0: must be positive",
+        ),
+        (
             vec!["discretization.size=1e-300"],
             "discretization.size = 1e-300 m gives about",
         ),
@@ -932,6 +944,25 @@ fn meshless_point_table_is_checked_against_the_memory() {
             && err.contains("support_nodes"),
         "{err}"
     );
+}
+
+/// Moduli far out of range overflow the wave speed: the error says so and names the material
+/// keys (it said "the discretization has no usable points").
+#[test]
+fn an_overflowing_wave_speed_names_the_material() {
+    for method in ["fe", "meshless", "coupled"] {
+        let sc = scene(&[
+            &format!("discretization.method={method}"),
+            "material.youngs_modulus=1e308",
+        ]);
+        let err = run_scene(&sc, &RunOptions::default())
+            .expect_err(method)
+            .to_string();
+        assert!(
+            err.contains("wave speed") && err.contains("is inf m/s") && err.contains("[material]"),
+            "{method}: {err}"
+        );
+    }
 }
 
 /// A limit MemAvailable does not show (here `ulimit -v`; a container's or a batch job's cgroup

@@ -56,6 +56,31 @@ pub enum Selection {
 }
 
 impl Selection {
+    /// Refuses sizes no node can satisfy: a negative plane tolerance, a sphere or cylinder
+    /// radius that is not positive, a box or cylinder range with min above max. The message
+    /// starts with the field, for the caller to prefix with the key.
+    pub fn check(&self) -> std::result::Result<(), String> {
+        match self {
+            Selection::Plane {
+                tolerance: Some(t), ..
+            } if !(*t >= 0.0) => Err(format!("plane tolerance = {t}: must be >= 0 (m)")),
+            Selection::Sphere { radius, .. } | Selection::Cylinder { radius, .. }
+                if !(*radius > 0.0) =>
+            {
+                Err(format!("radius = {radius}: must be positive (m)"))
+            }
+            Selection::Box { min, max } if (0..3).any(|k| !(min[k] <= max[k])) => Err(format!(
+                "box min = {min:?} and max = {max:?}: each min must be at most its max (m)"
+            )),
+            Selection::Cylinder {
+                min: Some(a),
+                max: Some(b),
+                ..
+            } if !(a <= b) => Err(format!("cylinder min = {a} above max = {b} (m)")),
+            _ => Ok(()),
+        }
+    }
+
     /// Indices of the selected nodes, ascending. An empty selection is an error that says how
     /// far the nearest node was, so the user can fix the coordinate or tolerance.
     pub fn select(&self, nodes: &[Vector3<f64>], what: &str) -> Result<Vec<usize>> {

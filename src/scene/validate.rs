@@ -435,6 +435,35 @@ fn check_materials_and_curves(s: &Scene) -> std::result::Result<(), String> {
 
 /// Boundaries, measured displacements, contact and loads: selections, values and the curves they name.
 fn check_conditions(s: &Scene) -> std::result::Result<(), String> {
+    let selections = s
+        .boundaries
+        .iter()
+        .map(|(n, b)| (format!("boundaries.{n}"), Some(&b.select)))
+        .chain(
+            s.regions
+                .iter()
+                .map(|(n, r)| (format!("regions.{n}"), r.select.as_ref())),
+        )
+        .chain(
+            s.loads
+                .iter()
+                .map(|(n, l)| (format!("loads.{n}"), l.select.as_ref())),
+        )
+        .chain(
+            s.contact
+                .iter()
+                .map(|(n, c)| (format!("contact.{n}"), c.select.as_ref())),
+        )
+        .chain(
+            s.probes
+                .iter()
+                .map(|(n, p)| (format!("probes.{n}"), p.select.as_ref())),
+        );
+    for (key, sel) in selections {
+        if let Some(sel) = sel {
+            sel.check().map_err(|m| format!("{key}.select: {m}"))?;
+        }
+    }
     for (name, b) in &s.boundaries {
         check_curve(s, &format!("boundaries.{name}.curve"), &b.curve)?;
     }

@@ -308,8 +308,20 @@ pub fn check_critical_step<M: Material>(model: &Model<M>, dt: f64) -> Result<()>
             names.join(", ")
         )));
     }
+    // Moduli or a density far out of range (E = 1e308 Pa, density = 1e-300 kg/m^3) make the
+    // wave speed overflow, or the step underflow, before anything else goes wrong.
+    let c = fastest_wave(model);
+    if !(c.is_finite() && c > 0.0 && c < 1e8) {
+        return Err(Error::Input(format!(
+            "the critical time step estimate is {dt:.3e} s: the fastest dilatational wave speed of \
+             the materials, sqrt((lambda + 2 mu) / density), is {c:.3e} m/s; check the moduli (Pa) \
+             and the density (kg/m^3) of [material] and [regions] (soft tissue: about 1e3-1e5 Pa, \
+             1000 kg/m^3)"
+        )));
+    }
     Err(Error::Input(format!(
-        "the critical time step estimate is {dt} s; the discretization has no usable points"
+        "the critical time step estimate is {dt:.3e} s (fastest wave speed {c:.4e} m/s); the \
+         discretization has no usable points"
     )))
 }
 
