@@ -35,8 +35,14 @@ pub fn short_numbers(message: &str) -> String {
     let mut out = String::with_capacity(message.len());
     let (mut copied, mut i) = (0, 0);
     while i < b.len() {
+        // A number stands after a space, a bracket, a sign or a quote, never inside a word
+        // or a path.
         let starts = b[i].is_ascii_digit()
-            && (i == 0 || !(b[i - 1].is_ascii_alphanumeric() || matches!(b[i - 1], b'.' | b'_')));
+            && (i == 0
+                || matches!(
+                    b[i - 1],
+                    b' ' | b'(' | b'[' | b'=' | b'`' | b',' | b'-' | b'\''
+                ));
         if !starts {
             i += 1;
             continue;
@@ -121,7 +127,8 @@ mod tests {
         let e = Error::Input(format!("dilatation {huge}; spacing -{tiny} m."));
         assert_eq!(e.to_string(), "dilatation 1e300; spacing -2.5e-300 m.");
         // Ids and ordinary numbers stay as written, the largest u64 included.
-        let ok = "node 18446744073709551615 at 0.30000000000000004 m, x1000000000000000000000000, v1.2.3";
+        let ok = "node 18446744073709551615 at 0.30000000000000004 m, x1000000000000000000000000, \
+                  v1.2.3, /data/1234567890123456789012345/mesh.vtu";
         assert_eq!(short_numbers(ok), ok);
         let s = Error::Scene {
             file: "a.toml".into(),
