@@ -26,6 +26,13 @@ pub enum SupportRule {
     Radius { dilatation: f64 },
 }
 
+/// Open range of the radius rule's dilatation (influence radius / mean neighbour distance).
+pub const DILATATION: (f64, f64) = (0.5, 20.0);
+/// Fewest nodes of the nearest-node rule's supports.
+pub const MIN_NEAREST: usize = 4;
+/// Smallest weight radius / farthest support distance of the nearest-node rule.
+pub const MIN_ALPHA: f64 = 1.0;
+
 /// Nodes in a k-d tree with, for the radius rule, their influence radii (m).
 pub struct Support {
     pub nodes: Vec<Vector3<f64>>,
@@ -62,16 +69,17 @@ impl Support {
             .map_err(|e| Error::Input(format!("cannot build the neighbour search tree: {e:?}")))?;
         match rule {
             SupportRule::Nearest { n, alpha } => {
-                if n < 4 || !(alpha >= 1.0) {
+                if n < MIN_NEAREST || !(alpha >= MIN_ALPHA) {
                     return Err(Error::Input(format!(
-                        "support: nearest rule needs support_nodes >= 4 and alpha >= 1 (got {n} and {alpha})"
+                        "support: nearest rule needs support_nodes >= {MIN_NEAREST} and alpha >= {MIN_ALPHA} (got {n} and {alpha})"
                     )));
                 }
             }
             SupportRule::Radius { dilatation } => {
-                if !(dilatation > 0.5 && dilatation < 20.0) {
+                if !(dilatation > DILATATION.0 && dilatation < DILATATION.1) {
                     return Err(Error::Input(format!(
-                        "support: dilatation must lie in (0.5, 20) (got {dilatation}); 1.6 to 2.0 is usual"
+                        "support: dilatation must lie in ({}, {}) (got {dilatation}); 1.6 to 2.0 is usual",
+                        DILATATION.0, DILATATION.1
                     )));
                 }
             }

@@ -370,22 +370,28 @@ fn check_discretization(s: &Scene) -> std::result::Result<(), String> {
             d.min_spacing
         ));
     }
-    // Checked again where the supports are built; here the message names the key.
-    if let Some(x) = d.dilatation.filter(|x| !(*x > 0.5 && *x < 20.0)) {
+    // The bounds the supports are built with, named here by their keys.
+    use crate::meshless::support::{DILATATION, MIN_ALPHA, MIN_NEAREST};
+    if let Some(x) = d
+        .dilatation
+        .filter(|x| !(*x > DILATATION.0 && *x < DILATATION.1))
+    {
         return Err(format!(
-            "discretization.dilatation = {x}: must lie in (0.5, 20) (influence radius / mean \
-             neighbour distance; 1.6 linear, 2.0 quadratic by default)"
+            "discretization.dilatation = {x}: must lie in ({}, {}) (influence radius / mean \
+             neighbour distance; 1.6 linear, 2.0 quadratic by default)",
+            DILATATION.0, DILATATION.1
         ));
     }
-    if let Some(n) = d.support_nodes.filter(|&n| n < 4) {
+    if let Some(n) = d.support_nodes.filter(|&n| n < MIN_NEAREST) {
         return Err(format!(
-            "discretization.support_nodes = {n}: at least 4 nodes (8 linear, 16 quadratic by default)"
+            "discretization.support_nodes = {n}: at least {MIN_NEAREST} nodes (8 linear, 16 \
+             quadratic by default)"
         ));
     }
-    if !(d.alpha >= 1.0) {
+    if !(d.alpha >= MIN_ALPHA) {
         return Err(format!(
-            "discretization.alpha = {}: must be at least 1 (weight radius / distance of the farthest \
-             support node; default 10)",
+            "discretization.alpha = {}: must be at least {MIN_ALPHA} (weight radius / distance of \
+             the farthest support node; default 10)",
             d.alpha
         ));
     }

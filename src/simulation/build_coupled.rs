@@ -21,7 +21,7 @@ use super::surface::Discretized;
 use super::translate::{load_mesh_input, material, scene_path};
 use super::{
     add_loads_and_contact, body_mesh, boundaries, centroid, hourglass_modulus, imposition,
-    mean_probe, name_file_element, regions, select_nodes, translate, Prepared,
+    mean_probe, name_file_element, regions, translate, Prepared,
 };
 
 /// Warnings for the boundaries that drive a load concentrated on a few nodes
@@ -201,15 +201,9 @@ pub(super) fn prepare_coupled(scene: &Scene) -> Result<Prepared> {
         .probes
         .iter()
         .map(|(name, p)| match (&p.select, p.position) {
-            (Some(sel), _) => {
-                let ids = select_nodes(
-                    sel,
-                    &build.nodes,
-                    &format!("probe '{name}'"),
-                    input.as_ref(),
-                )?;
-                mean_probe(name, &build.nodes, &ids, |i| Ok(vertex[i].clone()))
-            }
+            (Some(sel), _) => mean_probe(name, sel, &build.nodes, input.as_ref(), |i| {
+                Ok(vertex[i].clone())
+            }),
             (None, Some(x)) => {
                 let x = Vector3::from(x);
                 let w = build.shape_values(name, &x)?;

@@ -89,13 +89,7 @@ pub(super) fn prepare_meshless(scene: &Scene) -> Result<Prepared> {
         .map(|(name, p)| {
             if let Some(sel) = &p.select {
                 // Mean of the interpolated displacements at the selected nodes.
-                let ids = select_nodes(
-                    sel,
-                    &build.nodes,
-                    &format!("probe '{name}'"),
-                    input.as_ref(),
-                )?;
-                return mean_probe(name, &build.nodes, &ids, |i| {
+                return mean_probe(name, sel, &build.nodes, input.as_ref(), |i| {
                     let s = build.shape_values(&build.nodes[i], &|| format!("probe '{name}'"))?;
                     Ok(s.ids.into_iter().zip(s.phi).collect())
                 });

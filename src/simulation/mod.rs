@@ -75,15 +75,22 @@ fn select_nodes(
     sel.select_with(nodes, what, sets)
 }
 
-/// A probe that averages the displacements interpolated at the selected nodes `ids`:
-/// `weights(i)` gives the (node, shape-function value) pairs that interpolate node i (its MLS or
-/// blended shape functions). Its position is the centroid of the selected nodes.
-fn mean_probe<W>(name: &str, nodes: &[Vector3<f64>], ids: &[usize], weights: W) -> Result<Probe>
+/// A probe that averages the displacements interpolated at the nodes `sel` selects (with the
+/// mesh file's sets): `weights(i)` gives the (node, shape-function value) pairs that interpolate
+/// node i (its MLS or blended shape functions). Its position is the centroid of those nodes.
+fn mean_probe<W>(
+    name: &str,
+    sel: &crate::geometry::select::Selection,
+    nodes: &[Vector3<f64>],
+    input: Option<&MeshInput>,
+    weights: W,
+) -> Result<Probe>
 where
     W: Fn(usize) -> Result<Vec<(usize, f64)>>,
 {
+    let ids = select_nodes(sel, nodes, &format!("probe '{name}'"), input)?;
     let mut acc: BTreeMap<usize, f64> = BTreeMap::new();
-    for &i in ids {
+    for &i in &ids {
         for (j, w) in weights(i)? {
             *acc.entry(j).or_default() += w / ids.len() as f64;
         }

@@ -237,19 +237,8 @@ impl<'l, 'a> Layout<'l, 'a> {
                             ),
                         ));
                     }
-                    let name = b.kw.get("NAME").unwrap_or("").to_string();
-                    if name.is_empty() {
-                        return Err(files.err(b.loc, format!("{} without NAME=<name>", b.kw.shown)));
-                    }
-                    if let Some(p) = parts.iter().find(|p| p.name.eq_ignore_ascii_case(&name)) {
-                        return Err(files.err(
-                            b.loc,
-                            format!(
-                                "part '{name}' is defined twice (first at {})",
-                                files.at(p.loc)
-                            ),
-                        ));
-                    }
+                    let name =
+                        unique_name(&b, files, "part", parts.iter().map(|p| (&p.name, p.loc)))?;
                     parts.push(PartDef {
                         name,
                         loc: b.loc,
@@ -260,22 +249,12 @@ impl<'l, 'a> Layout<'l, 'a> {
                 (_, "ENDPART") | (_, "ENDASSEMBLY") => region = Region::Top,
                 (_, "ASSEMBLY") | (_, "ENDINSTANCE") => region = Region::Assembly,
                 (_, "INSTANCE") => {
-                    let name = b.kw.get("NAME").unwrap_or("").to_string();
-                    if name.is_empty() {
-                        return Err(files.err(b.loc, format!("{} without NAME=<name>", b.kw.shown)));
-                    }
-                    if let Some(i) = instances
-                        .iter()
-                        .find(|i| i.name.eq_ignore_ascii_case(&name))
-                    {
-                        return Err(files.err(
-                            b.loc,
-                            format!(
-                                "instance '{name}' is defined twice (first at {})",
-                                files.at(i.loc)
-                            ),
-                        ));
-                    }
+                    let name = unique_name(
+                        &b,
+                        files,
+                        "instance",
+                        instances.iter().map(|i| (&i.name, i.loc)),
+                    )?;
                     instances.push(InstanceDef {
                         name,
                         part: b.kw.get("PART").unwrap_or("").to_string(),
@@ -298,6 +277,30 @@ impl<'l, 'a> Layout<'l, 'a> {
             assembly,
         })
     }
+}
+
+/// The NAME= of a `*Part` or `*Instance` block, refused when missing or when `taken` (the
+/// names so far, with where they stand) has it already, ignoring case as ABAQUS does.
+fn unique_name<'n>(
+    b: &Block,
+    files: &Files,
+    what: &str,
+    mut taken: impl Iterator<Item = (&'n String, Loc)>,
+) -> Result<String> {
+    let name = b.kw.get("NAME").unwrap_or("").to_string();
+    if name.is_empty() {
+        return Err(files.err(b.loc, format!("{} without NAME=<name>", b.kw.shown)));
+    }
+    if let Some((_, first)) = taken.find(|(n, _)| n.eq_ignore_ascii_case(&name)) {
+        return Err(files.err(
+            b.loc,
+            format!(
+                "{what} '{name}' is defined twice (first at {})",
+                files.at(first)
+            ),
+        ));
+    }
+    Ok(name)
 }
 
 /// The bodies to merge, each read and placed: mesh data outside parts (plain set names), then
