@@ -109,6 +109,14 @@ impl Constraints {
         Ok(c)
     }
 
+    /// Writes each constrained component's prescribed value at load fraction `tau` into
+    /// `target` (m); free components are left as they are.
+    pub fn prescribe(&self, target: &mut [nalgebra::Vector3<f64>], tau: f64) {
+        for (k, &(node, comp)) in self.dofs.iter().enumerate() {
+            target[node as usize][comp as usize] = self.amplitude[k] * self.curve[k].value(tau);
+        }
+    }
+
     /// Number of constrained DOFs.
     pub fn len(&self) -> usize {
         self.dofs.len()
