@@ -18,7 +18,7 @@ use hytled::simulation::{self, RunOptions};
     version,
     about,
     after_help = "Exit codes: 0 success (a dynamic run completed, a relaxation converged); \
-2 input error (scene, mesh, selection, flag); 3 the solution diverged or a point inverted; \
+2 input error (scene, mesh, selection, flag, a discretization too large for the memory); 3 the solution diverged or a point inverted; \
 4 relaxation not converged within solver.max_steps (the summary is still printed and written); \
 5 a file could not be read or written; 1 anything else. With --json, a failed command prints \
 {\"status\": \"failed\", \"error\", \"exit_code\", \"message\"} on stdout."
@@ -221,6 +221,10 @@ struct MeshArgs {
     split: Option<Vec<PathBuf>>,
 }
 
+/// An allocation that fails exits with a message and code 2, not an abort.
+#[global_allocator]
+static ALLOCATOR: hytled::memory::ExitOnOom = hytled::memory::ExitOnOom;
+
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let json = match &cli.command {
@@ -230,6 +234,7 @@ fn main() -> ExitCode {
         Command::Bench(a) => a.json,
         _ => false,
     };
+    hytled::memory::ExitOnOom::report_json(json);
     match execute(cli.command) {
         Ok(code) => ExitCode::from(code),
         Err(e) => {

@@ -753,7 +753,7 @@ fn batch_runs_print_plain_progress_lines() {
 
 /// Issue 22: output requests are held to what the run can use: more frames or history rows than
 /// steps are not allocated (1e9 rows run in a few MB), and frames that would not fit in memory
-/// (here a 10 kB limit through HYTLED_MEMORY_LIMIT) are an input error naming output.frames; a
+/// (here a 20 kB limit through HYTLED_MEMORY_LIMIT) are an input error naming output.frames; a
 /// cylinder whose O-grid divisions give 2e11 cells is refused before meshing.
 #[test]
 fn output_requests_and_divisions_are_held_to_the_memory() {
@@ -777,7 +777,9 @@ fn output_requests_and_divisions_are_held_to_the_memory() {
         "{}",
         String::from_utf8_lossy(&out.stderr)
     );
-    let out = run(&["--set", "output.frames=1000000"], Some("10000"));
+    // 20 kB: the model of 8 elements (11 kiB) passes its check before it is built; the run
+    // with its 65 frames (68 kiB) does not.
+    let out = run(&["--set", "output.frames=1000000"], Some("20000"));
     let err = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(2), "{err}");
     assert!(
@@ -933,7 +935,9 @@ fn meshless_point_table_is_checked_against_the_memory() {
             "--set",
             "discretization.size=0.025",
         ])
-        .env("HYTLED_MEMORY_LIMIT", "100000")
+        // 1 MB: above the early floor (1,536 points x 4 nodes, 576 kiB), below the sampled
+        // table (about 28 nodes a point).
+        .env("HYTLED_MEMORY_LIMIT", "1000000")
         .output()
         .unwrap();
     let err = String::from_utf8_lossy(&out.stderr);
@@ -1087,5 +1091,83 @@ fn streaming_frames_does_not_change_the_run() {
             .count();
         assert_eq!(vtus, 31, "{set}");
         let _ = std::fs::remove_dir_all(&dir);
+    }
+}
+
+/// A discretization that cannot fit in memory is refused as soon as its size is known, before
+/// the large tables are built (it used to abort in the allocator after seconds to minutes:
+/// a 2 m cube at 12.5 mm under `ulimit -v 4000000` aborted after 7 s as fe hex8, 41 s coupled,
+/// 8 s meshless; TetGen at 1 mm made 15.9 M tets in 84 s first). `HYTLED_MEMORY_LIMIT` sets
+/// the memory this run may use; each row names what is refused and a stage it must not reach.
+#[test]
+fn discretizations_too_large_for_memory_are_refused_early() {
+    let half_metre = [
+        "geometry.max=[0.5,0.5,0.5]",
+        "boundaries.top.select.plane.value=0.5",
+    ];
+    let rows: [(&[&str], &str, &str, &str); 6] = [
+        (
+            &half_metre,
+            "50e6",
+            "the model of the mesh (68921 nodes, 64000 hex8 elements) would take about 83.5 MiB",
+            "element derivatives",
+        ),
+        (
+            &["discretization.divisions=[200,200,200]"],
+            "300e6",
+            "the mesh (8120601 nodes, 8000000 hex8 elements) would take about 674.1 MiB",
+            "progress: mesh:",
+        ),
+        (
+            &[
+                "discretization.mesher=tetgen",
+                "discretization.element=tet4",
+                "discretization.size=0.002",
+            ],
+            "300e6",
+            "the model of a TetGen mesh of about 1590990 tets or more (edge 0.002 m)",
+            "TetGen mesh:",
+        ),
+        (
+            &["discretization.method=meshless", half_metre[0], half_metre[1]],
+            "300e6",
+            "the meshless point table (at least 1536000 integration points x 4 support nodes, on 68921 nodes and 384000 background tets)",
+            "supports and MLS shape functions",
+        ),
+        (
+            &[
+                "discretization.method=meshless",
+                "discretization.tets_per_point=100",
+                half_metre[0],
+                half_metre[1],
+            ],
+            "50e6",
+            "the integration points (384000 background tets x 4 points) would take about 96.7 MiB",
+            "supports and MLS shape functions",
+        ),
+        (
+            &["discretization.method=coupled", half_metre[0], half_metre[1]],
+            "50e6",
+            "the model of the mesh (68921 nodes, 64000 hex8 elements)",
+            "coupled build on",
+        ),
+    ];
+    for (sets, limit, refused, not_reached) in rows {
+        let mut cmd = Command::new(env!("CARGO_BIN_EXE_hytled"));
+        cmd.arg("run")
+            .arg(path("cases/cube-compression.toml"))
+            .args(["--threads", "2"])
+            .env("HYTLED_MEMORY_LIMIT", limit);
+        for s in sets {
+            cmd.args(["--set", s]);
+        }
+        let out = cmd.output().unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{sets:?}: {err}");
+        assert!(
+            err.contains(refused) && err.contains("more than 80 % of the"),
+            "{sets:?}: {err}"
+        );
+        assert!(!err.contains(not_reached), "{sets:?}: {err}");
     }
 }

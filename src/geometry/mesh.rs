@@ -29,6 +29,36 @@ impl ElementShape {
     }
 }
 
+/// Refuses to make a mesh of about `nodes` nodes and `cells` elements of `shape` that would
+/// not fit in memory ([`crate::memory::check`]): 24 bytes a node position and 8 a node index
+/// of the connectivity. Counts are f64 so that any divisions a scene gives can be judged
+/// without overflow.
+pub fn check_mesh_memory(nodes: f64, cells: f64, shape: ElementShape) -> crate::Result<()> {
+    let bytes = 24.0 * nodes + 8.0 * shape.nodes_per_cell() as f64 * cells;
+    crate::memory::check(
+        bytes,
+        &format!(
+            "the mesh ({} nodes, {} {} elements)",
+            count(nodes),
+            count(cells),
+            match shape {
+                ElementShape::Hex8 => "hex8",
+                ElementShape::Tet4 => "tet4",
+            }
+        ),
+        "raise discretization.size or lower discretization.divisions",
+    )
+}
+
+/// A count for messages: exact below a trillion, else in scientific notation.
+fn count(n: f64) -> String {
+    if n < 1e12 {
+        format!("{n:.0}")
+    } else {
+        format!("{n:.2e}")
+    }
+}
+
 /// A single-shape volume mesh. Coordinates in metres.
 #[derive(Debug, Clone)]
 pub struct Mesh {

@@ -17,7 +17,7 @@
 
 use nalgebra::{Vector2, Vector3};
 
-use super::mesh::{ElementShape, Mesh};
+use super::mesh::{check_mesh_memory, ElementShape, Mesh};
 use crate::{Error, Result};
 
 /// Planar quadrilateral mesh: nodes (x, y) and quads counter-clockwise seen from +z.
@@ -44,6 +44,7 @@ const OGRID_INNER_HALF_WIDTH: f64 = 0.45;
 ///
 /// Errors when a division is zero or when `min` is not strictly below `max` on every axis.
 pub fn box_hex(min: Vector3<f64>, max: Vector3<f64>, div: [usize; 3]) -> Result<Mesh> {
+    check_box_memory(div, ElementShape::Hex8)?;
     let (q, z) = box_section(min, max, div)?;
     Ok(extrude_hex(&q, &z))
 }
@@ -52,6 +53,7 @@ pub fn box_hex(min: Vector3<f64>, max: Vector3<f64>, div: [usize; 3]) -> Result<
 /// nx*ny*nz cells is cut into 2 prisms and each prism into 3 tetrahedra (6 nx ny nz elements,
 /// the same (nx+1)(ny+1)(nz+1) nodes). See the module documentation for the subdivision rule.
 pub fn box_tet(min: Vector3<f64>, max: Vector3<f64>, div: [usize; 3]) -> Result<Mesh> {
+    check_box_memory(div, ElementShape::Tet4)?;
     let (q, z) = box_section(min, max, div)?;
     Ok(extrude_tet(&q, &z))
 }
@@ -77,6 +79,7 @@ pub fn cylinder_hex(
     n_radial: usize,
     n_axial: usize,
 ) -> Result<Mesh> {
+    check_cylinder_memory([n_inner, n_radial, n_axial], ElementShape::Hex8)?;
     let (q, z) = cylinder_section(
         radius,
         height,
@@ -99,6 +102,7 @@ pub fn cylinder_tet(
     n_radial: usize,
     n_axial: usize,
 ) -> Result<Mesh> {
+    check_cylinder_memory([n_inner, n_radial, n_axial], ElementShape::Tet4)?;
     let (q, z) = cylinder_section(
         radius,
         height,
@@ -109,6 +113,31 @@ pub fn cylinder_tet(
         OGRID_ROUNDING,
     )?;
     Ok(extrude_tet(&q, &z))
+}
+
+/// [`check_mesh_memory`] for [`box_hex`] / [`box_tet`] with divisions `div`.
+fn check_box_memory(div: [usize; 3], shape: ElementShape) -> Result<()> {
+    let d = div.map(|n| n as f64);
+    let nodes = (d[0] + 1.0) * (d[1] + 1.0) * (d[2] + 1.0);
+    let cells = d[0] * d[1] * d[2] * tets_per_hex(shape);
+    check_mesh_memory(nodes, cells, shape)
+}
+
+/// [`check_mesh_memory`] for [`cylinder_hex`] / [`cylinder_tet`] with counts [n_inner,
+/// n_radial, n_axial].
+fn check_cylinder_memory(counts: [usize; 3], shape: ElementShape) -> Result<()> {
+    let [n, m, a] = counts.map(|k| k as f64);
+    let nodes = ((n + 1.0).powi(2) + 4.0 * n * m) * (a + 1.0);
+    let cells = (n * n + 4.0 * n * m) * a * tets_per_hex(shape);
+    check_mesh_memory(nodes, cells, shape)
+}
+
+/// Elements per hexahedral cell of the structured meshes.
+fn tets_per_hex(shape: ElementShape) -> f64 {
+    match shape {
+        ElementShape::Hex8 => 1.0,
+        ElementShape::Tet4 => 6.0,
+    }
 }
 
 /// Checks that box corners are finite with min < max on every axis (m).

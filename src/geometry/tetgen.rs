@@ -505,6 +505,10 @@ fn run_tetgen(
                      volume {volume:e} m^3 (over a billion elements); use a larger value"
                 )));
             }
+            // Each tet is at most the bound, so the volume over it is the fewest tets TetGen
+            // makes; a tet has at least about a sixth of a vertex of its own.
+            let tets = volume / v;
+            super::mesh::check_mesh_memory(tets / 6.0, tets, ElementShape::Tet4)?;
             // Larger than the domain: no constraint (also keeps tritet's "a%.15f" short).
             if sv >= scaled_volume {
                 None

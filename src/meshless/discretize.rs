@@ -230,6 +230,40 @@ pub fn adaptive_tet_points(
     Ok((a, info))
 }
 
+/// Refuses a meshless build that cannot fit in memory as soon as its cloud and background tets
+/// are known, before the supports and points: the fewest integration points the integration
+/// makes (tets x rule points / tets per point, or nodes x point ratio; adaptive integration is
+/// judged later, by [`build_points`]), each with at least the nearest rule's node count (or
+/// [`super::support::MIN_NEAREST`]) at [`crate::memory::BYTES_PER_SLOT`].
+fn check_build_memory(
+    background: &Mesh,
+    integration: &Integration,
+    rule: SupportRule,
+) -> Result<()> {
+    let points = match integration {
+        Integration::Tets {
+            rule,
+            tets_per_point,
+        } => background.num_cells() as f64 * rule.points() as f64 / tets_per_point.max(1.0),
+        Integration::Grid { point_ratio } => background.nodes.len() as f64 * point_ratio,
+        Integration::Adaptive(_) => return Ok(()),
+    };
+    let support = match rule {
+        SupportRule::Nearest { n, .. } => n,
+        SupportRule::Radius { .. } => super::support::MIN_NEAREST,
+    };
+    crate::memory::check(
+        points * support as f64 * crate::memory::BYTES_PER_SLOT,
+        &format!(
+            "the meshless point table (at least {points:.0} integration points x {support} support nodes, on {} nodes and {} background tets)",
+            background.nodes.len(),
+            background.num_cells()
+        ),
+        "use a coarser cloud (discretization.size), fewer integration points (discretization.tet_rule, \
+         tets_per_point, point_ratio) or smaller supports (discretization.support_nodes, dilatation)",
+    )
+}
+
 /// Builds the meshless discretization. `protected(nodes)` returns the nodes that carry a
 /// boundary condition or a probe: removing one of those is an error.
 pub fn build(settings: MeshlessSettings, protected: &ProtectedNodes) -> Result<MeshlessBuild> {
@@ -245,6 +279,7 @@ pub fn build(settings: MeshlessSettings, protected: &ProtectedNodes) -> Result<M
         mls,
         support: rule,
     } = rest;
+    check_build_memory(&background, &integration, rule)?;
 
     let tets: Vec<[usize; 4]> = background
         .cells

@@ -93,6 +93,18 @@ impl TetRule {
 /// non-positive volume ([`Error::InvalidElement`] naming the tet).
 #[allow(clippy::type_complexity)] // the tuple is the documented API
 pub fn tet_points(mesh: &Mesh, rule: TetRule) -> Result<(Vec<Vector3<f64>>, Vec<f64>, Vec<usize>)> {
+    // The tets' vertices and volumes (104 bytes a tet) and each point's position, weight and
+    // owner (40 bytes), before any are made.
+    let tets = mesh.num_cells() as f64;
+    crate::memory::check(
+        tets * (104.0 + 40.0 * rule.points() as f64),
+        &format!(
+            "the integration points ({} background tets x {} points)",
+            mesh.num_cells(),
+            rule.points()
+        ),
+        "use fewer points per tet (discretization.tet_rule) or a coarser cloud (discretization.size)",
+    )?;
     let tets = checked_tets(mesh, "tetrahedral integration points")?;
     let n = tets.len() * rule.points();
     let mut pos = Vec::with_capacity(n);

@@ -104,15 +104,9 @@ fn shape_into(
     )))
 }
 
-/// Bytes one support slot (a node of one point's support) takes at the peak of the build and
-/// in the solver: its node id and dphi/dX in the chunk and again in the point table, the
-/// solver's slot map and force buffers. The brain scene (11.0 M slots) measured 1.22 GiB in
-/// all, about 119 bytes per slot with everything else the run holds.
-const BYTES_PER_SLOT: f64 = 96.0;
-
 /// Refuses a point table that would not fit in memory before it is built: the mean support
 /// size of up to 64 evenly spaced points (found at the unit support, before any growth) times
-/// the points and [`BYTES_PER_SLOT`].
+/// the points and [`crate::memory::BYTES_PER_SLOT`].
 fn check_memory(support: &Support, positions: &[Vector3<f64>]) -> Result<()> {
     let n = positions.len();
     if n == 0 {
@@ -127,7 +121,7 @@ fn check_memory(support: &Support, positions: &[Vector3<f64>]) -> Result<()> {
     }
     let mean = total as f64 / samples as f64;
     crate::memory::check(
-        n as f64 * mean * BYTES_PER_SLOT,
+        n as f64 * mean * crate::memory::BYTES_PER_SLOT,
         &format!(
             "the meshless point table ({n} integration points x about {mean:.0} support nodes)"
         ),

@@ -201,16 +201,29 @@ pub struct Prepared {
 }
 
 /// The body's mesh: the mesh file's (its reader's warnings and the duplicate-node check go to
-/// `warnings`) or the built-in shape's.
+/// `warnings`) or the built-in shape's; refused before its points are built when their model
+/// would not fit in memory ([`crate::fe::check_model_memory`]).
 fn body_mesh(scene: &Scene, input: Option<&MeshInput>, warnings: &mut Vec<String>) -> Result<Mesh> {
-    match input {
+    let mesh = match input {
         Some(m) => {
             warnings.extend(m.warnings.iter().cloned());
             warnings.extend(mesh_checks(&m.mesh));
-            Ok(m.mesh.clone())
+            m.mesh.clone()
         }
-        None => build_mesh(scene),
-    }
+        None => build_mesh(scene)?,
+    };
+    let kind: crate::fe::ElementKind = scene.discretization.element.into();
+    crate::fe::check_model_memory(
+        mesh.num_cells() as f64,
+        kind,
+        &format!(
+            "the mesh ({} nodes, {} {} elements)",
+            mesh.nodes.len(),
+            mesh.num_cells(),
+            kind.name()
+        ),
+    )?;
+    Ok(mesh)
 }
 
 /// An inverted-element error with the element's id in the mesh file.
