@@ -41,7 +41,7 @@ impl ElementKind {
 /// Bytes a one-point hexahedron holds beyond its eight slots ([`crate::memory::BYTES_PER_SLOT`]):
 /// hourglass shape vectors and forces, stress and strain buffers. A 512,000-element hex8 cube
 /// (531,441 nodes) measured 730 MiB peak, 1,460 bytes per element.
-const HEX8_POINT_BYTES: f64 = 600.0;
+pub const HEX8_POINT_BYTES: f64 = 600.0;
 
 /// Refuses a model of `cells` elements of `kind` (a mesh's, or the fewest a mesher will make)
 /// that would not fit in memory, before its element points are built:
