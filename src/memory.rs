@@ -221,8 +221,8 @@ fn out_of_memory(bytes: usize) -> ! {
         let mut w = &mut buf[..];
         let _ = write!(
             w,
-            "out of memory: an allocation of {} failed. The discretization needs more memory than this \
-             process may use (see the machine's free memory, `ulimit -v` and the job's memory limit): raise \
+            "out of memory: an allocation of {} failed. The run needs more memory than this process may \
+             use (see the machine's free memory, `ulimit -v` and the job's memory limit): raise \
              discretization.size or lower its divisions, use fewer integration points (tet_rule, \
              tets_per_point, point_ratio) or smaller supports, or run on a machine with more memory",
             Size(bytes as f64)

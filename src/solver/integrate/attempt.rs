@@ -496,7 +496,7 @@ impl<'a, M: Material> Pass<'a, M> {
         let (t, dt) = (self.time.time(step), self.time.dt);
         let max_rate = self.c * dt;
         let has_loads = self.has_loads;
-        let late = !self.late.is_empty();
+        let has_late = !self.late.is_empty();
         let model = &mut *self.model;
         let coefficients = self.time.coefficients(self.s.damping, self.relax.r);
         let a = coefficients.0;
@@ -533,7 +533,8 @@ impl<'a, M: Material> Pass<'a, M> {
             max_u = nan_max(max_u, nan_max(a.x.abs(), nan_max(a.y.abs(), a.z.abs())));
         }
         if self.damped {
-            self.ledger.add_damping(self.s.damping, &self.time, late);
+            self.ledger
+                .add_damping(self.s.damping, &self.time, has_late);
         }
         self.ledger.add_step_work(
             (&self.cons, &model.mass),
