@@ -202,7 +202,8 @@ pub struct Prepared {
 
 /// The body's mesh: the mesh file's (its reader's warnings and the duplicate-node check go to
 /// `warnings`) or the built-in shape's; refused before its points are built when their model
-/// would not fit in memory ([`crate::fe::check_model_memory`]).
+/// would not fit in memory ([`crate::fe::check_model_memory`]), and for TetGen before TetGen
+/// runs, from the tets it will make at the fewest ([`translate::tetgen_tets`]).
 fn body_mesh(scene: &Scene, input: Option<&MeshInput>, warnings: &mut Vec<String>) -> Result<Mesh> {
     let mesh = match input {
         Some(m) => {
@@ -210,7 +211,16 @@ fn body_mesh(scene: &Scene, input: Option<&MeshInput>, warnings: &mut Vec<String
             warnings.extend(mesh_checks(&m.mesh));
             m.mesh.clone()
         }
-        None => build_mesh(scene)?,
+        None => {
+            if let Some((tets, h)) = translate::tetgen_tets(scene) {
+                crate::fe::check_model_memory(
+                    tets,
+                    scene.discretization.element.into(),
+                    &format!("a TetGen mesh of about {tets:.0} tets or more (edge {h} m)"),
+                )?;
+            }
+            build_mesh(scene)?
+        }
     };
     let kind: crate::fe::ElementKind = scene.discretization.element.into();
     crate::fe::check_model_memory(

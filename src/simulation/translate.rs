@@ -97,48 +97,57 @@ fn unreachable_sizing<T>() -> Result<T> {
     ))
 }
 
-/// TetGen's tets per (volume / maximum tet volume), at least: see [`tetgen_mesh`].
-#[cfg(feature = "tetgen")]
+/// TetGen's tets per (volume / maximum tet volume), at least: see [`tetgen_tets`].
 const TETGEN_TETS_PER_BOUND: f64 = 1.5;
+
+/// The target edge length (m) of a TetGen mesh: `size`, or for the half ellipsoid the
+/// smallest of its bounding box [2a, 2b, c] divided by `divisions`.
+fn tetgen_edge(scene: &Scene) -> Result<f64> {
+    let d = &scene.discretization;
+    match (d.size, d.divisions, &scene.geometry) {
+        (Some(h), _, _) => Ok(h),
+        (None, Some(div), Geometry::HalfEllipsoid { semi_axes: s }) => {
+            Ok([2.0 * s[0], 2.0 * s[1], s[2]]
+                .iter()
+                .zip(div)
+                .map(|(len, n)| len / n.max(1) as f64)
+                .fold(f64::INFINITY, f64::min))
+        }
+        _ => Err(Error::Input(
+            "discretization.mesher = 'tetgen' needs `size` (target edge length, m)".into(),
+        )),
+    }
+}
+
+/// The largest tet TetGen may make for edge `h` (m^3): a regular tetrahedron's volume.
+fn tetgen_max_volume(h: f64) -> f64 {
+    h.powi(3) / (6.0 * 2f64.sqrt())
+}
+
+/// About how many tets TetGen will make for a built-in shape, at the fewest, and the edge
+/// length (m); None when the scene is not meshed by TetGen. No tet exceeds the volume bound,
+/// so the volume over it is the fewest TetGen can make; it made 2.0-2.1x that on the cube and
+/// 2.6-3.9x on the brain (h = 10, 5 mm and 6, 3 mm, radius-edge ratio 2 and 20), and this
+/// says 1.5x. The FE and coupled builds refuse a model of that many before TetGen runs
+/// (minutes at millions of tets).
+pub fn tetgen_tets(scene: &Scene) -> Option<(f64, f64)> {
+    if scene.discretization.mesher != Mesher::Tetgen {
+        return None;
+    }
+    let h = tetgen_edge(scene).ok()?;
+    let dom = domain(scene)?;
+    Some((
+        TETGEN_TETS_PER_BOUND * dom.volume() / tetgen_max_volume(h),
+        h,
+    ))
+}
 
 #[cfg(feature = "tetgen")]
 fn tetgen_mesh(scene: &Scene) -> Result<Mesh> {
     use crate::geometry::tetgen;
     let d = &scene.discretization;
-    let h = match (d.size, d.divisions, &scene.geometry) {
-        (Some(h), _, _) => h,
-        // As the box: the bounding box [2a, 2b, c] divided by [nx, ny, nz].
-        (None, Some(div), Geometry::HalfEllipsoid { semi_axes: s }) => {
-            [2.0 * s[0], 2.0 * s[1], s[2]]
-                .iter()
-                .zip(div)
-                .map(|(len, n)| len / n.max(1) as f64)
-                .fold(f64::INFINITY, f64::min)
-        }
-        _ => {
-            return Err(Error::Input(
-                "discretization.mesher = 'tetgen' needs `size` (target edge length, m)".into(),
-            ))
-        }
-    };
-    // Volume of a regular tetrahedron of edge h.
-    let max_volume = Some(h.powi(3) / (6.0 * 2f64.sqrt()));
-    // No tet exceeds the bound, so the volume over it is the fewest tets TetGen can make; it
-    // made 2.0-2.1x that on the cube and 2.6-3.9x on the brain (h = 10, 5 mm and 6, 3 mm,
-    // radius-edge ratio 2 and 20). An FE or coupled model of 1.5x that many that cannot fit
-    // is refused before TetGen runs (minutes at millions of tets).
-    if let (Some(dom), Some(v), true) = (
-        domain(scene),
-        max_volume,
-        d.method != crate::scene::Method::Meshless,
-    ) {
-        let fewest = TETGEN_TETS_PER_BOUND * dom.volume() / v;
-        crate::fe::check_model_memory(
-            fewest,
-            d.element.into(),
-            &format!("a TetGen mesh of about {fewest:.0} tets or more (edge {h} m)"),
-        )?;
-    }
+    let h = tetgen_edge(scene)?;
+    let max_volume = Some(tetgen_max_volume(h));
     match &scene.geometry {
         Geometry::Box { min, max } => tetgen::tetgen_box(
             Vector3::from(*min),
