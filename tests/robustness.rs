@@ -1098,43 +1098,58 @@ fn streaming_frames_does_not_change_the_run() {
 /// the large tables are built (it used to abort in the allocator after seconds to minutes:
 /// a 2 m cube at 12.5 mm under `ulimit -v 4000000` aborted after 7 s as fe hex8, 41 s coupled,
 /// 8 s meshless; TetGen at 1 mm made 15.9 M tets in 84 s first). `HYTLED_MEMORY_LIMIT` sets
-/// the memory this run may use; each row names what is refused and a stage it must not reach.
+/// the memory the command may use; each row names what is refused and a stage it must not
+/// reach.
 #[test]
 fn discretizations_too_large_for_memory_are_refused_early() {
     let half_metre = [
         "geometry.max=[0.5,0.5,0.5]",
         "boundaries.top.select.plane.value=0.5",
     ];
-    let rows: [(&[&str], &str, &str, &str); 6] = [
+    let tetgen = [
+        "discretization.mesher=tetgen",
+        "discretization.element=tet4",
+        "discretization.size=0.002",
+    ];
+    // (command, --set values, memory limit in bytes, what is refused, a stage not reached)
+    let rows: [(&str, &[&str], &str, &str, &str); 7] = [
         (
+            "run",
             &half_metre,
             "50e6",
-            "the model of the mesh (68921 nodes, 64000 hex8 elements) would take about 83.5 MiB",
-            "element derivatives",
-        ),
-        (
-            &["discretization.divisions=[200,200,200]"],
-            "300e6",
-            "the mesh (8120601 nodes, 8000000 hex8 elements) would take about 674.1 MiB",
+            "the model of the structured mesh (68921 nodes, 64000 elements) would take about 83.5 MiB",
             "progress: mesh:",
         ),
         (
-            &[
-                "discretization.mesher=tetgen",
-                "discretization.element=tet4",
-                "discretization.size=0.002",
-            ],
-            "300e6",
-            "the model of a TetGen mesh of about 1590990 tets or more (edge 0.002 m)",
-            "TetGen mesh:",
+            "run",
+            &["discretization.method=coupled", half_metre[0], half_metre[1]],
+            "50e6",
+            "the model of the structured mesh (68921 nodes, 64000 elements)",
+            "coupled build on",
         ),
         (
+            "run",
+            &tetgen,
+            "300e6",
+            "the model of a TetGen mesh of about 1909188 tets or more (edge 0.002 m)",
+            "meshing with TetGen",
+        ),
+        (
+            "run",
+            &["discretization.method=meshless", tetgen[0], tetgen[1], tetgen[2]],
+            "300e6",
+            "the meshless point table (at least 7636753 integration points x 4 support nodes, on a TetGen mesh of about 1909188 tets or more (edge 0.002 m))",
+            "meshing with TetGen",
+        ),
+        (
+            "run",
             &["discretization.method=meshless", half_metre[0], half_metre[1]],
             "300e6",
-            "the meshless point table (at least 1536000 integration points x 4 support nodes, on 68921 nodes and 384000 background tets)",
-            "supports and MLS shape functions",
+            "the meshless point table (at least 1536000 integration points x 4 support nodes, on the structured mesh (68921 nodes, 384000 elements))",
+            "meshless cloud:",
         ),
         (
+            "run",
             &[
                 "discretization.method=meshless",
                 "discretization.tets_per_point=100",
@@ -1146,18 +1161,24 @@ fn discretizations_too_large_for_memory_are_refused_early() {
             "supports and MLS shape functions",
         ),
         (
-            &["discretization.method=coupled", half_metre[0], half_metre[1]],
-            "50e6",
-            "the model of the mesh (68921 nodes, 64000 hex8 elements)",
-            "coupled build on",
+            "mesh",
+            &["discretization.divisions=[200,200,200]"],
+            "300e6",
+            "the mesh (8120601 nodes, 8000000 hex8 elements) would take about 674.1 MiB",
+            "nodes, 8000000 elements",
         ),
     ];
-    for (sets, limit, refused, not_reached) in rows {
+    let dir = std::env::temp_dir().join(format!("hytled-refused-{}", std::process::id()));
+    for (command, sets, limit, refused, not_reached) in rows {
         let mut cmd = Command::new(env!("CARGO_BIN_EXE_hytled"));
-        cmd.arg("run")
+        cmd.arg(command)
             .arg(path("cases/cube-compression.toml"))
-            .args(["--threads", "2"])
             .env("HYTLED_MEMORY_LIMIT", limit);
+        if command == "run" {
+            cmd.args(["--threads", "2"]);
+        } else {
+            cmd.arg("--out").arg(dir.join("mesh.vtu"));
+        }
         for s in sets {
             cmd.args(["--set", s]);
         }
@@ -1170,4 +1191,6 @@ fn discretizations_too_large_for_memory_are_refused_early() {
         );
         assert!(!err.contains(not_reached), "{sets:?}: {err}");
     }
+    assert!(!dir.join("mesh.vtu").exists());
+    let _ = std::fs::remove_dir_all(&dir);
 }

@@ -117,19 +117,31 @@ pub fn cylinder_tet(
 
 /// [`check_mesh_memory`] for [`box_hex`] / [`box_tet`] with divisions `div`.
 fn check_box_memory(div: [usize; 3], shape: ElementShape) -> Result<()> {
-    let d = div.map(|n| n as f64);
-    let nodes = (d[0] + 1.0) * (d[1] + 1.0) * (d[2] + 1.0);
-    let cells = d[0] * d[1] * d[2] * tets_per_hex(shape);
+    let (nodes, cells) = box_counts(div, shape);
     check_mesh_memory(nodes, cells, shape)
 }
 
 /// [`check_mesh_memory`] for [`cylinder_hex`] / [`cylinder_tet`] with counts [n_inner,
 /// n_radial, n_axial].
 fn check_cylinder_memory(counts: [usize; 3], shape: ElementShape) -> Result<()> {
+    let (nodes, cells) = cylinder_counts(counts, shape);
+    check_mesh_memory(nodes, cells, shape)
+}
+
+/// Nodes and elements of [`box_hex`] / [`box_tet`] with divisions `div`, before the mesh is
+/// made (f64: any divisions, no overflow).
+pub fn box_counts(div: [usize; 3], shape: ElementShape) -> (f64, f64) {
+    let d = div.map(|n| n as f64);
+    let nodes = (d[0] + 1.0) * (d[1] + 1.0) * (d[2] + 1.0);
+    (nodes, d[0] * d[1] * d[2] * tets_per_hex(shape))
+}
+
+/// Nodes and elements of [`cylinder_hex`] / [`cylinder_tet`] with counts [n_inner, n_radial,
+/// n_axial], before the mesh is made.
+pub fn cylinder_counts(counts: [usize; 3], shape: ElementShape) -> (f64, f64) {
     let [n, m, a] = counts.map(|k| k as f64);
     let nodes = ((n + 1.0).powi(2) + 4.0 * n * m) * (a + 1.0);
-    let cells = (n * n + 4.0 * n * m) * a * tets_per_hex(shape);
-    check_mesh_memory(nodes, cells, shape)
+    (nodes, (n * n + 4.0 * n * m) * a * tets_per_hex(shape))
 }
 
 /// Elements per hexahedral cell of the structured meshes.

@@ -230,13 +230,14 @@ pub fn adaptive_tet_points(
     Ok((a, info))
 }
 
-/// Refuses a meshless build that cannot fit in memory as soon as its cloud and background tets
-/// are known, before the supports and points: the fewest integration points the integration
-/// makes (tets x rule points / tets per point, or nodes x point ratio; adaptive integration is
-/// judged later, by [`build_points`]), each with at least the nearest rule's node count (or
-/// [`super::support::MIN_NEAREST`]) at [`crate::memory::BYTES_PER_SLOT`].
-fn check_build_memory(
-    background: &Mesh,
+/// Refuses a meshless build that cannot fit in memory before its supports and points are
+/// built: before its background mesh is made, from the mesh planned (`(nodes, tets, what it
+/// is)`), and again once the cloud and tets exist. The fewest integration points the
+/// integration makes (tets x rule points / tets per point, or nodes x point ratio; adaptive
+/// integration is judged later, by [`build_points`]), each with at least the nearest rule's
+/// node count (or [`super::support::MIN_NEAREST`]) at [`crate::memory::BYTES_PER_SLOT`].
+pub fn check_build_memory(
+    (nodes, tets, what): (f64, f64, &str),
     integration: &Integration,
     rule: SupportRule,
 ) -> Result<()> {
@@ -244,8 +245,8 @@ fn check_build_memory(
         Integration::Tets {
             rule,
             tets_per_point,
-        } => background.num_cells() as f64 * rule.points() as f64 / tets_per_point.max(1.0),
-        Integration::Grid { point_ratio } => background.nodes.len() as f64 * point_ratio,
+        } => tets * rule.points() as f64 / tets_per_point.max(1.0),
+        Integration::Grid { point_ratio } => nodes * point_ratio,
         Integration::Adaptive(_) => return Ok(()),
     };
     let support = match rule {
@@ -255,9 +256,7 @@ fn check_build_memory(
     crate::memory::check(
         points * support as f64 * crate::memory::BYTES_PER_SLOT,
         &format!(
-            "the meshless point table (at least {points:.0} integration points x {support} support nodes, on {} nodes and {} background tets)",
-            background.nodes.len(),
-            background.num_cells()
+            "the meshless point table (at least {points:.0} integration points x {support} support nodes, on {what})"
         ),
         "use a coarser cloud (discretization.size), fewer integration points (discretization.tet_rule, \
          tets_per_point, point_ratio) or smaller supports (discretization.support_nodes, dilatation)",
@@ -279,7 +278,19 @@ pub fn build(settings: MeshlessSettings, protected: &ProtectedNodes) -> Result<M
         mls,
         support: rule,
     } = rest;
-    check_build_memory(&background, &integration, rule)?;
+    check_build_memory(
+        (
+            background.nodes.len() as f64,
+            background.num_cells() as f64,
+            &format!(
+                "{} nodes and {} background tets",
+                background.nodes.len(),
+                background.num_cells()
+            ),
+        ),
+        &integration,
+        rule,
+    )?;
 
     let tets: Vec<[usize; 4]> = background
         .cells

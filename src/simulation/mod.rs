@@ -202,8 +202,8 @@ pub struct Prepared {
 
 /// The body's mesh: the mesh file's (its reader's warnings and the duplicate-node check go to
 /// `warnings`) or the built-in shape's; refused before its points are built when their model
-/// would not fit in memory ([`crate::fe::check_model_memory`]), and for TetGen before TetGen
-/// runs, from the tets it will make at the fewest ([`translate::tetgen_tets`]).
+/// would not fit in memory ([`crate::fe::check_model_memory`]), and a built-in shape's before
+/// it is meshed ([`translate::planned_mesh`]: TetGen takes minutes at millions of tets).
 fn body_mesh(scene: &Scene, input: Option<&MeshInput>, warnings: &mut Vec<String>) -> Result<Mesh> {
     let mesh = match input {
         Some(m) => {
@@ -212,12 +212,9 @@ fn body_mesh(scene: &Scene, input: Option<&MeshInput>, warnings: &mut Vec<String
             m.mesh.clone()
         }
         None => {
-            if let Some((tets, h)) = translate::tetgen_tets(scene) {
-                crate::fe::check_model_memory(
-                    tets,
-                    scene.discretization.element.into(),
-                    &format!("a TetGen mesh of about {tets:.0} tets or more (edge {h} m)"),
-                )?;
+            let kind: crate::fe::ElementKind = scene.discretization.element.into();
+            if let Some((_, cells, what)) = translate::planned_mesh(scene, kind.shape()) {
+                crate::fe::check_model_memory(cells, kind, &what)?;
             }
             build_mesh(scene)?
         }

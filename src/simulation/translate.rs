@@ -14,7 +14,7 @@ use crate::io::model::MeshInput;
 use crate::material::Solid;
 use crate::meshless::adaptive::AdaptiveSettings;
 use crate::meshless::cloud;
-use crate::meshless::discretize::{CloudSource, Integration, MeshlessSettings};
+use crate::meshless::discretize::{self, CloudSource, Integration, MeshlessSettings};
 use crate::meshless::integration::TetRule;
 use crate::meshless::mls::MlsSettings;
 use crate::meshless::support::SupportRule;
@@ -54,41 +54,67 @@ pub fn build_mesh(scene: &Scene) -> Result<Mesh> {
         );
         return Ok(m);
     }
-    match &scene.geometry {
-        Geometry::Box { min, max } => {
+    match (&scene.geometry, structured_divisions(scene)?) {
+        (Geometry::Box { min, max }, Some(div)) => {
             let (lo, hi) = (Vector3::from(*min), Vector3::from(*max));
-            let div = match (d.divisions, d.size) {
-                (Some(div), _) => div,
-                (None, Some(h)) => std::array::from_fn(|k| count(hi[k] - lo[k], h, 1)),
-                (None, None) => unreachable_sizing()?,
-            };
             match shape {
                 ElementShape::Hex8 => shapes::box_hex(lo, hi, div),
                 ElementShape::Tet4 => shapes::box_tet(lo, hi, div),
             }
         }
-        Geometry::Cylinder { radius, height } => {
-            let [ni, nr, nz] = match (d.divisions, d.size) {
-                (Some(div), _) => div,
-                (None, Some(h)) => [
-                    count(*radius, h, 2),
-                    count(0.5 * radius, h, 1),
-                    count(*height, h, 1),
-                ],
-                (None, None) => unreachable_sizing()?,
-            };
-            match shape {
-                ElementShape::Hex8 => shapes::cylinder_hex(*radius, *height, ni, nr, nz),
-                ElementShape::Tet4 => shapes::cylinder_tet(*radius, *height, ni, nr, nz),
-            }
-        }
-        Geometry::HalfEllipsoid { .. } => Err(Error::Input(
+        (Geometry::Cylinder { radius, height }, Some([ni, nr, nz])) => match shape {
+            ElementShape::Hex8 => shapes::cylinder_hex(*radius, *height, ni, nr, nz),
+            ElementShape::Tet4 => shapes::cylinder_tet(*radius, *height, ni, nr, nz),
+        },
+        (Geometry::HalfEllipsoid { .. }, _) => Err(Error::Input(
             "geometry.shape = 'half_ellipsoid' has no structured mesh: use mesher = 'tetgen' \
              (discretization.mesher = \"tetgen\" with element = 'tet4-anp' or 'tet4')"
                 .into(),
         )),
-        Geometry::Mesh { .. } => Ok(load_mesh(scene)?.mesh),
+        _ => Ok(load_mesh(scene)?.mesh),
     }
+}
+
+/// The divisions of the structured mesh of a box ([nx, ny, nz]) or cylinder ([n_inner,
+/// n_radial, n_axial]): `divisions`, or from `size`. None for other geometry.
+fn structured_divisions(scene: &Scene) -> Result<Option<[usize; 3]>> {
+    let d = &scene.discretization;
+    let from_size = |h: f64| match &scene.geometry {
+        Geometry::Box { min, max } => Some(std::array::from_fn(|k| count(max[k] - min[k], h, 1))),
+        Geometry::Cylinder { radius, height } => Some([
+            count(*radius, h, 2),
+            count(0.5 * radius, h, 1),
+            count(*height, h, 1),
+        ]),
+        _ => None,
+    };
+    match (&scene.geometry, d.divisions, d.size) {
+        (Geometry::Box { .. } | Geometry::Cylinder { .. }, Some(div), _) => Ok(Some(div)),
+        (_, _, Some(h)) => Ok(from_size(h)),
+        (Geometry::Box { .. } | Geometry::Cylinder { .. }, None, None) => unreachable_sizing(),
+        _ => Ok(None),
+    }
+}
+
+/// The built-in shape's mesh of `shape` elements before it is made: (nodes, elements, what it
+/// is, for messages). Exact for a structured mesh; for TetGen at the fewest it is expected to
+/// make ([`tetgen_tets`]; about 6.5 tets a node). None for a mesh file (read, not planned) or
+/// a scene that cannot be meshed so (its error comes from [`build_mesh`]).
+pub fn planned_mesh(scene: &Scene, shape: ElementShape) -> Option<(f64, f64, String)> {
+    if let Geometry::Mesh { .. } = &scene.geometry {
+        return None;
+    }
+    if let Some((tets, h)) = tetgen_tets(scene).filter(|_| shape == ElementShape::Tet4) {
+        let what = format!("a TetGen mesh of about {tets:.0} tets or more (edge {h} m)");
+        return Some((tets / 6.5, tets, what));
+    }
+    let div = structured_divisions(scene).ok()??;
+    let (nodes, cells) = match &scene.geometry {
+        Geometry::Box { .. } => shapes::box_counts(div, shape),
+        _ => shapes::cylinder_counts(div, shape),
+    };
+    let what = format!("the structured mesh ({nodes:.0} nodes, {cells:.0} elements)");
+    Some((nodes, cells, what))
 }
 
 fn unreachable_sizing<T>() -> Result<T> {
@@ -98,7 +124,7 @@ fn unreachable_sizing<T>() -> Result<T> {
 }
 
 /// TetGen's tets per (volume / maximum tet volume), at least: see [`tetgen_tets`].
-const TETGEN_TETS_PER_BOUND: f64 = 1.5;
+const TETGEN_TETS_PER_BOUND: f64 = 1.8;
 
 /// The target edge length (m) of a TetGen mesh: `size`, or for the half ellipsoid the
 /// smallest of its bounding box [2a, 2b, c] divided by `divisions`.
@@ -126,10 +152,10 @@ fn tetgen_max_volume(h: f64) -> f64 {
 
 /// About how many tets TetGen will make for a built-in shape, at the fewest, and the edge
 /// length (m); None when the scene is not meshed by TetGen. No tet exceeds the volume bound,
-/// so the volume over it is the fewest TetGen can make; it made 2.0-2.1x that on the cube and
-/// 2.6-3.9x on the brain (h = 10, 5 mm and 6, 3 mm, radius-edge ratio 2 and 20), and this
-/// says 1.5x. The FE and coupled builds refuse a model of that many before TetGen runs
-/// (minutes at millions of tets).
+/// so the volume over it is the fewest TetGen can make; it made 1.9-2.1x that on cubes (0.1 m
+/// at h = 10 and 5 mm, 0.6 m at 8 mm, 1.5 m at 20 mm) and 2.6-3.9x on the brain (h = 6 and
+/// 3 mm; radius-edge ratio 2 and 20), and this says 1.8x. The builds refuse a model of that
+/// many before TetGen runs (minutes at millions of tets): [`planned_mesh`].
 pub fn tetgen_tets(scene: &Scene) -> Option<(f64, f64)> {
     if scene.discretization.mesher != Mesher::Tetgen {
         return None;
@@ -472,6 +498,13 @@ pub fn meshless_settings(scene: &Scene) -> Result<MeshlessSettings> {
             if s.discretization.element == ElementName::Hex8 {
                 s.discretization.element = ElementName::Tet4;
             }
+            if let Some((nodes, tets, what)) = planned_mesh(&s, ElementShape::Tet4) {
+                discretize::check_build_memory(
+                    (nodes, tets, &what),
+                    &integration(scene)?,
+                    support_rule(scene),
+                )?;
+            }
             let mesh = build_mesh(&s)?;
             let description = match &scene.geometry {
                 Geometry::Mesh { file, .. } => format!(
@@ -500,7 +533,22 @@ pub fn meshless_settings(scene: &Scene) -> Result<MeshlessSettings> {
             }
         }
     };
-    let integration = match d.integration {
+    Ok(MeshlessSettings {
+        cloud,
+        domain: domain(scene),
+        integration: integration(scene)?,
+        mls: mls_settings(scene),
+        support: support_rule(scene),
+        // EBCIEM integrates over the boundary triangles, surface loads act on them.
+        boundary_tets: d.bc_method.resolve(d.support) == BcMethod::Ebciem
+            || scene.loads.values().any(|l| l.on_faces()),
+    })
+}
+
+/// The meshless integration of a scene.
+fn integration(scene: &Scene) -> Result<Integration> {
+    let d = &scene.discretization;
+    Ok(match d.integration {
         IntegrationKind::Adaptive => Integration::Adaptive(adaptive_settings(scene)?),
         IntegrationKind::Tets => Integration::Tets {
             rule: tet_rule(scene)?,
@@ -509,16 +557,6 @@ pub fn meshless_settings(scene: &Scene) -> Result<MeshlessSettings> {
         IntegrationKind::Grid => Integration::Grid {
             point_ratio: d.point_ratio,
         },
-    };
-    Ok(MeshlessSettings {
-        cloud,
-        domain: domain(scene),
-        integration,
-        mls: mls_settings(scene),
-        support: support_rule(scene),
-        // EBCIEM integrates over the boundary triangles, surface loads act on them.
-        boundary_tets: d.bc_method.resolve(d.support) == BcMethod::Ebciem
-            || scene.loads.values().any(|l| l.on_faces()),
     })
 }
 
