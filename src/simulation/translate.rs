@@ -492,6 +492,7 @@ pub(super) fn scene_path(scene: &Scene, rel: &std::path::Path) -> PathBuf {
 /// generated cloud or a node file), integration, MLS basis and support rule.
 pub fn meshless_settings(scene: &Scene) -> Result<MeshlessSettings> {
     let d = &scene.discretization;
+    let integration = integration(scene)?;
     let cloud = match d.cloud {
         CloudKind::Mesh => {
             let mut s = scene.clone();
@@ -501,7 +502,7 @@ pub fn meshless_settings(scene: &Scene) -> Result<MeshlessSettings> {
             if let Some((nodes, tets, what)) = planned_mesh(&s, ElementShape::Tet4) {
                 discretize::check_build_memory(
                     (nodes, tets, &what),
-                    &integration(scene)?,
+                    &integration,
                     support_rule(scene),
                 )?;
             }
@@ -536,7 +537,7 @@ pub fn meshless_settings(scene: &Scene) -> Result<MeshlessSettings> {
     Ok(MeshlessSettings {
         cloud,
         domain: domain(scene),
-        integration: integration(scene)?,
+        integration,
         mls: mls_settings(scene),
         support: support_rule(scene),
         // EBCIEM integrates over the boundary triangles, surface loads act on them.

@@ -456,14 +456,20 @@ impl Merged {
                 Some(i) => (format!("{}.", upper(&i.name)), format!("{}.", i.name)),
                 None => (String::new(), String::new()),
             };
-            for (key, (name, v)) in body.nsets {
+            // A set's qualified key; an instance's sets are also listed under their local
+            // key (kind 0 node, 1 element, 2 surface) for references inside the part.
+            let mut qualify = |kind: u8, key: String, name: &str| {
                 let q = format!("{prefix}{key}");
                 if inst.is_some() {
                     local
-                        .entry((0, key))
+                        .entry((kind, key))
                         .or_default()
-                        .push((q.clone(), name.clone()));
+                        .push((q.clone(), name.to_string()));
                 }
+                q
+            };
+            for (key, (name, v)) in body.nsets {
+                let q = qualify(0, key, &name);
                 nsets.insert(
                     q,
                     (
@@ -473,13 +479,7 @@ impl Merged {
                 );
             }
             for (key, acc) in body.elsets {
-                let q = format!("{prefix}{key}");
-                if inst.is_some() {
-                    local
-                        .entry((1, key))
-                        .or_default()
-                        .push((q.clone(), acc.name.clone()));
-                }
+                let q = qualify(1, key, &acc.name);
                 elsets.insert(
                     q,
                     ElsetAcc {
@@ -491,13 +491,7 @@ impl Merged {
                 );
             }
             for (key, (name, fs)) in body.surfaces {
-                let q = format!("{prefix}{key}");
-                if inst.is_some() {
-                    local
-                        .entry((2, key))
-                        .or_default()
-                        .push((q.clone(), name.clone()));
-                }
+                let q = qualify(2, key, &name);
                 let fs = fs
                     .iter()
                     .map(|f| f.iter().map(|&i| i + no).collect())
