@@ -13,7 +13,8 @@ use nalgebra::Vector3;
 use serde::Serialize;
 
 use crate::scene::{self, Scene};
-use crate::simulation::{self, Mode};
+use crate::simulation::{self, Device, Mode};
+
 use crate::{Error, Result};
 
 /// The cylinder scene the default cases start from.
@@ -77,6 +78,9 @@ pub struct BenchOptions {
     pub repeat: usize,
     /// Print a line per run to stderr.
     pub progress: bool,
+    /// Also time each case on this device (not `Cpu`): one more row after the thread
+    /// counts, its "identical" comparing with the first thread count's displacements.
+    pub device: Device,
 }
 
 /// The default thread counts: 1, the powers of two below the core count, and the core count.
@@ -95,6 +99,8 @@ pub fn default_threads() -> Vec<usize> {
 pub struct BenchRow {
     pub case: String,
     pub method: String,
+    /// Where the time loop ran: "cpu" or the GPU's name.
+    pub device: String,
     pub nodes: usize,
     pub points: usize,
     /// Support entries (node, point) pairs summed over the points.
@@ -149,15 +155,20 @@ pub fn run_case(case: &BenchCase, opts: &BenchOptions) -> Result<Vec<BenchRow>> 
             threads.push(t.min(cores));
         }
     }
-    for &t in &threads {
+    // The thread counts on the CPU, then the device (if any) with the most threads.
+    let mut runs: Vec<(usize, Device)> = threads.iter().map(|&t| (t, Device::Cpu)).collect();
+    if opts.device != Device::Cpu {
+        runs.push((*threads.last().unwrap_or(&1), opts.device));
+    }
+    for (t, device) in runs {
         let pool = rayon::ThreadPoolBuilder::new()
             .num_threads(t)
             .build()
             .map_err(|e| Error::Input(format!("bench: cannot start {t} threads: {e}")))?;
         crate::comparison::reset_peak_memory();
-        let (mut row, u) = pool.install(|| time_once(case, opts.steps, t))?;
+        let (mut row, u) = pool.install(|| time_once(case, opts.steps, t, device))?;
         for _ in 1..opts.repeat {
-            let (r, _) = pool.install(|| time_once(case, opts.steps, t))?;
+            let (r, _) = pool.install(|| time_once(case, opts.steps, t, device))?;
             let preprocess_s = row.preprocess_s.min(r.preprocess_s);
             if r.solve_s < row.solve_s {
                 row = r;
@@ -183,8 +194,13 @@ pub fn run_case(case: &BenchCase, opts: &BenchOptions) -> Result<Vec<BenchRow>> 
             ..row
         };
         if opts.progress {
+            let on = if device == Device::Cpu {
+                format!("{t} thread(s)")
+            } else {
+                row.device.clone()
+            };
             eprintln!(
-                "bench: {} on {t} thread(s): {:.3} ms per step, {:.1} ns per point-step",
+                "bench: {} on {on}: {:.3} ms per step, {:.1} ns per point-step",
                 case.label, row.ms_per_step, row.ns_per_point_step
             );
         }
@@ -193,10 +209,13 @@ pub fn run_case(case: &BenchCase, opts: &BenchOptions) -> Result<Vec<BenchRow>> 
     Ok(rows)
 }
 
+/// One run of `steps` steps on `device`: its row and final displacements. The device's set-up
+/// (kernel compilation, copies of the model) is left out of the time per step.
 fn time_once(
     case: &BenchCase,
     steps: usize,
     threads: usize,
+    device: Device,
 ) -> Result<(BenchRow, Vec<Vector3<f64>>)> {
     let t0 = Instant::now();
     let mut prep = simulation::prepare(&case.scene)?;
@@ -209,9 +228,11 @@ fn time_once(
     // As in a full 3 s run of ~8,000 steps with 200 history rows: energies every 40 steps.
     s.history_rows = (steps / 40).max(1);
     s.frames = 1;
+    s.device = device;
     let out = simulation::solve(&mut prep, &s)?;
     let points = prep.model.points.len();
-    let per_step = out.solve_seconds / out.steps.max(1) as f64;
+    let loop_s = out.solve_seconds - out.device_setup_seconds;
+    let per_step = loop_s / out.steps.max(1) as f64;
     let row = BenchRow {
         case: case.label.clone(),
         method: format!(
@@ -222,14 +243,15 @@ fn time_once(
         nodes: prep.model.nodes.len(),
         points,
         slots: prep.model.points.nodes.len(),
+        device: out.device.clone(),
         threads,
         preprocess_s,
-        solve_s: out.solve_seconds,
+        solve_s: loop_s,
         steps: out.steps,
         dt_s: out.dt,
         ms_per_step: per_step * 1e3,
         ns_per_point_step: per_step * 1e9 / points.max(1) as f64,
-        real_time_factor: out.simulated_time / out.solve_seconds,
+        real_time_factor: out.simulated_time / loop_s,
         speedup: 1.0,
         peak_memory_mib: None,
         bytes_per_point: prep.model.solver_bytes() as f64 / points.max(1) as f64,
@@ -241,14 +263,15 @@ fn time_once(
 /// Markdown table of bench rows.
 pub fn table(rows: &[BenchRow]) -> String {
     let mut s = String::from(
-        "| case | method | nodes | points | threads | preprocess (s) | ms per step | ns per point-step | real-time factor | speed-up | peak memory (MiB) | bytes per point | bitwise identical |\n\
-         |---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
+        "| case | method | device | nodes | points | threads | preprocess (s) | ms per step | ns per point-step | real-time factor | speed-up | peak memory (MiB) | bytes per point | bitwise identical |\n\
+         |---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
     );
     for r in rows {
         s.push_str(&format!(
-            "| {} | {} | {} | {} | {} | {:.3} | {:.3} | {:.1} | {:.2} | {:.2} | {} | {:.0} | {} |\n",
+            "| {} | {} | {} | {} | {} | {} | {:.3} | {:.3} | {:.1} | {:.2} | {:.2} | {} | {:.0} | {} |\n",
             r.case,
             r.method,
+            r.device,
             r.nodes,
             r.points,
             r.threads,
@@ -286,6 +309,7 @@ mod tests {
             threads: vec![1, 2],
             repeat: 1,
             progress: false,
+            device: Device::Cpu,
         };
         for c in &cases {
             let rows = run_case(c, &opts).unwrap();

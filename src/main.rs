@@ -28,6 +28,30 @@ struct Cli {
     command: Command,
 }
 
+/// `--device`.
+#[derive(Clone, Copy, ValueEnum)]
+enum DeviceArg {
+    /// The CPU threads.
+    Cpu,
+    /// NVIDIA GPU 0 (CUDA driver and NVRTC loaded at run time); the same results bitwise.
+    Gpu,
+    /// The GPU kernels compiled for the CPU with g++ (tests and debugging; slow).
+    #[value(hide = true)]
+    Emulated,
+}
+
+impl DeviceArg {
+    /// The scene override that selects this device.
+    fn set(self) -> String {
+        let name = match self {
+            DeviceArg::Cpu => "cpu",
+            DeviceArg::Gpu => "gpu",
+            DeviceArg::Emulated => "emulated",
+        };
+        format!("solver.device={name}")
+    }
+}
+
 #[derive(Clone, Copy, ValueEnum)]
 enum VtuArg {
     Ascii,
@@ -95,6 +119,10 @@ struct RunArgs {
     /// terminal, e.g. batch jobs and logs; a terminal shows a bar instead).
     #[arg(long, value_name = "SECONDS")]
     progress_every: Option<f64>,
+    /// Where the time loop runs (overrides the scene's solver.device): cpu or gpu (NVIDIA,
+    /// bitwise the same results).
+    #[arg(long, value_enum)]
+    device: Option<DeviceArg>,
 }
 
 /// Arguments of `hytled compare`.
@@ -117,6 +145,10 @@ struct CompareArgs {
     threads: Option<usize>,
     #[arg(long, value_enum, default_value = "binary")]
     vtu_format: VtuArg,
+    /// Where the time loop runs (overrides the scene's solver.device): cpu or gpu (NVIDIA,
+    /// bitwise the same results).
+    #[arg(long, value_enum)]
+    device: Option<DeviceArg>,
 }
 
 /// Arguments of `hytled sweep`.
@@ -151,6 +183,10 @@ struct SweepArgs {
     threads: Option<usize>,
     #[arg(long, value_enum, default_value = "binary")]
     vtu_format: VtuArg,
+    /// Where the time loop runs (overrides the scene's solver.device): cpu or gpu (NVIDIA,
+    /// bitwise the same results).
+    #[arg(long, value_enum)]
+    device: Option<DeviceArg>,
 }
 
 /// Arguments of `hytled bench`.
@@ -172,6 +208,10 @@ struct BenchArgs {
     /// Print the rows as JSON instead of the table.
     #[arg(long)]
     json: bool,
+    /// Also time each case on this device after the CPU thread counts (gpu: one more row,
+    /// whose "bitwise identical" compares it with the first CPU row).
+    #[arg(long, value_enum)]
+    device: Option<DeviceArg>,
 }
 
 /// Arguments of `hytled check`.
@@ -331,8 +371,11 @@ fn run(
         threads,
         vtu_format,
         progress_every,
+        device,
     }: RunArgs,
 ) -> hytled::Result<u8> {
+    let mut set = set;
+    set.extend(device.map(DeviceArg::set));
     start_threads(threads)?;
     if progress_every.is_some_and(|p| !(p >= 0.0 && p.is_finite())) {
         return Err(hytled::Error::Input(
@@ -498,6 +541,7 @@ fn bench(
         steps,
         repeat,
         json,
+        device,
     }: BenchArgs,
 ) -> hytled::Result<u8> {
     use hytled::bench;
@@ -520,6 +564,11 @@ fn bench(
         threads: threads.unwrap_or_else(bench::default_threads),
         repeat,
         progress: true,
+        device: match device {
+            None | Some(DeviceArg::Cpu) => hytled::solver::Device::Cpu,
+            Some(DeviceArg::Gpu) => hytled::solver::Device::Gpu,
+            Some(DeviceArg::Emulated) => hytled::solver::Device::Emulated,
+        },
     };
     let mut rows = Vec::new();
     for c in &cases {
@@ -547,8 +596,11 @@ fn compare(
         out,
         threads,
         vtu_format,
+        device,
     }: CompareArgs,
 ) -> hytled::Result<u8> {
+    let mut set = set;
+    set.extend(device.map(DeviceArg::set));
     start_threads(threads)?;
     let methods = hytled::comparison::parse_methods(&methods)?;
     let opts = hytled::comparison::CompareOptions {
@@ -593,8 +645,11 @@ fn sweep(
         json,
         threads,
         vtu_format,
+        device,
     }: SweepArgs,
 ) -> hytled::Result<u8> {
+    let mut set = set;
+    set.extend(device.map(DeviceArg::set));
     start_threads(threads)?;
     if repeat == 0 {
         return Err(hytled::Error::Input(

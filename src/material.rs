@@ -56,6 +56,14 @@ pub trait Material: Send + Sync + Clone {
     fn concrete(&self) -> Concrete<'_, Self> {
         Concrete::Itself(self)
     }
+    /// (mu, kappa) in Pa where this is the neo-Hookean solid: the one model the GPU time loop
+    /// evaluates ([`crate::solver::gpu`]).
+    fn neo_hookean(&self) -> Option<(f64, f64)> {
+        match self.concrete() {
+            Concrete::NeoHookean(m) => Some((m.mu, m.kappa)),
+            _ => None,
+        }
+    }
 }
 
 /// A material as its concrete model ([`Material::concrete`]).
@@ -174,6 +182,10 @@ pub fn uniaxial_stretch(m: &NeoHookean, stretch: f64) -> (f64, f64, f64) {
 }
 
 impl Material for NeoHookean {
+    fn neo_hookean(&self) -> Option<(f64, f64)> {
+        Some((self.mu, self.kappa))
+    }
+
     fn strain_energy(&self, f: &Matrix3<f64>) -> f64 {
         let j = f.determinant();
         let tr_c = f.norm_squared();

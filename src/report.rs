@@ -233,6 +233,8 @@ pub struct Summary {
     #[serde(skip_serializing_if = "Option::is_none")]
     pub equilibrium_residual: Option<f64>,
     pub threads: usize,
+    /// Where the time loop ran: "cpu", or the GPU's name.
+    pub device: String,
     pub wall_seconds: WallSeconds,
     pub reactions: BTreeMap<String, [f64; 3]>,
     /// Rigid contact bodies: points in contact at the end and the deepest penetration any
@@ -440,12 +442,16 @@ impl Summary {
         let _ = writeln!(s, "status           {}{residual}", self.status);
         let _ = writeln!(
             s,
-            "wall time        {:.3} s (preprocess {:.3} s, solve {:.3} s; {:.3} ms/step, {} threads)",
+            "wall time        {:.3} s (preprocess {:.3} s, solve {:.3} s; {:.3} ms/step, {})",
             self.wall_seconds.total,
             self.wall_seconds.preprocess,
             self.wall_seconds.solve,
             self.ms_per_step(),
-            self.threads
+            if self.device == "cpu" {
+                format!("{} threads", self.threads)
+            } else {
+                format!("on {}", self.device)
+            }
         );
         if let Some(r) = self.relaxation.last() {
             let _ = writeln!(

@@ -626,6 +626,12 @@ impl ComponentCorrection {
         }
     }
 
+    /// The nodes whose displacement a correction reads (the supports of the constrained
+    /// nodes, Phi's columns) or writes (V's rows), with repeats.
+    pub fn touched_nodes(&self) -> impl Iterator<Item = u32> + '_ {
+        self.phi.idx.iter().chain(&self.v.idx).copied()
+    }
+
     /// `u += M^-1 V y` for this component with the stored multipliers (m).
     ///
     /// # Safety

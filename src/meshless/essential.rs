@@ -475,6 +475,17 @@ impl Corrector for MeshlessCorrector {
         // The correction adds M^-1 V y, which reaches exactly the row nodes of V.
         &self.forced
     }
+
+    fn window(&self) -> Option<Vec<u32>> {
+        let mut w: Vec<u32> = self
+            .comps()
+            .flat_map(|c| c.corr.touched_nodes())
+            .chain(self.forced.iter().copied())
+            .collect();
+        w.sort_unstable();
+        w.dedup();
+        Some(w)
+    }
 }
 
 #[cfg(test)]

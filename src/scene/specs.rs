@@ -345,6 +345,10 @@ pub struct SolverSpec {
     /// start, relaxation after a restart.
     #[serde(default = "default_true")]
     pub step_update: bool,
+    /// Where the time loop runs: `"cpu"` (default) or `"gpu"` (NVIDIA GPU 0, the same answers
+    /// bitwise; see README "GPU"). `--device` overrides it.
+    #[serde(default)]
+    pub device: crate::solver::Device,
 }
 
 pub(super) fn default_true() -> bool {
@@ -382,6 +386,7 @@ impl Default for SolverSpec {
             estimate_interval: default_interval(),
             retries: None,
             step_update: true,
+            device: Default::default(),
         }
     }
 }

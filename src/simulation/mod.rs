@@ -41,7 +41,7 @@ use crate::probe::Probe;
 use crate::report::Summary;
 use crate::scene::{BcMethod, Component, Method, Scene};
 use crate::solver::{self, Model, RunOutput};
-pub use crate::solver::{Mode, Settings};
+pub use crate::solver::{Device, Mode, Settings};
 use crate::{Error, Result};
 
 /// How to run a scene.

@@ -194,6 +194,7 @@ pub fn summarize(scene: &Scene, prep: &Prepared, out: &RunOutput, total_seconds:
         converged: out.converged,
         equilibrium_residual,
         threads: rayon::current_num_threads(),
+        device: out.device.clone(),
         wall_seconds: WallSeconds {
             preprocess: prep.preprocess_seconds,
             solve: out.solve_seconds,

@@ -318,6 +318,7 @@ pub fn settings(scene: &Scene, progress: bool) -> Settings {
         frames: scene.output.frames,
         progress,
         progress_lines: None,
+        device: s.device,
         initial_velocity: None,
         initial_motion: scene.initial.as_ref().map(|i| {
             [

@@ -462,6 +462,50 @@ impl<M: Material> Forces<M> {
             + size_of_val(self.point_material.as_slice())
     }
 
+    /// The slots in the order the chunks add their forces into the buffer entries: chunk by
+    /// chunk, item by item; a lane block slot by slot across its points, any other item point
+    /// by point. Another evaluator (the GPU one, [`super::gpu`]) that sums each entry's slot
+    /// forces in this order from zero gets bitwise the CPU's entries.
+    pub fn contribution_order(&self, qp: &QuadraturePoints) -> Vec<u32> {
+        let mut out = Vec::with_capacity(qp.nodes.len());
+        for it in &self.items {
+            let p0 = it.first as usize;
+            let block = it.count as usize == LANES
+                && matches!(
+                    it.mode,
+                    Mode::Plain8 | Mode::Plain4 | Mode::Hourglass8 | Mode::Anp4
+                );
+            if block {
+                let a0 = qp.offsets[p0];
+                let n = qp.offsets[p0 + 1] - a0;
+                for k in 0..n {
+                    for l in 0..LANES {
+                        out.push((a0 + l * n + k) as u32);
+                    }
+                }
+            } else {
+                for p in p0..p0 + it.count as usize {
+                    out.extend(qp.slots(p).map(|s| s as u32));
+                }
+            }
+        }
+        out
+    }
+
+    /// The tables behind the modified points and the chunk sums, for another evaluator.
+    pub fn tables(&self) -> ForceTables<'_> {
+        ForceTables {
+            buffers: &self.buffers,
+            anp_slot_key: &self.anp_slot_key,
+            node_anp_inv_weight: &self.node_anp_inv_weight,
+            anp_offsets: &self.anp_offsets,
+            anp_points: &self.anp_points,
+            anp_list: &self.anp_list,
+            group_first: &self.group_first,
+            num_pressure_nodes: self.node_p.len(),
+        }
+    }
+
     /// The material of point `p`.
     #[inline(always)]
     pub fn material_at(&self, p: usize) -> &M {
@@ -1371,6 +1415,24 @@ impl<M: Material> Forces<M> {
         }
         out
     }
+}
+
+/// [`Forces::tables`]: what the CPU evaluator built once for the ANP pressures, the
+/// mean-dilatation groups and the chunk sums.
+pub struct ForceTables<'a> {
+    pub buffers: &'a Buffers,
+    /// Per slot of an ANP point: its pressure node (empty: the node itself).
+    pub anp_slot_key: &'a [u32],
+    /// Per pressure node: 1 / the weight of its ANP points (0: none).
+    pub node_anp_inv_weight: &'a [f64],
+    /// Per pressure node: its (ANP point, weight) in `anp_points[anp_offsets[n]..]`.
+    pub anp_offsets: &'a [u32],
+    pub anp_points: &'a [(u32, f64)],
+    /// The ANP points.
+    pub anp_list: &'a [u32],
+    /// Per mean-dilatation group: its first entry in the group scratch.
+    pub group_first: &'a [u32],
+    pub num_pressure_nodes: usize,
 }
 
 /// Fields of the deformation per point or per node: Cauchy stress (Pa) and Green-Lagrange

@@ -3,6 +3,7 @@
 
 pub mod chunks;
 pub mod forces;
+pub mod gpu;
 pub mod integrate;
 #[cfg(target_arch = "x86_64")]
 mod lanes_avx2;
@@ -21,7 +22,7 @@ use crate::quadrature::{NodeSlots, QuadraturePoints};
 use crate::Result;
 pub use forces::{Fields, Forces};
 pub use integrate::{
-    keep_warm, run, run_streaming, FrameSink, Mode, RunOutput, Settings, StepEstimate,
+    keep_warm, run, run_streaming, Device, FrameSink, Mode, RunOutput, Settings, StepEstimate,
 };
 
 /// A raw pointer that may cross threads: each parallel task writes a disjoint index range.
@@ -58,6 +59,11 @@ pub trait Corrector: Send {
     /// measures the step's change on these after the correction and on all others during
     /// its update, so it needs no second pass over every node.
     fn touched(&self) -> &[u32];
+    /// The nodes whose displacements [`Self::correct`] reads or writes, ascending (None: any
+    /// node). The GPU loop copies only these between the device and the host each step.
+    fn window(&self) -> Option<Vec<u32>> {
+        None
+    }
 }
 
 /// Everything the time loop needs: reference nodes, quadrature points, lumped masses,

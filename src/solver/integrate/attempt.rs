@@ -5,7 +5,7 @@ use std::time::Instant;
 
 use nalgebra::Vector3;
 
-use super::energy::{kinetic, momentum, Ledger};
+use super::energy::{free_dist2, kinetic, momentum, Ledger};
 use super::predict::{nan_max, Predictor};
 use super::record::{Progress, Recorder, Report, PROGRESS_STEPS};
 use super::relaxation::Relaxation;
@@ -20,16 +20,19 @@ use super::{
 use crate::bc::Constraints;
 use crate::material::Material;
 use crate::solver::forces::NODE_BLOCK;
+use crate::solver::gpu::Resident;
 use crate::solver::spectrum::Lanczos;
 use crate::solver::Model;
 use crate::{Error, Result};
 
 /// The run's wall clock, the time spent in the frame sink (which solve_seconds leaves out),
-/// and where an instability stopped the attempt (steps taken, load fraction reached).
+/// where an instability stopped the attempt (steps taken, load fraction reached), and the
+/// device the loop runs on (None: the CPU), which outlives the attempts.
 pub(super) struct Clock<'a> {
     pub(super) start: Instant,
     pub(super) sink_seconds: &'a mut f64,
     pub(super) reached: &'a mut (usize, f64),
+    pub(super) gpu: Option<&'a mut Resident>,
 }
 
 /// One pass of the time loop at `dt_factor` x the critical step `critical.0` (s). With
@@ -54,9 +57,20 @@ pub(super) fn attempt<M: Material>(
         restarted,
     )?;
     loop {
+        let t0 = pass.gpu.is_some().then(Instant::now);
         pass.update_step()?;
+        if let (Some(g), Some(t0)) = (pass.gpu.as_mut(), t0) {
+            g.note("host: step updates (Lanczos)", t0.elapsed().as_secs_f64());
+        }
         pass.check_points()?;
+        let t0 = pass.gpu.is_some().then(Instant::now);
         let (at_end, recorded) = pass.record(&mut sink)?;
+        if let (Some(g), Some(t0)) = (pass.gpu.as_mut(), t0) {
+            g.note(
+                "host: records (energies, frames)",
+                t0.elapsed().as_secs_f64(),
+            );
+        }
         if at_end {
             break;
         }
@@ -142,6 +156,18 @@ struct Pass<'a, M: Material> {
     /// Nodes whose step change is measured after the corrections (see [`Pass::new`]).
     late: Vec<u32>,
     is_late: Vec<bool>,
+    /// The device the loop runs on (`--device gpu`); None on the CPU. Its state is the loop's:
+    /// `u`, `u_prev`, `u_next` and `f` here are copies, current only where a phase reads them
+    /// back.
+    gpu: Option<&'a mut Resident>,
+    /// The point stage ran on the device and its smallest J is not checked yet.
+    j_pending: bool,
+    /// Device runs: the host does what follows the update (corrections, loads, damping) on
+    /// copies of the state.
+    assisted: bool,
+    /// Device runs with corrections alone: the copies are of the corrections' nodes (their
+    /// window, with the late nodes) only.
+    windowed: bool,
 }
 
 impl<'a, M: Material> Pass<'a, M> {
@@ -156,6 +182,12 @@ impl<'a, M: Material> Pass<'a, M> {
         streaming: bool,
         restarted: bool,
     ) -> Result<Self> {
+        let Clock {
+            start,
+            sink_seconds,
+            reached,
+            mut gpu,
+        } = clock;
         let n = model.nodes.len();
         let c = fastest_wave(model);
         let dynamic = s.mode == Mode::Dynamic;
@@ -268,11 +300,28 @@ impl<'a, M: Material> Pass<'a, M> {
         for &i in &late {
             is_late[i as usize] = true;
         }
-        let Clock {
-            start,
-            sink_seconds,
-            reached,
-        } = clock;
+        let assisted = model.corrector.is_some() || model.contact.is_some() || has_loads || damped;
+        if let Some(g) = gpu.as_mut() {
+            if damped && !late.is_empty() {
+                return Err(Error::Input(
+                    "--device gpu does not run damped dynamics with EBCIEM / SEBCIEM corrections                      or contact yet; set solver.damping = 0 or run with --device cpu"
+                        .into(),
+                ));
+            }
+            g.set_mask(&cons.mask, &is_late)?;
+            g.set_state(&u_prev, &u, &u_next)?;
+        }
+        let window = match (&model.corrector, gpu.is_some()) {
+            (Some(c), true) if model.contact.is_none() && !has_loads && !damped => c.window(),
+            _ => None,
+        };
+        let windowed = window.is_some();
+        if let (Some(g), Some(mut w)) = (gpu.as_mut(), window) {
+            w.extend_from_slice(&late);
+            w.sort_unstable();
+            w.dedup();
+            g.set_window(&w)?;
+        }
         Ok(Pass {
             model,
             s,
@@ -308,6 +357,10 @@ impl<'a, M: Material> Pass<'a, M> {
             schedule,
             late,
             is_late,
+            assisted,
+            windowed,
+            gpu,
+            j_pending: false,
         })
     }
 
@@ -332,6 +385,9 @@ impl<'a, M: Material> Pass<'a, M> {
             return Ok(());
         };
         let t_now = self.time.time(step);
+        if let Some(g) = self.gpu.as_mut() {
+            g.download_u(1, &mut self.u)?;
+        }
         let estimate = lz.estimate(self.model, Some(&self.u), UPDATE_TOLERANCE);
         self.schedule
             .record(step, estimate.map(|e| e.lambda_max), by_travel);
@@ -385,14 +441,28 @@ impl<'a, M: Material> Pass<'a, M> {
     /// forces are gathered in the update ([`Pass::advance`]: one pass over the nodes instead of
     /// two), or by [`Pass::record`] on the steps that record them first.
     fn check_points(&mut self) -> Result<()> {
+        if let Some(g) = self.gpu.as_mut() {
+            // Checked where the host next reads the device (record or advance): one wait per
+            // step instead of two.
+            g.points()?;
+            self.j_pending = true;
+            return Ok(());
+        }
         let model = &mut *self.model;
         model
             .forces
             .compute_points(&model.points, &model.slots, &self.u);
         let (min_j, p_min) = model.forces.min_j();
+        self.inverted(min_j, p_min)
+    }
+
+    /// The error of an inverted point where the smallest J `min_j` (of point `p_min`) is not
+    /// positive.
+    fn inverted(&mut self, min_j: f64, p_min: usize) -> Result<()> {
         if min_j > 0.0 {
             return Ok(());
         }
+        let model = &*self.model;
         // Where: the centroid of the point's supporting nodes (reference configuration).
         let sl = model.points.slots(p_min);
         let near = sl
@@ -428,8 +498,11 @@ impl<'a, M: Material> Pass<'a, M> {
     /// run ends at this step and whether the nodal forces were gathered.
     fn record(&mut self, sink: &mut Option<&mut FrameSink<'_, M>>) -> Result<(bool, bool)> {
         let (step, t) = (self.step, self.time.time(self.step));
-        let model = &mut *self.model;
         if self.has_loads {
+            if let Some(g) = self.gpu.as_mut() {
+                g.download_u(1, &mut self.u)?;
+            }
+            let model = &mut *self.model;
             model
                 .loads
                 .apply(&self.u, self.time.load(step), &mut model.f_ext);
@@ -438,8 +511,22 @@ impl<'a, M: Material> Pass<'a, M> {
             || self.relax.converged
             || (!self.dynamic && step >= self.time.total_steps);
         let record = self.rec.row_due(step) || at_end;
+        let frame = self.rec.frame_due(step) && !(self.restarted && step == 0 && sink.is_some());
+        if let (Some(g), true) = (self.gpu.as_mut(), record || frame) {
+            let (min_j, p_min) = g.min_j()?;
+            g.download_u(1, &mut self.u)?;
+            g.download_u(0, &mut self.u_prev)?;
+            if record {
+                g.gather(&mut self.f)?;
+            }
+            self.j_pending = false;
+            self.inverted(min_j, p_min)?;
+        }
+        let model = &mut *self.model;
         if record {
-            model.forces.gather(&mut self.f);
+            if self.gpu.is_none() {
+                model.forces.gather(&mut self.f);
+            }
             let se = model
                 .forces
                 .strain_energy(&model.points, &model.slots, &self.u);
@@ -475,7 +562,7 @@ impl<'a, M: Material> Pass<'a, M> {
                 kinetic_energy: ke,
             });
         }
-        if self.rec.frame_due(step) && !(self.restarted && step == 0 && sink.is_some()) {
+        if frame {
             if let Some(sink) = sink.as_mut() {
                 let t0 = Instant::now();
                 sink(model, t, &self.u)?;
@@ -493,29 +580,72 @@ impl<'a, M: Material> Pass<'a, M> {
     /// has already gathered the nodal forces at this step.
     fn advance(&mut self, gathered: bool) -> Result<()> {
         let step = self.step;
-        let (t, dt) = (self.time.time(step), self.time.dt);
-        let max_rate = self.c * dt;
         let has_loads = self.has_loads;
         let has_late = !self.late.is_empty();
-        let model = &mut *self.model;
         let coefficients = self.time.coefficients(self.s.damping, self.relax.r);
         let a = coefficients.0;
-        let predictor = Predictor {
-            mass: &model.mass,
-            forces: &model.forces,
-            f_ext: has_loads.then_some(model.f_ext.as_slice()),
-            mask: &self.cons.mask,
-            is_late: &self.is_late,
-            coefficients,
-            gathered,
-            damped: self.damped,
-            late_pending: self.ledger.late_pending(),
-            damping: self.ledger.slots(),
-        };
-        let (mut max_du, mut max_u) =
-            predictor.update((&self.u, &self.u_prev), &mut self.u_next, &mut self.f);
         let next_load = self.time.load(step + 1);
-        self.cons.prescribe(&mut self.u_next, next_load);
+        let (mut max_du, mut max_u);
+        if let Some(g) = self.gpu.as_mut() {
+            // The update and the prescribed values on the device.
+            let f_ext = has_loads.then_some(self.model.f_ext.as_slice());
+            let time = &self.time;
+            let terms = (!self.assisted).then_some((
+                match (time.dynamic, time.dt == time.dt_prev) {
+                    (false, _) => 0,
+                    (true, true) => 1,
+                    (true, false) => 2,
+                },
+                time.dt,
+                time.dt_prev,
+            ));
+            let sc = g.update(coefficients, gathered, next_load, f_ext, terms)?;
+            if std::mem::take(&mut self.j_pending) {
+                self.inverted(sc.min_j, sc.p_min)?;
+            }
+            (max_du, max_u) = (sc.max_du, sc.max_u);
+            let Some(g) = self.gpu.as_mut() else {
+                unreachable!("the device went away");
+            };
+            if !self.assisted {
+                // The prescribed DOFs' work terms and u(n+1) came with the step's scalars.
+                self.ledger.add_work_terms(g.dof_terms());
+                return self.conclude(max_du, max_u);
+            }
+            // Corrections, loads or damping: the host does the rest of the step as on the
+            // CPU, on copies of the state (of the window's nodes where the corrections name
+            // theirs).
+            if self.windowed {
+                g.download_window(&mut self.u_next, &mut self.u, &mut self.u_prev, &mut self.f)?;
+            } else {
+                g.download_u(0, &mut self.u_prev)?;
+                g.download_u(1, &mut self.u)?;
+                g.download_u(2, &mut self.u_next)?;
+                g.download_f(&mut self.f)?;
+            }
+            if self.damped {
+                self.damping_sums();
+            }
+        } else {
+            let model = &*self.model;
+            let predictor = Predictor {
+                mass: &model.mass,
+                forces: &model.forces,
+                f_ext: has_loads.then_some(model.f_ext.as_slice()),
+                mask: &self.cons.mask,
+                is_late: &self.is_late,
+                coefficients,
+                gathered,
+                damped: self.damped,
+                late_pending: self.ledger.late_pending(),
+                damping: self.ledger.slots(),
+            };
+            (max_du, max_u) =
+                predictor.update((&self.u, &self.u_prev), &mut self.u_next, &mut self.f);
+            self.cons.prescribe(&mut self.u_next, next_load);
+        }
+        let t_host = Instant::now();
+        let model = &mut *self.model;
         if let Some(corr) = model.corrector.as_mut() {
             corr.correct(&mut self.u_next, next_load, a);
             self.ledger.external_work += corr.work(&self.u_next, &self.u_prev);
@@ -546,11 +676,62 @@ impl<'a, M: Material> Pass<'a, M> {
         for &(node, comp) in self.cons.dofs.iter() {
             max_u = nan_max(max_u, self.u_next[node as usize][comp as usize].abs());
         }
+        if let Some(g) = self.gpu.as_mut() {
+            g.note(
+                "host: corrections and ledger",
+                t_host.elapsed().as_secs_f64(),
+            );
+        }
+        if let (Some(g), true) = (
+            self.gpu.as_mut(),
+            model.corrector.is_some() || model.contact.is_some(),
+        ) {
+            if self.windowed {
+                g.upload_window(&self.u_next)?;
+            } else {
+                g.upload_next(&self.u_next)?;
+            }
+        }
+        self.conclude(max_du, max_u)
+    }
+
+    /// The damping ledger's block sums of a damped device run, as the CPU update makes them
+    /// (predict.rs; runs with late nodes keep to the CPU).
+    #[allow(clippy::needless_range_loop)] // i indexes five arrays
+    fn damping_sums(&mut self) {
+        let slots = self.ledger.slots();
+        let n = self.u.len();
+        let mass = &self.model.mass;
+        for blk in 0..n.div_ceil(NODE_BLOCK) {
+            let mut damp = 0.0f64;
+            for i in blk * NODE_BLOCK..n.min((blk + 1) * NODE_BLOCK) {
+                if !self.is_late[i] {
+                    damp +=
+                        mass[i] * free_dist2(self.cons.mask[i], &self.u_next[i], &self.u_prev[i]);
+                }
+            }
+            // SAFETY: blk is below the ledger's block count (n / NODE_BLOCK rounded up, as
+            // given to Ledger::new), and this thread alone writes the slots.
+            unsafe { slots.write(blk, damp, 0.0) };
+        }
+    }
+
+    /// The end of a step: the divergence test on the largest change `max_du` and
+    /// displacement `max_u` (m), relaxation's estimate, the swap to the next step.
+    fn conclude(&mut self, mut max_du: f64, mut max_u: f64) -> Result<()> {
+        let step = self.step;
+        let (t, dt) = (self.time.time(step), self.time.dt);
+        let max_rate = self.c * dt;
+        let model = &*self.model;
         let size = self.size;
         if max_u.is_finite() && max_du.is_finite() && (max_u > 10.0 * size || max_du > max_rate) {
             // A body in fast rigid motion (a free body faster than its own waves, or carried
             // far) is not diverging: judge the step's change without its rigid part, and the
             // size by the deformed body's extent. Only here, so normal steps pay nothing.
+            if let Some(g) = self.gpu.as_mut() {
+                g.download_u(1, &mut self.u)?;
+                g.download_u(2, &mut self.u_next)?;
+            }
             let (change, extent) =
                 deformation_change(&model.mass, &model.nodes, &self.u, &self.u_next);
             max_du = change;
@@ -573,6 +754,10 @@ impl<'a, M: Material> Pass<'a, M> {
 
         self.schedule.travel += max_du;
         if !self.dynamic && self.time.load(step + 1) >= 1.0 {
+            if let (Some(g), true) = (self.gpu.as_mut(), self.relax.wants_state(step)) {
+                g.download_u(1, &mut self.u)?;
+                g.download_f(&mut self.f)?;
+            }
             self.relax.observe(
                 step,
                 (&self.u, &self.f),
@@ -584,6 +769,9 @@ impl<'a, M: Material> Pass<'a, M> {
 
         std::mem::swap(&mut self.u_prev, &mut self.u);
         std::mem::swap(&mut self.u, &mut self.u_next);
+        if let Some(g) = self.gpu.as_mut() {
+            g.rotate();
+        }
         self.time.dt_prev = dt;
         self.step += 1;
         if self.step.is_multiple_of(PROGRESS_STEPS) {
@@ -605,6 +793,12 @@ impl<'a, M: Material> Pass<'a, M> {
     /// collects the output.
     fn finish(mut self, mut sink: Option<&mut FrameSink<'_, M>>) -> Result<RunOutput> {
         self.progress.finish();
+        if let Some(g) = self.gpu.as_mut() {
+            g.download_u(0, &mut self.u_prev)?;
+            g.download_u(1, &mut self.u)?;
+            g.download_u(2, &mut self.u_next)?;
+            g.download_f(&mut self.f)?;
+        }
         // The last update's late share: u = u(N), u_next = u(N-2) after the final swap.
         self.ledger.finish_damping(
             &self.late,
@@ -640,6 +834,8 @@ impl<'a, M: Material> Pass<'a, M> {
         let (linear_start, angular_start) = self.momentum_start;
         let ledger = &self.ledger;
         Ok(RunOutput {
+            device: "cpu".into(),
+            device_setup_seconds: 0.0,
             momentum: Momentum {
                 linear_start,
                 linear_end,

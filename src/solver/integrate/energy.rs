@@ -144,6 +144,15 @@ impl Ledger {
     /// Adds the work of the boundary forces, sum (F_int + M a) . (u(n+1) - u(n-1)) / 2 over the
     /// constrained DOFs, and of the loads `f_ext` (N) on the DOFs the integrator moves; `u` =
     /// [u(n+1), u(n), u(n-1)] (m), `f` the internal forces (N). Then the peak.
+    /// [`Self::add_step_work`] without loads from the prescribed DOFs' work terms, in DOF
+    /// order (the device loop's, computed as [`dof_work`] does).
+    pub(super) fn add_work_terms(&mut self, terms: &[f64]) {
+        for &t in terms {
+            self.external_work += t;
+        }
+        self.peak_external_work = self.peak_external_work.max(self.external_work.abs());
+    }
+
     pub(super) fn add_step_work(
         &mut self,
         (cons, mass): (&Constraints, &[f64]),
@@ -152,21 +161,13 @@ impl Ledger {
         [u_next, u, u_prev]: [&[Vector3<f64>]; 3],
         time: &Timeline,
     ) {
-        let (dt, dt_prev) = (time.dt, time.dt_prev);
         for &(node, comp) in cons.dofs.iter() {
             let (i, k) = (node as usize, comp as usize);
-            let inertia = if time.dynamic && dt == dt_prev {
-                mass[i] * (u_next[i][k] - 2.0 * u[i][k] + u_prev[i][k]) / (dt * dt)
-            } else if time.dynamic {
-                let (vn, vp) = (
-                    (u_next[i][k] - u[i][k]) / dt,
-                    (u[i][k] - u_prev[i][k]) / dt_prev,
-                );
-                mass[i] * (vn - vp) / (0.5 * (dt + dt_prev))
-            } else {
-                0.0
-            };
-            self.external_work += (f[i][k] + inertia) * 0.5 * (u_next[i][k] - u_prev[i][k]);
+            self.external_work += dof_work(
+                mass[i],
+                [f[i][k], u_next[i][k], u[i][k], u_prev[i][k]],
+                time,
+            );
         }
         if let Some(f_ext) = f_ext {
             for (i, fe) in f_ext.iter().enumerate() {
@@ -179,4 +180,20 @@ impl Ledger {
         }
         self.peak_external_work = self.peak_external_work.max(self.external_work.abs());
     }
+}
+
+/// The work of a prescribed DOF of nodal mass `m` (kg) over one step, J: its internal force
+/// plus inertia (N) times the central-difference increment (u(n+1) - u(n-1)) / 2, from
+/// (f, u(n+1), u(n), u(n-1)).
+fn dof_work(m: f64, [f, un, u, up]: [f64; 4], time: &Timeline) -> f64 {
+    let (dt, dt_prev) = (time.dt, time.dt_prev);
+    let inertia = if time.dynamic && dt == dt_prev {
+        m * (un - 2.0 * u + up) / (dt * dt)
+    } else if time.dynamic {
+        let (vn, vp) = ((un - u) / dt, (u - up) / dt_prev);
+        m * (vn - vp) / (0.5 * (dt + dt_prev))
+    } else {
+        0.0
+    };
+    (f + inertia) * 0.5 * (un - up)
 }

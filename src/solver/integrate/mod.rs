@@ -93,6 +93,22 @@ pub struct Settings {
     /// Dynamic: a rigid initial motion (velocity m/s, angular velocity rad/s, centre m), used
     /// when `initial_velocity` is not given.
     pub initial_motion: Option<[Vector3<f64>; 3]>,
+    /// Where the time loop runs.
+    pub device: Device,
+}
+
+/// Where the time loop runs ([`Settings::device`]; scene `solver.device`, CLI `--device`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum Device {
+    /// The CPU threads (rayon).
+    #[default]
+    Cpu,
+    /// NVIDIA GPU 0 ([`crate::solver::gpu`]).
+    Gpu,
+    /// The GPU kernels compiled for the CPU by g++ ([`crate::solver::gpu::emulate`]): for
+    /// tests and debugging on machines without a GPU; slow.
+    Emulated,
 }
 
 impl Default for Settings {
@@ -116,6 +132,7 @@ impl Default for Settings {
             progress_lines: None,
             initial_velocity: None,
             initial_motion: None,
+            device: Device::Cpu,
         }
     }
 }
@@ -151,6 +168,10 @@ pub struct RelaxationRecord {
 /// What a run produces.
 #[derive(Debug, Clone)]
 pub struct RunOutput {
+    /// Where the time loop ran: "cpu", or the GPU's name.
+    pub device: String,
+    /// Of `solve_seconds`: setting the device up (compiling its kernels, copying the model), s.
+    pub device_setup_seconds: f64,
     pub u: Vec<Vector3<f64>>,
     /// Displacements one step before the end (velocity = (u - u_prev) / dt), m.
     pub u_prev: Vec<Vector3<f64>>,
@@ -491,6 +512,25 @@ fn run_on_worker<M: Material>(
     );
     let (dt_crit, critical) = critical_step(model, s.step_estimate);
     check_critical_step(model, dt_crit)?;
+    let t_setup = Instant::now();
+    let mut gpu = match s.device {
+        Device::Cpu => None,
+        Device::Gpu | Device::Emulated => {
+            let tables = crate::solver::gpu::Tables::new(model, &model.constraints)?;
+            let backend = if s.device == Device::Gpu {
+                crate::solver::gpu::cuda()?
+            } else {
+                Box::new(crate::solver::gpu::emulate::Emulator::new()?)
+            };
+            let r = crate::solver::gpu::Resident::new(backend, &tables)?;
+            log::info!("time loop on {}", r.describe());
+            Some(r)
+        }
+    };
+    let device_setup_seconds = t_setup.elapsed().as_secs_f64();
+    let device = gpu
+        .as_ref()
+        .map_or_else(|| "cpu".to_string(), |g| g.describe());
     log::info!("critical step {dt_crit:.4e} s; time loop");
     let retries = if s.mode == Mode::Relaxation {
         s.retries
@@ -509,6 +549,7 @@ fn run_on_worker<M: Material>(
             start,
             sink_seconds: &mut sink_seconds,
             reached: &mut reached,
+            gpu: gpu.as_mut(),
         };
         let attempt = attempt(
             model,
@@ -521,6 +562,8 @@ fn run_on_worker<M: Material>(
         );
         match attempt {
             Ok(mut out) => {
+                out.device = device;
+                out.device_setup_seconds = device_setup_seconds;
                 out.restarts = restarts;
                 out.failed_steps = failed_steps;
                 return Ok(out);

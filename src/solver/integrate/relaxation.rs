@@ -72,6 +72,11 @@ impl Relaxation {
         }
     }
 
+    /// Whether [`Self::observe`] at `step` reads the displacements and forces.
+    pub(super) fn wants_state(&self, step: usize) -> bool {
+        self.ref_step == usize::MAX || step >= self.ref_step + self.interval
+    }
+
     /// A step under the full load with displacements `u` (m), internal forces `f` (N), its
     /// largest change `max_du` (m) and length `dt` (s). The first sets the rate from the
     /// Rayleigh quotient of the loaded shape over all DOFs; every `interval` steps after,
