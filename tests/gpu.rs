@@ -249,3 +249,34 @@ fn gpu_refuses_what_it_does_not_evaluate_yet() {
         "{e}"
     );
 }
+
+#[test]
+fn gpu_without_a_gpu_is_an_input_error_before_the_preprocessing() {
+    if hytled::solver::gpu::probe().is_ok() {
+        println!("skipped: this machine has a GPU");
+        return;
+    }
+    // The brain at 2.8 mm takes seconds to mesh and prepare: the error must come first.
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_hytled"))
+        .args([
+            "run",
+            "cases/brain-indentation.toml",
+            "--device",
+            "gpu",
+            "--json",
+        ])
+        .args(["--set", "discretization.method=meshless"])
+        .args(["--set", "discretization.size=0.0028"])
+        .current_dir(path("."))
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(2));
+    let json: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let msg = json["message"].as_str().unwrap_or_default();
+    assert!(
+        msg.starts_with("--device gpu:") && msg.contains("--device cpu"),
+        "{msg}"
+    );
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!stderr.contains("preparing"), "{stderr}");
+}

@@ -423,6 +423,11 @@ pub fn run_scene(scene: &Scene, opts: &RunOptions) -> Result<Summary> {
         .map(crate::io::out_dir::OutDir::open)
         .transpose()?;
     let result = (|| {
+        if scene.solver.device == Device::Gpu {
+            // Before the preprocessing, which can take minutes: a missing driver, NVRTC or GPU
+            // is said at once.
+            solver::gpu::probe()?;
+        }
         let mut prep = prepare(scene)?;
         let mut settings = settings(scene, opts.progress);
         settings.progress_lines = opts.progress_lines;

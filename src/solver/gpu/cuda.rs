@@ -77,32 +77,39 @@ fn err(what: &str, e: impl std::fmt::Display) -> Error {
     Error::Input(format!("--device gpu: {what}: {e}"))
 }
 
-impl Cuda {
-    pub fn new() -> Result<Self> {
-        // SAFETY: only probes whether the libraries can be loaded.
-        if !unsafe { sys::is_culib_present() } {
-            return Err(Error::Input(
-                "--device gpu: no NVIDIA driver found (libcuda.so could not be loaded); install \
+/// The checks of [`Cuda::new`] before the context: the libraries load, the driver starts and
+/// sees a GPU.
+pub fn probe() -> Result<()> {
+    // SAFETY: only probes whether the libraries can be loaded.
+    if !unsafe { sys::is_culib_present() } {
+        return Err(Error::Input(
+            "--device gpu: no NVIDIA driver found (libcuda.so could not be loaded); install \
                  the NVIDIA driver, or run with --device cpu"
-                    .into(),
-            ));
-        }
-        // SAFETY: as above.
-        if !unsafe { cudarc::nvrtc::sys::is_culib_present() } {
-            return Err(Error::Input(
-                "--device gpu: NVRTC, CUDA's run-time compiler, was not found (libnvrtc.so); \
+                .into(),
+        ));
+    }
+    // SAFETY: as above.
+    if !unsafe { cudarc::nvrtc::sys::is_culib_present() } {
+        return Err(Error::Input(
+            "--device gpu: NVRTC, CUDA's run-time compiler, was not found (libnvrtc.so); \
                  install the CUDA toolkit or its nvrtc package and put the folder holding \
                  libnvrtc.so on LD_LIBRARY_PATH, or run with --device cpu"
-                    .into(),
-            ));
-        }
-        result::init().map_err(|e| err("the NVIDIA driver failed to start", e))?;
-        let count = result::device::get_count().map_err(|e| err("counting GPUs", e))?;
-        if count < 1 {
-            return Err(Error::Input(
-                "--device gpu: the NVIDIA driver sees no GPU; run with --device cpu".into(),
-            ));
-        }
+                .into(),
+        ));
+    }
+    result::init().map_err(|e| err("the NVIDIA driver failed to start", e))?;
+    let count = result::device::get_count().map_err(|e| err("counting GPUs", e))?;
+    if count < 1 {
+        return Err(Error::Input(
+            "--device gpu: the NVIDIA driver sees no GPU; run with --device cpu".into(),
+        ));
+    }
+    Ok(())
+}
+
+impl Cuda {
+    pub fn new() -> Result<Self> {
+        probe()?;
         let ctx = CudaContext::new(0).map_err(|e| err("opening GPU 0", e))?;
         let name = ctx.name().unwrap_or_else(|_| "GPU 0".into());
         let opts = CompileOptions {

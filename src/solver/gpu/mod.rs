@@ -132,6 +132,19 @@ pub trait Backend: Send {
     fn describe(&self) -> String;
 }
 
+/// Whether `--device gpu` can run here: the driver and NVRTC load and the driver sees a GPU
+/// (the errors of [`cuda`], without compiling the kernels).
+pub fn probe() -> Result<()> {
+    #[cfg(feature = "gpu")]
+    {
+        cuda::probe()
+    }
+    #[cfg(not(feature = "gpu"))]
+    {
+        cuda().map(|_| ())
+    }
+}
+
 /// The CUDA device 0, with the kernels compiled for it; a clear error where there is no
 /// driver, no NVRTC or no device.
 pub fn cuda() -> Result<Box<dyn Backend>> {
