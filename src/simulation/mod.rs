@@ -313,6 +313,11 @@ fn initial_velocity_warning(scene: &Scene, p: &Prepared) -> Option<String> {
 
 /// Meshes the scene, builds the quadrature points, masses, constraints and probes.
 pub fn prepare(scene: &Scene) -> Result<Prepared> {
+    if scene.solver.device == Device::Gpu {
+        // Before the preprocessing, which can take minutes: a missing driver, NVRTC or GPU is
+        // said at once (run, compare and sweep all prepare here).
+        solver::gpu::probe()?;
+    }
     log::info!(
         "preparing the {} discretization",
         format!("{:?}", scene.discretization.method).to_lowercase()
@@ -423,11 +428,6 @@ pub fn run_scene(scene: &Scene, opts: &RunOptions) -> Result<Summary> {
         .map(crate::io::out_dir::OutDir::open)
         .transpose()?;
     let result = (|| {
-        if scene.solver.device == Device::Gpu {
-            // Before the preprocessing, which can take minutes: a missing driver, NVRTC or GPU
-            // is said at once.
-            solver::gpu::probe()?;
-        }
         let mut prep = prepare(scene)?;
         let mut settings = settings(scene, opts.progress);
         settings.progress_lines = opts.progress_lines;
