@@ -96,6 +96,21 @@ __device__ __forceinline__ void cofactor(const double* a, double* c) {
     c[8] = a[0] * a[4] - a[1] * a[3];
 }
 
+// The weighted stress w P of a point's own F (forces.rs lanes, stress_to_chunk): neo-Hookean,
+// and for ANP points (mode 2) the pressure U'(J) swapped for the mean `psum / n` of their nodal
+// pressures (forces.rs anp_stress).
+__device__ __forceinline__ void point_stress(const double* f, double j, double mu, double kappa,
+                                             u32 md, double psum, u32 n, double w, double* pk) {
+    neo_pk(f, j, mu, kappa, pk);
+    if (md == 2) {
+        double sv = psum / (double)n - kappa * (j - 1.0);
+        double cof[9];
+        cofactor(f, cof);
+        for (int q = 0; q < 9; q++) pk[q] += cof[q] * sv;
+    }
+    for (int q = 0; q < 9; q++) pk[q] *= w;
+}
+
 // forces.rs min_by_j over a block: the smallest (J, point) of sj/sp into entry 0 (the lower
 // point among equal J). Every thread of the block calls it.
 __device__ __forceinline__ void block_min_j(double* sj, u32* sp) {
@@ -242,17 +257,10 @@ extern "C" __global__ void point_forces(u32 np, const u32* list, const u32* offs
             gradient(nodes, dphi, u, a, b, f);
             j = det3(f);
             u32 m = point_mat[p];
-            neo_pk(f, j, mu[m], kappa[m], pk);
-            if (md == 2) {
-                double sum = 0.0;
-                for (u32 s = a; s < b; s++) sum += node_p[pkey[s]];
-                double sv = sum / (double)(b - a) - kappa[m] * (j - 1.0);
-                double cof[9];
-                cofactor(f, cof);
-                for (int q = 0; q < 9; q++) pk[q] += cof[q] * sv;
-            }
-            double w = weights[p];
-            for (int q = 0; q < 9; q++) pk[q] *= w;
+            double psum = 0.0;
+            if (md == 2)
+                for (u32 s = a; s < b; s++) psum += node_p[pkey[s]];
+            point_stress(f, j, mu[m], kappa[m], md, psum, b - a, weights[p], pk);
         }
         bool hgp = (md == 1) && (b - a == 8);
         double qm[4][3];
@@ -383,15 +391,7 @@ extern "C" __global__ void point_forces_wide(u32 np, const u32* list, u32 has_an
         } else {
             j = det3(f);
             u32 m = point_mat[p];
-            neo_pk(f, j, mu[m], kappa[m], pk);
-            if (md == 2) {
-                double sv = psum / (double)(b - a) - kappa[m] * (j - 1.0);
-                double cof[9];
-                cofactor(f, cof);
-                for (int q = 0; q < 9; q++) pk[q] += cof[q] * sv;
-            }
-            double w = weights[p];
-            for (int q = 0; q < 9; q++) pk[q] *= w;
+            point_stress(f, j, mu[m], kappa[m], md, psum, b - a, weights[p], pk);
         }
         for (u32 s = a + lane; s < b; s += 32) {
             const double* d = dphi + 3 * (usize)s;

@@ -180,7 +180,8 @@ impl Resident {
             con_off: up(bytes(&t.con_off))?,
             pos: up(bytes(&t.pos))?,
             mass: up(bytes(&t.mass))?,
-            mask: up(bytes(&t.mask))?,
+            // Set by set_mask for each pass (with the late nodes).
+            mask: up(bytes(&vec![0u32; n]))?,
             dofs: up(bytes(&t.dofs))?,
             ..Default::default()
         };
@@ -297,17 +298,27 @@ impl Resident {
         Ok(r)
     }
 
+    /// Launches without allocating (the time loop allocates nothing per step): the argument
+    /// values and their addresses live on the stack.
     fn launch_now(&mut self, k: Kernel, grid: u32, args: &[Arg]) -> Result<()> {
-        let mut vals: Vec<Arg> = args.to_vec();
-        let mut params: Vec<*mut c_void> = vals
-            .iter_mut()
-            .map(|a| match a {
+        const MAX_ARGS: usize = 32;
+        assert!(
+            args.len() <= MAX_ARGS,
+            "{} arguments for {:?}",
+            args.len(),
+            k
+        );
+        let mut vals = [Arg::U32(0); MAX_ARGS];
+        vals[..args.len()].copy_from_slice(args);
+        let mut params = [std::ptr::null_mut::<c_void>(); MAX_ARGS];
+        for (p, a) in params.iter_mut().zip(vals.iter_mut()) {
+            *p = match a {
                 Arg::Ptr(p) => p as *mut u64 as *mut c_void,
                 Arg::U32(v) => v as *mut u32 as *mut c_void,
                 Arg::F64(v) => v as *mut f64 as *mut c_void,
-            })
-            .collect();
-        self.dev.launch(k, grid, &mut params)
+            };
+        }
+        self.dev.launch(k, grid, &mut params[..args.len()])
     }
 
     /// Sets u(n-1), u(n), u(n+1) (m).
@@ -510,49 +521,30 @@ impl Resident {
                 )?;
             }
         }
-        let common = [
-            Arg::Ptr(a.offsets),
-            Arg::Ptr(a.nodes),
-            Arg::Ptr(a.dphi),
-            Arg::Ptr(a.weights),
-            Arg::Ptr(a.mode),
-            Arg::Ptr(a.aux),
-            Arg::Ptr(a.point_mat),
-            Arg::Ptr(a.mu),
-            Arg::Ptr(a.kappa),
-        ];
-        let tail = [
-            Arg::Ptr(a.node_p),
-            Arg::Ptr(a.pkey),
-            Arg::Ptr(a.gpk),
-            Arg::Ptr(a.gs),
-            u,
-            Arg::Ptr(a.pos),
-            Arg::Ptr(a.slot_force),
-            Arg::Ptr(a.point_j),
-        ];
         let nb = self.point_blocks() - wide_blocks(self.n_wide);
         if self.n_narrow > 0 {
-            let mut args = vec![Arg::U32(self.n_narrow), Arg::Ptr(a.narrow)];
-            args.extend(common);
-            args.push(Arg::Ptr(a.hg));
-            args.extend(tail);
-            args.extend([Arg::Ptr(a.blk_j), Arg::Ptr(a.blk_p)]);
+            #[rustfmt::skip]
+            let args = [
+                Arg::U32(self.n_narrow), Arg::Ptr(a.narrow),
+                Arg::Ptr(a.offsets), Arg::Ptr(a.nodes), Arg::Ptr(a.dphi), Arg::Ptr(a.weights),
+                Arg::Ptr(a.mode), Arg::Ptr(a.aux), Arg::Ptr(a.point_mat), Arg::Ptr(a.mu),
+                Arg::Ptr(a.kappa), Arg::Ptr(a.hg), Arg::Ptr(a.node_p), Arg::Ptr(a.pkey),
+                Arg::Ptr(a.gpk), Arg::Ptr(a.gs), u, Arg::Ptr(a.pos), Arg::Ptr(a.slot_force),
+                Arg::Ptr(a.point_j), Arg::Ptr(a.blk_j), Arg::Ptr(a.blk_p),
+            ];
             self.launch(Kernel::PointForces, nb, &args)?;
         }
         if self.n_wide > 0 {
-            let mut args = vec![
-                Arg::U32(self.n_wide),
-                Arg::Ptr(a.wide),
-                Arg::U32((self.n_anp > 0) as u32),
+            // The wide kernel's min-J partials follow the narrow one's.
+            #[rustfmt::skip]
+            let args = [
+                Arg::U32(self.n_wide), Arg::Ptr(a.wide), Arg::U32((self.n_anp > 0) as u32),
+                Arg::Ptr(a.offsets), Arg::Ptr(a.nodes), Arg::Ptr(a.dphi), Arg::Ptr(a.weights),
+                Arg::Ptr(a.mode), Arg::Ptr(a.aux), Arg::Ptr(a.point_mat), Arg::Ptr(a.mu),
+                Arg::Ptr(a.kappa), Arg::Ptr(a.node_p), Arg::Ptr(a.pkey), Arg::Ptr(a.gpk),
+                Arg::Ptr(a.gs), u, Arg::Ptr(a.pos), Arg::Ptr(a.slot_force), Arg::Ptr(a.point_j),
+                Arg::Ptr(a.blk_j + 8 * nb as u64), Arg::Ptr(a.blk_p + 4 * nb as u64),
             ];
-            args.extend(common);
-            args.extend(tail);
-            // The wide kernel's partials follow the narrow one's.
-            args.extend([
-                Arg::Ptr(a.blk_j + 8 * nb as u64),
-                Arg::Ptr(a.blk_p + 4 * nb as u64),
-            ]);
             self.launch(Kernel::PointForcesWide, wide_blocks(self.n_wide), &args)?;
         }
         self.launch(

@@ -44,16 +44,13 @@ pub struct Tables {
     /// Per group scratch entry: its point and its group.
     pub gpoint: Vec<u32>,
     pub ggroup: Vec<u32>,
-    /// Per node: its entries `ent_off[n]..ent_off[n + 1]`; per entry its slots
-    /// `con_slot[con_off[e]..con_off[e + 1]]`, in the CPU's order.
+    /// Per node: its entries `ent_off[n]..ent_off[n + 1]`; per entry its slots' forces at
+    /// `con_off[e]..con_off[e + 1]` of the slot-force array, in the CPU's order.
     pub ent_off: Vec<u32>,
     pub con_off: Vec<u32>,
-    pub con_slot: Vec<u32>,
-    /// Per slot: its place in `con_slot` (where the point kernels store its force).
+    /// Per slot: where the point kernels store its force (its place in that order).
     pub pos: Vec<u32>,
     pub mass: Vec<f64>,
-    /// Per node: bit k set where component k is constrained.
-    pub mask: Vec<u32>,
     /// Prescribed DOFs as 3 node + component, their final values (m) and load curves (index
     /// into `curves`).
     pub dofs: Vec<u32>,
@@ -136,11 +133,6 @@ impl Tables {
             group_first: ft.group_first.to_vec(),
             in_groups: qp.groups.iter().map(|g| (g[1] - g[0]) as usize).sum(),
             mass: model.mass.clone(),
-            mask: cons
-                .mask
-                .iter()
-                .map(|m| m[0] as u32 | (m[1] as u32) << 1 | (m[2] as u32) << 2)
-                .collect(),
             dofs: cons
                 .dofs
                 .iter()
@@ -220,7 +212,7 @@ impl Tables {
         let n = self.num_nodes;
         self.ent_off = Vec::with_capacity(n + 1);
         self.con_off = vec![0];
-        self.con_slot = Vec::with_capacity(order.len());
+        let mut con_slot = Vec::with_capacity(order.len());
         self.ent_off.push(0);
         let push = |e: usize, con_off: &mut Vec<u32>, con_slot: &mut Vec<u32>| {
             if e < entries {
@@ -229,19 +221,15 @@ impl Tables {
             con_off.push(con_slot.len() as u32);
         };
         for node in 0..n {
-            push(
-                b.first[node] as usize,
-                &mut self.con_off,
-                &mut self.con_slot,
-            );
+            push(b.first[node] as usize, &mut self.con_off, &mut con_slot);
             let ex = &b.extras[b.extra_start[node] as usize..b.extra_start[node + 1] as usize];
             for &[_, e] in ex {
-                push(e as usize, &mut self.con_off, &mut self.con_slot);
+                push(e as usize, &mut self.con_off, &mut con_slot);
             }
             self.ent_off.push((self.con_off.len() - 1) as u32);
         }
-        self.pos = vec![0; self.con_slot.len()];
-        for (k, &s) in self.con_slot.iter().enumerate() {
+        self.pos = vec![0; con_slot.len()];
+        for (k, &s) in con_slot.iter().enumerate() {
             self.pos[s as usize] = k as u32;
         }
     }
@@ -264,8 +252,8 @@ impl Tables {
             + 2 * self.in_groups
             + self.ent_off.len()
             + self.con_off.len()
-            + self.con_slot.len()
-            + self.mask.len()
+            + self.pos.len()
+            + self.num_nodes
             + 2 * self.dofs.len()
             + self.curves.len();
         let np = self.weights.len();
