@@ -12,7 +12,7 @@ pub enum Error {
     #[error("{}", short_numbers(.0))]
     Input(String),
     /// An element or integration point with non-positive volume.
-    #[error("element {element} is inverted or degenerate: volume {volume:.6e} m^3, not positive or below 1e-12 of its size cubed; check its node order and coordinates (a node far from the others makes a needle)")]
+    #[error("element {element} is inverted or degenerate: volume {volume:.6e} m^3; its volume (a hexahedron: its Jacobian determinant at a corner or Gauss point) is not positive or below 1e-12 of its size cubed; check its node order and coordinates (a node far from the others makes a needle)")]
     InvalidElement { element: usize, volume: f64 },
     /// The explicit integrator diverged.
     #[error("{}", short_numbers(.0))]

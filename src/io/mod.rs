@@ -29,3 +29,47 @@ pub(crate) fn clip(s: &str) -> String {
         t
     }
 }
+
+std::thread_local! {
+    static QUIET: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
+}
+
+/// `catch_unwind` without the panic message: where a third-party parser (vtkio, mshio) panics
+/// on malformed input, the caller turns it into a clear input error and the user sees no
+/// backtrace. Panics on other threads, or outside this call, are reported as before.
+pub(crate) fn catch_quietly<T>(f: impl FnOnce() -> T) -> std::thread::Result<T> {
+    static HOOK: std::sync::Once = std::sync::Once::new();
+    HOOK.call_once(|| {
+        let previous = std::panic::take_hook();
+        std::panic::set_hook(Box::new(move |info| {
+            if !QUIET.with(std::cell::Cell::get) {
+                previous(info);
+            }
+        }));
+    });
+    let was = QUIET.with(|q| q.replace(true));
+    let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(f));
+    QUIET.with(|q| q.set(was));
+    result
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn catch_quietly_catches_and_restores_the_reporting() {
+        assert_eq!(catch_quietly(|| 7).ok(), Some(7));
+        let caught = catch_quietly(|| -> u8 { panic!("a parser's panic") });
+        let message = caught.err().and_then(|p| p.downcast_ref::<&str>().copied());
+        assert_eq!(message, Some("a parser's panic"));
+        // Outside the call, panics on this thread are reported again.
+        assert!(!QUIET.with(std::cell::Cell::get));
+        // Nested calls keep the outer call quiet until it returns.
+        let _ = catch_quietly(|| {
+            let _ = catch_quietly(|| 1);
+            assert!(QUIET.with(std::cell::Cell::get));
+        });
+        assert!(!QUIET.with(std::cell::Cell::get));
+    }
+}

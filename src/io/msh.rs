@@ -31,10 +31,9 @@
 //! Errors name the file and where the problem is (line for 2.2; element/node block, byte
 //! offset and, for ASCII, line for 4.1). No input makes the reader panic: the parts of
 //! `mshio` that can panic on malformed headers are checked first and the parse runs under
-//! `catch_unwind` as a last resort.
+//! `catch_unwind` as a last resort (without printing the panic).
 
 use std::collections::{BTreeMap, HashMap};
-use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::path::Path;
 
 use nalgebra::Vector3;
@@ -1097,10 +1096,10 @@ fn parse_msh41(bytes: &[u8], header: &Header, path: &Path) -> Result<MeshInput> 
     let file = &bytes[header.start..];
     let (patched, patch) = patch_max_node_tag(file, header);
     let ascii = header.file_type == 0;
-    let parsed = catch_unwind(AssertUnwindSafe(|| {
+    let parsed = super::catch_quietly(|| {
         mshio::parse_msh_bytes(&patched)
             .map_err(|e| describe_mshio_error(&e, &patched, file, patch, ascii))
-    }));
+    });
     let msh =
         match parsed {
             Ok(Ok(m)) => m,

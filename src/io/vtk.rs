@@ -44,11 +44,11 @@
 //!   C names) and read by vtkio.
 //!
 //! No input makes the reader panic: legacy headers are checked against the file size before
-//! parsing and the parse runs under `catch_unwind`. Errors name the file and the line or byte
+//! parsing, inline arrays without data are refused, and the parse runs under `catch_unwind`
+//! (without printing the panic). Errors name the file and the line or byte
 //! offset where the reader can tell it.
 
 use std::collections::{BTreeMap, BTreeSet};
-use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::path::Path;
 
 use nalgebra::Vector3;
@@ -168,7 +168,7 @@ fn import_legacy(bytes: &[u8], path: &Path) -> Result<vtkio::Vtk> {
         }
     }
     check_legacy_counts(bytes, path)?;
-    let parsed = catch_unwind(AssertUnwindSafe(|| vtkio::Vtk::parse_legacy_be(bytes)));
+    let parsed = super::catch_quietly(|| vtkio::Vtk::parse_legacy_be(bytes));
     match parsed {
         Ok(Ok(v)) => Ok(v),
         Ok(Err(e)) => Err(fail(
@@ -451,11 +451,12 @@ fn import_xml(bytes: &[u8], path: &Path) -> Result<vtkio::Vtk> {
     // Compressed or appended arrays, and binary cell types other than UInt8, are rewritten
     // inline as uncompressed base64 with UInt8 cell types (see `vtk_xml`).
     let original = bytes;
+    super::vtk_xml::check_empty_arrays(bytes, path)?;
     let normalized = super::vtk_xml::normalize(bytes, path)?;
     let bytes: &[u8] = normalized.as_deref().unwrap_or(bytes);
     let fixed = fix_cell_types(bytes, path)?;
     let input: &[u8] = fixed.as_deref().unwrap_or(bytes);
-    let parsed = catch_unwind(AssertUnwindSafe(|| vtkio::Vtk::parse_xml(input)));
+    let parsed = super::catch_quietly(|| vtkio::Vtk::parse_xml(input));
     match parsed {
         Ok(Ok(v)) => Ok(v),
         Ok(Err(e)) => {
@@ -837,7 +838,7 @@ fn convert(vtk: vtkio::Vtk, path: &Path) -> Result<MeshInput> {
                 ),
             ));
         }
-        let data = catch_unwind(AssertUnwindSafe(|| piece.into_loaded_piece_data(None)))
+        let data = super::catch_quietly(|| piece.into_loaded_piece_data(None))
             .map_err(|_| fail(path, format!("piece{at} is malformed")))?
             .map_err(|e| fail(path, format!("piece{at}: {e}")))?;
 
@@ -1618,6 +1619,45 @@ _"#,
             "faces.vtu",
         );
         assert!(e.contains("no volume cells"), "{e}");
+        // Inline arrays without data (vtkio indexed their missing first block and panicked):
+        // an empty body, a self-closing ASCII tag, an empty base64 body.
+        let e = err(
+            TWO_PIECES
+                .replacen(">0 1 2 3 0 2 1</DataArray>", "> \n </DataArray>", 1)
+                .as_bytes(),
+            "c.vtu",
+        );
+        assert!(
+            e.contains("c.vtu: line 16: the DataArray 'connectivity' holds no data"),
+            "{e}"
+        );
+        let e = err(
+            TWO_PIECES
+                .replacen(
+                    r#"format="ascii">0 0 0 1 0 0 0 1 0 0 0 1</DataArray>"#,
+                    r#"format="ascii"/>"#,
+                    1,
+                )
+                .as_bytes(),
+            "p.vtu",
+        );
+        assert!(
+            e.contains("p.vtu: line 13: the DataArray '(unnamed)' holds no data"),
+            "{e}"
+        );
+        let e = err(
+            TWO_PIECES
+                .replace(
+                    r#"Name="offsets" format="ascii">4 7<"#,
+                    r#"Name="offsets" format="binary"><"#,
+                )
+                .as_bytes(),
+            "o.vtu",
+        );
+        assert!(
+            e.contains("line 17: the DataArray 'offsets' holds no data"),
+            "{e}"
+        );
         // Empty and foreign content.
         assert!(err(b"", "e.vtu").contains("empty"));
         assert!(err(b"", "e.vtk").contains("empty"));

@@ -732,6 +732,44 @@ fn normalize_capped(bytes: &[u8], path: &Path, cap: u64) -> Result<Option<Vec<u8
     Ok(Some(out))
 }
 
+/// An inline (ASCII or base64) `<DataArray>` with no data, self-closing or with an empty body,
+/// is an error naming its line: vtkio indexes the first data block of such an array without
+/// checking that there is one. Appended arrays keep their data elsewhere.
+pub(crate) fn check_empty_arrays(bytes: &[u8], path: &Path) -> Result<()> {
+    let head = &bytes[..find(bytes, b"<AppendedData").unwrap_or(bytes.len())];
+    let mut at = 0;
+    while let Some(r) = find(&head[at..], b"<DataArray") {
+        let s = at + r;
+        let Some(e) = head[s..].iter().position(|&b| b == b'>').map(|p| s + p) else {
+            return Err(fail(
+                path,
+                format!("line {}: unterminated <DataArray tag", line_of(bytes, s)),
+            ));
+        };
+        at = e + 1;
+        let tag = &head[s..e];
+        if attr(tag, b"format") == Some(b"appended") {
+            continue;
+        }
+        let empty = head[e - 1] == b'/'
+            || find(&head[at..], b"</DataArray>")
+                .is_some_and(|c| head[at..at + c].iter().all(u8::is_ascii_whitespace));
+        if empty {
+            let name = attr_str(tag, b"Name").unwrap_or("(unnamed)");
+            return Err(fail(
+                path,
+                format!(
+                    "line {}: the DataArray '{}' holds no data: the file is truncated or \
+                     corrupt (write it again, e.g. with ParaView or meshio)",
+                    line_of(bytes, s),
+                    super::clip(name)
+                ),
+            ));
+        }
+    }
+    Ok(())
+}
+
 /// Line (1-based) of byte `at`.
 fn line_of(bytes: &[u8], at: usize) -> usize {
     bytes[..at.min(bytes.len())]

@@ -237,8 +237,8 @@ fn body_mesh(scene: &Scene, input: Option<&MeshInput>, warnings: &mut Vec<String
 fn name_file_element(e: Error, input: Option<&MeshInput>) -> Error {
     match (&e, input) {
         (Error::InvalidElement { element, volume }, Some(m)) => Error::Input(format!(
-            "element {} (id {} in the mesh file) is inverted or degenerate: volume {volume:.6e} m^3, not positive \
-             or below 1e-12 of its size cubed; check its node order and coordinates (a node far from the others makes a needle)",
+            "element {} (id {} in the mesh file) is inverted or degenerate: volume {volume:.6e} m^3; its volume (a hexahedron: its Jacobian \
+             determinant at a corner or Gauss point) is not positive or below 1e-12 of its size cubed; check its node order and coordinates (a node far from the others makes a needle)",
             element,
             m.element_ids.get(*element).copied().unwrap_or(0)
         )),
