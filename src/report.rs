@@ -46,8 +46,25 @@ pub struct Comparison {
     pub value: f64,
     pub computed: f64,
     pub relative_error: f64,
+    /// The load fraction compared at (a relaxation load stage; absent: the end).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub at: Option<f64>,
+    /// Relative distance from the computed value to the reference's band (0 inside it).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub band_error: Option<f64>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub source: Option<String>,
+}
+
+/// Reactions and probes at one relaxation load stage (`references.NAME.at`).
+#[derive(Debug, Clone, Serialize)]
+pub struct StageResult {
+    /// Load fraction held.
+    pub load: f64,
+    /// Step at which the relaxation converged there.
+    pub step: usize,
+    pub reactions: BTreeMap<String, [f64; 3]>,
+    pub probes: BTreeMap<String, [f64; 3]>,
 }
 
 /// Mesh facts that bear on accuracy and the stable step.
@@ -245,6 +262,9 @@ pub struct Summary {
     #[serde(skip_serializing_if = "BTreeMap::is_empty")]
     pub loads: BTreeMap<String, [f64; 3]>,
     pub probes: BTreeMap<String, ProbeResult>,
+    /// Relaxation load stages (the `at` of the references) before the full load.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub stages: Vec<StageResult>,
     pub energy: Energy,
     pub reference: BTreeMap<String, Comparison>,
     pub mesh: MeshInfo,

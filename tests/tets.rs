@@ -27,9 +27,14 @@ fn prepared(case: &str, overrides: &[&str]) -> simulation::Prepared {
 /// points shared by |phi|) add up to the integrated volume.
 #[test]
 fn coupled_tet_defaults_put_fe_at_the_essential_faces_only() {
+    // Physical masses: relaxation scales them by default (solver.mass_scaling).
     let p = prepared(
         "tet-cylinder-compression",
-        &[COARSE, "discretization.method=coupled"],
+        &[
+            COARSE,
+            "discretization.method=coupled",
+            "solver.mass_scaling=false",
+        ],
     );
     let c = p.coupled.as_ref().unwrap();
     let mut fe = 0;

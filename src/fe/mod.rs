@@ -2,6 +2,7 @@
 //! hourglass matrices, turned into quadrature points for the shared force kernel.
 
 pub mod hex8;
+pub mod tet10;
 pub mod tet4;
 
 use crate::geometry::{ElementShape, Mesh};
@@ -17,6 +18,9 @@ pub enum ElementKind {
     Tet4,
     /// Average-nodal-pressure tetrahedron (Bonet & Burton 1998) for near-incompressible solids.
     Tet4Anp,
+    /// Quadratic 10-node tetrahedron, four points with mean dilatation ([`tet10`]), made from
+    /// a linear tet mesh.
+    Tet10,
 }
 
 impl ElementKind {
@@ -24,7 +28,7 @@ impl ElementKind {
     pub fn shape(self) -> ElementShape {
         match self {
             ElementKind::Hex8 => ElementShape::Hex8,
-            ElementKind::Tet4 | ElementKind::Tet4Anp => ElementShape::Tet4,
+            ElementKind::Tet4 | ElementKind::Tet4Anp | ElementKind::Tet10 => ElementShape::Tet4,
         }
     }
 
@@ -34,6 +38,7 @@ impl ElementKind {
             ElementKind::Hex8 => "hex8",
             ElementKind::Tet4 => "tet4",
             ElementKind::Tet4Anp => "tet4-anp",
+            ElementKind::Tet10 => "tet10",
         }
     }
 }
@@ -52,6 +57,8 @@ pub fn check_model_memory(cells: f64, kind: ElementKind, what: &str) -> Result<(
     let per_cell = match kind {
         ElementKind::Hex8 => 8.0 * crate::memory::BYTES_PER_SLOT + HEX8_POINT_BYTES,
         ElementKind::Tet4 | ElementKind::Tet4Anp => 4.0 * crate::memory::BYTES_PER_SLOT,
+        // Four points of ten slots, and about 1.2 edge nodes per element.
+        ElementKind::Tet10 => 40.0 * crate::memory::BYTES_PER_SLOT + 200.0,
     };
     crate::memory::check(
         cells * per_cell,
@@ -77,6 +84,9 @@ pub fn element_points(
             mesh.shape
         )));
     }
+    if kind == ElementKind::Tet10 {
+        return tet10::Tet10Mesh::from_tet4(mesh)?.points();
+    }
     let mut qp = QuadraturePoints::with_capacity(mesh.num_cells(), mesh.cells.len());
     for e in 0..mesh.num_cells() {
         let ids = mesh.cell(e);
@@ -88,6 +98,7 @@ pub fn element_points(
                 let hg = h.hourglass_vectors(&x, hourglass_coefficient, modulus);
                 qp.push_hourglass(ids, &h.b, h.volume, hg);
             }
+            ElementKind::Tet10 => unreachable!("tet10 returned above"),
             ElementKind::Tet4 | ElementKind::Tet4Anp => {
                 let x: [_; 4] = std::array::from_fn(|a| mesh.nodes[ids[a]]);
                 let (b, volume) = tet4::derivatives(&x)

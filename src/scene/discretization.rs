@@ -167,6 +167,10 @@ pub enum ElementName {
     Tet4,
     #[serde(rename = "tet4-anp")]
     Tet4Anp,
+    /// Quadratic 10-node tetrahedron with one volume change per element (P2/P0), built from
+    /// the tet mesh by adding edge nodes (`fe::tet10`).
+    #[serde(rename = "tet10")]
+    Tet10,
 }
 
 impl From<ElementName> for crate::fe::ElementKind {
@@ -175,6 +179,7 @@ impl From<ElementName> for crate::fe::ElementKind {
             ElementName::Hex8 => crate::fe::ElementKind::Hex8,
             ElementName::Tet4 => crate::fe::ElementKind::Tet4,
             ElementName::Tet4Anp => crate::fe::ElementKind::Tet4Anp,
+            ElementName::Tet10 => crate::fe::ElementKind::Tet10,
         }
     }
 }

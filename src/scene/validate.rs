@@ -620,6 +620,10 @@ fn check_solver(s: &Scene) -> std::result::Result<(), String> {
             sv.damping
         ));
     }
+    if sv.mass_scaling == Some(true) && sv.mode == crate::solver::Mode::Dynamic {
+        return Err("solver.mass_scaling = true: mass scaling replaces the masses by fictitious                     ones, which changes the dynamics; it is for mode = \"relaxation\" only (remove                     the key, or set solver.mode = \"relaxation\")"
+            .into());
+    }
     Ok(())
 }
 
@@ -649,6 +653,36 @@ fn check_outputs(s: &Scene) -> std::result::Result<(), String> {
                 "references.{name}.value = 0: a relative error against 0 is undefined; compare a \
                  non-zero quantity"
             ));
+        }
+        if let Some(at) = r.at {
+            if !(at > 0.0 && at <= 1.0) {
+                return Err(format!(
+                    "references.{name}.at = {at}: the load fraction at which to compare must be in (0, 1] \
+                     (1: the end of the run)"
+                ));
+            }
+            if at < 1.0 && s.solver.mode != Mode::Relaxation {
+                return Err(format!(
+                    "references.{name}.at = {at}: comparing at a load fraction below 1 needs \
+                     solver.mode = \"relaxation\" (the run converges at each such load stage); a \
+                     dynamic run's path is in history.csv"
+                ));
+            }
+            if at < 1.0 && r.exact.is_some() {
+                return Err(format!(
+                    "references.{name}: `exact` is the solution at the full load; give `value` for at = {at}"
+                ));
+            }
+        }
+        if let Some([lo, hi]) = r.band {
+            let inside = r.value.is_none_or(|v| v >= lo && v <= hi);
+            if !(lo <= hi) || !inside {
+                return Err(format!(
+                    "references.{name}.band = [{lo}, {hi}]: expected [low, high] with low <= high \
+                     around the value {}",
+                    r.value.map_or("-".into(), |v| v.to_string())
+                ));
+            }
         }
         let parts: Vec<&str> = r.quantity.split('.').collect();
         let ok = parts.len() == 3

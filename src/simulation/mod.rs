@@ -266,6 +266,9 @@ fn add_loads_and_contact(
     warnings: &mut Vec<String>,
 ) -> Result<()> {
     model.set_loads(loads::scene_loads(scene, d, input)?)?;
+    if scene.solver.mode == Mode::Relaxation && scene.solver.mass_scaling != Some(false) {
+        model.scale_masses()?;
+    }
     model.contact = loads::scene_contact(scene, d, input, warnings)?;
     Ok(())
 }

@@ -379,6 +379,7 @@ impl<'a> FrameWriter<'a> {
             cells_of(&points.von_mises, 1),
             cells_of(&points.j, 1),
         );
+        let cell_j_own = cells_of(&points.j_own, 1);
         let region: Vec<f64> = if self.labels.point_cells.is_empty() {
             Vec::new()
         } else {
@@ -471,6 +472,11 @@ impl<'a> FrameWriter<'a> {
                     name: "J",
                     components: 1,
                     values: &cell_j,
+                },
+                DataArray {
+                    name: "J_element",
+                    components: 1,
+                    values: &cell_j_own,
                 },
             ]);
             if !region.is_empty() {

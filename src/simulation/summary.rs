@@ -1,6 +1,7 @@
 //! The summary of a finished run: what was solved, its results against the references, its
 //! energy balance and cost.
 
+use crate::report::StageResult;
 use std::collections::BTreeMap;
 
 use crate::report::{
@@ -137,6 +138,27 @@ pub fn summarize(scene: &Scene, prep: &Prepared, out: &RunOutput, total_seconds:
             )
         })
         .collect();
+    let stages: Vec<StageResult> = out
+        .stages
+        .iter()
+        .map(|st| StageResult {
+            load: st.load,
+            step: st.step,
+            reactions: model
+                .reaction_names()
+                .into_iter()
+                .zip(st.reactions.iter().copied())
+                .collect(),
+            probes: prep
+                .probes
+                .iter()
+                .map(|p| {
+                    let d = p.displacement(&st.u);
+                    (p.name.clone(), [d.x, d.y, d.z])
+                })
+                .collect(),
+        })
+        .collect();
     let reference = scene
         .references
         .iter()
@@ -147,12 +169,26 @@ pub fn summarize(scene: &Scene, prep: &Prepared, out: &RunOutput, total_seconds:
                 Some(&"y") => 1,
                 _ => 2,
             };
-            let computed = match parts[0] {
-                "reaction" => reactions.get(parts[1])?[k],
-                _ => probes.get(parts[1])?.displacement[k],
+            let at = r.at.filter(|&a| a < 1.0);
+            let computed = match at {
+                None => match parts[0] {
+                    "reaction" => reactions.get(parts[1])?[k],
+                    _ => probes.get(parts[1])?.displacement[k],
+                },
+                Some(a) => {
+                    let st = stages.iter().find(|s| s.load == a)?;
+                    match parts[0] {
+                        "reaction" => st.reactions.get(parts[1])?[k],
+                        _ => st.probes.get(parts[1])?[k],
+                    }
+                }
             };
             let value = r.value?;
-            let relative_error = (computed - value).abs() / value.abs().max(f64::MIN_POSITIVE);
+            let scale = value.abs().max(f64::MIN_POSITIVE);
+            let relative_error = (computed - value).abs() / scale;
+            let band_error = r
+                .band
+                .map(|[lo, hi]| (lo - computed).max(computed - hi).max(0.0) / scale);
             Some((
                 name.clone(),
                 Comparison {
@@ -160,6 +196,8 @@ pub fn summarize(scene: &Scene, prep: &Prepared, out: &RunOutput, total_seconds:
                     value,
                     computed,
                     relative_error,
+                    at,
+                    band_error,
                     source: r.source.clone(),
                 },
             ))
@@ -238,6 +276,7 @@ pub fn summarize(scene: &Scene, prep: &Prepared, out: &RunOutput, total_seconds:
             balance_error,
         },
         reference,
+        stages,
         mesh: MeshInfo {
             elements: prep.mesh.num_cells(),
             min_dihedral_deg: prep.min_dihedral.map(|m| m.0),

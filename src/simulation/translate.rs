@@ -319,6 +319,7 @@ pub fn settings(scene: &Scene, progress: bool) -> Settings {
         progress,
         progress_lines: None,
         device: s.device,
+        stages: stages(scene),
         initial_velocity: None,
         initial_motion: scene.initial.as_ref().map(|i| {
             [
@@ -328,6 +329,20 @@ pub fn settings(scene: &Scene, progress: bool) -> Settings {
             ]
         }),
     }
+}
+
+/// The load fractions below 1 at which references are compared (`at`), ascending: the
+/// relaxation's load stages.
+pub fn stages(scene: &Scene) -> Vec<f64> {
+    let mut v: Vec<f64> = scene
+        .references
+        .values()
+        .filter_map(|r| r.at)
+        .filter(|&a| a > 0.0 && a < 1.0)
+        .collect();
+    v.sort_by(f64::total_cmp);
+    v.dedup();
+    v
 }
 
 /// The scene's shape as a meshless domain (None for a mesh file, whose shape is its cells).

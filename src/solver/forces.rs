@@ -1402,7 +1402,14 @@ impl<M: Material> Forces<M> {
                 PointKind::Anp => {
                     let j = plain.determinant();
                     let pk = self.anp_stress(qp, self.material_at(p), p, &plain, j);
-                    (pk * plain.transpose() / j, j)
+                    // The volume change its pressure comes from: the mean of its nodes' J_n.
+                    let r = qp.slots(p);
+                    let n = r.len() as f64;
+                    let j_nodes: f64 = r
+                        .map(|s| self.node_j[self.pressure_node(qp, s)])
+                        .sum::<f64>()
+                        / n;
+                    (pk * plain.transpose() / j, j_nodes)
                 }
                 _ => {
                     let j = plain.determinant();
@@ -1412,6 +1419,7 @@ impl<M: Material> Forces<M> {
             };
             let e = (plain.transpose() * plain - Matrix3::identity()) * 0.5;
             out.set(p, &c, &e, j);
+            out.j_own[p] = plain.determinant();
         }
         out
     }
@@ -1442,7 +1450,14 @@ pub struct Fields {
     pub cauchy: Vec<f64>,
     pub green: Vec<f64>,
     pub von_mises: Vec<f64>,
+    /// The volume change the formulation uses: the point's own det F, or the averaged one
+    /// where the element averages it (tet4-anp: the mean of its nodes' J_n, the volume-weighted
+    /// mean J around each node; mean-dilatation groups: the group's weighted mean J).
     pub j: Vec<f64>,
+    /// det F of the point's own deformation gradient. With averaged volume changes it may
+    /// vary from element to element in a checkerboard that carries no pressure (tet4-anp:
+    /// only the nodal J_n enter the volumetric energy).
+    pub j_own: Vec<f64>,
 }
 
 impl Fields {
@@ -1453,6 +1468,7 @@ impl Fields {
             green: vec![0.0; 9 * n],
             von_mises: vec![0.0; n],
             j: vec![0.0; n],
+            j_own: vec![0.0; n],
         }
     }
 
@@ -1477,6 +1493,7 @@ impl Fields {
         let dev = c - Matrix3::identity() * (c.trace() / 3.0);
         self.von_mises[p] = (1.5 * dev.norm_squared()).sqrt();
         self.j[p] = j;
+        self.j_own[p] = j;
     }
 
     /// Cauchy stress of entry `p`, Pa.

@@ -15,7 +15,7 @@ use super::schedule::{
 use super::timeline::Timeline;
 use super::{
     auto_load_steps, check_contact_start, fastest_wave, Critical, FrameSink, HistoryRow, Mode,
-    Momentum, RunOutput, Settings, StepUpdates, DEFORMATION_ALLOWANCE, LANCZOS_ITERATIONS,
+    Momentum, RunOutput, Settings, Stage, StepUpdates, DEFORMATION_ALLOWANCE, LANCZOS_ITERATIONS,
 };
 use crate::bc::Constraints;
 use crate::material::Material;
@@ -162,6 +162,12 @@ struct Pass<'a, M: Material> {
     gpu: Option<&'a mut Resident>,
     /// The point stage ran on the device and its smallest J is not checked yet.
     j_pending: bool,
+    /// Relaxation: the load stages converged so far, and the index of the next stage in
+    /// `s.stages`.
+    stages: Vec<Stage>,
+    next_stage: usize,
+    /// A stage has just converged: the next step writes a frame.
+    stage_frame: bool,
     /// Device runs: the host does what follows the update (corrections, loads, damping) on
     /// copies of the state.
     assisted: bool,
@@ -361,6 +367,9 @@ impl<'a, M: Material> Pass<'a, M> {
             windowed,
             gpu,
             j_pending: false,
+            stages: Vec::new(),
+            next_stage: 0,
+            stage_frame: false,
         })
     }
 
@@ -511,7 +520,8 @@ impl<'a, M: Material> Pass<'a, M> {
             || self.relax.converged
             || (!self.dynamic && step >= self.time.total_steps);
         let record = self.rec.row_due(step) || at_end;
-        let frame = self.rec.frame_due(step) && !(self.restarted && step == 0 && sink.is_some());
+        let frame = (self.rec.frame_due(step) || std::mem::take(&mut self.stage_frame))
+            && !(self.restarted && step == 0 && sink.is_some());
         if let (Some(g), true) = (self.gpu.as_mut(), record || frame) {
             let (min_j, p_min) = g.min_j()?;
             g.download_u(1, &mut self.u)?;
@@ -695,6 +705,42 @@ impl<'a, M: Material> Pass<'a, M> {
         self.conclude(max_du, max_u)
     }
 
+    /// The relaxation has converged at the stage held at `step`: keeps its state and
+    /// reactions, and lets the load come on again towards the next stage (or the full load)
+    /// with a fresh relaxation rate.
+    fn stage_converged(&mut self, step: usize) -> Result<()> {
+        if let Some(g) = self.gpu.as_mut() {
+            g.download_u(1, &mut self.u)?;
+            g.download_f(&mut self.f)?;
+        }
+        let reactions = self
+            .model
+            .reactions(&self.f)
+            .iter()
+            .map(|v| [v.x, v.y, v.z])
+            .collect();
+        self.stages.push(Stage {
+            load: self.time.cap,
+            step,
+            reactions,
+            u: self.u.clone(),
+        });
+        self.next_stage += 1;
+        let next = self.s.stages.get(self.next_stage).copied().unwrap_or(1.0);
+        self.time.resume(step + 1, next);
+        let records = std::mem::take(&mut self.relax.records);
+        let n = if self.dynamic { 0 } else { self.u.len() };
+        self.relax = Relaxation::new(
+            n,
+            self.load_steps,
+            self.s.estimate_interval,
+            self.s.tolerance,
+        );
+        self.relax.records = records;
+        self.stage_frame = true;
+        Ok(())
+    }
+
     /// The damping ledger's block sums of a damped device run, as the CPU update makes them
     /// (predict.rs; runs with late nodes keep to the CPU).
     #[allow(clippy::needless_range_loop)] // i indexes five arrays
@@ -753,7 +799,7 @@ impl<'a, M: Material> Pass<'a, M> {
         }
 
         self.schedule.travel += max_du;
-        if !self.dynamic && self.time.load(step + 1) >= 1.0 {
+        if !self.dynamic && self.time.load(step + 1) >= self.time.target() {
             if let (Some(g), true) = (self.gpu.as_mut(), self.relax.wants_state(step)) {
                 g.download_u(1, &mut self.u)?;
                 g.download_f(&mut self.f)?;
@@ -765,6 +811,9 @@ impl<'a, M: Material> Pass<'a, M> {
                 max_du,
                 dt,
             );
+            if self.relax.converged && self.time.cap < 1.0 {
+                self.stage_converged(step)?;
+            }
         }
 
         std::mem::swap(&mut self.u_prev, &mut self.u);
@@ -865,6 +914,7 @@ impl<'a, M: Material> Pass<'a, M> {
             restarts: Vec::new(),
             failed_steps: 0,
             step_updates: self.updates,
+            stages: self.stages,
         })
     }
 }

@@ -95,6 +95,10 @@ pub struct Settings {
     pub initial_motion: Option<[Vector3<f64>; 3]>,
     /// Where the time loop runs.
     pub device: Device,
+    /// Relaxation: load fractions in (0, 1), ascending, at which the load stops rising until
+    /// the relaxation has converged there (a load stage: its state is kept in
+    /// [`RunOutput::stages`]), then goes on.
+    pub stages: Vec<f64>,
 }
 
 /// Where the time loop runs ([`Settings::device`]; scene `solver.device`, CLI `--device`).
@@ -133,6 +137,7 @@ impl Default for Settings {
             initial_velocity: None,
             initial_motion: None,
             device: Device::Cpu,
+            stages: Vec::new(),
         }
     }
 }
@@ -149,6 +154,19 @@ pub struct HistoryRow {
     pub external_work: f64,
     pub strain_energy: f64,
     pub kinetic_energy: f64,
+}
+
+/// The converged state of a relaxation at one of [`Settings::stages`].
+#[derive(Debug, Clone)]
+pub struct Stage {
+    /// The load fraction held.
+    pub load: f64,
+    /// The step at which the relaxation converged there.
+    pub step: usize,
+    /// The reactions then ([`Model::reactions`]: the boundaries, then the rigid bodies), N.
+    pub reactions: Vec<[f64; 3]>,
+    /// Displacements (nodal parameters) then, m.
+    pub u: Vec<Vector3<f64>>,
 }
 
 /// One record of the dynamic-relaxation parameters.
@@ -216,6 +234,8 @@ pub struct RunOutput {
     pub failed_steps: usize,
     /// The estimates of the critical step at the deformed state and what they did.
     pub step_updates: StepUpdates,
+    /// Relaxation: the converged states at [`Settings::stages`], in load order.
+    pub stages: Vec<Stage>,
 }
 
 /// Estimates of the critical step during a run ([`Settings::step_update`]).
@@ -282,6 +302,18 @@ impl std::fmt::Display for Critical {
 /// bound is much tighter where supports are large (meshless about 1.5x, blended points 2-2.4x).
 pub fn stable_step<M: Material>(model: &Model<M>) -> (f64, Critical) {
     let moduli = |p: usize| model.point_moduli(p);
+    if model.masses_uneven {
+        // The per-point bounds (and the tet4-anp bound's deviatoric part) assume each point's
+        // mass split evenly over its nodes; the nodal bound holds for any masses.
+        let (dt, node) = super::timestep::nodal_time_step(
+            &model.points,
+            &model.slots,
+            &model.mass,
+            &model.constraints.mask,
+            &moduli,
+        );
+        return (dt, Critical::Node(node));
+    }
     if all_anp(model) {
         // Average nodal pressure: the bound that sees the averaging (timestep::anp_time_step).
         let (dt, node) = super::timestep::anp_time_step(
@@ -429,7 +461,7 @@ fn all_anp<M: Material>(model: &Model<M>) -> bool {
 /// force evaluations.
 pub fn critical_step<M: Material>(model: &mut Model<M>, how: StepEstimate) -> (f64, Critical) {
     let bounds = stable_step(model);
-    if how == StepEstimate::Bounds || all_anp(model) {
+    if how == StepEstimate::Bounds || (all_anp(model) && !model.mass_scaled) {
         return bounds;
     }
     match super::spectrum::largest_eigenvalue(model, LANCZOS_ITERATIONS, LANCZOS_TOLERANCE) {

@@ -26,6 +26,11 @@ pub(super) struct Timeline {
     pub(super) load_steps: usize,
     dt0: f64,
     varied: bool,
+    /// Relaxation: the load fraction the load stops at until [`Self::resume`] (a load stage;
+    /// 1 or above: none), and the load held back by the stages passed (the load comes on
+    /// from where it stopped).
+    pub(super) cap: f64,
+    held: f64,
 }
 
 impl Timeline {
@@ -58,6 +63,8 @@ impl Timeline {
             load_steps: 0,
             dt0: dt,
             varied: false,
+            cap: s.stages.first().copied().unwrap_or(1.0),
+            held: 0.0,
         })
     }
 
@@ -70,6 +77,29 @@ impl Timeline {
     /// over the load steps, or its pseudo-time in steps of the first length once the step
     /// has been shortened.
     pub(super) fn load(&self, step: usize) -> f64 {
+        let l = self.rising_load(step) - self.held;
+        if l > self.cap && self.cap < 1.0 {
+            self.cap
+        } else {
+            l
+        }
+    }
+
+    /// The load fraction the relaxation converges at before it stops or goes on: the stage's,
+    /// or the full load.
+    pub(super) fn target(&self) -> f64 {
+        self.cap.min(1.0)
+    }
+
+    /// The stage held at `step` has converged: the load comes on again from it at the next
+    /// step, up to `next` (the next stage, or 1 and above for none).
+    pub(super) fn resume(&mut self, step: usize, next: f64) {
+        self.held = self.rising_load(step) - self.cap;
+        self.cap = next;
+    }
+
+    /// The load fraction without the stages' pauses.
+    fn rising_load(&self, step: usize) -> f64 {
         let t = self.time(step);
         if self.dynamic {
             if self.load_time > 0.0 {
