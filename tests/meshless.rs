@@ -478,9 +478,10 @@ fn meshless_vtu_frames_carry_interpolated_displacement_and_read_back() {
     }
     let piece = pieces[0].load_piece_data(None).unwrap();
     assert_eq!(piece.num_points(), s.nodes);
-    // Displacement, nodal fields and a label per boundary; cell stress, von Mises, J.
+    // Displacement, nodal fields and a label per boundary; cell stress, von Mises, J and
+    // J_element.
     assert_eq!(piece.data.point.len(), 6 + sc.boundaries.len());
-    assert_eq!(piece.data.cell.len(), 3);
+    assert_eq!(piece.data.cell.len(), 4);
     // The top corner's interpolated displacement in the last frame is the probe's.
     let vtkio::model::Attribute::DataArray(arr) = &piece.data.point[0] else {
         panic!("no displacement array")

@@ -11,6 +11,7 @@
 //! [`QuadraturePoints`] list the solver uses.
 
 pub mod mixed;
+pub mod quadratic;
 pub mod regions;
 
 use nalgebra::{Matrix3, Vector3};
@@ -100,6 +101,9 @@ pub struct CoupledBuild {
     /// Adaptive integration: the interior points' positions (m) and refinement levels, in the
     /// order of the last `meshless_points` quadrature points.
     pub adaptive_points: Option<(Vec<Vector3<f64>>, Vec<u8>)>,
+    /// `element = "tet10"`: the FE layer's edge nodes (after the mesh's vertices in `nodes`)
+    /// and each FE-layer cell's ten nodes.
+    pub quadratic: Option<quadratic::Quadratic>,
 }
 
 /// Shape-function values at a point: global node ids and phi.
@@ -133,9 +137,18 @@ impl CoupledBuild {
         let qp = &self.points;
         let mut mass = vec![0.0; self.nodes.len()];
         let blended = self.fe_points..self.fe_points + self.transition_points;
+        let (corner, edge) = crate::fe::tet10::MASS_SHARES;
         for p in (0..self.fe_points).chain(blended.end..qp.len()) {
             let r = qp.slots(p);
-            let share = density(p) * qp.weights[p] / r.len() as f64;
+            let m = density(p) * qp.weights[p];
+            if p < self.fe_points && self.quadratic.is_some() {
+                // HRZ: each of an element's four points carries a quarter of its mass.
+                for (a, &i) in qp.nodes[r].iter().enumerate() {
+                    mass[i as usize] += m * if a < 4 { corner } else { edge };
+                }
+                continue;
+            }
+            let share = m / r.len() as f64;
             for &i in &qp.nodes[r] {
                 mass[i as usize] += share;
             }
@@ -181,7 +194,8 @@ impl CoupledBuild {
             (Err(_), Some(_)) => return self.mls_values(x, &what),
             (Err(e), None) => return Err(e),
         };
-        self.layer_values(pr.element, &pr.nodes, &pr.weights, x, &what)
+        let l = &pr.weights;
+        self.layer_values(pr.element, &pr.nodes, l, x, &what)
     }
 
     /// Shape-function values at `x` (m) on FE-layer cell `e` (`Some(e)`), or in the interior
@@ -225,16 +239,27 @@ impl CoupledBuild {
         x: &Vector3<f64>,
         what: &dyn Fn() -> String,
     ) -> Result<Weights> {
+        // The ramp: the interface vertices' linear (barycentric or trilinear) values.
+        let r: f64 = ids
+            .iter()
+            .zip(w)
+            .filter(|(&i, _)| self.regions.node[i] == NodeRole::Interface)
+            .map(|(_, &w)| w)
+            .sum();
+        // A quadratic layer's own functions at the barycentric coordinates `w`.
+        let quad: Option<Weights> = self
+            .quadratic
+            .as_ref()
+            .map(|q| q.values(e, [w[0], w[1], w[2], w[3]]));
+        let (ids, w): (Vec<usize>, Vec<f64>) = match quad {
+            Some(v) => v.into_iter().unzip(),
+            None => (ids.to_vec(), w.to_vec()),
+        };
+        let (ids, w) = (&ids[..], &w[..]);
         match self.regions.cell[e] {
             CellRole::Fe => Ok(ids.iter().copied().zip(w.iter().copied()).collect()),
             CellRole::Meshless => self.mls_values(x, what),
             CellRole::Transition => {
-                let r: f64 = ids
-                    .iter()
-                    .zip(w)
-                    .filter(|(&i, _)| self.regions.node[i] == NodeRole::Interface)
-                    .map(|(_, &w)| w)
-                    .sum();
                 let mut acc: std::collections::BTreeMap<usize, f64> = Default::default();
                 for (i, v) in self.mls_values(x, what)? {
                     *acc.entry(i).or_default() += r * v;
@@ -393,6 +418,10 @@ fn fe_point(
 /// Blended points of one transition cell: (node ids ascending, dphi/dX, weight, phi).
 type Blended = Vec<(Vec<usize>, Vec<Vector3<f64>>, f64, Vec<f64>)>;
 
+/// The blended points of transition cell `e` of the FE layer `mesh`: its FE functions (linear,
+/// or with `quad` the cell's quadratic ones over all the build's `nodes`), the ramp of its
+/// interface vertices' linear functions, and the MLS functions at each point.
+#[allow(clippy::too_many_arguments)]
 fn transition_cell(
     mesh: &Mesh,
     e: usize,
@@ -401,9 +430,11 @@ fn transition_cell(
     mls_nodes: &[usize],
     s: &CoupledSettings,
     full: bool,
+    quad: Option<(&quadratic::Quadratic, &[Vector3<f64>])>,
 ) -> Result<Blended> {
     let mls = &s.mls;
-    let rule = if full {
+    // Quadratic cells take the four-point rule, which integrates their stiffness.
+    let rule = if full || quad.is_some() {
         gauss(mesh.shape)
     } else {
         transition_gauss(mesh.shape, s)
@@ -425,6 +456,18 @@ fn transition_cell(
                 dr += dn[a];
             }
         }
+        let (ids, n, dn) = match quad {
+            Some((q, nodes)) => {
+                let p = q
+                    .point(e, nodes, g.0)
+                    .map_err(|det| Error::InvalidElement {
+                        element: e,
+                        volume: det / 6.0,
+                    })?;
+                (p.ids, p.n, p.dn)
+            }
+            None => (c.to_vec(), n, dn),
+        };
         let s = shape_at(support, mls, &pos, true, &|| {
             format!("transition point of element {e}")
         })?;
@@ -436,14 +479,14 @@ fn transition_cell(
             .zip(&s.dphi)
             .map(|((&i, &p), d)| (mls_nodes[i], d * r + dr * p, r * p))
             .collect();
-        for a in 0..c.len() {
+        for a in 0..ids.len() {
             let d = dn[a] * (1.0 - r) - dr * n[a];
-            match acc.iter_mut().find(|(i, _, _)| *i == c[a]) {
+            match acc.iter_mut().find(|(i, _, _)| *i == ids[a]) {
                 Some(slot) => {
                     slot.1 += d;
                     slot.2 += (1.0 - r) * n[a];
                 }
-                None => acc.push((c[a], d, (1.0 - r) * n[a])),
+                None => acc.push((ids[a], d, (1.0 - r) * n[a])),
             }
         }
         acc.sort_unstable_by_key(|a| a.0);
@@ -520,13 +563,16 @@ fn check_shape(s: &CoupledSettings, shape: ElementShape) -> Result<()> {
 /// Quadrature points of the coupled discretization: TLED points of the pure FE cells,
 /// blended full-Gauss points of the transition cells, MLS points of the interior tets.
 fn assemble(
-    nodes: Vec<Vector3<f64>>,
+    mut nodes: Vec<Vector3<f64>>,
     fe_mesh: Mesh,
     interior: Mesh,
-    regions: Regions,
+    mut regions: Regions,
     s: &CoupledSettings,
     mut warnings: Vec<String>,
 ) -> Result<CoupledBuild> {
+    // A quadratic FE layer: its edge nodes come after the mesh's vertices.
+    let quad = (s.element == ElementKind::Tet10)
+        .then(|| quadratic::Quadratic::add_edge_nodes(&mut nodes, &mut regions.node, &fe_mesh));
     let n = nodes.len();
     // MLS nodes and the interior background tets in their local numbering.
     let mls_nodes: Vec<usize> = (0..n)
@@ -571,15 +617,32 @@ fn assemble(
             .flat_map(|&e| fe_mesh.cell(e).iter().cloned())
             .collect(),
     };
-    let fe_qp = fe::element_points(&pure, s.element, s.hourglass, s.hourglass_modulus).map_err(
-        |e| match e {
-            Error::InvalidElement { element, volume } => Error::InvalidElement {
-                element: fe_cells[element],
-                volume,
-            },
-            e => e,
-        },
-    )?;
+    let fe_qp =
+        match &quad {
+            // Four points of ten nodes per element, each element a mean-dilatation group.
+            Some(q) => {
+                let mut qp =
+                    QuadraturePoints::with_capacity(4 * fe_cells.len(), 40 * fe_cells.len());
+                for &e in &fe_cells {
+                    let ids = q.cells[e];
+                    let x: [Vector3<f64>; 10] = std::array::from_fn(|a| nodes[ids[a]]);
+                    let pts = fe::tet10::cell_points(&x, &ids)
+                        .map_err(|volume| Error::InvalidElement { element: e, volume })?;
+                    qp.push_group(&pts);
+                }
+                qp
+            }
+            None => fe::element_points(&pure, s.element, s.hourglass, s.hourglass_modulus)
+                .map_err(|e| match e {
+                    Error::InvalidElement { element, volume } => Error::InvalidElement {
+                        element: fe_cells[element],
+                        volume,
+                    },
+                    e => e,
+                })?,
+        };
+    // Points per pure FE cell (the owner of each).
+    let per_cell = if quad.is_some() { 4 } else { 1 };
 
     // Transition cells: blended shape functions at full Gauss points.
     let transition_cells: Vec<usize> = (0..fe_mesh.num_cells())
@@ -599,7 +662,10 @@ fn assemble(
     let blended: Vec<Blended> = transition_cells
         .par_iter()
         .zip(&full)
-        .map(|(&e, &f)| transition_cell(&fe_mesh, e, &regions.node, &support, &mls_nodes, s, f))
+        .map(|(&e, &f)| {
+            let q = quad.as_ref().map(|q| (q, &nodes[..]));
+            transition_cell(&fe_mesh, e, &regions.node, &support, &mls_nodes, s, f, q)
+        })
         .collect::<Result<_>>()?;
 
     let mut adaptive_info = None;
@@ -691,9 +757,26 @@ fn assemble(
                 let d: [Vector3<f64>; 8] = std::array::from_fn(|a| fe_qp.dphi[r.start + a]);
                 qp.push_hourglass(&ids, &d, fe_qp.weights[p], fe_qp.hourglass[h as usize]);
             }
+            // A quadratic element's four points: its group, pushed at its first point.
+            PointKind::MeanDilatation(g) => {
+                let [first, end] = fe_qp.groups[g as usize];
+                if p == first as usize {
+                    let pts: Vec<_> = (first as usize..end as usize)
+                        .map(|q| {
+                            let r = fe_qp.slots(q);
+                            (
+                                fe_qp.nodes[r.clone()].iter().map(|&i| i as usize).collect(),
+                                fe_qp.dphi[r].to_vec(),
+                                fe_qp.weights[q],
+                            )
+                        })
+                        .collect();
+                    qp.push_group(&pts);
+                }
+            }
             k => qp.push(&ids, &fe_qp.dphi[r], fe_qp.weights[p], k),
         }
-        owner.push(fe_cells[p]);
+        owner.push(fe_cells[p / per_cell]);
     }
     for (b, &e) in blended.iter().zip(&transition_cells) {
         // A one-point cell's mean J is its J: a group would only add a pass per step.
@@ -758,6 +841,7 @@ fn assemble(
         warnings,
         adaptive: adaptive_info,
         adaptive_points,
+        quadratic: quad,
     };
     build.lumped_volume = build.lumped_masses(&|_| 1.0);
     Ok(build)

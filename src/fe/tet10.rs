@@ -88,38 +88,7 @@ impl Tet10Mesh {
     pub fn element_points(&self, e: usize) -> std::result::Result<[GroupPoint; 4], f64> {
         let ids = self.cells[e];
         let x: [Vector3<f64>; 10] = std::array::from_fn(|a| self.nodes[ids[a]]);
-        let (a, b) = RULE;
-        let mut volume = 0.0;
-        let mut pts: Vec<GroupPoint> = Vec::with_capacity(4);
-        let mut bad = false;
-        for q in 0..4 {
-            let mut l = [b; 4];
-            l[q] = a;
-            match derivatives(&x, l) {
-                Some((d, det)) => {
-                    let w = det / 24.0;
-                    volume += w;
-                    pts.push((ids.to_vec(), d.to_vec(), w));
-                }
-                None => bad = true,
-            }
-        }
-        // Positive at the corners as well: a curved element can fold between its points.
-        let scale = (x[1] - x[0])
-            .norm()
-            .max((x[2] - x[0]).norm())
-            .max((x[3] - x[0]).norm());
-        for q in 0..4 {
-            let mut l = [0.0; 4];
-            l[q] = 1.0;
-            bad |= derivatives(&x, l).is_none_or(|(_, det)| !(det > 6e-12 * scale.powi(3)));
-        }
-        if bad || !(volume > 1e-12 * scale.powi(3)) {
-            return Err(volume);
-        }
-        Ok(pts
-            .try_into()
-            .unwrap_or_else(|_| unreachable!("four points")))
+        cell_points(&x, &ids)
     }
 
     /// Quadrature points of every element, each element a mean-dilatation group.
@@ -202,6 +171,47 @@ impl Tet10Mesh {
         let n = shape(l);
         self.cells[e].iter().copied().zip(n).collect()
     }
+}
+
+/// The four quadrature points of the element with nodes `x` (m) and ids `ids`: node ids,
+/// dphi/dX (1/m) and weights (m^3); `Err(volume)` where the Jacobian is not positive at a
+/// point or a corner.
+pub fn cell_points(
+    x: &[Vector3<f64>; 10],
+    ids: &[usize; 10],
+) -> std::result::Result<[GroupPoint; 4], f64> {
+    let (a, b) = RULE;
+    let mut volume = 0.0;
+    let mut pts: Vec<GroupPoint> = Vec::with_capacity(4);
+    let mut bad = false;
+    for q in 0..4 {
+        let mut l = [b; 4];
+        l[q] = a;
+        match derivatives(x, l) {
+            Some((d, det)) => {
+                let w = det / 24.0;
+                volume += w;
+                pts.push((ids.to_vec(), d.to_vec(), w));
+            }
+            None => bad = true,
+        }
+    }
+    // Positive at the corners as well: a curved element can fold between its points.
+    let scale = (x[1] - x[0])
+        .norm()
+        .max((x[2] - x[0]).norm())
+        .max((x[3] - x[0]).norm());
+    for q in 0..4 {
+        let mut l = [0.0; 4];
+        l[q] = 1.0;
+        bad |= derivatives(x, l).is_none_or(|(_, det)| !(det > 6e-12 * scale.powi(3)));
+    }
+    if bad || !(volume > 1e-12 * scale.powi(3)) {
+        return Err(volume);
+    }
+    Ok(pts
+        .try_into()
+        .unwrap_or_else(|_| unreachable!("four points")))
 }
 
 /// Quadratic shape functions at barycentric coordinates `l`: corners L_a (2 L_a - 1), edges

@@ -341,8 +341,8 @@ pub struct SolverSpec {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub retries: Option<usize>,
     /// Estimate the critical step again at the deformed state during the run and shorten the
-    /// step when deformation has raised the frequencies (default true): dynamic runs from the
-    /// start, relaxation after a restart.
+    /// step when deformation has raised the frequencies (default true): dynamic runs and
+    /// mass-scaled relaxation from the start, relaxation with physical masses after a restart.
     #[serde(default = "default_true")]
     pub step_update: bool,
     /// Relaxation: replace the masses by fictitious ones proportional to each node's stiffness

@@ -145,6 +145,14 @@ pub(super) fn prepare_coupled(scene: &Scene) -> Result<Prepared> {
             .map(|c| [c[0], c[1], c[2], c[3]])
             .collect())
     };
+    if kind == ElementKind::Tet10 && (mixed || generated) {
+        return Err(Error::Input(
+            "discretization.element = 'tet10' in the coupled method makes the scene's own tet mesh \
+             quadratic; a given FE shell with a cloud (cloud = 'file', 'lattice' or 'halton') is \
+             not supported yet: use element = 'tet4-anp' there, or cloud = 'mesh'"
+                .into(),
+        ));
+    }
     let built = if mixed {
         let path = scene_path(scene, &d.cloud_file.clone().unwrap_or_default());
         let cloud = crate::meshless::cloud::read_cloud(&path)?;
@@ -160,9 +168,16 @@ pub(super) fn prepare_coupled(scene: &Scene) -> Result<Prepared> {
     };
     let build = built.map_err(|e| name_file_element(e, input.as_ref()))?;
     warnings.extend(build.warnings.iter().cloned());
-    let bnd = boundaries(scene, &build.nodes, input.as_ref(), &|| {
+    let mut bnd = boundaries(scene, &build.nodes, input.as_ref(), &|| {
         Discretized::Coupled(&build).surface_nodes()
     })?;
+    // A quadratic FE layer: a boundary takes the edge nodes between the vertices it holds
+    // (named sets are of the mesh's vertices).
+    if let Some(q) = &build.quadratic {
+        for b in bnd.iter_mut().filter(|b| b.node_values.is_none()) {
+            q.extend_selection(&mut b.nodes);
+        }
+    }
     // Builds on the scene's own mesh give the cells next to a concentrated drive the full
     // rule (`full_rule_near`); a given FE shell with a cloud cannot yet, so it is said.
     if settings.transition_rule == coupling::TransitionRule::Interior

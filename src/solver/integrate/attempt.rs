@@ -281,7 +281,7 @@ impl<'a, M: Material> Pass<'a, M> {
         };
         // Relaxation updates its step only after a restart: runs that converge at the first
         // attempt keep their fixed step (and their results).
-        let lanczos = (s.step_update && (dynamic || restarted))
+        let lanczos = (s.step_update && (dynamic || restarted || model.mass_scaled))
             .then(|| Lanczos::new(model, LANCZOS_ITERATIONS));
         // The first estimate compares with the reference one where that was global.
         let schedule = UpdateSchedule::new(
