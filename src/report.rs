@@ -541,9 +541,13 @@ impl Summary {
         if !self.reference.is_empty() {
             let _ = writeln!(s, "vs reference");
             for (k, c) in &self.reference {
+                let at = c.at.map_or(String::new(), |a| format!(" at load {a}"));
+                let band = c.band_error.map_or(String::new(), |b| {
+                    format!(", {:.3} % from its band", 100.0 * b)
+                });
                 let _ = writeln!(
                     s,
-                    "  {k:<14} {:<22} computed {:>12.6e}  reference {:>12.6e}  error {:>7.3} %",
+                    "  {k:<14} {:<22} computed {:>12.6e}  reference {:>12.6e}  error {:>7.3} %{band}{at}",
                     c.quantity,
                     c.computed,
                     c.value,

@@ -7,7 +7,8 @@
 # default all cores), JOBS (sweeps run at once, default 1; with JOBS > 1 give each sweep its own
 # cores, e.g. JOBS=4 THREADS=2 on 8 cores, or the wall times of study 1 compete).
 # Studies (a study name runs all its jobs): timestep incompressibility large-deformation
-# irregular spin speed-accuracy fe-layers adaptive tets.
+# irregular spin speed-accuracy fe-layers adaptive tets brain-convergence brain-compressible
+# indentation.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 H=${HYTLED:-target/release/hytled}
@@ -231,6 +232,26 @@ brain-compressible() {
     --vary discretization.size=0.006,0.0045,0.0035,0.0025 --out studies/brain-compressible
 }
 
+# Issue 40: the indentation benchmark (cases/brain-indentation-benchmark.toml: the plug driven
+# on conforming Gmsh meshes graded at its rim, meshes/make_gmsh_brain_indentation.py; the
+# REFERENCE.md SfePy force at 1-5 mm through load stages). fe tet4-anp and tet10, the coupled
+# method with its tet4-anp layer (the unstructured-tet defaults: one layer around the essential
+# boundaries, linear MLS), with a quadratic layer, and with a quadratic layer and the MMLS
+# interior, on levels c1-c4; fe tet4-anp alone on c5.
+BI='../meshes/brain-indentation'
+indentation() {
+  sweep cases/brain-indentation-benchmark.toml --preset "$FE_ANP" \
+    --preset 'fe-tet10=discretization.method=fe;discretization.element=tet10' \
+    --preset 'coupled-tet4-anp=discretization.method=coupled;discretization.element=tet4-anp' \
+    --preset 'coupled-tet10=discretization.method=coupled;discretization.element=tet10' \
+    --preset 'coupled-tet10-mmls=discretization.method=coupled;discretization.element=tet10;discretization.basis=quadratic' \
+    --vary "geometry.mesh=$BI-c1.msh,$BI-c2.msh,$BI-c3.msh,$BI-c4.msh" --out studies/indentation
+}
+indentation-fine() {
+  sweep cases/brain-indentation-benchmark.toml --preset "$FE_ANP" \
+    --vary "geometry.mesh=$BI-c5.msh" --out studies/indentation-fine
+}
+
 ALL=(speed-accuracy-compression speed-accuracy-extension speed-accuracy-shear speed-accuracy-dynamic
   speed-accuracy-cube timestep-cube timestep-cylinder incompressibility-cube
   incompressibility-cylinder large-deformation irregular-jitter irregular-halton
@@ -241,7 +262,7 @@ ALL=(speed-accuracy-compression speed-accuracy-extension speed-accuracy-shear sp
   tets-anp-gmsh-compression tets-anp-gmsh-extension tets-anp-gmsh-shear
   tets-anp-tetgen-compression tets-anp-tetgen-extension tets-anp-tetgen-shear
   tets-global-gmsh-compression tets-global-gmsh-extension tets-global-gmsh-shear
-  brain-convergence brain-convergence-fine brain-compressible)
+  brain-convergence brain-convergence-fine brain-compressible indentation indentation-fine)
 
 if [ "${1:-}" = --list ]; then printf '%s\n' "${ALL[@]}"; exit 0; fi
 # A study name stands for its jobs.

@@ -346,9 +346,10 @@ pub struct SolverSpec {
     #[serde(default = "default_true")]
     pub step_update: bool,
     /// Relaxation: replace the masses by fictitious ones proportional to each node's stiffness
-    /// (mass scaling, default true in relaxation; the steady state does not depend on the
-    /// masses, gravity keeps the physical ones). Graded meshes and quadratic elements then
-    /// converge in several times fewer steps. Not allowed in dynamic runs.
+    /// (mass scaling; the steady state does not depend on the masses, gravity keeps the
+    /// physical ones). Graded meshes and quadratic elements then converge in several times
+    /// fewer steps. Default: on in relaxation, except for models of tet4-anp elements only
+    /// (their elements' own J collapsed at a driven rim under it). Not allowed in dynamic runs.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub mass_scaling: Option<bool>,
     /// Where the time loop runs: `"cpu"` (default) or `"gpu"` (NVIDIA GPU 0, the same answers

@@ -266,7 +266,22 @@ fn add_loads_and_contact(
     warnings: &mut Vec<String>,
 ) -> Result<()> {
     model.set_loads(loads::scene_loads(scene, d, input)?)?;
-    if scene.solver.mode == Mode::Relaxation && scene.solver.mass_scaling != Some(false) {
+    // Mass scaling by default except for models of tet4-anp elements only: their elements'
+    // own J, which the averaged pressure does not hold, collapsed at the driven rim of the
+    // indentation benchmark under the scaled masses (restarts on levels c3 and c5, a failure
+    // on c3 with the ramp curve; none with the physical masses), so they keep those unless the
+    // scene asks.
+    let all_anp = !model.points.is_empty()
+        && model
+            .points
+            .kinds
+            .iter()
+            .all(|&k| k == crate::quadrature::PointKind::Anp);
+    let scale = match scene.solver.mass_scaling {
+        Some(s) => s,
+        None => !all_anp,
+    };
+    if scene.solver.mode == Mode::Relaxation && scale {
         model.scale_masses()?;
     }
     model.contact = loads::scene_contact(scene, d, input, warnings)?;
