@@ -4,6 +4,7 @@
 use nalgebra::Vector3;
 
 use crate::fe::{hex8, tet4};
+use crate::geometry::cell_grid::CellGrid;
 use crate::geometry::{ElementShape, Mesh};
 use crate::{Error, Result};
 
@@ -24,9 +25,32 @@ impl Probe {
     /// true circle of a polygonal cylinder) is accepted up to 5 % of an element beyond its
     /// faces, using the element's shape functions; farther away is an error.
     pub fn locate(name: &str, position: Vector3<f64>, mesh: &Mesh) -> Result<Probe> {
+        Self::locate_among(name, position, mesh, 0..mesh.num_cells())
+    }
+
+    /// [`Self::locate`] among the cells `grid` (made from `mesh`) lists near `position`: the
+    /// same answer in constant time (each cell that could hold the point, or lie within the
+    /// accepted 5 %, is among them, in ascending order).
+    pub fn locate_in_grid(
+        name: &str,
+        position: Vector3<f64>,
+        mesh: &Mesh,
+        grid: &CellGrid,
+    ) -> Result<Probe> {
+        let cells = grid.candidates(&position);
+        Self::locate_among(name, position, mesh, cells.iter().map(|&e| e as usize))
+    }
+
+    /// [`Self::locate`] over `cells`, ascending.
+    fn locate_among(
+        name: &str,
+        position: Vector3<f64>,
+        mesh: &Mesh,
+        cells: impl Iterator<Item = usize>,
+    ) -> Result<Probe> {
         // best = (how far outside in natural coordinates, element, weights)
         let mut best: Option<(f64, usize, Vec<f64>)> = None;
-        for e in 0..mesh.num_cells() {
+        for e in cells {
             let ids = mesh.cell(e);
             let (outside, w): (f64, Vec<f64>) = match mesh.shape {
                 ElementShape::Hex8 => {

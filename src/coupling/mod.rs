@@ -18,6 +18,7 @@ use nalgebra::{Matrix3, Vector3};
 use rayon::prelude::*;
 
 use crate::fe::{self, hex8, tet4, ElementKind};
+use crate::geometry::cell_grid::CellGrid;
 use crate::geometry::{ElementShape, Mesh};
 use crate::meshless::discretize::hex_to_tets;
 use crate::meshless::mls::MlsSettings;
@@ -104,6 +105,9 @@ pub struct CoupledBuild {
     /// `element = "tet10"`: the FE layer's edge nodes (after the mesh's vertices in `nodes`)
     /// and each FE-layer cell's ten nodes.
     pub quadratic: Option<quadratic::Quadratic>,
+    /// Point location in `fe_mesh` and `interior` ([`Self::shape_values`]).
+    fe_grid: CellGrid,
+    interior_grid: CellGrid,
 }
 
 /// Shape-function values at a point: global node ids and phi.
@@ -182,14 +186,17 @@ impl CoupledBuild {
     pub fn shape_values(&self, name: &str, x: &Vector3<f64>) -> Result<Weights> {
         let what = || format!("probe '{name}'");
         // Inside an interior cell (not just near one): MLS.
-        let inner = Probe::locate(name, *x, &self.interior).ok();
+        let inner = Probe::locate_in_grid(name, *x, &self.interior, &self.interior_grid).ok();
         if inner
             .as_ref()
             .is_some_and(|p| p.weights.iter().all(|&w| w >= -1e-12))
         {
             return self.mls_values(x, &what);
         }
-        let pr = match (Probe::locate(name, *x, &self.fe_mesh), inner) {
+        let pr = match (
+            Probe::locate_in_grid(name, *x, &self.fe_mesh, &self.fe_grid),
+            inner,
+        ) {
             (Ok(p), _) => p,
             (Err(_), Some(_)) => return self.mls_values(x, &what),
             (Err(e), None) => return Err(e),
@@ -821,6 +828,7 @@ fn assemble(
     let source_cell = (0..fe_mesh.num_cells())
         .chain(std::iter::repeat_n(usize::MAX, interior.num_cells()))
         .collect();
+    let (fe_grid, interior_grid) = (CellGrid::new(&fe_mesh), CellGrid::new(&interior));
     let mut build = CoupledBuild {
         source_cell,
         lumped_volume: Vec::new(),
@@ -842,6 +850,8 @@ fn assemble(
         adaptive: adaptive_info,
         adaptive_points,
         quadratic: quad,
+        fe_grid,
+        interior_grid,
     };
     build.lumped_volume = build.lumped_masses(&|_| 1.0);
     Ok(build)

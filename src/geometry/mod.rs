@@ -1,5 +1,6 @@
 //! Shapes, their structured and TetGen meshes, and node selections.
 
+pub mod cell_grid;
 pub mod domain;
 pub mod mesh;
 pub mod quality;
