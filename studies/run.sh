@@ -8,7 +8,7 @@
 # cores, e.g. JOBS=4 THREADS=2 on 8 cores, or the wall times of study 1 compete).
 # Studies (a study name runs all its jobs): timestep incompressibility large-deformation
 # irregular spin speed-accuracy fe-layers adaptive tets brain-convergence brain-compressible
-# indentation.
+# indentation brain-builtin.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 H=${HYTLED:-target/release/hytled}
@@ -251,6 +251,23 @@ indentation-fine() {
   sweep cases/brain-indentation-benchmark.toml --preset "$FE_ANP" \
     --vary "geometry.mesh=$BI-c5.msh" --out studies/indentation-fine
 }
+# Issue 40, built-in shapes honour their loads: the TetGen half-ellipsoid with the plug (or the
+# tool's rim) as a mesh feature, graded there (discretization.refine), refined level by level.
+# The first preset is each case's default.
+ref() { echo "discretization.size=$1;discretization.refine=[{near=\"indenter\",size=$2}]"; }
+brain-builtin-indentation() {
+  sweep cases/brain-indentation.toml \
+    --preset "default-8-2mm=$(ref 0.008 0.002)" --preset "h6-1mm=$(ref 0.006 0.001)" \
+    --preset "h6-0.5mm=$(ref 0.006 0.0005)" --preset "h4-0.5mm=$(ref 0.004 0.0005)" \
+    --preset "tet4-anp-8-2mm=$(ref 0.008 0.002);discretization.element=tet4-anp" \
+    --out studies/brain-builtin-indentation
+}
+brain-builtin-contact() {
+  sweep cases/brain-contact.toml \
+    --preset 'default-4mm=discretization.size=0.004' --preset "h4-1mm=$(ref 0.004 0.001)" \
+    --preset "h4-0.5mm=$(ref 0.004 0.0005)" --preset "h3-0.5mm=$(ref 0.003 0.0005)" \
+    --preset "h3-0.3mm=$(ref 0.003 0.0003)" --out studies/brain-builtin-contact
+}
 
 ALL=(speed-accuracy-compression speed-accuracy-extension speed-accuracy-shear speed-accuracy-dynamic
   speed-accuracy-cube timestep-cube timestep-cylinder incompressibility-cube
@@ -262,7 +279,8 @@ ALL=(speed-accuracy-compression speed-accuracy-extension speed-accuracy-shear sp
   tets-anp-gmsh-compression tets-anp-gmsh-extension tets-anp-gmsh-shear
   tets-anp-tetgen-compression tets-anp-tetgen-extension tets-anp-tetgen-shear
   tets-global-gmsh-compression tets-global-gmsh-extension tets-global-gmsh-shear
-  brain-convergence brain-convergence-fine brain-compressible indentation indentation-fine)
+  brain-convergence brain-convergence-fine brain-compressible indentation indentation-fine
+  brain-builtin-indentation brain-builtin-contact)
 
 if [ "${1:-}" = --list ]; then printf '%s\n' "${ALL[@]}"; exit 0; fi
 # A study name stands for its jobs.

@@ -1,8 +1,8 @@
 //! The organ-scale brain indentation scene (cases/brain-indentation.toml, thesis sect. 5.3.4):
 //! a half-ellipsoid meshed by TetGen, base bonded, a 5 mm indenter pushed 5 mm into the apex by
-//! dynamic relaxation, with the scene's default (fe tet4-anp) and with its coupled settings (FE
-//! surface layers, meshless inside). Run at a coarse size to keep the suite fast; no published
-//! reference (studies/brain-convergence has the refinement).
+//! dynamic relaxation: tet4-anp and the coupled settings (FE surface layers, meshless inside) at
+//! a coarse size to keep the suite fast, and the shipped default (tet10 graded at the plug's
+//! rim) against the SfePy reference of the benchmark (studies/brain-builtin has the refinement).
 
 mod common;
 use common::*;
@@ -12,7 +12,10 @@ use hytled::simulation::{prepare, settings, summarize};
 use hytled::solver;
 
 const CASE: &str = "cases/brain-indentation.toml";
-const COARSE: &[&str] = &["discretization.size=0.009"];
+const COARSE: &[&str] = &[
+    "discretization.size=0.009",
+    "discretization.element=tet4-anp",
+];
 
 fn scene(overrides: &[&str]) -> Scene {
     let o: Vec<String> = overrides.iter().map(|s| s.to_string()).collect();
@@ -70,7 +73,10 @@ fn coarse_brain_indentation_converges_and_pushes() {
                 "indenter node {i}: {u:?}"
             );
             let p = prep.model.nodes[i];
-            assert!(p.x.hypot(p.y) <= 0.005 && p.z >= 0.0275, "{p:?}");
+            assert!(
+                p.x.hypot(p.y) <= 0.005 + 1e-12 && p.z >= 0.0275 - 1e-12,
+                "{p:?}"
+            );
         }
         // The apex is an indenter node: the probe there reads the full indentation.
         assert!((s.probes["apex"].displacement[2] + 0.005).abs() < 1e-9);
@@ -81,9 +87,45 @@ fn coarse_brain_indentation_converges_and_pushes() {
 #[test]
 fn half_ellipsoid_needs_tetgen_validates_and_round_trips() {
     // The structured mesher cannot make the shape: a clear error.
-    let s = scene(&["discretization.mesher=structured"]);
+    let s = scene(&[
+        "discretization.mesher=structured",
+        "discretization.refine=[]",
+    ]);
     let e = hytled::simulation::build_mesh(&s).unwrap_err().to_string();
     assert!(e.contains("use mesher = 'tetgen'"), "{e}");
+    // Grading is for TetGen meshes, near something whose outline is a feature.
+    let o = vec!["discretization.mesher=structured".to_string()];
+    let e = hytled::scene::load(&path(CASE), &o)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("discretization.refine grades the TetGen mesh"),
+        "{e}"
+    );
+    for (set, msg) in [
+        (
+            "discretization.refine=[{near=\"base\",size=0.002}]",
+            "has no outline",
+        ),
+        (
+            "discretization.refine=[{near=\"tool\",size=0.002}]",
+            "names no [boundaries]",
+        ),
+    ] {
+        let s = scene(&[set]);
+        let e = hytled::simulation::build_mesh(&s).unwrap_err().to_string();
+        assert!(e.contains(msg), "{e}");
+    }
+    for set in [
+        "discretization.refine=[{near=\"indenter\",size=0.0}]",
+        "discretization.refine=[{near=\"indenter\",size=0.002,growth=1.0}]",
+        "discretization.refine=[{near=\"indenter\",size=0.02}]",
+    ] {
+        let e = hytled::scene::load(&path(CASE), &[set.to_string()])
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("discretization.refine[0]"), "{set}: {e}");
+    }
     // Semi-axes must be positive and finite; other shapes' keys are refused.
     let o = vec!["geometry.semi_axes=[0.04, 0.0, 0.03]".to_string()];
     let e = hytled::scene::load(&path(CASE), &o)
@@ -121,6 +163,11 @@ fn transition_cells_next_to_a_concentrated_drive_take_the_full_rule() {
     // points), for far fewer points, and no warning is left.
     let coupled = [
         "discretization.size=0.009",
+        "discretization.element=tet4-anp",
+        // A drive that is not a mesh feature (off the axis, so no plug is meshed): a handful
+        // of nodes that happen to lie in the cylinder.
+        "discretization.refine=[]",
+        "boundaries.indenter.select.cylinder.center=[0.0001, 0.0, 0.0]",
         "discretization.method=coupled",
         "discretization.fe_region=essential",
         "discretization.fe_layers=1",
@@ -152,4 +199,49 @@ fn transition_cells_next_to_a_concentrated_drive_take_the_full_rule() {
         "{:?}",
         local.warnings
     );
+}
+
+/// The case as shipped: the plug {r <= 5 mm, z >= 27.5 mm} is a meshed sub-volume of the
+/// TetGen mesh (a ring of nodes on its outline, graded there), driven exactly, and the quadratic
+/// tet's force is within 2 % of the independent SfePy reference of the same problem
+/// (REFERENCE.md "Brain indentation benchmark": -51.38 mN).
+#[cfg(feature = "tetgen")]
+#[test]
+fn builtin_brain_indentation_drives_its_plug_and_meets_the_reference() {
+    let scene = scene(&[]);
+    let mut prep = prepare(&scene).unwrap_or_else(|e| panic!("{e}"));
+    let nodes = prep.model.nodes.clone();
+    let ind = prep
+        .model
+        .boundaries
+        .iter()
+        .find(|b| b.name == "indenter")
+        .expect("indenter boundary")
+        .nodes
+        .clone();
+    let tol = 1e-12;
+    let in_plug = |p: &nalgebra::Vector3<f64>| p.x.hypot(p.y) <= 0.005 + tol && p.z >= 0.0275 - tol;
+    let expected: Vec<usize> = (0..nodes.len()).filter(|&i| in_plug(&nodes[i])).collect();
+    assert_eq!(ind, expected);
+    let outline = ind
+        .iter()
+        .filter(|&&i| (nodes[i].x.hypot(nodes[i].y) - 0.005).abs() < tol && nodes[i].z > 0.028)
+        .count();
+    // Outline vertices 2 mm apart (the edge nodes between them lie on the chords).
+    assert!(outline >= 15, "{outline} nodes on the outline");
+    let out =
+        solver::run(&mut prep.model, &settings(&scene, false)).unwrap_or_else(|e| panic!("{e}"));
+    let s = summarize(&scene, &prep, &out, 0.0);
+    let f = s.reactions["indenter"][2];
+    let reference = -0.05138;
+    println!(
+        "brain-indentation defaults: {} nodes, {} steps, solve {:.2} s, force {f} N, {:+.2} % of \
+         the reference, {outline} outline nodes",
+        s.nodes,
+        s.steps,
+        s.wall_seconds.solve,
+        100.0 * (f / reference - 1.0)
+    );
+    assert!(s.converged);
+    assert!((f / reference - 1.0).abs() < 0.02, "{f} N vs {reference} N");
 }

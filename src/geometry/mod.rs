@@ -2,6 +2,7 @@
 
 pub mod cell_grid;
 pub mod domain;
+pub mod dome;
 pub mod mesh;
 pub mod quality;
 pub mod select;

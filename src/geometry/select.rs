@@ -37,10 +37,11 @@ pub enum Selection {
     },
     /// Nodes inside the axis-aligned box [min, max] (inclusive).
     Box { min: [f64; 3], max: [f64; 3] },
-    /// Nodes within `radius` of `center`.
+    /// Nodes within `radius` of `center` (and 1e-9 x the model's size beyond it, rounding).
     Sphere { center: [f64; 3], radius: f64 },
     /// Nodes within `radius` of the line through `center` along `axis`, whose coordinate along
-    /// the axis lies in [`min`, `max`] (inclusive; either bound may be left out), e.g. an
+    /// the axis lies in [`min`, `max`] (inclusive, and 1e-9 x the model's size beyond, for
+    /// rounding; either bound may be left out), e.g. an
     /// indenter: `{ cylinder = { axis = "z", center = [0, 0, 0], radius = 0.005, min = 0.0275 } }`.
     Cylinder {
         axis: Axis,
@@ -129,7 +130,7 @@ impl Selection {
             Selection::Sphere { center, radius } => {
                 let c = Vector3::from(*center);
                 (0..nodes.len())
-                    .filter(|&i| (nodes[i] - c).norm() <= *radius)
+                    .filter(|&i| (nodes[i] - c).norm() <= *radius + 1e-9 * diag)
                     .collect()
             }
             Selection::Cylinder {
@@ -163,8 +164,11 @@ impl Selection {
                 };
                 let sel: Vec<usize> = (0..nodes.len())
                     .filter(|&i| {
+                        // Within rounding (1e-9 x the model's size) of the surface: the
+                        // nodes a mesher put on it (a TetGen plug's side and floor) count.
                         let (r, t) = split(&nodes[i]);
-                        r <= *radius && t >= lo_a && t <= hi_a
+                        let tol = 1e-9 * diag;
+                        r <= *radius + tol && t >= lo_a - tol && t <= hi_a + tol
                     })
                     .collect();
                 if sel.is_empty() {

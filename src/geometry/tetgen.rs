@@ -23,6 +23,7 @@ use std::sync::Mutex;
 use nalgebra::Vector3;
 use tritet::Tetgen;
 
+use super::dome::{zip_rings, EllipseArc};
 use super::mesh::{ElementShape, Mesh};
 use super::quality::tet_signed_volume;
 use crate::{Error, Result};
@@ -58,8 +59,11 @@ pub fn tetgen_box(
     let volume = d.x * d.y * d.z;
     run_tetgen(
         "box",
-        &points,
-        &facets,
+        Plc {
+            points: &points,
+            facets: &facets,
+            regions: &[],
+        },
         volume,
         max_volume,
         radius_edge_ratio,
@@ -108,65 +112,16 @@ pub fn tetgen_cylinder(
     let volume = 0.5 * nf * radius * radius * (2.0 * std::f64::consts::PI / nf).sin() * height;
     run_tetgen(
         "cylinder",
-        &points,
-        &facets,
+        Plc {
+            points: &points,
+            facets: &facets,
+            regions: &[],
+        },
         volume,
         max_volume,
         radius_edge_ratio,
         1e-9,
     )
-}
-
-/// Arc length of the ellipse (a cos t, b sin t), t in [0, 2 pi], tabulated finely (Simpson's
-/// rule on 4096 intervals) to place points equally spaced in arc length.
-struct EllipseArc {
-    /// Cumulative arc length at t_i = 2 pi i / N, i = 0..=N.
-    s: Vec<f64>,
-}
-
-impl EllipseArc {
-    const N: usize = 4096;
-
-    fn new(a: f64, b: f64) -> Self {
-        let dt = 2.0 * std::f64::consts::PI / Self::N as f64;
-        let speed = |t: f64| (a * t.sin()).hypot(b * t.cos());
-        let mut s = Vec::with_capacity(Self::N + 1);
-        s.push(0.0);
-        for i in 0..Self::N {
-            // Simpson on each sub-interval.
-            let t = i as f64 * dt;
-            let ds = dt / 6.0 * (speed(t) + 4.0 * speed(t + 0.5 * dt) + speed(t + dt));
-            s.push(s[i] + ds);
-        }
-        EllipseArc { s }
-    }
-
-    fn perimeter(&self) -> f64 {
-        self.s[Self::N]
-    }
-
-    /// Parameters of `m` points equally spaced in arc length, the first at t = 0.
-    fn equal_arc(&self, m: usize) -> Vec<f64> {
-        let dt = 2.0 * std::f64::consts::PI / Self::N as f64;
-        let total = self.perimeter();
-        (0..m)
-            .map(|k| {
-                let target = total * k as f64 / m as f64;
-                let i = self.s.partition_point(|&v| v <= target).clamp(1, Self::N);
-                let (s0, s1) = (self.s[i - 1], self.s[i]);
-                let f = if s1 > s0 {
-                    (target - s0) / (s1 - s0)
-                } else {
-                    0.0
-                };
-                if k == 0 {
-                    0.0
-                } else {
-                    (i as f64 - 1.0 + f) * dt
-                }
-            })
-            .collect()
-    }
 }
 
 /// A triangulated surface: vertex positions (m) and triangles (vertex indices).
@@ -194,16 +149,7 @@ pub type TriSurface = (Vec<Vector3<f64>>, Vec<[usize; 3]>);
 /// so the triangles are consistently oriented, and each edge is shared by exactly two of them.
 pub fn half_ellipsoid_surface(semi_axes: [f64; 3], h: f64) -> Result<TriSurface> {
     let [a, b, c] = semi_axes;
-    if !semi_axes.iter().all(|v| v.is_finite() && *v > 0.0) {
-        return Err(Error::Input(format!(
-            "half-ellipsoid semi-axes {semi_axes:?} m must be positive and finite"
-        )));
-    }
-    if !(h.is_finite() && h > 0.0) {
-        return Err(Error::Input(format!(
-            "half-ellipsoid surface edge length {h} m must be positive and finite"
-        )));
-    }
+    super::dome::check_half_ellipsoid(semi_axes, h)?;
     let r_mean = 0.5 * (a + b);
     // Meridian (r_mean sin theta, c cos theta): arc length from the apex by Simpson's rule.
     let nt = 2048usize;
@@ -269,29 +215,6 @@ pub fn half_ellipsoid_surface(semi_axes: [f64; 3], h: f64) -> Result<TriSurface>
     Ok((points, tris))
 }
 
-/// Triangles between ring `u` and the next ring `l` (both in the same sense around the axis,
-/// first points at arc-length fraction 0; a one-point ring is a pole). Each ring's edges are
-/// taken in the order of their midpoints' fractions; an edge of `u` makes a triangle with the
-/// current point of `l` and vice versa.
-fn zip_rings(u: &[usize], l: &[usize], tris: &mut Vec<[usize; 3]>) {
-    let (mu, ml) = (u.len(), l.len());
-    let eu = if mu > 1 { mu } else { 0 };
-    let el = if ml > 1 { ml } else { 0 };
-    let (mut i, mut j) = (0usize, 0usize);
-    while i < eu || j < el {
-        let fu = (i as f64 + 0.5) / mu as f64;
-        let fl = (j as f64 + 0.5) / ml as f64;
-        let advance_u = j >= el || (i < eu && fu < fl);
-        if advance_u {
-            tris.push([u[i % mu], l[j % ml], u[(i + 1) % mu]]);
-            i += 1;
-        } else {
-            tris.push([u[i % mu], l[j % ml], l[(j + 1) % ml]]);
-            j += 1;
-        }
-    }
-}
-
 /// Tetrahedral mesh by TetGen of the half-ellipsoid x^2/a^2 + y^2/b^2 + z^2/c^2 <= 1, z >= 0
 /// (`semi_axes` = [a, b, c], m): flat base on z = 0 centred on x = y = 0, apex (0, 0, c) a
 /// vertex. The PLC is the triangulated surface of [`half_ellipsoid_surface`] with edges of about
@@ -317,8 +240,11 @@ pub fn tetgen_half_ellipsoid(
     let facets: Vec<Vec<usize>> = tris.iter().map(|t| t.to_vec()).collect();
     let mut mesh = run_tetgen(
         "half-ellipsoid",
-        &points,
-        &facets,
+        Plc {
+            points: &points,
+            facets: &facets,
+            regions: &[],
+        },
         volume,
         max_volume,
         radius_edge_ratio,
@@ -327,7 +253,68 @@ pub fn tetgen_half_ellipsoid(
         // brain-sized shape); they are moved onto the ellipsoid next anyway.
         1e-5,
     )?;
-    snap_to_half_ellipsoid(&mut mesh, &points, semi_axes)?;
+    snap_to_half_ellipsoid(&mut mesh, &points, semi_axes, -1.0)?;
+    Ok(mesh)
+}
+
+/// [`tetgen_half_ellipsoid`] whose surface follows `outlines` (circles about the z axis on
+/// the dome, [`super::dome::half_ellipsoid_outlined`]): nodes on each outline, the surface
+/// graded there, and each plug (an outline with a floor) a meshed sub-volume whose tets are
+/// at most the regular tet of its outline's size; the rest of the body keeps `max_volume`
+/// (m^3). TetGen's quality bound grades the inside from the graded surface.
+pub fn tetgen_half_ellipsoid_outlined(
+    semi_axes: [f64; 3],
+    h: f64,
+    max_volume: Option<f64>,
+    radius_edge_ratio: Option<f64>,
+    outlines: &[super::dome::Outline],
+) -> Result<Mesh> {
+    let plc = super::dome::half_ellipsoid_outlined(semi_axes, h, outlines)?;
+    let (points, tris) = (&plc.points, &plc.triangles);
+    let volume: f64 = tris
+        .iter()
+        .map(|t| points[t[0]].dot(&points[t[1]].cross(&points[t[2]])) / 6.0)
+        .sum();
+    let mut facets: Vec<Vec<usize>> = tris.iter().map(|t| t.to_vec()).collect();
+    facets.extend(plc.inner_facets.iter().cloned());
+    let mut regions = Vec::new();
+    if !plc.plugs.is_empty() {
+        // The body: below every plug, on the axis.
+        let floor = plc
+            .plugs
+            .iter()
+            .map(|(x, _)| x.z)
+            .fold(f64::INFINITY, f64::min);
+        let floor = outlines
+            .iter()
+            .filter_map(|o| o.floor)
+            .fold(floor, f64::min);
+        regions.push((
+            Vector3::new(0.0, 0.0, 0.5 * floor),
+            max_volume.unwrap_or(volume),
+        ));
+        for (x, size) in &plc.plugs {
+            let v = size.powi(3) / (6.0 * 2f64.sqrt());
+            regions.push((*x, max_volume.map_or(v, |m| m.min(v))));
+        }
+    }
+    let mut mesh = run_tetgen(
+        "half-ellipsoid",
+        Plc {
+            points,
+            facets: &facets,
+            regions: &regions,
+        },
+        volume,
+        max_volume,
+        radius_edge_ratio,
+        1e-5,
+    )?;
+    let within = outlines
+        .iter()
+        .map(|o| o.radius * (1.0 + 1e-9))
+        .fold(-1.0, f64::max);
+    snap_to_half_ellipsoid(&mut mesh, points, semi_axes, within)?;
     Ok(mesh)
 }
 
@@ -346,10 +333,15 @@ const SNAP_HALVINGS: u32 = 12;
 /// that would crush an element below [`SNAP_MIN_SHARE`] of its volume, its moved nodes go only
 /// part of the way (the move halved until no element is crushed, or back to TetGen's place):
 /// those few points then lie slightly inside the curved surface.
+///
+/// Dome points within `vertical_within` (m) of the z axis move vertically instead (the dome is
+/// nearly flat there), so the points TetGen adds on an outline's chords stay in the plane of
+/// their plug's side.
 fn snap_to_half_ellipsoid(
     mesh: &mut Mesh,
     input: &[Vector3<f64>],
     semi_axes: [f64; 3],
+    vertical_within: f64,
 ) -> Result<()> {
     let s = Vector3::from(semi_axes);
     let given: std::collections::HashSet<[u64; 3]> = input
@@ -388,7 +380,13 @@ fn snap_to_half_ellipsoid(
         if on[i] & 1 != 0 {
             q.z = 0.0;
         }
-        if on[i] & 2 != 0 {
+        if on[i] & 2 != 0 && on[i] & 1 == 0 && q.x.hypot(q.y) <= vertical_within {
+            // Straight up: a point on an outline's chord stays on its plug's side.
+            q.z = s.z
+                * (1.0 - (q.x / s.x).powi(2) - (q.y / s.y).powi(2))
+                    .max(0.0)
+                    .sqrt();
+        } else if on[i] & 2 != 0 {
             let r = q.component_div(&s).norm();
             q /= r;
             if on[i] & 1 != 0 {
@@ -455,17 +453,29 @@ fn snap_to_half_ellipsoid(
 /// 1.6 s, 1.05 ran past 60 s).
 pub const MIN_RADIUS_EDGE_RATIO: f64 = 1.1;
 
-/// Meshes the PLC (`points` in m, `facets` as point-index polygons) enclosing `volume` (m^3)
+/// A piecewise linear complex: points (m), facets (point-index polygons) and regions (a point
+/// inside each, m, and its tets' largest volume, m^3; none: `max_volume` everywhere).
+struct Plc<'a> {
+    points: &'a [Vector3<f64>],
+    facets: &'a [Vec<usize>],
+    regions: &'a [(Vector3<f64>, f64)],
+}
+
+/// Meshes the PLC enclosing `volume` (m^3)
 /// and checks that the tetrahedra fill that volume within the relative `volume_tolerance`.
 fn run_tetgen(
     what: &str,
-    points: &[Vector3<f64>],
-    facets: &[Vec<usize>],
+    plc: Plc,
     volume: f64,
     max_volume: Option<f64>,
     radius_edge_ratio: Option<f64>,
     volume_tolerance: f64,
 ) -> Result<Mesh> {
+    let Plc {
+        points,
+        facets,
+        regions,
+    } = plc;
     if !tritet::TETGEN_IS_AVAILABLE {
         return Err(Error::Input(
             "hytled was built with its `tetgen` feature but the tritet crate without TetGen; \
@@ -521,11 +531,24 @@ fn run_tetgen(
     let fail = |msg: &str| Error::Input(format!("TetGen failed to mesh the {what}: {msg}"));
     let facet_npoints: Vec<usize> = facets.iter().map(|f| f.len()).collect();
     let _guard = TETGEN_LOCK.lock().unwrap_or_else(|e| e.into_inner());
-    let mut tg = Tetgen::new(points.len(), Some(facet_npoints), None, None).map_err(fail)?;
+    let nregion = (!regions.is_empty()).then_some(regions.len());
+    let mut tg = Tetgen::new(points.len(), Some(facet_npoints), nregion, None).map_err(fail)?;
     for (i, p) in points.iter().enumerate() {
         let p = p * scale;
         tg.set_point(i, 0, p.x, p.y, p.z).map_err(fail)?;
     }
+    // Each region its own volume bound (TetGen's `-a` without a number: then the global
+    // bound does not apply, so the caller gives the rest of the body a region too).
+    for (k, (x, v)) in regions.iter().enumerate() {
+        let x = x * scale;
+        tg.set_region(k, k as i32 + 1, x.x, x.y, x.z, Some(v * scale.powi(3)))
+            .map_err(fail)?;
+    }
+    let scaled_max_volume = if regions.is_empty() {
+        scaled_max_volume
+    } else {
+        None
+    };
     for (f, facet) in facets.iter().enumerate() {
         for (m, &p) in facet.iter().enumerate() {
             tg.set_facet_point(f, m, p).map_err(fail)?;
@@ -881,6 +904,138 @@ mod tests {
                 "{off:?}"
             );
         }
+    }
+
+    /// The plug {r <= 5 mm, z >= 27.5 mm} under a graded outline: a valid mesh whose tets lie
+    /// each inside or outside the plug (none crosses its side or floor), with the outline's
+    /// ring of nodes on the surface, every surface node on the shape, and small tets at the
+    /// rim, large ones far away.
+    #[test]
+    fn outlined_half_ellipsoid_meshes_the_plug_as_a_sub_volume() {
+        use crate::geometry::dome::{Grading, Outline};
+        let (r, floor) = (0.005, 0.0275);
+        let h = 0.008;
+        let outline = Outline {
+            radius: r,
+            floor: Some(floor),
+            grading: Some(Grading {
+                size: 0.002,
+                growth: 1.25,
+            }),
+        };
+        let max_volume = h * h * h / (6.0 * 2f64.sqrt());
+        let m =
+            tetgen_half_ellipsoid_outlined(BRAIN, h, Some(max_volume), None, &[outline]).unwrap();
+        let exact = 2.0 / 3.0 * PI * BRAIN[0] * BRAIN[1] * BRAIN[2];
+        let v = volume(&m);
+        assert!(((v - exact) / exact).abs() < 0.02, "volume {v} vs {exact}");
+        let eps = 1e-12;
+        // The plug is a prism over the floor's polygon (the outline's chords): the convex
+        // hull of the nodes on the floor, counter-clockwise (monotone chain).
+        let mut floor_pts: Vec<(f64, f64)> = m
+            .nodes
+            .iter()
+            .filter(|p| (p.z - floor).abs() < eps && p.x.hypot(p.y) <= r + eps)
+            .map(|p| (p.x, p.y))
+            .collect();
+        floor_pts.sort_by(|a, b| a.partial_cmp(b).unwrap());
+        let cross = |o: (f64, f64), a: (f64, f64), b: (f64, f64)| {
+            (a.0 - o.0) * (b.1 - o.1) - (a.1 - o.1) * (b.0 - o.0)
+        };
+        let mut hull: Vec<(f64, f64)> = Vec::new();
+        for pass in 0..2 {
+            let start = hull.len();
+            let pts: Vec<(f64, f64)> = if pass == 0 {
+                floor_pts.clone()
+            } else {
+                floor_pts.iter().rev().cloned().collect()
+            };
+            for q in pts {
+                while hull.len() >= start + 2
+                    && cross(hull[hull.len() - 2], hull[hull.len() - 1], q) <= 0.0
+                {
+                    hull.pop();
+                }
+                hull.push(q);
+            }
+            hull.pop();
+        }
+        assert!(hull.len() >= 15, "floor polygon of {} corners", hull.len());
+        // Signed distance inside the polygon (positive inside), m.
+        let depth = |x: f64, y: f64| {
+            (0..hull.len())
+                .map(|k| {
+                    let (a, b) = (hull[k], hull[(k + 1) % hull.len()]);
+                    cross(a, b, (x, y)) / (b.0 - a.0).hypot(b.1 - a.1)
+                })
+                .fold(f64::INFINITY, f64::min)
+        };
+        // Strictly inside or outside: beyond rounding (the points TetGen adds on the outline's
+        // chords move straight up onto the dome, staying on the side's plane).
+        let tol = 1e-12;
+        let inside = |p: &Vector3<f64>| depth(p.x, p.y) > tol && p.z > floor + tol;
+        let outside = |p: &Vector3<f64>| depth(p.x, p.y) < -tol || p.z < floor - tol;
+        let mut plug_tets = 0;
+        let mut plug_volume = 0.0;
+        let mut rim = f64::INFINITY;
+        let mut far = 0.0f64;
+        for e in 0..m.num_cells() {
+            let c = m.cell(e);
+            let p: Vec<Vector3<f64>> = c.iter().map(|&i| m.nodes[i]).collect();
+            let (any_in, any_out) = (p.iter().any(inside), p.iter().any(outside));
+            assert!(!(any_in && any_out), "tet {e} crosses the plug: {p:?}");
+            let edge = (0..4)
+                .flat_map(|i| (i + 1..4).map(move |j| (i, j)))
+                .map(|(i, j)| (p[i] - p[j]).norm())
+                .fold(0.0, f64::max);
+            if !any_out {
+                plug_tets += 1;
+                plug_volume += tet_signed_volume(&p[0], &p[1], &p[2], &p[3]);
+                rim = rim.min(edge);
+            }
+            if p.iter().all(|q| q.z < 0.01) {
+                far = far.max(edge);
+            }
+        }
+        // The plug's volume: the cylinder of 1 mm under the cap, within the faceting.
+        let cap = PI * r * r * (0.0285 - floor);
+        assert!(plug_tets > 20, "{plug_tets} tets in the plug");
+        assert!(
+            plug_volume > 0.6 * cap && plug_volume < cap,
+            "plug volume {plug_volume} vs at most {cap}"
+        );
+        // The outline: surface nodes on the circle at 2 mm spacing.
+        let faces = boundary_faces(&m).unwrap();
+        let mut surface: Vec<usize> = faces.iter().flatten().cloned().collect();
+        surface.sort_unstable();
+        surface.dedup();
+        let ring = surface
+            .iter()
+            .filter(|&&i| {
+                (m.nodes[i].x.hypot(m.nodes[i].y) - r).abs() < eps && m.nodes[i].z > floor
+            })
+            .count();
+        assert!(ring >= 15, "{ring} outline nodes");
+        for &i in &surface {
+            let p = m.nodes[i];
+            assert!(
+                p.z == 0.0 || ellipsoid_residual(&p, BRAIN) <= 1e-14,
+                "{p:?}"
+            );
+        }
+        assert!(
+            far > 2.0 * 0.002,
+            "graded: longest edge near the base {far}"
+        );
+        let (a, _) = min_dihedral_angle(&m).unwrap();
+        println!(
+            "outlined half-ellipsoid: {} nodes, {} tets ({plug_tets} in the plug), {ring} outline \
+             nodes, min dihedral {a:.2} deg, edges in the plug from {rim:.2e} m, near the base up \
+             to {far:.2e} m",
+            m.nodes.len(),
+            m.num_cells()
+        );
+        assert!(a > 1.0);
     }
 
     #[test]

@@ -195,6 +195,26 @@ pub enum Mesher {
     Tetgen,
 }
 
+/// One entry of `discretization.refine`: the TetGen mesh of a built-in shape graded near the
+/// outline of a boundary's selection or a rigid tool, edge `size` (m) there growing by the
+/// factor `growth` per element away from it (edge size + (growth - 1) x distance, up to
+/// `discretization.size`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Refine {
+    /// A `[boundaries.NAME]` or `[contact.NAME]` whose outline is a mesh feature.
+    pub near: String,
+    /// Edge length at the outline, m.
+    pub size: f64,
+    /// Ratio of neighbouring element sizes away from the outline (default 1.25).
+    #[serde(default = "default_growth")]
+    pub growth: f64,
+}
+
+fn default_growth() -> f64 {
+    1.25
+}
+
 /// `[discretization]`.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -223,6 +243,10 @@ pub struct Discretization {
     /// TetGen radius-edge ratio bound (quality), when `mesher = "tetgen"`.
     #[serde(default)]
     pub radius_edge_ratio: Option<f64>,
+    /// TetGen meshes graded near what acts on the body: `[{ near = "indenter", size = 0.0005,
+    /// growth = 1.25 }]`.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub refine: Vec<Refine>,
     /// Meshless: node source.
     #[serde(default)]
     pub cloud: CloudKind,
@@ -435,6 +459,7 @@ impl Default for Discretization {
             hourglass: None,
             hourglass_modulus: HourglassModulus::default(),
             radius_edge_ratio: None,
+            refine: Vec::new(),
             cloud: CloudKind::Mesh,
             cloud_file: None,
             jitter: 0.0,

@@ -400,6 +400,41 @@ fn check_discretization(s: &Scene) -> std::result::Result<(), String> {
             "discretization.hourglass = {h}: must be >= 0 (default 0.51 with hourglass_modulus = 'shear', 0.01 with 'p-wave')"
         ));
     }
+    if !d.refine.is_empty()
+        && !(d.mesher == crate::scene::Mesher::Tetgen
+            && matches!(s.geometry, Geometry::HalfEllipsoid { .. }))
+    {
+        return Err(
+            "discretization.refine grades the TetGen mesh of the half-ellipsoid (geometry.shape = \
+             'half_ellipsoid', discretization.mesher = 'tetgen'); a mesh file carries its own \
+             grading (meshes/make_gmsh_brain_indentation.py shows one)"
+                .into(),
+        );
+    }
+    for (k, r) in d.refine.iter().enumerate() {
+        let h = d.size.unwrap_or(f64::INFINITY);
+        if !(r.size > 0.0 && r.size.is_finite() && r.size <= h) {
+            return Err(format!(
+                "discretization.refine[{k}].size = {}: must be a positive length in m, at most \
+                 discretization.size",
+                r.size
+            ));
+        }
+        if !(r.size >= 1e-4 * h.min(1.0)) {
+            return Err(format!(
+                "discretization.refine[{k}].size = {} m: below 1e-4 x discretization.size \
+                 (millions of surface points); lengths are in metres",
+                r.size
+            ));
+        }
+        if !(r.growth > 1.0 && r.growth <= 3.0) {
+            return Err(format!(
+                "discretization.refine[{k}].growth = {}: must lie in (1, 3] (the ratio of \
+                 neighbouring element sizes away from the outline; 1.25 by default)",
+                r.growth
+            ));
+        }
+    }
     Ok(())
 }
 

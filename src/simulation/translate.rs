@@ -186,12 +186,130 @@ fn tetgen_mesh(scene: &Scene) -> Result<Mesh> {
             tetgen::tetgen_cylinder(*radius, *height, n_circ, max_volume, d.radius_edge_ratio)
         }
         Geometry::HalfEllipsoid { semi_axes } => {
-            tetgen::tetgen_half_ellipsoid(*semi_axes, h, max_volume, d.radius_edge_ratio)
+            let outlines = dome_outlines(scene, *semi_axes)?;
+            if outlines.is_empty() {
+                tetgen::tetgen_half_ellipsoid(*semi_axes, h, max_volume, d.radius_edge_ratio)
+            } else {
+                tetgen::tetgen_half_ellipsoid_outlined(
+                    *semi_axes,
+                    h,
+                    max_volume,
+                    d.radius_edge_ratio,
+                    &outlines,
+                )
+            }
         }
         Geometry::Mesh { .. } => Err(Error::Input(
             "discretization.mesher = 'tetgen' meshes built-in shapes; a mesh file is used as it is (remove mesher)".into(),
         )),
     }
+}
+
+/// The outlines a TetGen half-ellipsoid follows ([`crate::geometry::dome`]): each boundary
+/// that selects a cylinder of tissue about the z axis from a floor `min` below the dome to its
+/// top (an indenter's plug), and each rigid cylinder tool along the z axis moved along it,
+/// graded where `discretization.refine` names them. Other selections and tools are not
+/// features: their nodes are whichever the mesh has inside them. `refine` naming anything else
+/// is an error.
+pub fn dome_outlines(
+    scene: &Scene,
+    semi_axes: [f64; 3],
+) -> Result<Vec<crate::geometry::dome::Outline>> {
+    use crate::geometry::dome::{Grading, Outline};
+    use crate::geometry::select::{Axis, Selection};
+    let [a, b, c] = semi_axes;
+    let reach = 0.8 * a.min(b);
+    let tiny = 1e-9 * c;
+    let mut found: Vec<(String, Outline)> = Vec::new();
+    for (name, bc) in &scene.boundaries {
+        if let Selection::Cylinder {
+            axis: Axis::Z,
+            center,
+            radius,
+            min: Some(floor),
+            max,
+        } = &bc.select
+        {
+            // Lowest point of the circle on the dome (on the shorter semi-axis).
+            let lowest = c * (1.0 - (radius / a.min(b)).powi(2)).max(0.0).sqrt();
+            if center[0].abs() <= tiny
+                && center[1].abs() <= tiny
+                && *radius > 0.0
+                && *radius <= reach
+                && *floor > 0.0
+                && *floor < lowest
+                && max.is_none_or(|m| m >= c)
+            {
+                let o = Outline {
+                    radius: *radius,
+                    floor: Some(*floor),
+                    grading: None,
+                };
+                found.push((format!("boundaries.{name}"), o));
+            }
+        }
+    }
+    for (name, t) in &scene.contact {
+        let (Some(center), Some(axis), Some(radius)) = (t.center, t.axis, t.radius) else {
+            continue;
+        };
+        let along_z = |v: [f64; 3]| {
+            let n = Vector3::from(v).norm();
+            v[0].abs() <= 1e-9 * n && v[1].abs() <= 1e-9 * n
+        };
+        if t.shape == "cylinder"
+            && along_z(axis)
+            && (t.motion == [0.0; 3] || along_z(t.motion))
+            && center[0].abs() <= tiny
+            && center[1].abs() <= tiny
+            && radius > 0.0
+            && radius <= reach
+        {
+            let o = Outline {
+                radius,
+                floor: None,
+                grading: None,
+            };
+            found.push((format!("contact.{name}"), o));
+        }
+    }
+    for r in &scene.discretization.refine {
+        let hits: Vec<usize> = found
+            .iter()
+            .enumerate()
+            .filter(|(_, (key, _))| {
+                key.split_once('.').map(|(_, n)| n) == Some(r.near.as_str()) || *key == r.near
+            })
+            .map(|(i, _)| i)
+            .collect();
+        if hits.is_empty() {
+            let known =
+                scene.boundaries.contains_key(&r.near) || scene.contact.contains_key(&r.near);
+            return Err(Error::Input(if known {
+                format!(
+                    "discretization.refine: near = '{}' has no outline the half-ellipsoid's mesh can                      follow; only a boundary selecting a cylinder about the z axis from a floor                      `min` below the dome (an indenter's plug) and a rigid cylinder tool along the                      z axis are features (radius at most {reach} m)",
+                    r.near
+                )
+            } else {
+                format!(
+                    "discretization.refine: near = '{}' names no [boundaries] or [contact] entry",
+                    r.near
+                )
+            }));
+        }
+        for i in hits {
+            let g = Grading {
+                size: r.size,
+                growth: r.growth,
+            };
+            let o = &mut found[i].1;
+            o.grading = match o.grading {
+                Some(old) if old.size <= g.size => Some(old),
+                _ => Some(g),
+            };
+        }
+    }
+    Ok(found.into_iter().map(|(_, o)| o).collect())
 }
 
 #[cfg(not(feature = "tetgen"))]
