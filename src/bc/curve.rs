@@ -118,11 +118,18 @@ impl CurveTable {
 }
 
 /// Reads (time, factor) pairs from CSV text: two numeric columns per line, separated by a comma,
-/// semicolon or blanks; an optional header line and `#` comments. `source` names the file in
-/// errors with the line.
+/// semicolon or blanks; an optional header line and `#` comments; lines end in LF, CR LF or CR
+/// (old Mac files), and a UTF-8 byte-order mark is skipped. A line of more or fewer than two
+/// numbers is an error, so a decimal comma (`0,5;1,0`) or a third column is never read as
+/// something else. `source` names the file (and key) in errors with the line.
 pub fn parse_curve_csv(text: &str, source: &str) -> Result<Vec<[f64; 2]>> {
+    let text = text.strip_prefix('\u{feff}').unwrap_or(text);
     let mut out = Vec::new();
-    for (i, line) in text.lines().enumerate() {
+    for (i, line) in text
+        .split("\r\n")
+        .flat_map(|l| l.split(['\r', '\n']))
+        .enumerate()
+    {
         let l = line.split('#').next().unwrap_or("").trim();
         if l.is_empty() {
             continue;
@@ -132,13 +139,20 @@ pub fn parse_curve_csv(text: &str, source: &str) -> Result<Vec<[f64; 2]>> {
             .filter(|f| !f.is_empty())
             .collect();
         let nums: Vec<f64> = fields.iter().filter_map(|f| f.parse().ok()).collect();
-        if nums.len() != fields.len() || nums.len() < 2 {
+        if nums.len() != fields.len() || nums.len() != 2 {
             if out.is_empty() && nums.is_empty() {
                 continue; // a header
             }
-            let shown: String = l.chars().take(60).collect();
+            let shown: String = l.chars().filter(|c| !c.is_control()).take(60).collect();
+            let hint = if nums.len() == fields.len() && nums.len() == 4 && l.contains(',') {
+                " (a decimal comma? write decimals with '.', e.g. 0.5;1.0)"
+            } else if nums.len() == fields.len() && nums.len() > 2 {
+                " (more than two columns: keep time and factor only)"
+            } else {
+                ""
+            };
             return Err(Error::Input(format!(
-                "{source}: line {}: expected two numbers (time s, factor), found '{shown}'",
+                "{source}: line {}: expected two numbers (time s, factor), found '{shown}'{hint}",
                 i + 1
             )));
         }
@@ -220,5 +234,34 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("f.csv: line 2") && e.contains("1,x"), "{e}");
+    }
+
+    /// Issue 41: old-Mac (CR) and Windows (CR LF) line endings and a byte-order mark read as
+    /// written; a third column and decimal commas refused with the line, not half read.
+    #[test]
+    fn curve_csv_reads_every_line_ending_and_refuses_what_it_would_misread() {
+        let want = vec![[0.0, 0.0], [0.5, 0.25], [1.0, 1.0]];
+        for text in [
+            "t,f\r0,0\r0.5,0.25\r1,1\r",
+            "t,f\r\n0,0\r\n0.5,0.25\r\n1,1\r\n",
+            "\u{feff}t,f\n0,0\n0.5,0.25\n1,1",
+        ] {
+            assert_eq!(parse_curve_csv(text, "f.csv").unwrap(), want, "{text:?}");
+        }
+        let e = parse_curve_csv("0,0,9\n1,1,9\n", "f.csv")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("line 1") && e.contains("more than two columns"),
+            "{e}"
+        );
+        let e = parse_curve_csv("0,0;0,0\n0,5;1,0\n", "f.csv")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("line 1") && e.contains("decimal comma"), "{e}");
+        let e = parse_curve_csv("0\r1,1\r", "f.csv")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("line 1") && !e.contains('\r'), "{e}");
     }
 }

@@ -101,6 +101,7 @@ pub fn parse(text: &str, path: &Path, overrides: &[String]) -> Result<Scene> {
         apply_override(&mut value, o).map_err(|m| err(format!("--set {o}: {m}")))?;
     }
     check_finite(&toml::Value::Table(value.clone()), "").map_err(err)?;
+    let written = toml::Value::Table(value.clone());
     if !overrides.is_empty() {
         if let Some(h) = name_hint(&value) {
             return Err(err(format!("after --set overrides: {h}")));
@@ -122,6 +123,10 @@ pub fn parse(text: &str, path: &Path, overrides: &[String]) -> Result<Scene> {
             },
         )?;
     }
+    // serde fills a fixed-size array from the first elements of a longer one: compare.
+    if let Ok(typed) = toml::Value::try_from(&scene) {
+        check_lengths(&written, &typed, "").map_err(err)?;
+    }
     scene.base_dir = path.parent().map(PathBuf::from).unwrap_or_default();
     if scene.name.is_none() {
         scene.name = path.file_stem().map(|s| s.to_string_lossy().into_owned());
@@ -129,6 +134,50 @@ pub fn parse(text: &str, path: &Path, overrides: &[String]) -> Result<Scene> {
     validate(&scene).map_err(err)?;
     resolve_exact(&mut scene).map_err(err)?;
     Ok(scene)
+}
+
+/// Refuses numeric arrays longer (or shorter) than the key takes: `written` is the scene as
+/// written (with overrides), `typed` the same read into [`Scene`] and written back (a
+/// 4-component `gravity` came back with 3, a 3-element curve point with 2).
+fn check_lengths(
+    written: &toml::Value,
+    typed: &toml::Value,
+    at: &str,
+) -> std::result::Result<(), String> {
+    use toml::Value as V;
+    let key = |k: &str| {
+        if at.is_empty() {
+            k.to_string()
+        } else {
+            format!("{at}.{k}")
+        }
+    };
+    match (written, typed) {
+        (V::Table(a), V::Table(b)) => {
+            for (k, v) in a {
+                if let Some(w) = b.get(k) {
+                    check_lengths(v, w, &key(k))?;
+                }
+            }
+        }
+        (V::Array(a), V::Array(b)) => {
+            let numeric = a
+                .iter()
+                .all(|x| matches!(x, V::Integer(_) | V::Float(_) | V::Array(_)));
+            if numeric && !a.is_empty() && a.len() != b.len() {
+                return Err(format!(
+                    "{at}: {} values given, it takes {}",
+                    a.len(),
+                    b.len()
+                ));
+            }
+            for (i, (x, y)) in a.iter().zip(b).enumerate() {
+                check_lengths(x, y, &format!("{at}[{i}]"))?;
+            }
+        }
+        _ => {}
+    }
+    Ok(())
 }
 
 /// For a key that takes a name but got a number, array or bool (`support = 8` meant as

@@ -26,7 +26,8 @@ pub(super) fn boundary(
     input: Option<&MeshInput>,
 ) -> Result<Boundary> {
     let path = scene_path(scene, &spec.file);
-    let text = std::fs::read_to_string(&path).map_err(|e| Error::io(&path, e))?;
+    let text = std::fs::read_to_string(&path)
+        .map_err(|e| Error::io(format!("{} (measured.{name}.file)", path.display()), e))?;
     let points = parse_measured(&text, &path)?;
     let (lo, hi) = crate::geometry::select::bounds(nodes);
     let tolerance = spec

@@ -711,8 +711,9 @@ pub(super) fn load_curve(scene: &Scene, name: &str) -> Result<LoadCurve> {
         (Some(p), _) => p.clone(),
         (None, Some(f)) => {
             let path = scene_path(scene, f);
-            let text = std::fs::read_to_string(&path).map_err(|e| Error::io(&path, e))?;
-            crate::bc::curve::parse_curve_csv(&text, &path.display().to_string())?
+            let named = format!("{} (curves.{name}.file)", path.display());
+            let text = std::fs::read_to_string(&path).map_err(|e| Error::io(&named, e))?;
+            crate::bc::curve::parse_curve_csv(&text, &named)?
         }
         (None, None) => Vec::new(),
     };
