@@ -318,3 +318,21 @@ fn set_names_that_abaqus_cannot_carry_are_renamed_for_inp() {
         .keys()
         .any(|k| k.eq_ignore_ascii_case("gmsh:physical_2")));
 }
+
+/// Issue 41: a mesh file in millimetres read without `units` is a body of tens of metres; the
+/// preparation says so and how to fix it (here the metre mesh of the cylinder case scaled by
+/// 1000, the same numbers), and the metre mesh itself gets no such warning.
+#[test]
+fn a_body_of_tens_of_metres_from_a_mesh_file_is_questioned() {
+    let case = path("cases/tet-cylinder-compression.toml");
+    let warned = |set: &[&str]| {
+        let o: Vec<String> = set.iter().map(|s| s.to_string()).collect();
+        let scene = hytled::scene::load(&case, &o).unwrap();
+        let prep = hytled::simulation::prepare(&scene).unwrap();
+        prep.warnings
+            .iter()
+            .any(|w| w.contains("spans") && w.contains("geometry.units = 0.001"))
+    };
+    assert!(warned(&["geometry.units=1000"]));
+    assert!(!warned(&[]));
+}

@@ -269,10 +269,22 @@ impl ContactSpec {
     pub fn rigid_shape(&self) -> crate::bc::contact::RigidShape {
         use crate::bc::contact::RigidShape;
         let v = |a: Option<[f64; 3]>| nalgebra::Vector3::from(a.unwrap_or_default());
+        // A direction of any length: scaled by its largest component first, so that a squared
+        // length that overflows (1e200) or underflows (1e-300) does not make it NaN or zero,
+        // which switched the tool off without a word (issue 41).
+        let unit = |a: Option<[f64; 3]>| {
+            let d = v(a);
+            let m = d.amax();
+            if m > 0.0 {
+                (d / m).normalize()
+            } else {
+                d
+            }
+        };
         match self.shape.as_str() {
             "plane" => RigidShape::Plane {
                 point: v(self.point),
-                normal: v(self.normal).normalize(),
+                normal: unit(self.normal),
             },
             "sphere" => RigidShape::Sphere {
                 center: v(self.center),
@@ -280,7 +292,7 @@ impl ContactSpec {
             },
             _ => RigidShape::Cylinder {
                 center: v(self.center),
-                axis: v(self.axis).normalize(),
+                axis: unit(self.axis),
                 radius: self.radius.unwrap_or(0.0),
                 min: self.min,
                 max: self.max,
@@ -479,6 +491,39 @@ impl Default for OutputSpec {
         OutputSpec {
             frames: default_frames(),
             history_rows: default_history(),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::bc::contact::RigidShape;
+
+    /// Directions read as written whatever their length: a normal of 1e200 or 1e-300 is the
+    /// unit normal, not NaN or zero (which disabled the tool).
+    #[test]
+    fn contact_directions_of_any_length_are_unit_directions() {
+        for scale in [1.0, 1e200, 1e-300, 5e-324] {
+            let plane: ContactSpec = toml::from_str(&format!(
+                "shape = \"plane\"\npoint = [0.0, 0.0, 0.0]\nnormal = [0.0, {scale:e}, {scale:e}]\n"
+            ))
+            .unwrap();
+            let cyl: ContactSpec = toml::from_str(&format!(
+                "shape = \"cylinder\"\ncenter = [0.0, 0.0, 0.0]\naxis = [0.0, 0.0, {scale:e}]\nradius = 0.01\n"
+            ))
+            .unwrap();
+            let h = 0.5f64.sqrt();
+            match (plane.rigid_shape(), cyl.rigid_shape()) {
+                (RigidShape::Plane { normal, .. }, RigidShape::Cylinder { axis, .. }) => {
+                    assert!(
+                        (normal - nalgebra::Vector3::new(0.0, h, h)).norm() < 1e-15,
+                        "{scale}: {normal:?}"
+                    );
+                    assert_eq!(axis, nalgebra::Vector3::new(0.0, 0.0, 1.0), "{scale}");
+                }
+                other => panic!("{other:?}"),
+            }
         }
     }
 }

@@ -39,7 +39,7 @@ use crate::meshless::discretize::MeshlessBuild;
 use crate::meshless::essential::Imposition;
 use crate::probe::Probe;
 use crate::report::Summary;
-use crate::scene::{BcMethod, Component, Method, Scene};
+use crate::scene::{BcMethod, Component, Geometry, Method, Scene};
 use crate::solver::{self, Model, RunOutput};
 pub use crate::solver::{Device, Mode, Settings};
 use crate::{Error, Result};
@@ -329,6 +329,31 @@ fn initial_velocity_warning(scene: &Scene, p: &Prepared) -> Option<String> {
     ))
 }
 
+/// A mesh file's body larger than any organ or phantom (bounding-box diagonal over
+/// [`LARGEST_BODY`]): most likely a file in millimetres read as metres (a 100 mm cube becomes
+/// 100 m, its gravity and stiffness scaled to match), issue 41.
+fn units_warning(scene: &Scene, nodes: &[Vector3<f64>]) -> Option<String> {
+    let Geometry::Mesh { file, units, .. } = &scene.geometry else {
+        return None;
+    };
+    let (lo, hi) = crate::geometry::select::bounds(nodes);
+    let diag = (hi - lo).norm();
+    (diag > LARGEST_BODY).then(|| {
+        format!(
+            "the body read from {} spans {:.4e} x {:.4e} x {:.4e} m (diagonal {diag:.3e} m, \
+             geometry.units = {units}): lengths are in metres; if the file is in millimetres set \
+             geometry.units = 0.001",
+            file.display(),
+            hi.x - lo.x,
+            hi.y - lo.y,
+            hi.z - lo.z
+        )
+    })
+}
+
+/// The largest body diagonal (m) a mesh file gives without [`units_warning`].
+const LARGEST_BODY: f64 = 3.0;
+
 /// Meshes the scene, builds the quadrature points, masses, constraints and probes.
 pub fn prepare(scene: &Scene) -> Result<Prepared> {
     if scene.solver.device == Device::Gpu {
@@ -349,6 +374,9 @@ pub fn prepare(scene: &Scene) -> Result<Prepared> {
         p.warnings.push(w);
     }
     if let Some(w) = initial_velocity_warning(scene, &p) {
+        p.warnings.push(w);
+    }
+    if let Some(w) = units_warning(scene, &p.model.nodes) {
         p.warnings.push(w);
     }
     let free = crate::bc::free_parts(p.model.nodes.len(), &p.model.points, &p.model.boundaries);

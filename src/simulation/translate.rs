@@ -254,8 +254,8 @@ pub fn dome_outlines(
             continue;
         };
         let along_z = |v: [f64; 3]| {
-            let n = Vector3::from(v).norm();
-            v[0].abs() <= 1e-9 * n && v[1].abs() <= 1e-9 * n
+            let m = Vector3::from(v).amax();
+            v[0].abs() <= 1e-9 * m && v[1].abs() <= 1e-9 * m
         };
         if t.shape == "cylinder"
             && along_z(axis)
