@@ -314,6 +314,39 @@ pub fn half_ellipsoid_outlined(
     Ok(plc)
 }
 
+/// Volume (m^3) enclosed by the closed, outward-oriented triangles `tris` over `points` (m):
+/// the divergence theorem, a signed tetrahedron from the origin per triangle.
+pub fn enclosed_volume(points: &[Vector3<f64>], tris: &[[usize; 3]]) -> f64 {
+    tris.iter()
+        .map(|t| points[t[0]].dot(&points[t[1]].cross(&points[t[2]])) / 6.0)
+        .sum()
+}
+
+/// Panics unless every directed edge of `tris` occurs once and its reverse once (closed and
+/// consistently oriented) and V - E + F = 2 over the points the triangles use (a sphere).
+#[cfg(test)]
+pub(crate) fn assert_closed_sphere(tris: &[[usize; 3]]) {
+    let mut edges = std::collections::HashMap::new();
+    for tri in tris {
+        assert!(
+            tri[0] != tri[1] && tri[1] != tri[2] && tri[0] != tri[2],
+            "{tri:?}"
+        );
+        for k in 0..3 {
+            *edges.entry((tri[k], tri[(k + 1) % 3])).or_insert(0) += 1;
+        }
+    }
+    for (&(i, j), &n) in &edges {
+        assert_eq!(n, 1, "edge {i}-{j} used {n} times in one direction");
+        assert_eq!(edges.get(&(j, i)), Some(&1), "edge {i}-{j} has no twin");
+    }
+    let used: std::collections::HashSet<usize> = tris.iter().flatten().cloned().collect();
+    assert_eq!(
+        used.len() as i64 - (edges.len() / 2) as i64 + tris.len() as i64,
+        2
+    );
+}
+
 /// Refuses semi-axes (m) or a surface edge length `h` (m) that are not positive and finite.
 pub(crate) fn check_half_ellipsoid(semi_axes: [f64; 3], h: f64) -> Result<()> {
     if !semi_axes.iter().all(|v| v.is_finite() && *v > 0.0) {
@@ -454,25 +487,13 @@ mod tests {
     fn outlined_surface_is_closed_on_the_shape_and_follows_the_outline() {
         let plc = half_ellipsoid_outlined(BRAIN, 0.004, &[plug()]).unwrap();
         let (p, t) = (&plc.points, &plc.triangles);
-        let mut edges = std::collections::HashMap::new();
-        for tri in t {
-            for k in 0..3 {
-                *edges.entry((tri[k], tri[(k + 1) % 3])).or_insert(0) += 1;
-            }
-        }
-        for (&(i, j), &n) in &edges {
-            assert_eq!(n, 1, "edge {i}-{j}");
-            assert_eq!(edges.get(&(j, i)), Some(&1), "edge {i}-{j} has no twin");
-        }
-        let on_surface: std::collections::HashSet<usize> = t.iter().flatten().cloned().collect();
-        assert_eq!(
-            on_surface.len() as i64 - (edges.len() / 2) as i64 + t.len() as i64,
-            2
-        );
-        let v: f64 = t
+        assert_closed_sphere(t);
+        let edges: Vec<(usize, usize)> = t
             .iter()
-            .map(|t| p[t[0]].dot(&p[t[1]].cross(&p[t[2]])) / 6.0)
-            .sum();
+            .flat_map(|tri| (0..3).map(move |k| (tri[k], tri[(k + 1) % 3])))
+            .collect();
+        let on_surface: std::collections::HashSet<usize> = t.iter().flatten().cloned().collect();
+        let v = enclosed_volume(p, t);
         let exact = 2.0 / 3.0 * std::f64::consts::PI * BRAIN[0] * BRAIN[1] * BRAIN[2];
         assert!(v > 0.99 * exact && v < exact, "{v} vs {exact}");
         let s = Vector3::from(BRAIN);
@@ -498,7 +519,7 @@ mod tests {
         // Graded: edges from the outline within twice its 0.5 mm, the longest within twice h.
         let mut near = 0.0f64;
         let mut longest = 0.0f64;
-        for &(i, j) in edges.keys() {
+        for &(i, j) in &edges {
             let l = (p[i] - p[j]).norm();
             longest = longest.max(l);
             if (p[i].x.hypot(p[i].y) - 0.005).abs() < 1e-15 {

@@ -23,7 +23,7 @@ use std::sync::Mutex;
 use nalgebra::Vector3;
 use tritet::Tetgen;
 
-use super::dome::{zip_rings, EllipseArc};
+use super::dome::{enclosed_volume, zip_rings, EllipseArc};
 use super::mesh::{ElementShape, Mesh};
 use super::quality::tet_signed_volume;
 use crate::{Error, Result};
@@ -233,10 +233,7 @@ pub fn tetgen_half_ellipsoid(
 ) -> Result<Mesh> {
     let (points, tris) = half_ellipsoid_surface(semi_axes, h)?;
     // Volume of the inscribed polyhedron (divergence theorem, outward triangles).
-    let volume: f64 = tris
-        .iter()
-        .map(|t| points[t[0]].dot(&points[t[1]].cross(&points[t[2]])) / 6.0)
-        .sum();
+    let volume = enclosed_volume(&points, &tris);
     let facets: Vec<Vec<usize>> = tris.iter().map(|t| t.to_vec()).collect();
     let mut mesh = run_tetgen(
         "half-ellipsoid",
@@ -271,24 +268,16 @@ pub fn tetgen_half_ellipsoid_outlined(
 ) -> Result<Mesh> {
     let plc = super::dome::half_ellipsoid_outlined(semi_axes, h, outlines)?;
     let (points, tris) = (&plc.points, &plc.triangles);
-    let volume: f64 = tris
-        .iter()
-        .map(|t| points[t[0]].dot(&points[t[1]].cross(&points[t[2]])) / 6.0)
-        .sum();
+    let volume = enclosed_volume(points, tris);
     let mut facets: Vec<Vec<usize>> = tris.iter().map(|t| t.to_vec()).collect();
     facets.extend(plc.inner_facets.iter().cloned());
     let mut regions = Vec::new();
     if !plc.plugs.is_empty() {
         // The body: below every plug, on the axis.
-        let floor = plc
-            .plugs
-            .iter()
-            .map(|(x, _)| x.z)
-            .fold(f64::INFINITY, f64::min);
         let floor = outlines
             .iter()
             .filter_map(|o| o.floor)
-            .fold(floor, f64::min);
+            .fold(f64::INFINITY, f64::min);
         regions.push((
             Vector3::new(0.0, 0.0, 0.5 * floor),
             max_volume.unwrap_or(volume),
@@ -766,28 +755,10 @@ mod tests {
     fn half_ellipsoid_surface_is_closed_oriented_and_on_the_shape() {
         for h in [0.004, 0.009, 0.03] {
             let (p, t) = half_ellipsoid_surface(BRAIN, h).unwrap();
-            // Every directed edge once, and its reverse once: closed and consistently oriented.
-            let mut edges = std::collections::HashMap::new();
-            for tri in &t {
-                assert!(tri[0] != tri[1] && tri[1] != tri[2] && tri[0] != tri[2]);
-                for k in 0..3 {
-                    *edges.entry((tri[k], tri[(k + 1) % 3])).or_insert(0) += 1;
-                }
-            }
-            for (&(i, j), &n) in &edges {
-                assert_eq!(n, 1, "edge {i}-{j} used {n} times in one direction");
-                assert_eq!(edges.get(&(j, i)), Some(&1), "edge {i}-{j} has no twin");
-            }
-            // Euler characteristic of a sphere: V - E + F = 2.
-            assert_eq!(
-                p.len() as i64 - (edges.len() / 2) as i64 + t.len() as i64,
-                2
-            );
+            // Closed, consistently oriented, a sphere's Euler characteristic.
+            crate::geometry::dome::assert_closed_sphere(&t);
             // Outward: positive enclosed volume, a little below the exact one.
-            let v: f64 = t
-                .iter()
-                .map(|t| p[t[0]].dot(&p[t[1]].cross(&p[t[2]])) / 6.0)
-                .sum();
+            let v = enclosed_volume(&p, &t);
             let exact = 2.0 / 3.0 * PI * BRAIN[0] * BRAIN[1] * BRAIN[2];
             assert!(v > 0.0 && v < exact, "{v} vs {exact}");
             // Every triangle's normal points away from the centroid of the base.
