@@ -285,7 +285,7 @@ pub fn table(rows: &[BenchRow]) -> String {
             if r.identical { "yes" } else { "NO" }
         ));
     }
-    s
+    crate::error::tidy_exponents(&s)
 }
 
 #[cfg(test)]

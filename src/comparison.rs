@@ -176,6 +176,9 @@ pub fn run_compare(
                 t0.elapsed().as_secs_f64()
             );
         }
+        if let Err(e @ Error::Interrupted { .. }) = result {
+            return Err(e);
+        }
         rows.push(match result {
             Ok(run) => CompareRow {
                 method: m.clone(),
@@ -292,7 +295,7 @@ pub fn table(rows: &[CompareRow]) -> String {
     for r in body {
         s.push_str(&format!("| {} |\n", r.join(" | ")));
     }
-    s
+    crate::error::tidy_exponents(&s)
 }
 
 /// compare.csv, compare.md and reactions.svg (the compared reaction of every method against time).

@@ -17,6 +17,14 @@ pub enum Error {
     /// The explicit integrator diverged.
     #[error("{}", short_numbers(.0))]
     Unstable(String),
+    /// SIGINT (Ctrl-C) or SIGTERM stopped the run between two steps ([`crate::interrupt`]).
+    #[error("interrupted by {} {}; nothing after that point was computed", crate::interrupt::signal_name(*.signal), short_numbers(.at))]
+    Interrupted {
+        /// The signal number (2 SIGINT, 15 SIGTERM).
+        signal: i32,
+        /// Where the run was (e.g. "at step 120 of relaxation, 35 % of the load").
+        at: String,
+    },
     /// File system errors, with the path involved.
     #[error("{path}: {source}")]
     Io {
@@ -63,6 +71,79 @@ pub fn short_numbers(message: &str) -> String {
         i = j;
     }
     out.push_str(&message[copied..]);
+    tidy_exponents(&out)
+}
+
+/// A text with Rust's small-exponent notation written as decimals: `{:.6e}` prints 6.999288 as
+/// `6.999288e0` and 1234.5 as `1.2345e3`; a number whose exponent is 0 to 4 is shown as
+/// `6.999288` and `1234.5` (the same significant digits), others stay in scientific notation.
+/// A shorter number keeps a column's right edge: the spaces before it grow by what it lost.
+pub fn tidy_exponents(text: &str) -> String {
+    let b = text.as_bytes();
+    let mut out = String::with_capacity(text.len());
+    let (mut copied, mut i) = (0, 0);
+    while i < b.len() {
+        let starts = b[i].is_ascii_digit()
+            && (i == 0
+                || !(b[i - 1].is_ascii_alphanumeric() || b[i - 1] == b'.' || b[i - 1] == b'_'));
+        if !starts {
+            i += 1;
+            continue;
+        }
+        let mut j = i;
+        while j < b.len() && b[j].is_ascii_digit() {
+            j += 1;
+        }
+        let int_end = j;
+        let mut frac = 0;
+        if j + 1 < b.len() && b[j] == b'.' && b[j + 1].is_ascii_digit() {
+            j += 1;
+            while j < b.len() && b[j].is_ascii_digit() {
+                j += 1;
+                frac += 1;
+            }
+        }
+        let exp_start = j;
+        if !(j + 1 < b.len() && b[j] == b'e' && b[j + 1].is_ascii_digit()) {
+            i = j.max(i + 1);
+            continue;
+        }
+        j += 1;
+        while j < b.len() && b[j].is_ascii_digit() {
+            j += 1;
+        }
+        // Not a number if a letter or digit-word goes on (an id like 1e5abc, a hash).
+        if j < b.len() && (b[j].is_ascii_alphanumeric() || b[j] == b'_') {
+            i = j;
+            continue;
+        }
+        let (Ok(k), Ok(v)) = (
+            text[exp_start + 1..j].parse::<i32>(),
+            text[i..j].parse::<f64>(),
+        ) else {
+            i = j;
+            continue;
+        };
+        if !(0..=4).contains(&k) || int_end - i != 1 {
+            i = j;
+            continue;
+        }
+        let decimals = (frac as i32 - k).max(0) as usize;
+        let plain = format!("{v:.decimals$}");
+        let lost = (j - i).saturating_sub(plain.len());
+        // Two spaces before it (and its sign): a right-aligned column, not prose.
+        let sign = if i > 0 && b[i - 1] == b'-' { i - 1 } else { i };
+        let column = sign >= 2 && b[sign - 1] == b' ' && b[sign - 2] == b' ';
+        out.push_str(&text[copied..sign]);
+        if column {
+            out.push_str(&" ".repeat(lost));
+        }
+        out.push_str(&text[sign..i]);
+        out.push_str(&plain);
+        copied = j;
+        i = j;
+    }
+    out.push_str(&text[copied..]);
     out
 }
 
@@ -83,6 +164,10 @@ pub mod exit {
     pub const NOT_CONVERGED: u8 = 4;
     /// A file could not be read or written (the path is in the message).
     pub const IO: u8 = 5;
+    /// Stopped by SIGINT (Ctrl-C): 128 + 2, the shell's convention for a signal.
+    pub const INTERRUPTED: u8 = 130;
+    /// Stopped by SIGTERM (a batch scheduler's stop): 128 + 15.
+    pub const TERMINATED: u8 = 143;
 }
 
 impl Error {
@@ -92,6 +177,13 @@ impl Error {
             Error::Scene { .. } | Error::Input(_) | Error::InvalidElement { .. } => exit::INPUT,
             Error::Unstable(_) => exit::UNSTABLE,
             Error::Io { .. } => exit::IO,
+            Error::Interrupted { signal, .. } => {
+                if *signal == crate::interrupt::SIGTERM {
+                    exit::TERMINATED
+                } else {
+                    exit::INTERRUPTED
+                }
+            }
         }
     }
 
@@ -103,6 +195,7 @@ impl Error {
             Error::InvalidElement { .. } => "invalid element",
             Error::Unstable(_) => "unstable",
             Error::Io { .. } => "io",
+            Error::Interrupted { .. } => "interrupted",
         }
     }
 
@@ -135,5 +228,26 @@ mod tests {
             message: format!("size = {}: too small", 1e-30),
         };
         assert_eq!(s.to_string(), "a.toml: size = 1e-30: too small");
+    }
+
+    #[test]
+    fn small_exponents_are_written_as_decimals() {
+        let t = format!(
+            "z {:.6e} N, t = {:.6e} s, {:.4e} s, {:.1e}, -{:.3e}, 1e300, v1.2e3, f_1e2, x1.5e2",
+            6.999288, 1.73557, 5.5936e-4, 2.0e5, 1234.5
+        );
+        assert_eq!(
+            tidy_exponents(&t),
+            "z 6.999288 N, t = 1.735570 s, 5.5936e-4 s, 2.0e5, -1234, 1e300, v1.2e3, f_1e2, x1.5e2"
+        );
+        // A column keeps its right edge.
+        let col = format!(
+            "|{:>13.6e}|{:>13.6e}|{:>13.6e}|",
+            6.999288, -6.999288, -1.5e-3
+        );
+        assert_eq!(
+            tidy_exponents(&col),
+            "|     6.999288|    -6.999288| -1.500000e-3|"
+        );
     }
 }

@@ -18,6 +18,7 @@ pub mod bench;
 pub mod comparison;
 pub mod coupling;
 pub mod fe;
+pub mod interrupt;
 pub mod material;
 pub mod memory;
 pub mod meshless;

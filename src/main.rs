@@ -20,7 +20,8 @@ use hytled::simulation::{self, RunOptions};
     after_help = "Exit codes: 0 success (a dynamic run completed, a relaxation converged); \
 2 input error (scene, mesh, selection, flag, a discretization too large for the memory); 3 the solution diverged or a point inverted; \
 4 relaxation not converged within solver.max_steps (the summary is still printed and written); \
-5 a file could not be read or written; 1 anything else. With --json, a failed command prints \
+5 a file could not be read or written; 130 stopped by Ctrl-C (SIGINT), 143 by SIGTERM (between two steps, \
+summary.json says \"failed\" with error \"interrupted\"; a second signal ends at once); 1 anything else. With --json, a failed command prints \
 {\"status\": \"failed\", \"error\", \"exit_code\", \"message\"} on stdout."
 )]
 struct Cli {
@@ -275,6 +276,10 @@ fn main() -> ExitCode {
         _ => false,
     };
     hytled::memory::ExitOnOom::report_json(json);
+    // Ctrl-C and SIGTERM stop a run between steps with a "failed: interrupted" summary.
+    if let Err(e) = hytled::interrupt::install() {
+        eprintln!("warning: Ctrl-C and SIGTERM will end runs without a summary: {e}");
+    }
     match execute(cli.command) {
         Ok(code) => ExitCode::from(code),
         Err(e) => {
@@ -394,7 +399,7 @@ fn run(
     }
     let summary = simulation::run_scene(&sc, &opts)?;
     for w in &summary.warnings {
-        eprintln!("warning: {w}");
+        eprintln!("warning: {}", hytled::error::tidy_exponents(w));
     }
     if json {
         println!(
@@ -424,7 +429,7 @@ fn check(CheckArgs { scene, set }: CheckArgs) -> hytled::Result<u8> {
     let mut prep = simulation::prepare(&sc)?;
     let (dt, p) = simulation::critical_step(&sc, &mut prep)?;
     for w in &prep.warnings {
-        eprintln!("warning: {w}");
+        eprintln!("warning: {}", hytled::error::tidy_exponents(w));
     }
     println!("{}: valid", scene.display());
     println!(
@@ -516,7 +521,7 @@ fn convert(
         m.warnings.extend(renamed);
     }
     for w in &m.warnings {
-        eprintln!("warning: {w}");
+        eprintln!("warning: {}", hytled::error::tidy_exponents(w));
     }
     hytled::io::mesh_file::write_mesh_file(&output, &m, vtu_format.into())?;
     println!(
@@ -622,7 +627,11 @@ fn compare(
     for r in &rows {
         if let Some(s) = &r.summary {
             for w in &s.warnings {
-                eprintln!("warning ({}): {w}", r.method);
+                eprintln!(
+                    "warning ({}): {}",
+                    r.method,
+                    hytled::error::tidy_exponents(w)
+                );
             }
         }
     }

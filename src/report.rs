@@ -555,7 +555,7 @@ impl Summary {
                 );
             }
         }
-        s
+        crate::error::tidy_exponents(&s)
     }
 }
 
@@ -608,5 +608,5 @@ pub fn markdown_table(summaries: &[serde_json::Value]) -> String {
             v["wall_seconds"]["solve"].as_f64().unwrap_or(f64::NAN),
         );
     }
-    s
+    crate::error::tidy_exponents(&s)
 }

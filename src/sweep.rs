@@ -307,6 +307,8 @@ pub fn run_sweep(
                         best = Some(run.summary);
                     }
                 }
+                // Ctrl-C stops the sweep, not only its current run.
+                Err(e @ Error::Interrupted { .. }) => return Err(e),
                 Err(e) => {
                     error = Some(e.to_string());
                     break;
@@ -737,7 +739,7 @@ pub fn table(varies: &[Vary], rows: &[SweepRow]) -> String {
         );
         s.push_str(&(orders.join("\n") + "\n"));
     }
-    s
+    crate::error::tidy_exponents(&s)
 }
 
 /// Thresholds of the "cheapest run" table: 1 % and 5 % error vs reference.

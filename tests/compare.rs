@@ -111,7 +111,10 @@ fn compare_table_shows_the_referenced_reaction_component() {
     let md = comparison::table(&rows);
     assert!(md.contains("reaction top x (N)"), "{md}");
     assert!(
-        md.contains(&format!("{:.5e}", s.reactions["top"][0])),
+        md.contains(&hytled::error::tidy_exponents(&format!(
+            "{:.5e}",
+            s.reactions["top"][0]
+        ))),
         "{md}"
     );
 }

@@ -342,3 +342,54 @@ fn a_rigid_body_starting_inside_the_body_is_pushed_out_or_refused() {
         "{e}"
     );
 }
+
+/// Contact pushing into nodes a boundary prescribes along the push, for every method: a plate
+/// pushed 1 mm into the bonded base, a ball pushed through the symmetry face. Each is an error
+/// that names the contact, the boundary and the point with a finite depth (it was a run that
+/// "converged" with a contact force of zero, "deepest penetration inf m", 400 sweeps a step).
+#[test]
+fn contact_on_prescribed_nodes_is_an_error_naming_both() {
+    let cube = path("cases/cube-compression.toml");
+    let tools = [
+        "contact.floor={ shape = \"plane\", point = [0.0, 0.0, 0.0], normal = [0.0, 0.0, 1.0], motion = [0.0, 0.0, 0.001] }",
+        "contact.floor={ shape = \"sphere\", center = [0.05, 0.05, -0.03], radius = 0.03, motion = [0.0, 0.0, 0.01] }",
+    ];
+    for method in common::ALL_METHODS {
+        for tool in tools {
+            let mut o: Vec<String> = method.iter().map(|s| s.to_string()).collect();
+            if !o.iter().any(|s| s.starts_with("discretization.size")) {
+                o.push("discretization.size=0.025".into());
+            }
+            o.push(tool.into());
+            let sc = hytled::scene::load(&cube, &o).unwrap();
+            let e = run_scene(&sc, &RunOptions::default())
+                .map(|s| format!("ran: {:?}", s.contact))
+                .unwrap_or_else(|e| e.to_string());
+            assert!(
+                e.contains("contact 'floor' pushes")
+                    && e.contains("boundary 'bottom' prescribes that node")
+                    && !e.contains("inf"),
+                "{method:?} {tool}: {e}"
+            );
+        }
+    }
+}
+
+/// A rigid body that starts inside the tissue without touching its surface is refused (no
+/// surface point would ever feel it).
+#[test]
+fn a_rigid_body_inside_the_tissue_is_refused() {
+    let cube = path("cases/cube-compression.toml");
+    for tool in [
+        "contact.ball={ shape = \"sphere\", center = [0.05, 0.05, 0.05], radius = 0.01, motion = [0.0, 0.0, 0.01] }",
+        "contact.rod={ shape = \"cylinder\", center = [0.05, 0.05, 0.05], axis = [1.0, 0.0, 0.0], radius = 0.005, min = -0.02, max = 0.02 }",
+    ] {
+        for method in [&["discretization.method=fe"][..], &["discretization.method=meshless"]] {
+            let mut o: Vec<String> = method.iter().map(|s| s.to_string()).collect();
+            o.extend(["discretization.size=0.025".to_string(), tool.to_string()]);
+            let sc = hytled::scene::load(&cube, &o).unwrap();
+            let e = hytled::simulation::prepare(&sc).map(|_| ()).unwrap_err().to_string();
+            assert!(e.contains("starts inside the body without touching its surface"), "{tool}: {e}");
+        }
+    }
+}

@@ -184,3 +184,23 @@ fn measured_ids_and_errors() {
         "{e}"
     );
 }
+
+/// A rigid plate pressing measured nodes further than their measured displacement is a
+/// conflict (the contact would undo the measurement): an error naming both, not a run that
+/// "converges" with a contact force of zero.
+#[test]
+fn a_tool_pressing_measured_nodes_is_refused_naming_both() {
+    let dir = folder("conflict");
+    std::fs::write(dir.join("top.csv"), exact_top(4, 0.0)).unwrap();
+    let e = run(
+        &dir,
+        "top.csv",
+        &["contact.plate={ shape = \"plane\", point = [0.0, 0.0, 0.1], normal = [0.0, 0.0, -1.0], motion = [0.0, 0.0, -0.03] }"],
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(
+        e.contains("contact 'plate'") && e.contains("'top'") && e.contains("prescribes that node"),
+        "{e}"
+    );
+}

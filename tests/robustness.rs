@@ -51,7 +51,12 @@ fn beyond_the_stable_step_is_reported_unstable_for_every_element() {
         names.sort();
         assert_eq!(
             names,
-            [".hytled-manifest", "cube-compression.pvd", "summary.json"],
+            [
+                ".hytled-lock",
+                ".hytled-manifest",
+                "cube-compression.pvd",
+                "summary.json"
+            ],
             "{el}"
         );
         assert!(dir.join("cube-compression_0000.vtu").exists(), "{el}");

@@ -50,6 +50,27 @@ impl RigidShape {
         (depth > 0.0).then_some((depth, n))
     }
 
+    /// Points of the solid displaced by `d` (m) that it cannot hold without holding its
+    /// neighbourhood: a ball's centre, a bounded cylinder's axis at its ends and middle; none
+    /// for a half-space or an unbounded cylinder (which no closed body can hold).
+    pub fn core_points(&self, d: &Vector3<f64>) -> Vec<Vector3<f64>> {
+        match self {
+            RigidShape::Plane { .. } => Vec::new(),
+            RigidShape::Sphere { center, .. } => vec![center + d],
+            RigidShape::Cylinder {
+                center,
+                axis,
+                min: Some(lo),
+                max: Some(hi),
+                ..
+            } => [*lo, 0.5 * (lo + hi), *hi]
+                .iter()
+                .map(|t| center + axis * *t + d)
+                .collect(),
+            RigidShape::Cylinder { .. } => Vec::new(),
+        }
+    }
+
     /// Signed depth of `x` (m) in the solid displaced by `d` (m): positive inside, minus the
     /// distance to the surface outside; with the outward unit normal of the nearest surface.
     pub fn signed_depth(&self, x: &Vector3<f64>, d: &Vector3<f64>) -> (f64, Vector3<f64>) {
@@ -121,7 +142,31 @@ pub struct RigidBody {
 pub struct ContactPoint {
     pub x: Vector3<f64>,
     pub row: Row,
+    /// Components a boundary prescribes at the point itself (a meshless or blended boundary
+    /// node there, whose correction the contact would undo); FE nodes' prescribed components
+    /// are the `fixed` mask of [`Contact::correct`].
+    pub held: [bool; 3],
 }
+
+/// A surface point a rigid body pushed into although the boundary conditions hold its nodes
+/// along the push: the contact cannot move it, so the body would pass through the tissue.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Conflict {
+    /// The rigid body ([`Contact::names`] order).
+    pub body: usize,
+    /// The point's reference position, m.
+    pub x: Vector3<f64>,
+    /// How deep it is inside the rigid body, m.
+    pub depth: f64,
+    /// The node of its row with the largest weight (the prescribed one).
+    pub node: u32,
+    /// The direction of the push (the rigid surface's outward unit normal).
+    pub normal: Vector3<f64>,
+}
+
+/// A point is held against the push when the components its nodes may move along carry less
+/// than this share of the push (0 for a finite-element node prescribed along the normal).
+const HELD_SHARE: f64 = 1e-6;
 
 /// Contact of the candidate points with the rigid bodies.
 #[derive(Debug, Clone)]
@@ -147,6 +192,8 @@ pub struct Contact {
     lambda: Vec<f64>,
     active: Vec<usize>,
     is_active: Vec<bool>,
+    /// The first point found pushed into while its nodes are prescribed.
+    conflict: Option<Conflict>,
 }
 
 /// Gauss-Seidel sweeps at most per step. Points near the edge of a flat-ended indenter switch
@@ -208,6 +255,7 @@ impl Contact {
             lambda: Vec::new(),
             active: Vec::new(),
             is_active: Vec::new(),
+            conflict: None,
         })
     }
 
@@ -257,6 +305,13 @@ impl Contact {
         self.worst = 0.0;
         self.forces.iter_mut().for_each(|f| *f = Vector3::zeros());
         self.in_contact.iter_mut().for_each(|k| *k = 0);
+        self.conflict = None;
+    }
+
+    /// The first surface point a rigid body pushed deeper than the tolerance although the
+    /// prescribed components of its nodes hold it along the push ([`Conflict`]).
+    pub fn conflict(&self) -> Option<&Conflict> {
+        self.conflict.as_ref()
     }
 
     /// Points in contact with each body after the last correction.
@@ -340,14 +395,46 @@ impl Contact {
                         self.active.push(i);
                         self.is_active[i] = true;
                     }
-                    let mut den = 0.0;
+                    let (mut den, mut full) = (0.0, 0.0);
                     for &(j, f) in &p.row {
                         let j = j as usize;
                         let free: f64 = (0..3).filter(|&c| !fixed[j][c]).map(|c| n[c] * n[c]).sum();
                         den += f * f * free / mass[j];
+                        full += f * f / mass[j];
                     }
-                    if !(den > 0.0) {
+                    let free_at_point: f64 =
+                        (0..3).filter(|&c| !p.held[c]).map(|c| n[c] * n[c]).sum();
+                    let held_here = p.held.iter().any(|&h| h) && !(free_at_point > HELD_SHARE);
+                    if held_here && depth > self.tolerance && self.conflict.is_none() {
+                        let node = p
+                            .row
+                            .iter()
+                            .max_by(|a, b| a.1.abs().total_cmp(&b.1.abs()))
+                            .map_or(0, |r| r.0);
+                        self.conflict = Some(Conflict {
+                            body: b,
+                            x: p.x,
+                            depth,
+                            node,
+                            normal: n,
+                        });
+                    }
+                    if !(den > HELD_SHARE * full) {
                         left = left.max(depth);
+                        if depth > self.tolerance && self.conflict.is_none() {
+                            let node = p
+                                .row
+                                .iter()
+                                .max_by(|a, b| a.1.abs().total_cmp(&b.1.abs()))
+                                .map_or(0, |r| r.0);
+                            self.conflict = Some(Conflict {
+                                body: b,
+                                x: p.x,
+                                depth,
+                                node,
+                                normal: n,
+                            });
+                        }
                         continue;
                     }
                     // A point alone on its node closes exactly; coupled points over-relax.
@@ -387,6 +474,13 @@ impl Contact {
                 if after <= self.tolerance {
                     break;
                 }
+            }
+            if after == f64::INFINITY {
+                // The sweeps ran out before a full check: measure what they left.
+                after = self.points[b]
+                    .iter()
+                    .map(|p| shape.signed_depth(&position(p, u), &d).0)
+                    .fold(0.0, f64::max);
             }
             worst = worst.max(after);
             self.forces[b] = force;
@@ -471,10 +565,12 @@ mod tests {
             ContactPoint {
                 x: Vector3::new(0.0, 0.0, 1.0),
                 row: vec![(0, 0.6), (1, 0.4)],
+                held: [false; 3],
             },
             ContactPoint {
                 x: Vector3::new(1.0, 0.0, 1.0),
                 row: vec![(0, 0.3), (1, 0.7)],
+                held: [false; 3],
             },
         ];
         let mut c = Contact::new(vec![plate], vec![pts], 2, 1e-9).unwrap();

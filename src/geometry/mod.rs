@@ -9,6 +9,7 @@ pub mod select;
 pub mod shapes;
 #[cfg(feature = "tetgen")]
 pub mod tetgen;
+pub mod winding;
 
 pub use mesh::{ElementShape, Mesh};
 

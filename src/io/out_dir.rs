@@ -1,24 +1,40 @@
-//! The output folder of one run (`--out DIR`): checked before anything is computed, and written
-//! so that it holds exactly one run. hytled records the files it writes in a manifest
-//! (`.hytled-manifest`, one name per line); a new run removes only those, refuses a folder that
-//! holds files of anyone else, writes its files into a staging folder (`.hytled-partial`) and
-//! moves them in at the end. While it runs, and after it fails, `summary.json` says so
-//! (`"status": "running"` / `"failed"` with the message), so no earlier result is left looking
-//! current; the frames a failed run wrote before it failed are kept for debugging. A run killed while writing leaves the staging folder, which the next run removes;
-//! the window in which a kill can leave a mix is the renames at the end.
+//! The output folder of one run (`--out DIR`): checked and claimed before anything is computed,
+//! and written so that it holds exactly one run, whatever stops the run and whoever else writes
+//! into the same folder.
+//!
+//! - **One run at a time.** A run holds an exclusive lock on `.hytled-lock` (an advisory file
+//!   lock the operating system releases when the process ends, killed or not) from the claim to
+//!   the end; a second run into a busy folder is refused at once, naming the process that holds
+//!   it.
+//! - **Own files only.** hytled records the files it writes in a manifest (`.hytled-manifest`,
+//!   one name per line); a new run removes only those and its own hidden `.hytled-*` files, and
+//!   refuses a folder that holds files of anyone else.
+//! - **Never a stale result.** The claim marks the earlier summary `"status": "running"` before
+//!   anything is removed; summary.json and the manifest are replaced by rename (never seen half
+//!   written), and every name is in the manifest before its file appears. The run's files are
+//!   written into a staging folder (`.hytled-partial`) and moved in at the end, summary.json
+//!   last; a failed or interrupted run's summary says `"failed"` with the message, beside the
+//!   frames it wrote before it stopped. Whatever a kill, a power cut or a full disk leaves is
+//!   the next run's to remove.
 
+use std::fs::File;
+use std::io::{Read, Seek, Write};
 use std::path::{Path, PathBuf};
 
 use crate::{Error, Result};
 
 const MANIFEST: &str = ".hytled-manifest";
 const STAGING: &str = ".hytled-partial";
+const LOCK: &str = ".hytled-lock";
+/// Every name hytled gives its own bookkeeping starts with this.
+const OWN_PREFIX: &str = ".hytled-";
 const SUMMARY: &str = "summary.json";
 
-/// An output folder opened for one run.
+/// An output folder claimed by one run; the claim (the lock) ends when this is dropped.
 #[derive(Debug)]
 pub struct OutDir {
     dir: PathBuf,
+    _lock: File,
 }
 
 fn io(path: &Path, e: std::io::Error) -> Error {
@@ -38,27 +54,95 @@ fn manifest(dir: &Path) -> Vec<String> {
         .unwrap_or_default()
 }
 
+/// Writes `dir/name` whole or not at all: into a hidden temporary file, then renamed over it.
+fn write_atomic(dir: &Path, name: &str, text: &str) -> Result<()> {
+    let hidden = name.strip_prefix(OWN_PREFIX).unwrap_or(name);
+    let (tmp, path) = (
+        dir.join(format!("{OWN_PREFIX}{hidden}.tmp")),
+        dir.join(name),
+    );
+    let write = || -> std::io::Result<()> {
+        let mut f = File::create(&tmp)?;
+        f.write_all(text.as_bytes())?;
+        f.sync_all()
+    };
+    if let Err(e) = write() {
+        let _ = std::fs::remove_file(&tmp);
+        return Err(io(&path, e));
+    }
+    std::fs::rename(&tmp, &path).map_err(|e| io(&path, e))
+}
+
 fn write_manifest(dir: &Path, names: &[String]) -> Result<()> {
-    let path = dir.join(MANIFEST);
-    std::fs::write(&path, names.join("\n") + "\n").map_err(|e| io(&path, e))
+    write_atomic(dir, MANIFEST, &(names.join("\n") + "\n"))
 }
 
 fn write_status(dir: &Path, status: &str, error: Option<&Error>) -> Result<()> {
-    let mut v = serde_json::json!({ "status": status });
+    let mut v = serde_json::json!({ "status": status, "pid": std::process::id() });
     if let Some(e) = error {
         v["error"] = e.kind().into();
         v["exit_code"] = e.exit_code().into();
         v["message"] = e.to_string().into();
     }
-    let path = dir.join(SUMMARY);
     let text = serde_json::to_string_pretty(&v).unwrap_or_default();
-    std::fs::write(&path, text).map_err(|e| io(&path, e))
+    write_atomic(dir, SUMMARY, &text)
+}
+
+fn unix_seconds() -> u64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_secs())
+}
+
+/// Takes the folder's lock, or says which run holds it.
+fn lock(dir: &Path) -> Result<File> {
+    let path = dir.join(LOCK);
+    let mut f = std::fs::OpenOptions::new()
+        .read(true)
+        .write(true)
+        .create(true)
+        .truncate(false)
+        .open(&path)
+        .map_err(|e| io(&path, e))?;
+    match f.try_lock() {
+        Ok(()) => {}
+        Err(std::fs::TryLockError::WouldBlock) => {
+            let mut text = String::new();
+            let _ = f.read_to_string(&mut text);
+            let mut it = text.split_whitespace();
+            let holder = match (
+                it.next().and_then(|p| p.parse::<u32>().ok()),
+                it.next().and_then(|t| t.parse::<u64>().ok()),
+            ) {
+                (Some(pid), Some(t)) => format!(
+                    "process {pid}, running for {} s",
+                    unix_seconds().saturating_sub(t)
+                ),
+                _ => "a process that is starting".into(),
+            };
+            return Err(Error::Input(format!(
+                "--out {}: another hytled run ({holder}) is writing into this folder; wait for \
+                 it to end or give another folder",
+                dir.display()
+            )));
+        }
+        Err(std::fs::TryLockError::Error(e)) => return Err(io(&path, e)),
+    }
+    let stamp = format!("{} {}\n", std::process::id(), unix_seconds());
+    let write = |f: &mut File| -> std::io::Result<()> {
+        f.set_len(0)?;
+        f.rewind()?;
+        f.write_all(stamp.as_bytes())
+    };
+    write(&mut f).map_err(|e| io(&path, e))?;
+    Ok(f)
 }
 
 impl OutDir {
     /// Checks `dir` and claims it for a new run: it must be a folder (created if missing) that
-    /// holds nothing but an earlier hytled run's files; those are removed, and `summary.json`
-    /// is written with `"status": "running"` (which also proves the folder writable).
+    /// no other run is writing into and that holds nothing but an earlier hytled run's files;
+    /// summary.json is marked `"status": "running"` (which also proves the folder writable),
+    /// then those files are removed.
     pub fn open(dir: &Path) -> Result<Self> {
         if dir.exists() && !dir.is_dir() {
             return Err(Error::Input(format!(
@@ -67,12 +151,19 @@ impl OutDir {
             )));
         }
         std::fs::create_dir_all(dir).map_err(|e| io(dir, e))?;
+        let lock = lock(dir)?;
         let own = manifest(dir);
+        // A manifest, even an empty one, says hytled writes here: its summary.json is its own
+        // (folders of hytled 0.x could be killed between writing the two).
+        let has_manifest = dir.join(MANIFEST).exists();
         let mut foreign = Vec::new();
+        let mut hidden = Vec::new();
         for entry in std::fs::read_dir(dir).map_err(|e| io(dir, e))? {
             let entry = entry.map_err(|e| io(dir, e))?;
             let name = entry.file_name().to_string_lossy().to_string();
-            if name != MANIFEST && name != STAGING && !own.contains(&name) {
+            if name.starts_with(OWN_PREFIX) {
+                hidden.push(name);
+            } else if !own.contains(&name) && !(has_manifest && name == SUMMARY) {
                 foreign.push(name);
             }
         }
@@ -92,20 +183,39 @@ impl OutDir {
                 }
             )));
         }
-        let staging = dir.join(STAGING);
-        if staging.exists() {
-            std::fs::remove_dir_all(&staging).map_err(|e| io(&staging, e))?;
+        // The order makes every moment safe to be killed at: summary.json is in the manifest
+        // before it is written, and says "running" before any earlier file goes.
+        let mut listed = own.clone();
+        if !listed.iter().any(|n| n == SUMMARY) {
+            listed.push(SUMMARY.into());
+            write_manifest(dir, &listed)?;
         }
-        for name in &own {
+        write_status(dir, "running", None)?;
+        for name in hidden
+            .iter()
+            .filter(|n| ![LOCK, MANIFEST].contains(&n.as_str()))
+        {
+            let path = dir.join(name);
+            let removed = if path.is_dir() {
+                std::fs::remove_dir_all(&path)
+            } else {
+                std::fs::remove_file(&path)
+            };
+            match removed {
+                Err(e) if e.kind() != std::io::ErrorKind::NotFound => return Err(io(&path, e)),
+                _ => {}
+            }
+        }
+        for name in own.iter().filter(|n| n.as_str() != SUMMARY) {
             let path = dir.join(name);
             if path.is_file() {
                 std::fs::remove_file(&path).map_err(|e| io(&path, e))?;
             }
         }
-        write_status(dir, "running", None)?;
         write_manifest(dir, &[SUMMARY.to_string()])?;
         Ok(OutDir {
             dir: dir.to_path_buf(),
+            _lock: lock,
         })
     }
 
@@ -191,6 +301,7 @@ mod tests {
             std::fs::write(s.join(f), "x").unwrap();
         }
         o.commit().unwrap();
+        drop(o);
         assert!(d.join("a_0001.vtu").exists() && !d.join(STAGING).exists());
         // A killed run's staging folder is no obstacle and is removed.
         std::fs::create_dir_all(d.join(STAGING)).unwrap();
@@ -203,12 +314,13 @@ mod tests {
         let s = o.staging().unwrap();
         std::fs::write(s.join("a_0000.vtu"), "y").unwrap();
         o.commit().unwrap();
+        drop(o);
         let mut left: Vec<String> = std::fs::read_dir(&d)
             .unwrap()
             .map(|e| e.unwrap().file_name().to_string_lossy().to_string())
             .collect();
         left.sort();
-        assert_eq!(left, [MANIFEST, "a_0000.vtu", "summary.json"]);
+        assert_eq!(left, [LOCK, MANIFEST, "a_0000.vtu", "summary.json"]);
         // A failed run leaves its status and message, and the frames it wrote before failing
         // (not the earlier run's, and not a staged summary).
         let o = OutDir::open(&d).unwrap();
@@ -218,6 +330,7 @@ mod tests {
             std::fs::write(s.join(f), "z").unwrap();
         }
         o.fail(&Error::Unstable("diverged at step 3".into()));
+        drop(o);
         let v: serde_json::Value =
             serde_json::from_str(&std::fs::read_to_string(d.join("summary.json")).unwrap())
                 .unwrap();
@@ -228,6 +341,55 @@ mod tests {
         // ... and they are its own: the next run removes them.
         OutDir::open(&d).unwrap();
         assert!(!d.join("b_0000.vtu").exists() && !d.join("b.pvd").exists());
+        let _ = std::fs::remove_dir_all(&d);
+    }
+
+    #[test]
+    fn a_busy_folder_is_refused_naming_the_run_that_holds_it() {
+        let d = fresh("busy");
+        let first = OutDir::open(&d).unwrap();
+        let s = first.staging().unwrap();
+        std::fs::write(s.join("a_0000.vtu"), "x").unwrap();
+        let e = OutDir::open(&d).unwrap_err().to_string();
+        assert!(
+            e.contains("another hytled run")
+                && e.contains(&format!("process {}", std::process::id())),
+            "{e}"
+        );
+        assert!(
+            s.join("a_0000.vtu").exists(),
+            "the busy run's files untouched"
+        );
+        drop(first);
+        // Released with the claim (and by the system when a process dies).
+        OutDir::open(&d).unwrap();
+        let _ = std::fs::remove_dir_all(&d);
+    }
+
+    #[test]
+    fn whatever_a_kill_leaves_is_the_next_runs_to_remove() {
+        let d = fresh("leftover");
+        std::fs::create_dir_all(d.join(STAGING)).unwrap();
+        // A kill between writing a temporary file and its rename, and an empty manifest beside
+        // a "running" summary (what a kill in the claim of hytled before the atomic writes
+        // left, refused by every later run), and a half-staged run.
+        std::fs::write(d.join(".hytled-summary.json.tmp"), "{\"sta").unwrap();
+        std::fs::write(d.join(STAGING).join("b_0003.vtu"), "x").unwrap();
+        std::fs::write(d.join(MANIFEST), "").unwrap();
+        std::fs::write(d.join(SUMMARY), "{\"status\": \"running\"}").unwrap();
+        let o = OutDir::open(&d).unwrap();
+        let mut left: Vec<String> = std::fs::read_dir(&d)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().to_string())
+            .collect();
+        left.sort();
+        assert_eq!(left, [LOCK, MANIFEST, SUMMARY]);
+        assert_eq!(manifest(&d), [SUMMARY]);
+        drop(o);
+        // Without a manifest a summary.json is someone else's.
+        std::fs::remove_file(d.join(MANIFEST)).unwrap();
+        let e = OutDir::open(&d).unwrap_err().to_string();
+        assert!(e.contains("summary.json"), "{e}");
         let _ = std::fs::remove_dir_all(&d);
     }
 

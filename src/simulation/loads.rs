@@ -79,6 +79,7 @@ pub(super) fn scene_contact(
     scene: &Scene,
     d: Discretized<'_>,
     input: Option<&MeshInput>,
+    boundaries: &[crate::bc::Boundary],
     warnings: &mut Vec<String>,
 ) -> Result<Option<Contact>> {
     if scene.contact.is_empty() {
@@ -92,7 +93,16 @@ pub(super) fn scene_contact(
         }
     }
     let (lo, hi) = crate::geometry::select::bounds(d.nodes());
-    let tolerance = CONTACT_TOLERANCE * (hi - lo).norm();
+    let diag = (hi - lo).norm();
+    let tolerance = CONTACT_TOLERANCE * diag;
+    let mut prescribed = vec![[false; 3]; d.nodes().len()];
+    for b in boundaries {
+        for &n in &b.nodes {
+            for k in 0..3 {
+                prescribed[n][k] |= b.components[k].is_some();
+            }
+        }
+    }
     let mut bodies = Vec::new();
     let mut points = Vec::new();
     for (name, c) in &scene.contact {
@@ -109,9 +119,20 @@ pub(super) fn scene_contact(
         let pts = chosen
             .iter()
             .map(|&i| {
+                let row = d.vertex_row(&s, i)?;
+                // The prescribed components of a node at the point (meshless, blended).
+                let mut held = [false; 3];
+                for &(j, _) in &row {
+                    if (d.nodes()[j as usize] - s.vertices[i]).norm() <= 1e-9 * diag {
+                        for (h, p) in held.iter_mut().zip(prescribed[j as usize]) {
+                            *h |= p;
+                        }
+                    }
+                }
                 Ok(ContactPoint {
                     x: s.vertices[i],
-                    row: d.vertex_row(&s, i)?,
+                    row,
+                    held,
                 })
             })
             .collect::<Result<Vec<_>>>()?;
@@ -125,6 +146,34 @@ pub(super) fn scene_contact(
         points.push(pts);
     }
     let contact = Contact::new(bodies, points, d.nodes().len(), tolerance)?;
+    for (b, (name, c)) in scene.contact.iter().enumerate() {
+        if contact.deepest_at_rest(b, 0.0).is_some() {
+            continue;
+        }
+        let inside = c
+            .rigid_shape()
+            .core_points(&Vector3::zeros())
+            .into_iter()
+            .find(|q| {
+                let w = crate::geometry::winding::winding_number(
+                    q,
+                    &s.vertices,
+                    s.faces.iter().map(|f| f.0.as_slice()),
+                );
+                w.abs() > 0.5
+            });
+        if let Some(q) = inside {
+            return Err(crate::Error::Input(format!(
+                "contact '{name}' starts inside the body without touching its surface (its point \
+                 ({:.4e}, {:.4e}, {:.4e}) m is inside the body, and no surface point is inside it): \
+                 contact acts on the body's surface, so a rigid body inside the tissue is never felt. \
+                 Start it outside the body, or touching its surface",
+                q.x,
+                q.y,
+                q.z
+            )));
+        }
+    }
     for (b, name) in contact.names().enumerate() {
         if let Some((deepest, _)) = contact.deepest_at_rest(b, 0.0).filter(|x| x.0 > tolerance) {
             warnings.push(format!(

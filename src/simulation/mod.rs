@@ -284,7 +284,7 @@ fn add_loads_and_contact(
     if scene.solver.mode == Mode::Relaxation && scale {
         model.scale_masses()?;
     }
-    model.contact = loads::scene_contact(scene, d, input, warnings)?;
+    model.contact = loads::scene_contact(scene, d, input, &model.boundaries, warnings)?;
     Ok(())
 }
 

@@ -57,6 +57,18 @@ pub(super) fn attempt<M: Material>(
         restarted,
     )?;
     loop {
+        crate::interrupt::check(|| match s.mode {
+            Mode::Relaxation => format!(
+                "at step {} of the relaxation, {:.1} % of the load",
+                pass.step,
+                100.0 * pass.time.load(pass.step).min(1.0)
+            ),
+            Mode::Dynamic => format!(
+                "at step {} of the dynamic run, t = {:.6e} s",
+                pass.step,
+                pass.time.time(pass.step)
+            ),
+        })?;
         let t0 = pass.gpu.is_some().then(Instant::now);
         pass.update_step()?;
         if let (Some(g), Some(t0)) = (pass.gpu.as_mut(), t0) {
@@ -77,6 +89,47 @@ pub(super) fn attempt<M: Material>(
         pass.advance(recorded)?;
     }
     pass.finish(sink)
+}
+
+/// The error of a rigid body pushing into nodes the boundary conditions prescribe: which body,
+/// where, which boundaries hold the node, and what to do.
+fn contact_conflict<M: Material>(
+    model: &Model<M>,
+    c: &crate::bc::contact::Conflict,
+    step: usize,
+    load: f64,
+) -> Error {
+    let name = model
+        .contact
+        .as_ref()
+        .and_then(|ct| ct.names().nth(c.body))
+        .unwrap_or("?");
+    let holders: Vec<String> = model
+        .boundaries
+        .iter()
+        .filter(|b| {
+            b.nodes.contains(&(c.node as usize))
+                && (0..3).any(|k| c.normal[k].abs() > 1e-3 && b.components[k].is_some())
+        })
+        .map(|b| format!("'{}'", b.name))
+        .collect();
+    let by = match holders.as_slice() {
+        [] => "the essential boundary conditions prescribe".to_string(),
+        [one] => format!("boundary {one} prescribes"),
+        [rest @ .., last] => format!("boundaries {} and {last} prescribe", rest.join(", ")),
+    };
+    Error::Input(format!(
+        "contact '{name}' pushes {:.3e} m into the surface point at ({:.4e}, {:.4e}, {:.4e}) m (node {}) at \
+         step {step} ({:.1} % of its curve), but {by} that node along the push: the contact \
+         cannot move it without undoing that condition, so the rigid body would pass through the tissue. Leave these nodes out of the \
+         contact (its select) or out of the boundary, or stop the rigid body before it reaches them",
+        c.depth,
+        c.x.x,
+        c.x.y,
+        c.x.z,
+        c.node,
+        100.0 * load.min(1.0)
+    ))
 }
 
 /// The added advice of the instability messages.
@@ -670,6 +723,9 @@ impl<'a, M: Material> Pass<'a, M> {
         if let Some(ct) = model.contact.as_mut() {
             ct.correct(&mut self.u_next, next_load, a, &model.mass, &self.cons.mask);
             self.ledger.external_work += ct.work(&self.u_next, &self.u_prev);
+        }
+        if let Some(c) = model.contact.as_ref().and_then(|ct| ct.conflict()) {
+            return Err(contact_conflict(model, c, self.step + 1, next_load));
         }
         // The predictor's change includes the part the correction takes back (it never
         // vanishes next to a constrained boundary), so measure the corrected change.
