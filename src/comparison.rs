@@ -115,13 +115,15 @@ pub fn run_case(
     overrides: &[String],
     out: Option<&Path>,
     vtu_format: VtuFormat,
+    progress_lines: Option<f64>,
 ) -> (Result<CaseRun>, Option<f64>) {
     let t0 = Instant::now();
     reset_peak_memory();
     let result = (|| -> Result<CaseRun> {
         let s = scene::load(scene_path, overrides)?;
         let mut prep = simulation::prepare(&s)?;
-        let settings = simulation::settings(&s, false);
+        let mut settings = simulation::settings(&s, false);
+        settings.progress_lines = progress_lines;
         let out_run = simulation::solve(&mut prep, &settings)?;
         let summary = simulation::summarize(&s, &prep, &out_run, t0.elapsed().as_secs_f64());
         if let Some(dir) = out {
@@ -168,7 +170,14 @@ pub fn run_compare(
         let mut o = overrides.to_vec();
         o.push(format!("discretization.method={m}"));
         let out_dir = opts.out.as_ref().map(|d| d.join(m));
-        let (result, peak) = run_case(scene_path, &o, out_dir.as_deref(), opts.vtu_format);
+        // A method can take minutes: its time loop says how far it is every 10 s.
+        let (result, peak) = run_case(
+            scene_path,
+            &o,
+            out_dir.as_deref(),
+            opts.vtu_format,
+            opts.progress.then_some(10.0),
+        );
         if opts.progress {
             eprintln!(
                 "compare: {m} {} in {:.1} s",
@@ -330,11 +339,19 @@ pub fn write_outputs(dir: &Path, scene_path: &Path, rows: &[CompareRow]) -> Resu
             points: r.reaction_history.clone(),
         })
         .collect();
+    let relaxation = rows
+        .iter()
+        .filter_map(|r| r.summary.as_ref())
+        .any(|s| s.mode == "relaxation");
     if !series.is_empty() {
         line_plot(
             &dir.join("reactions.svg"),
             "Reaction force by method",
-            "time (s)",
+            if relaxation {
+                "pseudo-time of the relaxation (s)"
+            } else {
+                "time (s)"
+            },
             "force (N)",
             &series,
         )?;

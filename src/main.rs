@@ -575,6 +575,10 @@ fn bench(
             Some(DeviceArg::Emulated) => hytled::solver::Device::Emulated,
         },
     };
+    // A missing GPU is said before minutes of CPU timings, not after them.
+    if opts.device == hytled::solver::Device::Gpu {
+        hytled::solver::gpu::probe()?;
+    }
     let mut rows = Vec::new();
     for c in &cases {
         rows.extend(bench::run_case(c, &opts)?);
@@ -608,6 +612,8 @@ fn compare(
     set.extend(device.map(DeviceArg::set));
     start_threads(threads)?;
     let methods = hytled::comparison::parse_methods(&methods)?;
+    // The preparation's stages (meshing, shape functions) as they happen.
+    show_stages();
     let opts = hytled::comparison::CompareOptions {
         out,
         vtu_format: vtu_format.into(),

@@ -293,7 +293,8 @@ pub fn run_sweep(
         let mut peak = None;
         for r in 0..opts.repeat.max(1) {
             let dir = out_dir.as_deref().filter(|_| r == 0);
-            let (result, p) = run_case(scene_path, &o, dir, opts.vtu_format);
+            // The sweep's own bar shows where it is.
+            let (result, p) = run_case(scene_path, &o, dir, opts.vtu_format, None);
             peak = match (peak, p) {
                 (Some(a), Some(b)) => Some(f64::max(a, b)),
                 (a, b) => a.or(b),

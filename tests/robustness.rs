@@ -1034,7 +1034,26 @@ fn summaries_and_tables_are_labelled() {
     let mut v = serde_json::to_value(&s).unwrap();
     v["reference"] = serde_json::json!({});
     let md = hytled::report::markdown_table(&[v]);
-    assert!(!md.contains("NaN") && md.contains("| - | - | - |"), "{md}");
+    // Without a reference the reaction column still shows the largest reaction, named
+    // (issue 41: it was blank), and the columns of the comparison are "-", not NaN.
+    let (name, k, x) = s
+        .reactions
+        .iter()
+        .flat_map(|(n, r)| (0..3).map(move |k| (n.clone(), k, r[k])))
+        .fold(("".to_string(), 0, 0.0f64), |b, c| {
+            if c.2.abs() > b.2.abs() {
+                c
+            } else {
+                b
+            }
+        });
+    assert!(name == "top" || name == "bottom", "{name}");
+    let axis = ["x", "y", "z"][k];
+    assert!(
+        md.contains(&format!("| {x:.4} ({name}.{axis}) | - | - | - |")),
+        "{md}"
+    );
+    assert!(!md.contains("NaN"), "{md}");
 }
 
 /// `hytled run` on the cube at 27 nodes, dynamic over 0.3 s (about 60 steps).
@@ -1199,4 +1218,126 @@ fn discretizations_too_large_for_memory_are_refused_early() {
     }
     assert!(!dir.join("mesh.vtu").exists());
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// Issue 41: Ogden exponents whose energy keeps no digits (1e-10: rounding / alpha^2; 1e-300:
+/// alpha^2 underflows to 0, a NaN energy) or overflows (1e4) are refused with the key and the
+/// range; the range's ends and the brain's -4.7 are taken.
+#[test]
+fn ogden_exponents_outside_what_f64_holds_are_refused() {
+    let case = common::path("cases/cube-compression.toml");
+    let load = |alpha: &str| {
+        hytled::scene::load(
+            &case,
+            &[
+                "material.model=ogden".to_string(),
+                format!("material.alpha={alpha}"),
+                "references={}".to_string(),
+            ],
+        )
+    };
+    for bad in ["1e-10", "1e-300", "-1e-300", "1e4", "-150.0"] {
+        let e = load(bad).unwrap_err().to_string();
+        assert!(
+            e.contains("material.alpha") && e.contains("0.01 <= |alpha| <= 100"),
+            "{bad}: {e}"
+        );
+    }
+    for good in ["-4.7", "0.01", "-100.0", "2.0"] {
+        load(good).unwrap_or_else(|e| panic!("{good}: {e}"));
+    }
+}
+
+/// Issue 41: `bench --device gpu` on a machine without a GPU says so at once, before any
+/// timing (it ran the CPU timings first). Where a GPU is present this is the GPU benchmark,
+/// not a test.
+#[test]
+fn bench_on_a_missing_gpu_says_so_before_any_timing() {
+    if hytled::solver::gpu::probe().is_ok() {
+        return;
+    }
+    let out = Command::new(env!("CARGO_BIN_EXE_hytled"))
+        .args(["bench", "--device", "gpu"])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(err.contains("--device gpu"), "{err}");
+    assert!(!err.contains("bench:") && out.stdout.is_empty(), "{err}");
+}
+
+/// Issue 41, what a user reads: a relaxation scene that sets `output.frames` is told that
+/// relaxation writes its unloaded, staged and converged states only; its plots call their axis
+/// the relaxation's pseudo-time, a dynamic run's plain time.
+#[test]
+fn relaxation_says_what_its_frames_and_time_axis_are() {
+    let frames_warned = |o: &[&str]| {
+        let o: Vec<String> = o.iter().map(|s| s.to_string()).collect();
+        let sc = hytled::scene::load(&path("cases/cube-compression.toml"), &o).unwrap();
+        prepare(&sc)
+            .unwrap()
+            .warnings
+            .iter()
+            .any(|w| w.contains("output.frames = 40 applies to dynamic runs"))
+    };
+    assert!(frames_warned(&[
+        "discretization.size=0.05",
+        "output.frames=40"
+    ]));
+    assert!(!frames_warned(&["discretization.size=0.05"]));
+    assert!(!frames_warned(&[
+        "discretization.size=0.05",
+        "output.frames=40",
+        "solver.mode=dynamic",
+        "solver.duration=0.1",
+    ]));
+    for (mode, label) in [
+        ("relaxation", "pseudo-time of the relaxation (s)"),
+        ("dynamic", "\ntime (s)\n"),
+    ] {
+        let dir = std::env::temp_dir().join(format!("hytled-axis-{mode}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        let sc = scene(&[
+            "discretization.size=0.05",
+            &format!("solver.mode={mode}"),
+            "solver.duration=0.3",
+        ]);
+        let opts = RunOptions {
+            out: Some(dir.clone()),
+            ..RunOptions::default()
+        };
+        run_scene(&sc, &opts).unwrap();
+        for plot in ["reaction.svg", "energy.svg"] {
+            let svg = std::fs::read_to_string(dir.join(plot)).unwrap();
+            assert!(svg.contains(label), "{mode} {plot}");
+        }
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+}
+
+/// Issue 41: `hytled compare` says what each method is doing while it prepares and runs (it
+/// was silent for the 30 s of a meshless run).
+#[test]
+fn compare_shows_each_methods_stages_as_it_goes() {
+    let out = Command::new(env!("CARGO_BIN_EXE_hytled"))
+        .arg("compare")
+        .arg(path("cases/cube-compression.toml"))
+        .args([
+            "--methods",
+            "fe,meshless",
+            "--set",
+            "discretization.size=0.05",
+        ])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(0), "{err}");
+    for line in [
+        "compare: meshless ...",
+        "progress: preparing the meshless discretization",
+        "progress: supports and MLS shape functions",
+        "time loop",
+    ] {
+        assert!(err.contains(line), "{line}: {err}");
+    }
 }

@@ -471,17 +471,19 @@ pub struct InitialSpec {
 #[derive(Debug, Clone, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct OutputSpec {
-    /// VTU frames (dynamic: equally spaced in time).
-    #[serde(default = "default_frames")]
-    pub frames: usize,
+    /// VTU frames of a dynamic run, equally spaced in time (10 unless given). Relaxation writes
+    /// the unloaded state, each load stage and the converged state whatever this says (its
+    /// path in pseudo-time is not a physical history); a relaxation scene that sets it is
+    /// told so.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub frames: Option<usize>,
     /// Rows in the time-history CSV (dynamic).
     #[serde(default = "default_history")]
     pub history_rows: usize,
 }
 
-fn default_frames() -> usize {
-    10
-}
+/// Frames of a dynamic run without `output.frames`.
+pub const DEFAULT_FRAMES: usize = 10;
 fn default_history() -> usize {
     200
 }
@@ -489,7 +491,7 @@ fn default_history() -> usize {
 impl Default for OutputSpec {
     fn default() -> Self {
         OutputSpec {
-            frames: default_frames(),
+            frames: None,
             history_rows: default_history(),
         }
     }

@@ -7,6 +7,12 @@ use super::{
 use crate::geometry::select::Selection;
 use crate::solver::Mode;
 
+/// The Ogden exponents accepted, |alpha| from .0 to .1: below, the energy's rounding error
+/// (about 3 eps / alpha^2 of mu) exceeds 1e-11 mu, and at 1e-300 alpha^2 underflows to 0 (a NaN
+/// energy); above, lbar^alpha overflows f64 at moderate stretches (5^1000 at |alpha| = 1000),
+/// while 100 still holds stretches from 1e-3 to 1e3.
+const OGDEN_ALPHA: (f64, f64) = (0.01, 100.0);
+
 /// Computes the value of every `exact = "uniaxial"` reference: a box with one face (a plane
 /// selection at the box's min or max along axis k) driven by d along k stretches by
 /// lambda = 1 + d / L_k; the lateral stretch a and sigma_kk come from
@@ -143,7 +149,17 @@ fn check_material(m: &MaterialSpec, key: &str) -> std::result::Result<(), String
             }
         }
         "ogden" => match m.alpha {
-            Some(a) if a != 0.0 => {}
+            Some(a) if (OGDEN_ALPHA.0..=OGDEN_ALPHA.1).contains(&a.abs()) => {}
+            Some(a) if a != 0.0 => {
+                return Err(format!(
+                    "{key}.alpha = {a}: the Ogden exponent must lie within {} <= |alpha| <= {} \
+                     (W = 2 mu / alpha^2 (sum lbar_i^alpha - 3) keeps no digits below: rounding / alpha^2; \
+                     and overflows above it at moderate stretches); tissue exponents lie within \
+                     |alpha| <= 30 (-4.7 for brain, Miller and Chinzei 2002)",
+                    OGDEN_ALPHA.0,
+                    OGDEN_ALPHA.1
+                ))
+            }
             _ => {
                 return Err(format!(
                     "{key}: model = 'ogden' needs `alpha`, a non-zero exponent (-4.7 for brain tissue, \

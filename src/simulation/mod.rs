@@ -379,6 +379,14 @@ pub fn prepare(scene: &Scene) -> Result<Prepared> {
     if let Some(w) = units_warning(scene, &p.model.nodes) {
         p.warnings.push(w);
     }
+    if let (Mode::Relaxation, Some(n)) = (scene.solver.mode, scene.output.frames) {
+        p.warnings.push(format!(
+            "output.frames = {n} applies to dynamic runs: relaxation writes the unloaded state, \
+             each load stage (a reference's `at`) and the converged state (its path in \
+             pseudo-time is no physical history); for the states along the load, give \
+             references with `at` or run in dynamics"
+        ));
+    }
     let free = crate::bc::free_parts(p.model.nodes.len(), &p.model.points, &p.model.boundaries);
     if let Some(&(count, node)) = free.first() {
         let x = p.model.nodes[node];

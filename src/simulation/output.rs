@@ -97,6 +97,12 @@ fn write_history_plots(dir: &Path, model: &Model<Solid>, out: &RunOutput) -> Res
                 .map(move |&k| format!("{name} {}", ["x", "y", "z"][k]))
         })
         .collect();
+    // Relaxation's time is a device of the solver, not a history of the body.
+    let axis = if out.load_steps.is_some() {
+        "pseudo-time of the relaxation (s)"
+    } else {
+        "time (s)"
+    };
     let mut series = Vec::new();
     let mut at = 0;
     for (bi, (_, comps)) in shown.iter().enumerate() {
@@ -115,7 +121,7 @@ fn write_history_plots(dir: &Path, model: &Model<Solid>, out: &RunOutput) -> Res
     line_plot(
         &dir.join("reaction.svg"),
         "Reaction forces",
-        "time (s)",
+        axis,
         "force (N)",
         &series,
     )?;
@@ -139,7 +145,7 @@ fn write_history_plots(dir: &Path, model: &Model<Solid>, out: &RunOutput) -> Res
     line_plot(
         &dir.join("energy.svg"),
         "Energies",
-        "time (s)",
+        axis,
         "energy (J)",
         &energies,
     )

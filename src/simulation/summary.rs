@@ -33,12 +33,15 @@ pub fn element_label(scene: &Scene, prep: &Prepared) -> String {
     }
 }
 
-/// The largest |F_int - F_ext| at a free DOF over the largest |F_int| component at any node
-/// ([`crate::report::Summary::equilibrium_residual`]). Nodes a corrector or contact moves
-/// after the update carry constraint forces, not residuals, and are left out.
+/// The largest |F_int - F_ext| at a free DOF over the largest |F_int| component at any node,
+/// now or at any recorded row of the run (`peak`, N: a load that ends at zero leaves forces of
+/// rounding size, which are no scale) ([`crate::report::Summary::equilibrium_residual`]).
+/// Nodes a corrector or contact moves after the update carry constraint forces, not
+/// residuals, and are left out.
 fn equilibrium_residual<M: crate::material::Material>(
     model: &crate::solver::Model<M>,
     f_int: &[nalgebra::Vector3<f64>],
+    peak: f64,
 ) -> f64 {
     let n = f_int.len().min(model.constraints.mask.len());
     let mut moved = vec![false; n];
@@ -61,11 +64,28 @@ fn equilibrium_residual<M: crate::material::Material>(
             }
         }
     }
-    if scale > 0.0 {
-        residual / scale
+    relative(residual, scale.max(peak), 0.0)
+}
+
+/// `value / scale`, with `floor` as the least scale: a quantity whose scale is zero or below
+/// the floor (an unloaded run, forces or energies of rounding size) is measured against the
+/// floor, not divided by nearly nothing; 0 when both are zero.
+fn relative(value: f64, scale: f64, floor: f64) -> f64 {
+    let s = scale.max(floor);
+    if s > 0.0 {
+        value / s
     } else {
         0.0
     }
+}
+
+/// The least energy scale of a balance (J): the strain energy of a uniform strain of 1e-6
+/// in the body, mu V 1e-12 (shear modulus of the scene's material, volume of the points).
+fn energy_floor(scene: &Scene, model: &crate::solver::Model<crate::material::Solid>) -> f64 {
+    use crate::material::Material;
+    let mu = scene.material.solid().lame().1;
+    let volume: f64 = model.points.weights.iter().sum();
+    1e-12 * mu.abs() * volume.abs()
 }
 
 /// Builds the summary of a finished run.
@@ -82,8 +102,24 @@ pub fn summarize(scene: &Scene, prep: &Prepared, out: &RunOutput, total_seconds:
     let equilibrium_residual = out
         .load_steps
         .is_some()
-        .then(|| equilibrium_residual(model, &out.f_int));
-    if let Some(r) = equilibrium_residual.filter(|&r| r > crate::report::RESIDUAL_WARNING) {
+        .then(|| equilibrium_residual(model, &out.f_int, out.peak_nodal_force));
+    // The relaxation's criterion watches the displacements; a body far from equilibrium by its
+    // forces is not "converged" whatever they do (a scene in millimetres read as metres stopped
+    // "converged" at a residual of 1.0).
+    let out_of_balance =
+        equilibrium_residual.is_some_and(|r| !(r <= crate::report::RESIDUAL_NOT_CONVERGED));
+    let converged = out.converged && !out_of_balance;
+    if out.converged && out_of_balance {
+        warnings.push(format!(
+            "not converged: the relaxation's displacement criterion (solver.tolerance = {:e} m) \
+             was met, but the largest out-of-balance force is {:.2e} of the largest nodal force \
+             (more than {:.0e}): the body is not at equilibrium; lower solver.tolerance, and \
+             check the units of the geometry and the material",
+            scene.solver.tolerance,
+            equilibrium_residual.unwrap_or(f64::NAN),
+            crate::report::RESIDUAL_NOT_CONVERGED
+        ));
+    } else if let Some(r) = equilibrium_residual.filter(|&r| r > crate::report::RESIDUAL_WARNING) {
         warnings.push(format!(
             "equilibrium: the largest out-of-balance force at a free node is {r:.2e} of the \
              largest nodal force at the end of this relaxation (more than {:.0e}): the \
@@ -97,8 +133,11 @@ pub fn summarize(scene: &Scene, prep: &Prepared, out: &RunOutput, total_seconds:
         let scale = input
             .abs()
             .max(out.peak_external_work + out.initial_kinetic);
-        (input - out.strain_energy - out.kinetic_energy - out.damping_dissipation).abs()
-            / scale.max(f64::MIN_POSITIVE)
+        relative(
+            (input - out.strain_energy - out.kinetic_energy - out.damping_dissipation).abs(),
+            scale,
+            energy_floor(scene, model),
+        )
     });
     if let Some(b) = balance_error.filter(|&b| b > crate::report::ENERGY_WARNING) {
         warnings.push(format!(
@@ -224,12 +263,12 @@ pub fn summarize(scene: &Scene, prep: &Prepared, out: &RunOutput, total_seconds:
         restarts: out.restarts.len(),
         step_updates: (out.step_updates.estimates > 0).then_some(out.step_updates),
         simulated_time: out.simulated_time,
-        status: match (out.load_steps.is_some(), out.converged) {
+        status: match (out.load_steps.is_some(), converged) {
             (false, _) => "completed",
             (true, true) => "converged",
             (true, false) => "not converged",
         },
-        converged: out.converged,
+        converged,
         equilibrium_residual,
         threads: rayon::current_num_threads(),
         device: out.device.clone(),
@@ -339,5 +378,20 @@ fn basis_long(scene: &Scene) -> String {
         crate::scene::Basis::Quadratic => {
             format!("quadratic MMLS (mu = {:e})", scene.discretization.mu)
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::relative;
+
+    /// A zero or rounding-size scale is no scale: an unloaded run whose energies are 1e-17 J of
+    /// rounding was reported 4.4e291 % out of balance (divided by f64::MIN_POSITIVE).
+    #[test]
+    fn relative_measures_against_the_floor_not_nearly_nothing() {
+        assert_eq!(relative(9.8e-17, 0.0, 1e-9), 9.8e-17 / 1e-9);
+        assert!(relative(9.8e-17, 0.0, 1e-9) < 1e-6);
+        assert_eq!(relative(0.0, 0.0, 0.0), 0.0);
+        assert_eq!(relative(1.0, 4.0, 1e-9), 0.25);
     }
 }

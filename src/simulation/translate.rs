@@ -433,7 +433,7 @@ pub fn settings(scene: &Scene, progress: bool) -> Settings {
             .unwrap_or(crate::solver::integrate::DEFAULT_RETRIES),
         step_update: s.step_update,
         history_rows: scene.output.history_rows,
-        frames: scene.output.frames,
+        frames: scene.output.frames.unwrap_or(crate::scene::DEFAULT_FRAMES),
         progress,
         progress_lines: None,
         device: s.device,

@@ -221,6 +221,8 @@ struct Pass<'a, M: Material> {
     next_stage: usize,
     /// A stage has just converged: the next step writes a frame.
     stage_frame: bool,
+    /// The largest nodal force component at any recorded row so far, N.
+    peak_force: f64,
     /// Device runs: the host does what follows the update (corrections, loads, damping) on
     /// copies of the state.
     assisted: bool,
@@ -423,6 +425,7 @@ impl<'a, M: Material> Pass<'a, M> {
             stages: Vec::new(),
             next_stage: 0,
             stage_frame: false,
+            peak_force: 0.0,
         })
     }
 
@@ -611,6 +614,8 @@ impl<'a, M: Material> Pass<'a, M> {
                 );
                 return Err(self.unstable(msg));
             }
+            let largest = self.f.iter().map(|v| v.amax()).fold(0.0, f64::max);
+            self.peak_force = self.peak_force.max(largest);
             let reactions = model
                 .reactions(&self.f)
                 .iter()
@@ -978,6 +983,7 @@ impl<'a, M: Material> Pass<'a, M> {
             failed_steps: 0,
             step_updates: self.updates,
             stages: self.stages,
+            peak_nodal_force: self.peak_force,
         })
     }
 }

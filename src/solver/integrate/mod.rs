@@ -239,6 +239,9 @@ pub struct RunOutput {
     pub step_updates: StepUpdates,
     /// Relaxation: the converged states at [`Settings::stages`], in load order.
     pub stages: Vec<Stage>,
+    /// The largest nodal force component (internal forces) at any recorded row, N: the
+    /// scale of the equilibrium residual of a run whose load ends at zero.
+    pub peak_nodal_force: f64,
 }
 
 /// Estimates of the critical step during a run ([`Settings::step_update`]).
