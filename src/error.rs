@@ -128,7 +128,7 @@ pub fn tidy_exponents(text: &str) -> String {
             i = j;
             continue;
         }
-        let decimals = (frac as i32 - k).max(0) as usize;
+        let decimals = (frac - k).max(0) as usize;
         let plain = format!("{v:.decimals$}");
         let lost = (j - i).saturating_sub(plain.len());
         // Two spaces before it (and its sign): a right-aligned column, not prose.

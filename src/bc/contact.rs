@@ -405,7 +405,8 @@ impl Contact {
                     let free_at_point: f64 =
                         (0..3).filter(|&c| !p.held[c]).map(|c| n[c] * n[c]).sum();
                     let held_here = p.held.iter().any(|&h| h) && !(free_at_point > HELD_SHARE);
-                    if held_here && depth > self.tolerance && self.conflict.is_none() {
+                    let blocked = !(den > HELD_SHARE * full);
+                    if (held_here || blocked) && depth > self.tolerance && self.conflict.is_none() {
                         let node = p
                             .row
                             .iter()
@@ -419,22 +420,8 @@ impl Contact {
                             normal: n,
                         });
                     }
-                    if !(den > HELD_SHARE * full) {
+                    if blocked {
                         left = left.max(depth);
-                        if depth > self.tolerance && self.conflict.is_none() {
-                            let node = p
-                                .row
-                                .iter()
-                                .max_by(|a, b| a.1.abs().total_cmp(&b.1.abs()))
-                                .map_or(0, |r| r.0);
-                            self.conflict = Some(Conflict {
-                                body: b,
-                                x: p.x,
-                                depth,
-                                node,
-                                normal: n,
-                            });
-                        }
                         continue;
                     }
                     // A point alone on its node closes exactly; coupled points over-relax.

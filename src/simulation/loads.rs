@@ -98,8 +98,10 @@ pub(super) fn scene_contact(
     let mut prescribed = vec![[false; 3]; d.nodes().len()];
     for b in boundaries {
         for &n in &b.nodes {
-            for k in 0..3 {
-                prescribed[n][k] |= b.components[k].is_some();
+            if let Some(p) = prescribed.get_mut(n) {
+                for (held, c) in p.iter_mut().zip(&b.components) {
+                    *held |= c.is_some();
+                }
             }
         }
     }
