@@ -1,6 +1,7 @@
 //! Shapes, their structured and TetGen meshes, and node selections.
 
 pub mod cell_grid;
+pub mod closed_surface;
 pub mod domain;
 pub mod dome;
 pub mod mesh;

@@ -437,6 +437,29 @@ fn snap_to_half_ellipsoid(
     Ok(())
 }
 
+/// Tetrahedral mesh by TetGen of the body a checked closed surface encloses (its triangles the
+/// PLC's facets; TetGen may add points on them). See the module documentation for
+/// `max_volume` (m^3) and `radius_edge_ratio`.
+pub fn tetgen_surface(
+    surface: &super::closed_surface::ClosedSurface,
+    max_volume: Option<f64>,
+    radius_edge_ratio: Option<f64>,
+) -> Result<Mesh> {
+    let facets: Vec<Vec<usize>> = surface.triangles.iter().map(|t| t.to_vec()).collect();
+    run_tetgen(
+        "surface",
+        Plc {
+            points: &surface.points,
+            facets: &facets,
+            regions: &[],
+        },
+        surface.volume(),
+        max_volume,
+        radius_edge_ratio,
+        1e-9,
+    )
+}
+
 /// The smallest radius-edge ratio bound accepted: TetGen's refinement need not terminate below
 /// about this (measured on the brain half-ellipsoid at h = 4 mm: 1.1 meshed 31,657 nodes in
 /// 1.6 s, 1.05 ran past 60 s).

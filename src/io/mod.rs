@@ -8,6 +8,7 @@ pub mod model;
 pub mod msh;
 pub mod out_dir;
 pub mod plot;
+pub mod surface_file;
 pub mod vtk;
 mod vtk_legacy5;
 mod vtk_xml;

@@ -20,6 +20,13 @@ pub enum Geometry {
     /// flat elliptical base (semi-axes a along x, b along y) on z = 0 centred on x = y = 0,
     /// apex at (0, 0, c). Meshed by TetGen only (`mesher = "tetgen"`).
     HalfEllipsoid { semi_axes: [f64; 3] },
+    /// A closed surface file (STL, OBJ), meshed by TetGen for every method (relative paths
+    /// are resolved against the scene file's directory).
+    Surface {
+        file: PathBuf,
+        /// File length unit in m (1 for m, 0.001 for mm).
+        units: f64,
+    },
     /// A mesh file (relative paths are resolved against the scene file's directory).
     Mesh {
         file: PathBuf,
@@ -52,6 +59,8 @@ struct GeometryToml {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     mesh: Option<PathBuf>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
+    surface: Option<PathBuf>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     format: Option<MeshFormat>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     units: Option<f64>,
@@ -81,6 +90,19 @@ impl TryFrom<GeometryToml> for Geometry {
                 None => Ok(()),
             }
         };
+        if let Some(file) = g.surface.clone() {
+            if g.mesh.is_some() || g.shape.is_some() {
+                return Err(
+                    "geometry: give one of `surface = \"file\"`, `mesh = \"file\"` or `shape`"
+                        .into(),
+                );
+            }
+            only(&["units"])?;
+            return Ok(Geometry::Surface {
+                file,
+                units: g.units.unwrap_or(1.0),
+            });
+        }
         match (g.mesh.clone(), g.shape.as_deref()) {
             (Some(file), None) | (Some(file), Some("mesh")) => {
                 only(&["format", "units", "merge_duplicates"])?;
@@ -113,8 +135,8 @@ impl TryFrom<GeometryToml> for Geometry {
                 }
             }
             (Some(_), Some(s)) => Err(format!("geometry: give either `mesh = \"file\"` or `shape = \"{s}\"`, not both")),
-            (None, Some(s)) => Err(format!("geometry: unknown shape '{s}'; use \"box\", \"cylinder\", \"half_ellipsoid\" or `mesh = \"file.inp|.msh|.vtk|.vtu\"`")),
-            (None, None) => Err("geometry: give `shape = \"box\" | \"cylinder\" | \"half_ellipsoid\"` or `mesh = \"file\"`".into()),
+            (None, Some(s)) => Err(format!("geometry: unknown shape '{s}'; use \"box\", \"cylinder\", \"half_ellipsoid\", `mesh = \"file.inp|.msh|.vtk|.vtu\"` or `surface = \"file.stl|.obj\"`")),
+            (None, None) => Err("geometry: give `shape = \"box\" | \"cylinder\" | \"half_ellipsoid\"`, `mesh = \"file\"` or `surface = \"file.stl|.obj\"`".into()),
         }
     }
 }
@@ -137,6 +159,11 @@ impl From<Geometry> for GeometryToml {
             Geometry::HalfEllipsoid { semi_axes } => GeometryToml {
                 shape: Some("half_ellipsoid".into()),
                 semi_axes: Some(semi_axes),
+                ..Default::default()
+            },
+            Geometry::Surface { file, units } => GeometryToml {
+                surface: Some(file),
+                units: Some(units),
                 ..Default::default()
             },
             Geometry::Mesh {

@@ -240,6 +240,17 @@ fn check_geometry(s: &Scene) -> std::result::Result<(), String> {
                 return Err(format!("geometry: half_ellipsoid semi_axes {semi_axes:?} must be positive and finite (m)"));
             }
         }
+        Geometry::Surface { file, units } => {
+            if !(*units > 0.0 && units.is_finite()) {
+                return Err(format!("geometry.units = {units}: must be a positive factor to metres (0.001 for a surface in mm)"));
+            }
+            if crate::io::surface_file::SurfaceFormat::from_path(file).is_none() {
+                return Err(format!(
+                    "geometry.surface = '{}': unknown extension; use .stl (ASCII or binary) or .obj",
+                    file.display()
+                ));
+            }
+        }
         Geometry::Mesh {
             file,
             format,
@@ -294,7 +305,7 @@ fn check_discretization(s: &Scene) -> std::result::Result<(), String> {
         Geometry::Box { min, max } => Some([max[0] - min[0], max[1] - min[1], max[2] - min[2]]),
         Geometry::Cylinder { radius, height } => Some([2.0 * radius, 2.0 * radius, *height]),
         Geometry::HalfEllipsoid { semi_axes: a } => Some([2.0 * a[0], 2.0 * a[1], a[2]]),
-        Geometry::Mesh { .. } => None,
+        Geometry::Mesh { .. } | Geometry::Surface { .. } => None,
     };
     if let (Some(e), Some(h), None) = (extent, d.size, d.divisions) {
         let n: f64 = e.iter().map(|l| (l / h).max(1.0)).product();

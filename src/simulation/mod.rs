@@ -333,8 +333,9 @@ fn initial_velocity_warning(scene: &Scene, p: &Prepared) -> Option<String> {
 /// [`LARGEST_BODY`]): most likely a file in millimetres read as metres (a 100 mm cube becomes
 /// 100 m, its gravity and stiffness scaled to match), issue 41.
 fn units_warning(scene: &Scene, nodes: &[Vector3<f64>]) -> Option<String> {
-    let Geometry::Mesh { file, units, .. } = &scene.geometry else {
-        return None;
+    let (file, units) = match &scene.geometry {
+        Geometry::Mesh { file, units, .. } | Geometry::Surface { file, units } => (file, units),
+        _ => return None,
     };
     let (lo, hi) = crate::geometry::select::bounds(nodes);
     let diag = (hi - lo).norm();

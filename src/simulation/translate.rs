@@ -33,6 +33,13 @@ fn count(len: f64, h: f64, min: usize) -> usize {
     ((len / h).round() as usize).max(min)
 }
 
+/// Whether TetGen makes the scene's mesh: `mesher = "tetgen"`, or a surface file (which only
+/// TetGen can fill).
+pub fn tetgen_meshed(scene: &Scene) -> bool {
+    scene.discretization.mesher == Mesher::Tetgen
+        || matches!(scene.geometry, Geometry::Surface { .. })
+}
+
 /// Builds the scene's mesh (structured hex/tet or TetGen tets).
 pub fn build_mesh(scene: &Scene) -> Result<Mesh> {
     let d = &scene.discretization;
@@ -41,9 +48,9 @@ pub fn build_mesh(scene: &Scene) -> Result<Mesh> {
     if let Geometry::Mesh { .. } = &scene.geometry {
         return Ok(load_mesh(scene)?.mesh);
     }
-    if d.mesher == Mesher::Tetgen {
+    if tetgen_meshed(scene) {
         if shape != ElementShape::Tet4 {
-            return Err(Error::Input("discretization.mesher = 'tetgen' makes tetrahedra: use element = 'tet4' or 'tet4-anp'".into()));
+            return Err(Error::Input("discretization.mesher = 'tetgen' (and geometry.surface, which TetGen fills) makes tetrahedra: use element = 'tet4' or 'tet4-anp'".into()));
         }
         log::info!("meshing with TetGen");
         let m = tetgen_mesh(scene)?;
@@ -157,7 +164,7 @@ fn tetgen_max_volume(h: f64) -> f64 {
 /// 3 mm; radius-edge ratio 2 and 20), and this says 1.8x. The builds refuse a model of that
 /// many before TetGen runs (minutes at millions of tets): [`planned_mesh`].
 pub fn tetgen_tets(scene: &Scene) -> Option<(f64, f64)> {
-    if scene.discretization.mesher != Mesher::Tetgen {
+    if !tetgen_meshed(scene) {
         return None;
     }
     let h = tetgen_edge(scene).ok()?;
@@ -198,6 +205,17 @@ fn tetgen_mesh(scene: &Scene) -> Result<Mesh> {
                     &outlines,
                 )
             }
+        }
+        Geometry::Surface { file, units } => {
+            let path = scene_path(scene, file);
+            let surface = crate::io::surface_file::read_surface(&path, *units)?;
+            log::info!(
+                "surface {}: {} triangles, {:.4e} m^3",
+                path.display(),
+                surface.triangles.len(),
+                surface.volume()
+            );
+            tetgen::tetgen_surface(&surface, max_volume, d.radius_edge_ratio)
         }
         Geometry::Mesh { .. } => Err(Error::Input(
             "discretization.mesher = 'tetgen' meshes built-in shapes; a mesh file is used as it is (remove mesher)".into(),
@@ -477,7 +495,7 @@ pub fn domain(scene: &Scene) -> Option<Domain> {
         Geometry::HalfEllipsoid { semi_axes } => Some(Domain::HalfEllipsoid {
             semi_axes: Vector3::from(*semi_axes),
         }),
-        Geometry::Mesh { .. } => None,
+        Geometry::Mesh { .. } | Geometry::Surface { .. } => None,
     }
 }
 
@@ -511,7 +529,7 @@ pub fn spacing(scene: &Scene) -> Result<f64> {
             .zip(div)
             .map(|(len, n)| len / n.max(1) as f64)
             .fold(f64::INFINITY, f64::min),
-        Geometry::Mesh { .. } => {
+        Geometry::Mesh { .. } | Geometry::Surface { .. } => {
             return Err(Error::Input(
                 "a node spacing from `divisions` needs a built-in shape; give discretization.size"
                     .into(),
@@ -651,6 +669,12 @@ pub fn meshless_settings(scene: &Scene) -> Result<MeshlessSettings> {
                         ""
                     }
                 ),
+                Geometry::Surface { file, .. } => {
+                    format!(
+                        "vertices of a TetGen tet mesh of the surface {}",
+                        file.display()
+                    )
+                }
                 _ if d.mesher == Mesher::Tetgen => "vertices of a TetGen tet mesh".into(),
                 _ => "vertices of a structured tet mesh".into(),
             };

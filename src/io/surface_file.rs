@@ -1,0 +1,114 @@
+//! Closed surfaces from files (`[geometry] surface = "FILE"`): STL, ASCII or binary (the
+//! stl_io crate, which merges a triangle soup's identical vertices), and Wavefront OBJ (the
+//! tobj crate; polygons are fanned into triangles). Lengths are multiplied by `units` (0.001
+//! for a file in millimetres), then the surface is checked
+//! ([`crate::geometry::closed_surface::check_closed_surface`]).
+
+use std::path::Path;
+
+use nalgebra::Vector3;
+
+use super::file_error;
+use crate::geometry::closed_surface::{check_closed_surface, ClosedSurface};
+use crate::{Error, Result};
+
+/// The surface formats, by extension.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum SurfaceFormat {
+    Stl,
+    Obj,
+}
+
+impl SurfaceFormat {
+    /// From the file's extension (case-insensitive); None for any other.
+    pub fn from_path(path: &Path) -> Option<Self> {
+        match path
+            .extension()?
+            .to_string_lossy()
+            .to_ascii_lowercase()
+            .as_str()
+        {
+            "stl" => Some(SurfaceFormat::Stl),
+            "obj" => Some(SurfaceFormat::Obj),
+            _ => None,
+        }
+    }
+}
+
+/// Reads and checks the closed surface in `path`, lengths times `units` (m per file unit).
+pub fn read_surface(path: &Path, units: f64) -> Result<ClosedSurface> {
+    let (points, triangles) = match SurfaceFormat::from_path(path) {
+        Some(SurfaceFormat::Stl) => read_stl(path)?,
+        Some(SurfaceFormat::Obj) => read_obj(path)?,
+        None => {
+            return Err(file_error(
+                path,
+                "unknown surface format; use .stl (ASCII or binary) or .obj",
+            ))
+        }
+    };
+    let points = points.into_iter().map(|p| p * units).collect();
+    check_closed_surface(&path.display().to_string(), points, triangles)
+}
+
+type Soup = (Vec<Vector3<f64>>, Vec<[usize; 3]>);
+
+fn read_stl(path: &Path) -> Result<Soup> {
+    let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
+    let mut reader = std::io::BufReader::new(file);
+    let mesh = super::catch_quietly(|| stl_io::read_stl(&mut reader))
+        .map_err(|_| file_error(path, "not a readable STL file"))?
+        .map_err(|e| file_error(path, format!("not a readable STL file ({e})")))?;
+    let points = mesh
+        .vertices
+        .iter()
+        .map(|v| Vector3::new(v[0] as f64, v[1] as f64, v[2] as f64))
+        .collect();
+    let triangles = mesh.faces.iter().map(|f| f.vertices).collect();
+    Ok((points, triangles))
+}
+
+fn read_obj(path: &Path) -> Result<Soup> {
+    let options = tobj::LoadOptions {
+        triangulate: true,
+        ..Default::default()
+    };
+    let (models, _) = tobj::load_obj(path, &options)
+        .map_err(|e| file_error(path, format!("not a readable OBJ file ({e})")))?;
+    let (mut points, mut triangles) = (Vec::new(), Vec::new());
+    for m in &models {
+        let base = points.len();
+        points.extend(
+            m.mesh
+                .positions
+                .chunks_exact(3)
+                .map(|p| Vector3::new(p[0], p[1], p[2])),
+        );
+        triangles.extend(
+            m.mesh
+                .indices
+                .chunks_exact(3)
+                .map(|t| [0, 1, 2].map(|k| base + t[k] as usize)),
+        );
+    }
+    Ok((points, triangles))
+}
+
+/// Writes `surface` as a binary STL file (single precision, as the format holds).
+pub fn write_stl(path: &Path, surface: &ClosedSurface) -> Result<()> {
+    let tris: Vec<stl_io::Triangle> = surface
+        .triangles
+        .iter()
+        .map(|t| {
+            let [a, b, c] = t.map(|i| surface.points[i]);
+            let n = (b - a).cross(&(c - a)).normalize();
+            let v = |p: Vector3<f64>| stl_io::Vertex::new([p.x as f32, p.y as f32, p.z as f32]);
+            stl_io::Triangle {
+                normal: stl_io::Normal::new([n.x as f32, n.y as f32, n.z as f32]),
+                vertices: [v(a), v(b), v(c)],
+            }
+        })
+        .collect();
+    let mut file = std::fs::File::create(path).map_err(|e| Error::io(path, e))?;
+    stl_io::write_stl(&mut file, tris.iter()).map_err(|e| Error::io(path, e))
+}
