@@ -251,3 +251,86 @@ fn broken_surfaces_are_refused_naming_the_file_and_where() {
     .to_string();
     assert!(e.contains("body.ply") && e.contains(".stl"), "{e}");
 }
+
+/// VTK poly data: legacy 4.2 ASCII with quad POLYGONS, and XML .vtp with triangles.
+#[test]
+fn the_cube_read_as_vtk_poly_data_is_exact() {
+    let dir = folder("vtk");
+    let (p, t) = cube();
+    let quads = [
+        [0, 2, 3, 1],
+        [4, 5, 7, 6],
+        [0, 1, 5, 4],
+        [2, 6, 7, 3],
+        [0, 4, 6, 2],
+        [1, 3, 7, 5],
+    ];
+    let mut legacy = format!(
+        "# vtk DataFile Version 4.2\ncube\nASCII\nDATASET POLYDATA\nPOINTS {} double\n",
+        p.len()
+    );
+    for v in &p {
+        legacy += &format!("{} {} {}\n", v[0], v[1], v[2]);
+    }
+    legacy += &format!("POLYGONS 6 30\n");
+    for q in quads {
+        legacy += &format!("4 {} {} {} {}\n", q[0], q[1], q[2], q[3]);
+    }
+    let vtk = dir.join("cube.vtk");
+    std::fs::write(&vtk, legacy).unwrap();
+    let coords: Vec<String> = p
+        .iter()
+        .map(|v| format!("{} {} {}", v[0], v[1], v[2]))
+        .collect();
+    let conn: Vec<String> = t
+        .iter()
+        .map(|t| format!("{} {} {}", t[0], t[1], t[2]))
+        .collect();
+    let offsets: Vec<String> = (1..=t.len()).map(|k| (3 * k).to_string()).collect();
+    let vtp = dir.join("cube.vtp");
+    std::fs::write(
+        &vtp,
+        format!(
+            r#"<?xml version="1.0"?>
+<VTKFile type="PolyData" version="0.1" byte_order="LittleEndian">
+  <PolyData>
+    <Piece NumberOfPoints="{}" NumberOfVerts="0" NumberOfLines="0" NumberOfStrips="0" NumberOfPolys="{}">
+      <Points>
+        <DataArray type="Float64" NumberOfComponents="3" format="ascii">{}</DataArray>
+      </Points>
+      <Polys>
+        <DataArray type="Int64" Name="connectivity" format="ascii">{}</DataArray>
+        <DataArray type="Int64" Name="offsets" format="ascii">{}</DataArray>
+      </Polys>
+    </Piece>
+  </PolyData>
+</VTKFile>
+"#,
+            p.len(),
+            t.len(),
+            coords.join(" "),
+            conn.join(" "),
+            offsets.join(" ")
+        ),
+    )
+    .unwrap();
+    for file in [vtk, vtp] {
+        let s = cube_run(&file, &["discretization.method=fe"])
+            .unwrap_or_else(|e| panic!("{}: {e}", file.display()));
+        let (ef, eu) = cube_errors(&s, 0.1);
+        assert!(ef < 1e-6 && eu < 1e-5, "{}: {ef:e} {eu:e}", file.display());
+    }
+    // A volume mesh is no surface.
+    let grid = dir.join("tet.vtk");
+    std::fs::write(
+        &grid,
+        "# vtk DataFile Version 4.2\ntet\nASCII\nDATASET UNSTRUCTURED_GRID\nPOINTS 4 double\n\
+         0 0 0\n1 0 0\n0 1 0\n0 0 1\nCELLS 1 5\n4 0 1 2 3\nCELL_TYPES 1\n10\n",
+    )
+    .unwrap();
+    let e = cube_run(&grid, &["discretization.method=fe"])
+        .map(|_| ())
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("tet.vtk") && e.contains("no poly data"), "{e}");
+}

@@ -1,6 +1,7 @@
 //! Closed surfaces from files (`[geometry] surface = "FILE"`): STL, ASCII or binary (the
-//! stl_io crate, which merges a triangle soup's identical vertices), and Wavefront OBJ (the
-//! tobj crate; polygons are fanned into triangles). Lengths are multiplied by `units` (0.001
+//! stl_io crate, which merges a triangle soup's identical vertices), Wavefront OBJ (the
+//! tobj crate; polygons are fanned into triangles) and VTK poly data, legacy `.vtk` or XML
+//! `.vtp` (vtkio, as the volume meshes; polygons fanned, strips split). Lengths are multiplied by `units` (0.001
 //! for a file in millimetres), then the surface is checked
 //! ([`crate::geometry::closed_surface::check_closed_surface`]).
 
@@ -17,6 +18,8 @@ use crate::{Error, Result};
 pub enum SurfaceFormat {
     Stl,
     Obj,
+    /// VTK poly data: legacy `.vtk` (`DATASET POLYDATA`) or XML `.vtp`.
+    Vtk,
 }
 
 impl SurfaceFormat {
@@ -30,6 +33,7 @@ impl SurfaceFormat {
         {
             "stl" => Some(SurfaceFormat::Stl),
             "obj" => Some(SurfaceFormat::Obj),
+            "vtk" | "vtp" => Some(SurfaceFormat::Vtk),
             _ => None,
         }
     }
@@ -40,10 +44,11 @@ pub fn read_surface(path: &Path, units: f64) -> Result<ClosedSurface> {
     let (points, triangles) = match SurfaceFormat::from_path(path) {
         Some(SurfaceFormat::Stl) => read_stl(path)?,
         Some(SurfaceFormat::Obj) => read_obj(path)?,
+        Some(SurfaceFormat::Vtk) => super::vtk::read_polydata_triangles(path)?,
         None => {
             return Err(file_error(
                 path,
-                "unknown surface format; use .stl (ASCII or binary) or .obj",
+                "unknown surface format; use .stl (ASCII or binary), .obj, or VTK poly data (.vtk, .vtp)",
             ))
         }
     };

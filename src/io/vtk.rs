@@ -110,6 +110,105 @@ pub fn parse_vtk(bytes: &[u8], path: &Path) -> Result<MeshInput> {
     convert(vtk, path)
 }
 
+/// The triangles of a VTK poly data file (legacy `.vtk` with `DATASET POLYDATA`, or XML
+/// `.vtp`): its points (as written) and its polygons fanned into triangles and its triangle
+/// strips split, over all pieces; for [`super::surface_file`].
+pub(crate) fn read_polydata_triangles(path: &Path) -> Result<(Vec<Vector3<f64>>, Vec<[usize; 3]>)> {
+    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    let legacy = !path
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("vtp"));
+    let vtk = if legacy {
+        import_legacy(&bytes, path)?
+    } else {
+        import_xml(&bytes, path)?
+    };
+    let DataSet::PolyData { pieces, .. } = vtk.data else {
+        return Err(fail(
+            path,
+            "the file holds no poly data; a surface is VTK poly data (DATASET POLYDATA, or .vtp) \
+             with POLYGONS or triangle strips",
+        ));
+    };
+    let (mut points, mut triangles) = (Vec::new(), Vec::new());
+    for (pi, piece) in pieces.into_iter().enumerate() {
+        let at = format!(" (piece {})", pi + 1);
+        if let Piece::Source(src, _) = &piece {
+            return Err(fail(
+                path,
+                format!("piece{at} is stored in another file ('{}')", clip(src)),
+            ));
+        }
+        let data = super::catch_quietly(|| piece.into_loaded_piece_data(None))
+            .map_err(|_| fail(path, format!("piece{at} is malformed")))?
+            .map_err(|e| fail(path, format!("piece{at}: {e}")))?;
+        let coords: Vec<f64> = data
+            .points
+            .cast_into()
+            .ok_or_else(|| fail(path, format!("the points{at} are not numbers")))?;
+        if !coords.len().is_multiple_of(3) {
+            return Err(fail(
+                path,
+                format!(
+                    "{} point coordinates{at}, not a multiple of 3",
+                    coords.len()
+                ),
+            ));
+        }
+        let base = points.len();
+        let n = coords.len() / 3;
+        points.extend(
+            coords
+                .chunks_exact(3)
+                .map(|c| Vector3::new(c[0], c[1], c[2])),
+        );
+        let index = |v: u64, k: usize| -> Result<usize> {
+            usize::try_from(v)
+                .ok()
+                .filter(|&i| i < n)
+                .map(|i| base + i)
+                .ok_or_else(|| fail(path, format!("cell {k}{at} refers to point {v} of {n}")))
+        };
+        if let Some(polys) = data.polys {
+            let lists = cell_lists(polys, &at, path)?;
+            for (k, &(a, b)) in lists.ranges.iter().enumerate() {
+                let ids = &lists.conn[a..b];
+                if ids.len() < 3 {
+                    return Err(fail(
+                        path,
+                        format!("polygon {k}{at} has {} points", ids.len()),
+                    ));
+                }
+                for m in 1..ids.len() - 1 {
+                    triangles.push([index(ids[0], k)?, index(ids[m], k)?, index(ids[m + 1], k)?]);
+                }
+            }
+        }
+        if let Some(strips) = data.strips {
+            let lists = cell_lists(strips, &at, path)?;
+            for (k, &(a, b)) in lists.ranges.iter().enumerate() {
+                let ids = &lists.conn[a..b];
+                for m in 0..ids.len().saturating_sub(2) {
+                    let (p, q, r) = (
+                        index(ids[m], k)?,
+                        index(ids[m + 1], k)?,
+                        index(ids[m + 2], k)?,
+                    );
+                    // Every other triangle of a strip turns the other way.
+                    triangles.push(if m % 2 == 0 { [p, q, r] } else { [q, p, r] });
+                }
+            }
+        }
+    }
+    if triangles.is_empty() {
+        return Err(fail(
+            path,
+            "the poly data has no polygons or triangle strips",
+        ));
+    }
+    Ok((points, triangles))
+}
+
 fn import_legacy(bytes: &[u8], path: &Path) -> Result<vtkio::Vtk> {
     let first_end = bytes
         .iter()

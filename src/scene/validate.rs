@@ -246,7 +246,7 @@ fn check_geometry(s: &Scene) -> std::result::Result<(), String> {
             }
             if crate::io::surface_file::SurfaceFormat::from_path(file).is_none() {
                 return Err(format!(
-                    "geometry.surface = '{}': unknown extension; use .stl (ASCII or binary) or .obj",
+                    "geometry.surface = '{}': unknown extension; use .stl (ASCII or binary), .obj, or VTK poly data (.vtk, .vtp)",
                     file.display()
                 ));
             }
