@@ -272,7 +272,7 @@ fn the_cube_read_as_vtk_poly_data_is_exact() {
     for v in &p {
         legacy += &format!("{} {} {}\n", v[0], v[1], v[2]);
     }
-    legacy += &format!("POLYGONS 6 30\n");
+    legacy += "POLYGONS 6 30\n";
     for q in quads {
         legacy += &format!("4 {} {} {} {}\n", q[0], q[1], q[2], q[3]);
     }

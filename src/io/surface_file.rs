@@ -56,7 +56,8 @@ pub fn read_surface(path: &Path, units: f64) -> Result<ClosedSurface> {
     check_closed_surface(&path.display().to_string(), points, triangles)
 }
 
-type Soup = (Vec<Vector3<f64>>, Vec<[usize; 3]>);
+/// Points (m, or the file's unit before scaling) and triangles over them, as read.
+pub(crate) type Soup = (Vec<Vector3<f64>>, Vec<[usize; 3]>);
 
 fn read_stl(path: &Path) -> Result<Soup> {
     let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;

@@ -113,7 +113,7 @@ pub fn parse_vtk(bytes: &[u8], path: &Path) -> Result<MeshInput> {
 /// The triangles of a VTK poly data file (legacy `.vtk` with `DATASET POLYDATA`, or XML
 /// `.vtp`): its points (as written) and its polygons fanned into triangles and its triangle
 /// strips split, over all pieces; for [`super::surface_file`].
-pub(crate) fn read_polydata_triangles(path: &Path) -> Result<(Vec<Vector3<f64>>, Vec<[usize; 3]>)> {
+pub(crate) fn read_polydata_triangles(path: &Path) -> Result<super::surface_file::Soup> {
     let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
     let legacy = !path
         .extension()
