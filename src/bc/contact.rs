@@ -40,6 +40,9 @@ pub enum RigidShape {
         min: Option<f64>,
         max: Option<f64>,
     },
+    /// The solid a closed surface encloses (a tool or the skull from a file), its depth the
+    /// signed distance to the surface.
+    Surface(std::sync::Arc<crate::geometry::surface_distance::SurfaceDistance>),
 }
 
 impl RigidShape {
@@ -68,6 +71,8 @@ impl RigidShape {
                 .map(|t| center + axis * *t + d)
                 .collect(),
             RigidShape::Cylinder { .. } => Vec::new(),
+            // Any point inside would do; the check that uses these is for the analytic tools.
+            RigidShape::Surface(_) => Vec::new(),
         }
     }
 
@@ -76,6 +81,7 @@ impl RigidShape {
     pub fn signed_depth(&self, x: &Vector3<f64>, d: &Vector3<f64>) -> (f64, Vector3<f64>) {
         match self {
             RigidShape::Plane { point, normal } => (-(x - point - d).dot(normal), *normal),
+            RigidShape::Surface(tool) => tool.signed_distance(&(x - d)),
             RigidShape::Sphere { center, radius } => {
                 let r = x - center - d;
                 let dist = r.norm();
@@ -317,6 +323,11 @@ impl Contact {
     /// Points in contact with each body after the last correction.
     pub fn points_in_contact(&self) -> &[usize] {
         &self.in_contact
+    }
+
+    /// [`RigidShape::core_points`] of body `b` in its reference position.
+    pub fn core_points(&self, b: usize) -> Vec<Vector3<f64>> {
+        self.bodies[b].shape.core_points(&Vector3::zeros())
     }
 
     /// Each body's displacement at load fraction `tau`, m.

@@ -8,6 +8,7 @@ pub mod mesh;
 pub mod quality;
 pub mod select;
 pub mod shapes;
+pub mod surface_distance;
 #[cfg(feature = "tetgen")]
 pub mod tetgen;
 pub mod winding;

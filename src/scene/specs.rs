@@ -255,6 +255,13 @@ pub struct ContactSpec {
     pub min: Option<f64>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub max: Option<f64>,
+    /// `shape = "surface"`: a closed surface file (STL, OBJ, VTK poly data; relative to the
+    /// scene file), the rigid solid it encloses.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub file: Option<std::path::PathBuf>,
+    /// The surface file's length unit in m (1; 0.001 for mm).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub units: Option<f64>,
     /// The rigid body's displacement at the end of its curve, m.
     #[serde(default)]
     pub motion: [f64; 3],
@@ -265,7 +272,9 @@ pub struct ContactSpec {
 }
 
 impl ContactSpec {
-    /// The rigid surface these keys describe (validated: every key its shape needs is there).
+    /// The rigid surface these keys describe (validated: every key its shape needs is there),
+    /// for the analytic shapes; a `"surface"` tool is read by the pipeline (it has the scene's
+    /// folder), and here is a placeholder plane that nothing touches.
     pub fn rigid_shape(&self) -> crate::bc::contact::RigidShape {
         use crate::bc::contact::RigidShape;
         let v = |a: Option<[f64; 3]>| nalgebra::Vector3::from(a.unwrap_or_default());

@@ -578,9 +578,16 @@ fn check_conditions(s: &Scene) -> std::result::Result<(), String> {
                     && !matches!((c.min, c.max), (Some(a), Some(b)) if !(a < b)),
                 &["center", "axis", "radius", "min", "max"],
             ),
+            "surface" => (
+                "`file` (a closed surface: .stl, .obj, .vtk, .vtp) and `units` > 0 when given",
+                c.file.as_ref().is_some_and(|f| {
+                    crate::io::surface_file::SurfaceFormat::from_path(f).is_some()
+                }) && c.units.is_none_or(|u| u > 0.0 && u.is_finite()),
+                &["file", "units"],
+            ),
             other => {
                 return Err(format!(
-                    "{key}.shape = '{other}': use \"plane\", \"sphere\" or \"cylinder\""
+                    "{key}.shape = '{other}': use \"plane\", \"sphere\", \"cylinder\" or \"surface\""
                 ))
             }
         };
@@ -595,6 +602,8 @@ fn check_conditions(s: &Scene) -> std::result::Result<(), String> {
             ("axis", c.axis.is_some()),
             ("min", c.min.is_some()),
             ("max", c.max.is_some()),
+            ("file", c.file.is_some()),
+            ("units", c.units.is_some()),
         ];
         if let Some((k, _)) = given.iter().find(|(k, g)| *g && !allowed.contains(k)) {
             return Err(format!("{key}.{k} does not apply to a {}", c.shape));

@@ -138,9 +138,19 @@ pub(super) fn scene_contact(
                 })
             })
             .collect::<Result<Vec<_>>>()?;
+        let shape = match (c.shape.as_str(), &c.file) {
+            ("surface", Some(file)) => {
+                let path = super::translate::scene_path(scene, file);
+                let surface = crate::io::surface_file::read_surface(&path, c.units.unwrap_or(1.0))?;
+                crate::bc::contact::RigidShape::Surface(std::sync::Arc::new(
+                    crate::geometry::surface_distance::SurfaceDistance::new(surface)?,
+                ))
+            }
+            _ => c.rigid_shape(),
+        };
         let body = RigidBody {
             name: name.clone(),
-            shape: c.rigid_shape(),
+            shape,
             motion: Vector3::from(c.motion),
             curve: load_curve(scene, &c.curve)?,
         };
