@@ -450,5 +450,10 @@ fn a_plate_read_from_an_stl_file_reproduces_the_analytic_plate() {
         analytic.reactions["plate"][2],
         surface.reactions["plate"][2],
     );
+    println!(
+        "fe: F {f:.6} N (exact {f_exact}), u_x {u:.6e} m, {} points in contact, deepest {:.2e} m \
+         (tolerance {:.1e}); meshless: analytic {fa:.6} N, surface {fs:.6} N",
+        c.points_in_contact, c.max_penetration, c.tolerance
+    );
     assert!((fa - fs).abs() < 1e-6 * fa.abs(), "{fa} vs {fs}");
 }
