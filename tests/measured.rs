@@ -204,3 +204,55 @@ fn a_tool_pressing_measured_nodes_is_refused_naming_both() {
         "{e}"
     );
 }
+
+/// Issue 42, measured displacements interpolated: the exact field sampled on grids that share
+/// no point with the mesh (7 x 7 and 23 x 23 over the top face, offset and jittered) and
+/// interpolated onto the top face's nodes reproduces the exact cube (the fit holds linear
+/// fields exactly), for fe and meshless; the matching of one point per node refuses the same
+/// files. A grid away from the body is an error that says so.
+#[test]
+fn scattered_measurements_are_interpolated_onto_the_surface_nodes() {
+    let dir = folder("interpolated");
+    let grid = |n: usize, jitter: f64| {
+        let mut s = String::from("x,y,z,ux,uy,uz\n");
+        for j in 0..n {
+            for i in 0..n {
+                let h = 0.1 / (n - 1) as f64;
+                let x = (h * i as f64 + jitter * ((i * 7 + j * 3) % 5) as f64).min(0.1);
+                let y = (h * j as f64 + jitter * ((i * 2 + j * 5) % 5) as f64).min(0.1);
+                s += &format!("{x},{y},0.1,{},{},-0.02\n", (A - 1.0) * x, (A - 1.0) * y);
+            }
+        }
+        s
+    };
+    std::fs::write(dir.join("coarse.csv"), grid(7, 0.001)).unwrap();
+    std::fs::write(dir.join("fine.csv"), grid(23, 0.0003)).unwrap();
+    for file in ["coarse.csv", "fine.csv"] {
+        for method in ["discretization.method=fe", "discretization.method=meshless"] {
+            let s = run(&dir, file, &[method, "measured.top.interpolate=true"])
+                .unwrap_or_else(|e| panic!("{file} {method}: {e}"));
+            let (ef, eu) = errors(&s);
+            println!("{file} {method}: force {ef:.2e}, corner {eu:.2e}");
+            let tol = if method.ends_with("fe") { 1e-6 } else { 2e-2 };
+            assert!(ef < tol && eu < tol, "{file} {method}: {ef:e} {eu:e}");
+        }
+    }
+    let e = run(&dir, "fine.csv", &["discretization.method=fe"])
+        .map(|_| ())
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("fine.csv"), "{e}");
+    let mut far = String::from("x,y,z,ux,uy,uz\n");
+    for k in 0..9 {
+        far += &format!("{},{},0.5,0,0,0\n", 0.01 * k as f64, 0.02 * (k % 3) as f64);
+    }
+    std::fs::write(dir.join("far.csv"), far).unwrap();
+    let e = run(&dir, "far.csv", &["measured.top.interpolate=true"])
+        .map(|_| ())
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("far.csv") && e.contains("no surface node lies within"),
+        "{e}"
+    );
+}

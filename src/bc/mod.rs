@@ -70,6 +70,11 @@ pub struct Constraints {
     pub mask: Vec<[bool; 3]>,
 }
 
+/// Two prescribed values closer than this (m, far below any length a model resolves) are the
+/// same value: an interpolated measurement's 0 can come out as -1.7e-18 m beside a symmetry
+/// plane's 0.
+const SAME_VALUE: f64 = 1e-15;
+
 impl Constraints {
     /// Merges the boundaries' conditions. A DOF named by two boundaries must get the same value
     /// and curve from both; otherwise the conflict is an error naming the node and both boundaries.
@@ -85,9 +90,9 @@ impl Constraints {
                     let Some(v) = b.value(at, k) else { continue };
                     match owner[n][k] {
                         Some((other, v0)) => {
-                            let same_curve =
-                                boundaries[other].curve == b.curve || (v == 0.0 && v0 == 0.0);
-                            if v != v0 || !same_curve {
+                            let zero = v.abs() <= SAME_VALUE && v0.abs() <= SAME_VALUE;
+                            let same_curve = boundaries[other].curve == b.curve || zero;
+                            if (v - v0).abs() > SAME_VALUE || !same_curve {
                                 return Err(Error::Input(format!(
                                     "node {n} component {} is prescribed by boundary '{}' ({v0} m) and by boundary '{}' ({v} m); \
                                      make the selections disjoint or give both the same value and curve",

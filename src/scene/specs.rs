@@ -230,6 +230,10 @@ pub struct MeasuredSpec {
     pub tolerance: Option<f64>,
     #[serde(default = "default_curve")]
     pub curve: String,
+    /// Interpolate scattered measurements onto the surface nodes within `tolerance` of them
+    /// (default: the measurements' own spacing) instead of matching one point per node.
+    #[serde(default)]
+    pub interpolate: bool,
 }
 
 /// `[contact.NAME]`: a rigid body moved by `motion` along `curve`, which the body's surface

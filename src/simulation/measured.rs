@@ -50,29 +50,27 @@ pub(super) fn boundary(
         })?
     };
     let where_ = |line: usize| format!("measured '{name}' ({} line {line})", path.display());
+    if spec.interpolate {
+        let mut xs = Vec::with_capacity(points.len());
+        for m in &points {
+            xs.push(position(m, input, &where_)?);
+        }
+        let us: Vec<Vector3<f64>> = points.iter().map(|m| m.u).collect();
+        let (taken, values) =
+            interpolated(name, &path, (&xs, &us), nodes, candidates, spec.tolerance)?;
+        return Ok(Boundary {
+            name: name.into(),
+            nodes: taken,
+            components: [Some(0.0); 3],
+            node_values: Some(values),
+            curve: load_curve(scene, &spec.curve)?,
+        });
+    }
     let mut taken: Vec<(usize, usize)> = Vec::new(); // (node, line)
     let mut line_of = vec![0usize; nodes.len()]; // 0: not taken
     let mut values = Vec::new();
     for m in &points {
-        let x = match m.at {
-            MeasuredAt::Position(x) => x,
-            MeasuredAt::Node(id) => {
-                let file = input.ok_or_else(|| {
-                    Error::Input(format!(
-                        "{}: node id {id} needs a mesh file (geometry.mesh); give positions \
-                         x, y, z, ux, uy, uz instead",
-                        where_(m.line)
-                    ))
-                })?;
-                let k = file.node_ids.iter().position(|&n| n == id).ok_or_else(|| {
-                    Error::Input(format!(
-                        "{}: the mesh file has no node {id}",
-                        where_(m.line)
-                    ))
-                })?;
-                file.mesh.nodes[k]
-            }
-        };
+        let x = position(m, input, &where_)?;
         let nn = tree
             .query(&[x.x, x.y, x.z])
             .nearest_n::<kiddo::SquaredEuclidean<f64>>(std::num::NonZero::<usize>::MIN)
@@ -117,4 +115,152 @@ pub(super) fn boundary(
         node_values: Some(values),
         curve: load_curve(scene, &spec.curve)?,
     })
+}
+
+/// A measured point's position: as written, or the mesh file's node it names.
+fn position(
+    m: &crate::io::measured::Measured,
+    input: Option<&MeshInput>,
+    where_: &dyn Fn(usize) -> String,
+) -> Result<Vector3<f64>> {
+    match m.at {
+        MeasuredAt::Position(x) => Ok(x),
+        MeasuredAt::Node(id) => {
+            let file = input.ok_or_else(|| {
+                Error::Input(format!(
+                    "{}: node id {id} needs a mesh file (geometry.mesh); give positions \
+                     x, y, z, ux, uy, uz instead",
+                    where_(m.line)
+                ))
+            })?;
+            let k = file.node_ids.iter().position(|&n| n == id).ok_or_else(|| {
+                Error::Input(format!(
+                    "{}: the mesh file has no node {id}",
+                    where_(m.line)
+                ))
+            })?;
+            Ok(file.mesh.nodes[k])
+        }
+    }
+}
+
+/// Measured points each node's value is fitted to.
+const FIT_POINTS: usize = 12;
+
+/// `interpolate = true`: the surface nodes within `reach` of a measured point (default: the
+/// measurements' spacing, the median distance from a point to its nearest neighbour) and on
+/// their patch (within 1e-3 x the body's diagonal, plus three times the neighbours' spread
+/// across it, of the plane the nearest measured points span) take the
+/// displacement of a linear moving least-squares fit to the [`FIT_POINTS`] nearest measured
+/// points (weights (1 - (d / r)^2)^2 with r 1.5 x the farthest of them; the moment matrix
+/// pseudo-inverted, so points on a plane or a line fit in their own span). It reproduces any
+/// linear field exactly at any spacing; for a smooth field its error is of the order of the
+/// spacing squared times the field's second derivatives. Returns the nodes and their values.
+fn interpolated(
+    name: &str,
+    path: &std::path::Path,
+    (xs, us): (&[Vector3<f64>], &[Vector3<f64>]),
+    nodes: &[Vector3<f64>],
+    candidates: &[usize],
+    reach: Option<f64>,
+) -> Result<(Vec<usize>, Vec<[f64; 3]>)> {
+    use kiddo::{ImmutableKdTree, SquaredEuclidean};
+    use nalgebra::{Matrix4, Vector4};
+    let what = || format!("measured '{name}' ({})", path.display());
+    if xs.len() < 3 {
+        return Err(Error::Input(format!(
+            "{}: {} point(s); interpolation needs at least 3 (or set interpolate = false to \
+             match points to nodes)",
+            what(),
+            xs.len()
+        )));
+    }
+    let pts: Vec<[f64; 3]> = xs.iter().map(|x| [x.x, x.y, x.z]).collect();
+    let tree = ImmutableKdTree::<f64, 3>::new_from_slice(&pts)
+        .map_err(|e| Error::Input(format!("{}: cannot index the points: {e:?}", what())))?;
+    let two = std::num::NonZero::new(2).expect("2 > 0");
+    let mut gaps: Vec<f64> = pts
+        .iter()
+        .filter_map(|q| {
+            let nn = tree
+                .query(q)
+                .nearest_n::<SquaredEuclidean<f64>>(two)
+                .execute();
+            nn.get(1).map(|n| n.distance.sqrt())
+        })
+        .collect();
+    gaps.sort_by(f64::total_cmp);
+    let spacing = gaps[gaps.len() / 2];
+    let reach = reach.unwrap_or(spacing);
+    let (lo, hi) = crate::geometry::select::bounds(nodes);
+    let off_patch = DEFAULT_TOLERANCE * (hi - lo).norm();
+    let k = std::num::NonZero::new(FIT_POINTS.min(xs.len())).expect("at least 3");
+    let (mut taken, mut values) = (Vec::new(), Vec::new());
+    for &i in candidates {
+        let y = nodes[i];
+        let q = [y.x, y.y, y.z];
+        let near = tree
+            .query(&q)
+            .nearest_n::<SquaredEuclidean<f64>>(k)
+            .execute();
+        if near.first().is_none_or(|n| n.distance.sqrt() > reach) {
+            continue;
+        }
+        // Only nodes on the measured patch: measurements on a surface say nothing about the
+        // nodes below it (a side node 12.5 mm under a measured top face would take the top's
+        // value). The patch's normal is its neighbours' direction of least spread.
+        let c: Vector3<f64> = near
+            .iter()
+            .map(|n| xs[n.item as usize])
+            .sum::<Vector3<f64>>()
+            / near.len() as f64;
+        let cov = near.iter().fold(nalgebra::Matrix3::zeros(), |m, n| {
+            let d = xs[n.item as usize] - c;
+            m + d * d.transpose()
+        }) / near.len() as f64;
+        let eig = cov.symmetric_eigen();
+        let (kmin, lmin) =
+            eig.eigenvalues
+                .iter()
+                .enumerate()
+                .fold(
+                    (0, f64::INFINITY),
+                    |b, (k, &l)| if l < b.1 { (k, l) } else { b },
+                );
+        let normal = eig.eigenvectors.column(kmin).into_owned();
+        if (y - c).dot(&normal).abs() > off_patch + 3.0 * lmin.max(0.0).sqrt() {
+            continue;
+        }
+        let r = 1.5 * near.last().map_or(0.0, |n| n.distance.sqrt()).max(1e-300);
+        let (mut a, mut b) = (Matrix4::<f64>::zeros(), [Vector4::<f64>::zeros(); 3]);
+        for n in &near {
+            let j = n.item as usize;
+            let d = (xs[j] - y) / r;
+            let w = (1.0 - d.norm_squared()).max(0.0).powi(2);
+            let p = Vector4::new(1.0, d.x, d.y, d.z);
+            a += p * p.transpose() * w;
+            for (c, bc) in b.iter_mut().enumerate() {
+                *bc += p * (w * us[j][c]);
+            }
+        }
+        let inv = a
+            .pseudo_inverse(1e-10 * a.norm())
+            .map_err(|e| Error::Input(format!("{}: fit at node {i}: {e}", what())))?;
+        values.push(std::array::from_fn(|c| (inv * b[c])[0]));
+        taken.push(i);
+    }
+    if taken.is_empty() {
+        return Err(Error::Input(format!(
+            "{}: no surface node lies within {reach:.3e} m of the {} measured points: check the \
+             file's units (m) and frame, or raise measured.{name}.tolerance",
+            what(),
+            xs.len()
+        )));
+    }
+    log::info!(
+        "measured '{name}': {} points (spacing {spacing:.3e} m) interpolated onto {} surface nodes",
+        xs.len(),
+        taken.len()
+    );
+    Ok((taken, values))
 }
