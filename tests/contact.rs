@@ -401,34 +401,10 @@ fn a_rigid_body_inside_the_tissue_is_refused() {
 fn a_plate_read_from_an_stl_file_reproduces_the_analytic_plate() {
     let dir = std::env::temp_dir().join(format!("hytled-stl-plate-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
-    let (lo, hi) = ([-0.05, -0.05, 0.1], [0.15, 0.15, 0.13]);
-    let p: Vec<[f64; 3]> = (0..8)
-        .map(|i| {
-            [
-                if i & 1 == 0 { lo[0] } else { hi[0] },
-                if (i >> 1) & 1 == 0 { lo[1] } else { hi[1] },
-                if i >> 2 == 0 { lo[2] } else { hi[2] },
-            ]
-        })
-        .collect();
-    let mut stl = String::from("solid plate\n");
-    for q in [
-        [0, 2, 3, 1],
-        [4, 5, 7, 6],
-        [0, 1, 5, 4],
-        [2, 6, 7, 3],
-        [0, 4, 6, 2],
-        [1, 3, 7, 5],
-    ] {
-        for t in [[q[0], q[1], q[2]], [q[0], q[2], q[3]]] {
-            stl += "facet normal 0 0 0\nouter loop\n";
-            for i in t {
-                stl += &format!("vertex {} {} {}\n", p[i][0], p[i][1], p[i][2]);
-            }
-            stl += "endloop\nendfacet\n";
-        }
-    }
-    stl += "endsolid plate\n";
+    let stl = common::ascii_stl(
+        &common::box_corners([-0.05, -0.05, 0.1], [0.15, 0.15, 0.13]),
+        &common::box_triangles(),
+    );
     let file = dir.join("plate.stl");
     std::fs::write(&file, stl).unwrap();
     let from_file = format!(

@@ -23,28 +23,10 @@ type Soup = (Vec<[f64; 3]>, Vec<[usize; 3]>);
 
 /// The cube [0, 0.1]^3 as 12 outward triangles.
 fn cube() -> Soup {
-    let p: Vec<[f64; 3]> = (0..8)
-        .map(|i| {
-            [
-                0.1 * (i & 1) as f64,
-                0.1 * ((i >> 1) & 1) as f64,
-                0.1 * (i >> 2) as f64,
-            ]
-        })
-        .collect();
-    let quads = [
-        [0, 2, 3, 1],
-        [4, 5, 7, 6],
-        [0, 1, 5, 4],
-        [2, 6, 7, 3],
-        [0, 4, 6, 2],
-        [1, 3, 7, 5],
-    ];
-    let t = quads
-        .iter()
-        .flat_map(|q| [[q[0], q[1], q[2]], [q[0], q[2], q[3]]])
-        .collect();
-    (p, t)
+    (
+        common::box_corners([0.0; 3], [0.1; 3]),
+        common::box_triangles(),
+    )
 }
 
 /// The cylinder of radius 0.05 m and height 0.1 m along z, base at z = 0, as the prism over
@@ -74,19 +56,7 @@ fn cylinder(n: usize) -> Soup {
 }
 
 fn write_ascii_stl(file: &Path, (p, t): &Soup) {
-    let mut s = String::from("solid body\n");
-    for tri in t {
-        s += "  facet normal 0 0 0\n    outer loop\n";
-        for &i in tri {
-            s += &format!(
-                "      vertex {:.9e} {:.9e} {:.9e}\n",
-                p[i][0], p[i][1], p[i][2]
-            );
-        }
-        s += "    endloop\n  endfacet\n";
-    }
-    s += "endsolid body\n";
-    std::fs::write(file, s).unwrap();
+    std::fs::write(file, common::ascii_stl(p, t)).unwrap();
 }
 
 /// The cube case on the surface `file` (its exact references need the built-in box: dropped,
@@ -149,14 +119,7 @@ fn the_cube_read_as_stl_or_obj_is_exact() {
     for v in &soup.0 {
         text += &format!("v {} {} {}\n", v[0] * 1000.0, v[1] * 1000.0, v[2] * 1000.0);
     }
-    for q in [
-        [0, 2, 3, 1],
-        [4, 5, 7, 6],
-        [0, 1, 5, 4],
-        [2, 6, 7, 3],
-        [0, 4, 6, 2],
-        [1, 3, 7, 5],
-    ] {
+    for q in common::BOX_QUADS {
         text += &format!("f {} {} {} {}\n", q[0] + 1, q[1] + 1, q[2] + 1, q[3] + 1);
     }
     std::fs::write(&obj, text).unwrap();
@@ -257,14 +220,7 @@ fn broken_surfaces_are_refused_naming_the_file_and_where() {
 fn the_cube_read_as_vtk_poly_data_is_exact() {
     let dir = folder("vtk");
     let (p, t) = cube();
-    let quads = [
-        [0, 2, 3, 1],
-        [4, 5, 7, 6],
-        [0, 1, 5, 4],
-        [2, 6, 7, 3],
-        [0, 4, 6, 2],
-        [1, 3, 7, 5],
-    ];
+    let quads = common::BOX_QUADS;
     let mut legacy = format!(
         "# vtk DataFile Version 4.2\ncube\nASCII\nDATASET POLYDATA\nPOINTS {} double\n",
         p.len()

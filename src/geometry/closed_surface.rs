@@ -244,7 +244,7 @@ fn self_intersection(
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
 
     /// The unit cube as 12 outward triangles.

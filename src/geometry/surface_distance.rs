@@ -206,21 +206,7 @@ mod tests {
     /// near faces, edges and corners (where the sign needs the pseudo-normals).
     #[test]
     fn signed_distance_to_a_cube_matches_its_definition() {
-        let p: Vec<Vector3<f64>> = (0..8)
-            .map(|i| Vector3::new((i & 1) as f64, ((i >> 1) & 1) as f64, (i >> 2) as f64))
-            .collect();
-        let quads = [
-            [0, 2, 3, 1],
-            [4, 5, 7, 6],
-            [0, 1, 5, 4],
-            [2, 6, 7, 3],
-            [0, 4, 6, 2],
-            [1, 3, 7, 5],
-        ];
-        let t = quads
-            .iter()
-            .flat_map(|q| [[q[0], q[1], q[2]], [q[0], q[2], q[3]]])
-            .collect();
+        let (p, t) = crate::geometry::closed_surface::tests::cube();
         let s = SurfaceDistance::new(check_closed_surface("cube", p, t).unwrap()).unwrap();
         let exact = |y: &Vector3<f64>| {
             let q = y.map(|v| (v - 0.5).abs() - 0.5);

@@ -139,22 +139,8 @@ pub(crate) fn read_polydata_triangles(path: &Path) -> Result<super::surface_file
                 format!("piece{at} is stored in another file ('{}')", clip(src)),
             ));
         }
-        let data = super::catch_quietly(|| piece.into_loaded_piece_data(None))
-            .map_err(|_| fail(path, format!("piece{at} is malformed")))?
-            .map_err(|e| fail(path, format!("piece{at}: {e}")))?;
-        let coords: Vec<f64> = data
-            .points
-            .cast_into()
-            .ok_or_else(|| fail(path, format!("the points{at} are not numbers")))?;
-        if !coords.len().is_multiple_of(3) {
-            return Err(fail(
-                path,
-                format!(
-                    "{} point coordinates{at}, not a multiple of 3",
-                    coords.len()
-                ),
-            ));
-        }
+        let data = loaded(piece, &at, path)?;
+        let coords = coordinates(data.points, &at, path)?;
         let base = points.len();
         let n = coords.len() / 3;
         points.extend(
@@ -207,6 +193,30 @@ pub(crate) fn read_polydata_triangles(path: &Path) -> Result<super::surface_file
         ));
     }
     Ok((points, triangles))
+}
+
+/// A piece's data, loaded (`at` names the piece in messages).
+fn loaded<P: vtkio::model::PieceData>(piece: Piece<P>, at: &str, path: &Path) -> Result<P> {
+    super::catch_quietly(|| piece.into_loaded_piece_data(None))
+        .map_err(|_| fail(path, format!("piece{at} is malformed")))?
+        .map_err(|e| fail(path, format!("piece{at}: {e}")))
+}
+
+/// A piece's point coordinates, x y z after each other.
+fn coordinates(points: IOBuffer, at: &str, path: &Path) -> Result<Vec<f64>> {
+    let coords: Vec<f64> = points
+        .cast_into()
+        .ok_or_else(|| fail(path, format!("the points{at} are not numbers")))?;
+    if !coords.len().is_multiple_of(3) {
+        return Err(fail(
+            path,
+            format!(
+                "{} point coordinates{at}, not a multiple of 3",
+                coords.len()
+            ),
+        ));
+    }
+    Ok(coords)
 }
 
 fn import_legacy(bytes: &[u8], path: &Path) -> Result<vtkio::Vtk> {
@@ -937,24 +947,10 @@ fn convert(vtk: vtkio::Vtk, path: &Path) -> Result<MeshInput> {
                 ),
             ));
         }
-        let data = super::catch_quietly(|| piece.into_loaded_piece_data(None))
-            .map_err(|_| fail(path, format!("piece{at} is malformed")))?
-            .map_err(|e| fail(path, format!("piece{at}: {e}")))?;
+        let data = loaded(piece, &at, path)?;
 
         // Points.
-        let coords: Vec<f64> = data
-            .points
-            .cast_into()
-            .ok_or_else(|| fail(path, format!("the points{at} are not numbers")))?;
-        if !coords.len().is_multiple_of(3) {
-            return Err(fail(
-                path,
-                format!(
-                    "{} point coordinates{at}, not a multiple of 3",
-                    coords.len()
-                ),
-            ));
-        }
+        let coords = coordinates(data.points, &at, path)?;
         let node_offset = nodes.len();
         let n_points = coords.len() / 3;
         for (i, c) in coords.chunks_exact(3).enumerate() {

@@ -96,3 +96,42 @@ pub fn box_inp(n: usize, first: usize, sets: &[(&str, std::ops::Range<usize>)]) 
     }
     s
 }
+
+/// The outward quads of a box over its corners numbered i = x + 2 y + 4 z (bit k: max along k).
+pub const BOX_QUADS: [[usize; 4]; 6] = [
+    [0, 2, 3, 1],
+    [4, 5, 7, 6],
+    [0, 1, 5, 4],
+    [2, 6, 7, 3],
+    [0, 4, 6, 2],
+    [1, 3, 7, 5],
+];
+
+/// The corners of the box [lo, hi] (m), numbered as [`BOX_QUADS`] takes them.
+pub fn box_corners(lo: [f64; 3], hi: [f64; 3]) -> Vec<[f64; 3]> {
+    (0..8)
+        .map(|i| std::array::from_fn(|k| if (i >> k) & 1 == 0 { lo[k] } else { hi[k] }))
+        .collect()
+}
+
+/// The box's surface as 12 outward triangles.
+pub fn box_triangles() -> Vec<[usize; 3]> {
+    BOX_QUADS
+        .iter()
+        .flat_map(|q| [[q[0], q[1], q[2]], [q[0], q[2], q[3]]])
+        .collect()
+}
+
+/// An ASCII STL file's text for `triangles` over `points` (m).
+pub fn ascii_stl(points: &[[f64; 3]], triangles: &[[usize; 3]]) -> String {
+    let mut s = String::from("solid body\n");
+    for tri in triangles {
+        s += "  facet normal 0 0 0\n    outer loop\n";
+        for &i in tri {
+            let p = points[i];
+            s += &format!("      vertex {:.9e} {:.9e} {:.9e}\n", p[0], p[1], p[2]);
+        }
+        s += "    endloop\n  endfacet\n";
+    }
+    s + "endsolid body\n"
+}
