@@ -131,8 +131,9 @@ fn ctrl_c_and_sigterm_stop_between_steps_with_a_failed_summary_and_their_codes()
         let mut child = start(&d, &["--json"]);
         wait_running(&d, &mut child);
         std::thread::sleep(Duration::from_millis(200));
-        let killed = Command::new("kill")
-            .args([&format!("-{signal}"), &child.id().to_string()])
+        // The shell's own `kill`: no procps package needed.
+        let killed = Command::new("sh")
+            .args(["-c", &format!("kill -{signal} {}", child.id())])
             .status()
             .unwrap();
         assert!(killed.success());
