@@ -79,6 +79,30 @@ pub fn load(path: &Path, overrides: &[String]) -> Result<Scene> {
     parse(&text, path, overrides)
 }
 
+/// A body from a surface file is filled with tetrahedra, so a scene that names no element gets
+/// tet4-anp (the non-locking tet) rather than the hex8 default it could not use.
+fn surface_element_default(value: &mut toml::Table) -> bool {
+    let surface = value
+        .get("geometry")
+        .and_then(|g| g.get("surface"))
+        .is_some();
+    let named = value
+        .get("discretization")
+        .and_then(|d| d.get("element"))
+        .is_some();
+    if surface && !named {
+        if let Some(d) = value
+            .entry("discretization")
+            .or_insert_with(|| toml::Value::Table(toml::Table::new()))
+            .as_table_mut()
+        {
+            d.insert("element".into(), toml::Value::String("tet4-anp".into()));
+            return true;
+        }
+    }
+    false
+}
+
 /// Parses scene text (see [`load`]); `path` names the source in errors.
 pub fn parse(text: &str, path: &Path, overrides: &[String]) -> Result<Scene> {
     let err = |message: String| Error::Scene {
@@ -101,6 +125,7 @@ pub fn parse(text: &str, path: &Path, overrides: &[String]) -> Result<Scene> {
         apply_override(&mut value, o).map_err(|m| err(format!("--set {o}: {m}")))?;
     }
     check_finite(&toml::Value::Table(value.clone()), "").map_err(err)?;
+    let tets_by_default = surface_element_default(&mut value);
     let written = toml::Value::Table(value.clone());
     if !overrides.is_empty() {
         if let Some(h) = name_hint(&value) {
@@ -122,6 +147,9 @@ pub fn parse(text: &str, path: &Path, overrides: &[String]) -> Result<Scene> {
                 ))
             },
         )?;
+    }
+    if tets_by_default {
+        scene.discretization.element = ElementName::Tet4Anp;
     }
     // serde fills a fixed-size array from the first elements of a longer one: compare.
     if let Ok(typed) = toml::Value::try_from(&scene) {
