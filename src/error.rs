@@ -83,9 +83,9 @@ pub fn tidy_exponents(text: &str) -> String {
     let mut out = String::with_capacity(text.len());
     let (mut copied, mut i) = (0, 0);
     while i < b.len() {
+        // Not inside a word, an identifier or a path (a folder named 1e3).
         let starts = b[i].is_ascii_digit()
-            && (i == 0
-                || !(b[i - 1].is_ascii_alphanumeric() || b[i - 1] == b'.' || b[i - 1] == b'_'));
+            && (i == 0 || !(b[i - 1].is_ascii_alphanumeric() || b"._/\\".contains(&b[i - 1])));
         if !starts {
             i += 1;
             continue;
@@ -112,8 +112,8 @@ pub fn tidy_exponents(text: &str) -> String {
         while j < b.len() && b[j].is_ascii_digit() {
             j += 1;
         }
-        // Not a number if a letter or digit-word goes on (an id like 1e5abc, a hash).
-        if j < b.len() && (b[j].is_ascii_alphanumeric() || b[j] == b'_') {
+        // Not a number if a letter, an identifier or a path goes on (1e5abc, 1e3/mesh).
+        if j < b.len() && (b[j].is_ascii_alphanumeric() || b"_/\\".contains(&b[j])) {
             i = j;
             continue;
         }
@@ -233,12 +233,12 @@ mod tests {
     #[test]
     fn small_exponents_are_written_as_decimals() {
         let t = format!(
-            "z {:.6e} N, t = {:.6e} s, {:.4e} s, {:.1e}, -{:.3e}, 1e300, v1.2e3, f_1e2, x1.5e2",
+            "z {:.6e} N, t = {:.6e} s, {:.4e} s, {:.1e}, -{:.3e}, 1e300, v1.2e3, f_1e2, x1.5e2, /d/1e3/m",
             6.999288, 1.73557, 5.5936e-4, 2.0e5, 1234.5
         );
         assert_eq!(
             tidy_exponents(&t),
-            "z 6.999288 N, t = 1.735570 s, 5.5936e-4 s, 2.0e5, -1234, 1e300, v1.2e3, f_1e2, x1.5e2"
+            "z 6.999288 N, t = 1.735570 s, 5.5936e-4 s, 2.0e5, -1234, 1e300, v1.2e3, f_1e2, x1.5e2, /d/1e3/m"
         );
         // A column keeps its right edge.
         let col = format!(

@@ -91,6 +91,20 @@ fn check_truthful(dir: &Path) -> String {
     status
 }
 
+/// A short run (0.3 s simulated) into `dir`, which must complete and leave it truthful.
+fn short_run(dir: &Path) {
+    let out = start(dir, &["--set", "solver.duration=0.3"])
+        .wait_with_output()
+        .unwrap();
+    assert_eq!(
+        out.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert_eq!(check_truthful(dir), "completed");
+}
+
 #[test]
 fn a_second_run_into_a_busy_folder_is_refused_at_once_naming_the_first() {
     let d = fresh("busy");
@@ -116,11 +130,7 @@ fn a_second_run_into_a_busy_folder_is_refused_at_once_naming_the_first() {
     );
     assert_eq!(check_truthful(&d), "completed");
     // The folder is free again once the first run ended.
-    let c = start(&d, &["--set", "solver.duration=0.3"])
-        .wait_with_output()
-        .unwrap();
-    assert_eq!(c.status.code(), Some(0));
-    assert_eq!(check_truthful(&d), "completed");
+    short_run(&d);
     let _ = std::fs::remove_dir_all(&d);
 }
 
@@ -159,10 +169,7 @@ fn kills_at_random_moments_leave_a_truthful_folder_the_next_run_recovers() {
     let d = fresh("kill9");
     let mut rng = ChaCha8Rng::seed_from_u64(41);
     // A completed run first, so kills land on a folder with an earlier result to protect.
-    let first = start(&d, &["--set", "solver.duration=0.3"])
-        .wait_with_output()
-        .unwrap();
-    assert_eq!(first.status.code(), Some(0));
+    short_run(&d);
     let mut statuses = Vec::new();
     for _ in 0..8 {
         let mut child = start(&d, &[]);
@@ -183,15 +190,36 @@ fn kills_at_random_moments_leave_a_truthful_folder_the_next_run_recovers() {
         statuses.iter().all(|s| s == "running" || s == "completed"),
         "{statuses:?}"
     );
-    let last = start(&d, &["--set", "solver.duration=0.3"])
-        .wait_with_output()
-        .unwrap();
-    assert_eq!(
-        last.status.code(),
-        Some(0),
-        "{}",
-        String::from_utf8_lossy(&last.stderr)
-    );
-    assert_eq!(check_truthful(&d), "completed");
+    short_run(&d);
     let _ = std::fs::remove_dir_all(&d);
+}
+
+/// The library's stop request (another thread, a GUI's stop button; what the signal handlers
+/// set): a run in this process stops at its first step with `Error::Interrupted` naming the
+/// signal, and after `clear` runs again. The only in-process run of this test binary, so no
+/// other test sees the request.
+#[test]
+fn a_stop_request_ends_a_library_run_and_clear_lifts_it() {
+    use hytled::simulation::{run_scene, RunOptions};
+    let sc = hytled::scene::load(
+        &common::path("cases/cube-compression.toml"),
+        &["discretization.size=0.05".to_string()],
+    )
+    .unwrap();
+    hytled::interrupt::request(hytled::interrupt::SIGTERM);
+    let e = run_scene(&sc, &RunOptions::default()).unwrap_err();
+    hytled::interrupt::clear();
+    assert!(
+        matches!(e, hytled::Error::Interrupted { signal: 15, .. }),
+        "{e}"
+    );
+    assert_eq!(e.exit_code(), 143);
+    assert!(
+        e.to_string().contains("interrupted by SIGTERM at step 0"),
+        "{e}"
+    );
+    assert_eq!(
+        run_scene(&sc, &RunOptions::default()).unwrap().status,
+        "converged"
+    );
 }

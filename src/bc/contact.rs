@@ -53,13 +53,13 @@ impl RigidShape {
         (depth > 0.0).then_some((depth, n))
     }
 
-    /// Points of the solid displaced by `d` (m) that it cannot hold without holding its
-    /// neighbourhood: a ball's centre, a bounded cylinder's axis at its ends and middle; none
-    /// for a half-space or an unbounded cylinder (which no closed body can hold).
-    pub fn core_points(&self, d: &Vector3<f64>) -> Vec<Vector3<f64>> {
+    /// Points of the solid in its reference position (m) that it cannot hold without holding
+    /// its neighbourhood: a ball's centre, a bounded cylinder's axis at its ends and middle;
+    /// none for a half-space or an unbounded cylinder (which no closed body can hold).
+    pub fn core_points(&self) -> Vec<Vector3<f64>> {
         match self {
             RigidShape::Plane { .. } => Vec::new(),
-            RigidShape::Sphere { center, .. } => vec![center + d],
+            RigidShape::Sphere { center, .. } => vec![*center],
             RigidShape::Cylinder {
                 center,
                 axis,
@@ -68,7 +68,7 @@ impl RigidShape {
                 ..
             } => [*lo, 0.5 * (lo + hi), *hi]
                 .iter()
-                .map(|t| center + axis * *t + d)
+                .map(|t| center + axis * *t)
                 .collect(),
             RigidShape::Cylinder { .. } => Vec::new(),
             // Any point inside would do; the check that uses these is for the analytic tools.
@@ -327,7 +327,7 @@ impl Contact {
 
     /// [`RigidShape::core_points`] of body `b` in its reference position.
     pub fn core_points(&self, b: usize) -> Vec<Vector3<f64>> {
-        self.bodies[b].shape.core_points(&Vector3::zeros())
+        self.bodies[b].shape.core_points()
     }
 
     /// Each body's displacement at load fraction `tau`, m.

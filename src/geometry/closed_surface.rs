@@ -25,11 +25,6 @@ impl ClosedSurface {
     pub fn volume(&self) -> f64 {
         super::dome::enclosed_volume(&self.points, &self.triangles)
     }
-
-    /// Its bounding box (min, max), m.
-    pub fn bounds(&self) -> (Vector3<f64>, Vector3<f64>) {
-        bounds(&self.points)
-    }
 }
 
 fn at(p: &Vector3<f64>) -> String {

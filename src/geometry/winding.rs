@@ -36,25 +36,14 @@ mod tests {
 
     #[test]
     fn a_cube_winds_once_about_inner_points_and_not_about_outer_ones() {
-        let v: Vec<Vector3<f64>> = (0..8)
-            .map(|i| Vector3::new((i & 1) as f64, ((i >> 1) & 1) as f64, (i >> 2) as f64))
-            .collect();
-        // Outward quads of the unit cube.
-        let faces: [&[usize]; 6] = [
-            &[0, 2, 3, 1],
-            &[4, 5, 7, 6],
-            &[0, 1, 5, 4],
-            &[2, 6, 7, 3],
-            &[0, 4, 6, 2],
-            &[1, 3, 7, 5],
-        ];
+        let (v, t) = crate::geometry::closed_surface::tests::cube();
         for (p, w) in [
             (Vector3::new(0.5, 0.5, 0.5), 1.0),
             (Vector3::new(0.01, 0.99, 0.3), 1.0),
             (Vector3::new(1.5, 0.5, 0.5), 0.0),
             (Vector3::new(-3.0, 7.0, 0.2), 0.0),
         ] {
-            let got = winding_number(&p, &v, faces.iter().copied());
+            let got = winding_number(&p, &v, t.iter().map(|t| t.as_slice()));
             assert!((got - w).abs() < 1e-12, "{p:?}: {got}");
         }
     }

@@ -158,22 +158,18 @@ pub(super) fn scene_contact(
         points.push(pts);
     }
     let contact = Contact::new(bodies, points, d.nodes().len(), tolerance)?;
-    for (b, (name, c)) in scene.contact.iter().enumerate() {
+    for (b, name) in contact.names().enumerate() {
         if contact.deepest_at_rest(b, 0.0).is_some() {
             continue;
         }
-        let inside = c
-            .rigid_shape()
-            .core_points(&Vector3::zeros())
-            .into_iter()
-            .find(|q| {
-                let w = crate::geometry::winding::winding_number(
-                    q,
-                    &s.vertices,
-                    s.faces.iter().map(|f| f.0.as_slice()),
-                );
-                w.abs() > 0.5
-            });
+        let inside = contact.core_points(b).into_iter().find(|q| {
+            let w = crate::geometry::winding::winding_number(
+                q,
+                &s.vertices,
+                s.faces.iter().map(|f| f.0.as_slice()),
+            );
+            w.abs() > 0.5
+        });
         if let Some(q) = inside {
             return Err(crate::Error::Input(format!(
                 "contact '{name}' starts inside the body without touching its surface (its point \

@@ -56,8 +56,13 @@ pub(super) fn boundary(
             xs.push(position(m, input, &where_)?);
         }
         let us: Vec<Vector3<f64>> = points.iter().map(|m| m.u).collect();
-        let (taken, values) =
-            interpolated(name, &path, (&xs, &us), nodes, candidates, spec.tolerance)?;
+        let (taken, values) = interpolated(
+            name,
+            &path,
+            (&xs, &us),
+            (nodes, candidates),
+            (spec.tolerance, DEFAULT_TOLERANCE * (hi - lo).norm()),
+        )?;
         return Ok(Boundary {
             name: name.into(),
             nodes: taken,
@@ -160,9 +165,8 @@ fn interpolated(
     name: &str,
     path: &std::path::Path,
     (xs, us): (&[Vector3<f64>], &[Vector3<f64>]),
-    nodes: &[Vector3<f64>],
-    candidates: &[usize],
-    reach: Option<f64>,
+    (nodes, candidates): (&[Vector3<f64>], &[usize]),
+    (reach, off_patch): (Option<f64>, f64),
 ) -> Result<(Vec<usize>, Vec<[f64; 3]>)> {
     use kiddo::{ImmutableKdTree, SquaredEuclidean};
     use nalgebra::{Matrix4, Vector4};
@@ -192,8 +196,6 @@ fn interpolated(
     gaps.sort_by(f64::total_cmp);
     let spacing = gaps[gaps.len() / 2];
     let reach = reach.unwrap_or(spacing);
-    let (lo, hi) = crate::geometry::select::bounds(nodes);
-    let off_patch = DEFAULT_TOLERANCE * (hi - lo).norm();
     let k = std::num::NonZero::new(FIT_POINTS.min(xs.len())).expect("at least 3");
     let (mut taken, mut values) = (Vec::new(), Vec::new());
     for &i in candidates {
