@@ -2,15 +2,18 @@
 //! make it a body TetGen can fill, with errors that name the offending triangle or edge.
 //!
 //! A usable surface is closed (every edge borders exactly two triangles), consistently oriented
-//! (the two use the edge in opposite directions), free of degenerate triangles, one connected
-//! piece, and does not cross itself. It is returned oriented outward (positive enclosed
-//! volume; a surface oriented inward throughout is turned, not refused).
+//! (the two use the edge in opposite directions), free of degenerate triangles, and does not
+//! cross itself. It is one body: an outer piece and closed pieces nested in it, which are
+//! cavities (a ventricle), by the even-odd rule. It is returned oriented out of the material
+//! (the outer piece outward, cavities inward; a piece oriented the other way is turned, not
+//! refused).
 
 use std::collections::HashMap;
 
 use nalgebra::Vector3;
 
 use super::select::bounds;
+use super::winding::winding_number;
 use crate::{Error, Result};
 
 /// A checked closed surface: points (m) and outward triangles over them.
@@ -18,10 +21,12 @@ use crate::{Error, Result};
 pub struct ClosedSurface {
     pub points: Vec<Vector3<f64>>,
     pub triangles: Vec<[usize; 3]>,
+    /// A point inside each cavity (a closed piece nested in the outer one), m.
+    pub holes: Vec<Vector3<f64>>,
 }
 
 impl ClosedSurface {
-    /// The volume it encloses, m^3.
+    /// The volume of material it encloses (cavities excluded), m^3.
     pub fn volume(&self) -> f64 {
         super::dome::enclosed_volume(&self.points, &self.triangles)
     }
@@ -104,7 +109,7 @@ pub fn check_closed_surface(
             )));
         }
     }
-    // One connected piece (nested or separate bodies are not one body).
+    // Connected pieces: one outer piece, and pieces nested in it as cavities (even-odd).
     let mut parent: Vec<usize> = (0..points.len()).collect();
     fn root(parent: &mut [usize], mut i: usize) -> usize {
         while parent[i] != i {
@@ -119,15 +124,15 @@ pub fn check_closed_surface(
             parent[a] = b;
         }
     }
-    let first = root(&mut parent, triangles[0][0]);
-    if let Some(k) = (0..triangles.len()).find(|&k| root(&mut parent, triangles[k][0]) != first) {
-        return Err(bad(format!(
-            "the file holds more than one closed surface (triangle {k}, at {}, is not connected to \
-             triangle 0); give one closed surface per file (nested surfaces as regions are not \
-             supported yet)",
-            at(&points[triangles[k][0]])
-        )));
-    }
+    let mut piece_of_root: HashMap<usize, usize> = HashMap::new();
+    let piece: Vec<usize> = (0..triangles.len())
+        .map(|k| {
+            let r = root(&mut parent, triangles[k][0]);
+            let n = piece_of_root.len();
+            *piece_of_root.entry(r).or_insert(n)
+        })
+        .collect();
+    let pieces = piece_of_root.len();
     if let Some((k, m)) = self_intersection(&points, &triangles, diag) {
         return Err(bad(format!(
             "the surface crosses itself: triangles {k} and {m} intersect (near {}); repair it \
@@ -148,16 +153,88 @@ pub fn check_closed_surface(
             *i = map[*i];
         }
     }
-    let mut s = ClosedSurface {
-        points: kept,
-        triangles,
-    };
-    if s.volume() < 0.0 {
-        for t in s.triangles.iter_mut() {
-            t.swap(1, 2);
+    let members: Vec<Vec<usize>> = (0..pieces)
+        .map(|p| (0..triangles.len()).filter(|&k| piece[k] == p).collect())
+        .collect();
+    let faces_of = |p: usize| members[p].iter().map(|&k| &triangles[k][..]);
+    // Nesting depth: how many other pieces hold one of its vertices (pieces do not cross).
+    let depth: Vec<usize> = (0..pieces)
+        .map(|p| {
+            let x = kept[triangles[members[p][0]][0]];
+            (0..pieces)
+                .filter(|&q| q != p && winding_number(&x, &kept, faces_of(q)).abs() > 0.5)
+                .count()
+        })
+        .collect();
+    let outer: Vec<usize> = (0..pieces).filter(|&p| depth[p] == 0).collect();
+    if outer.len() > 1 {
+        let k = members[outer[1]][0];
+        return Err(bad(format!(
+            "the file holds {} separate bodies (triangle {k}, at {}, belongs to a closed surface \
+             outside the one of triangle {}); give one body per file (closed surfaces inside it \
+             are cavities; a tumour or other region goes in its own file under [regions])",
+            outer.len(),
+            at(&kept[triangles[k][0]]),
+            members[outer[0]][0]
+        )));
+    }
+    // Outward from the material: even depths enclose material, odd ones (cavities) face in.
+    for p in 0..pieces {
+        let v = super::dome::enclosed_volume(
+            &kept,
+            &members[p].iter().map(|&k| triangles[k]).collect::<Vec<_>>(),
+        );
+        if (v < 0.0) == (depth[p] % 2 == 0) {
+            for &k in &members[p] {
+                triangles[k].swap(1, 2);
+            }
         }
     }
-    Ok(s)
+    let holes = (0..pieces)
+        .filter(|&p| depth[p] % 2 == 1)
+        .map(|p| cavity_point(&kept, &triangles, &members[p]).ok_or_else(|| {
+            bad(format!(
+                "no point inside the cavity bounded by triangle {} could be found; the cavity is too thin",
+                members[p][0]
+            ))
+        }))
+        .collect::<Result<Vec<_>>>()?;
+    Ok(ClosedSurface {
+        points: kept,
+        triangles,
+        holes,
+    })
+}
+
+/// A point inside the cavity bounded by the triangles `members` (oriented out of the
+/// material, so into the cavity): a little off one of its larger triangles, where the whole
+/// surface winds zero times (no material).
+fn cavity_point(
+    points: &[Vector3<f64>],
+    triangles: &[[usize; 3]],
+    members: &[usize],
+) -> Option<Vector3<f64>> {
+    let mut by_area: Vec<(f64, usize)> = members
+        .iter()
+        .map(|&k| {
+            let [a, b, c] = triangles[k].map(|i| points[i]);
+            ((b - a).cross(&(c - a)).norm(), k)
+        })
+        .collect();
+    by_area.sort_by(|x, y| y.0.total_cmp(&x.0));
+    for &(area2, k) in by_area.iter().take(16) {
+        let [a, b, c] = triangles[k].map(|i| points[i]);
+        let n = (b - a).cross(&(c - a)) / area2;
+        let centre = (a + b + c) / 3.0;
+        for f in [0.1, 0.01, 0.001] {
+            let x = centre + n * (f * (0.5 * area2).sqrt());
+            let w = winding_number(&x, points, triangles.iter().map(|t| &t[..]));
+            if w.abs() < 0.1 {
+                return Some(x);
+            }
+        }
+    }
+    None
 }
 
 /// Whether segment p q crosses triangle a b c (at a point strictly inside both, within
@@ -272,6 +349,30 @@ pub(crate) mod tests {
         assert!((s.volume() - 1.0).abs() < 1e-14);
     }
 
+    /// A cube with a cubic cavity (given either way round): the material's volume, the cavity
+    /// turned to face into itself, and a hole point inside the cavity.
+    #[test]
+    fn a_nested_surface_is_a_cavity() {
+        let (p, t) = cube();
+        for inner_flipped in [false, true] {
+            let (mut p2, mut t2) = (p.clone(), t.clone());
+            p2.extend(p.iter().map(|x| x / 3.0 + Vector3::repeat(1.0 / 3.0)));
+            t2.extend(t.iter().map(|t| {
+                let t = t.map(|i| i + 8);
+                if inner_flipped {
+                    [t[0], t[2], t[1]]
+                } else {
+                    t
+                }
+            }));
+            let s = check_closed_surface("c.stl", p2, t2).unwrap();
+            assert!((s.volume() - (1.0 - 1.0 / 27.0)).abs() < 1e-14, "{}", s.volume());
+            assert_eq!(s.holes.len(), 1);
+            let h = s.holes[0];
+            assert!(h.iter().all(|&x| x > 1.0 / 3.0 && x < 2.0 / 3.0), "{h}");
+        }
+    }
+
     #[test]
     fn open_flipped_degenerate_split_and_crossing_surfaces_are_refused_naming_where() {
         let (p, t) = cube();
@@ -301,7 +402,7 @@ pub(crate) mod tests {
         p2.extend(p.iter().map(|x| x + Vector3::new(3.0, 0.0, 0.0)));
         t2.extend(t.iter().map(|t| t.map(|i| i + 8)));
         let e = err(p2, t2);
-        assert!(e.contains("more than one closed surface"), "{e}");
+        assert!(e.contains("2 separate bodies") && e.contains("triangle 12"), "{e}");
         // A cube with one top corner pushed down through the bottom: its faces cross.
         let mut crossing = p.clone();
         crossing[7] = Vector3::new(0.3, 0.3, -0.5);

@@ -63,6 +63,7 @@ pub fn tetgen_box(
             points: &points,
             facets: &facets,
             regions: &[],
+            holes: &[],
         },
         volume,
         max_volume,
@@ -116,6 +117,7 @@ pub fn tetgen_cylinder(
             points: &points,
             facets: &facets,
             regions: &[],
+            holes: &[],
         },
         volume,
         max_volume,
@@ -241,6 +243,7 @@ pub fn tetgen_half_ellipsoid(
             points: &points,
             facets: &facets,
             regions: &[],
+            holes: &[],
         },
         volume,
         max_volume,
@@ -293,6 +296,7 @@ pub fn tetgen_half_ellipsoid_outlined(
             points,
             facets: &facets,
             regions: &regions,
+            holes: &[],
         },
         volume,
         max_volume,
@@ -452,11 +456,14 @@ pub fn tetgen_surface(
             points: &surface.points,
             facets: &facets,
             regions: &[],
+            holes: &surface.holes,
         },
         surface.volume(),
         max_volume,
         radius_edge_ratio,
-        1e-9,
+        // TetGen snaps vertices closer than its tolerance together (a smoothed image surface
+        // has such): 1.9e-7 on a labelled ball. A cavity filled or a piece lost is far more.
+        1e-6,
     )
 }
 
@@ -471,6 +478,8 @@ struct Plc<'a> {
     points: &'a [Vector3<f64>],
     facets: &'a [Vec<usize>],
     regions: &'a [(Vector3<f64>, f64)],
+    /// A point inside each cavity, m (TetGen removes the tets around it up to the facets).
+    holes: &'a [Vector3<f64>],
 }
 
 /// Meshes the PLC enclosing `volume` (m^3)
@@ -487,6 +496,7 @@ fn run_tetgen(
         points,
         facets,
         regions,
+        holes,
     } = plc;
     if !tritet::TETGEN_IS_AVAILABLE {
         return Err(Error::Input(
@@ -544,7 +554,12 @@ fn run_tetgen(
     let facet_npoints: Vec<usize> = facets.iter().map(|f| f.len()).collect();
     let _guard = TETGEN_LOCK.lock().unwrap_or_else(|e| e.into_inner());
     let nregion = (!regions.is_empty()).then_some(regions.len());
-    let mut tg = Tetgen::new(points.len(), Some(facet_npoints), nregion, None).map_err(fail)?;
+    let nhole = (!holes.is_empty()).then_some(holes.len());
+    let mut tg = Tetgen::new(points.len(), Some(facet_npoints), nregion, nhole).map_err(fail)?;
+    for (k, x) in holes.iter().enumerate() {
+        let x = x * scale;
+        tg.set_hole(k, x.x, x.y, x.z).map_err(fail)?;
+    }
     for (i, p) in points.iter().enumerate() {
         let p = p * scale;
         tg.set_point(i, 0, p.x, p.y, p.z).map_err(fail)?;

@@ -1,6 +1,7 @@
 //! Readers and writers: VTU/PVD for ParaView, CSV time histories.
 
 pub mod csv;
+pub mod image;
 pub mod inp;
 pub mod measured;
 pub mod mesh_file;

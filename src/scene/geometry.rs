@@ -27,6 +27,17 @@ pub enum Geometry {
         /// File length unit in m (1 for m, 0.001 for mm).
         units: f64,
     },
+    /// A labelled image (NIfTI-1 .nii/.nii.gz or NRRD .nrrd/.nhdr; relative paths against the
+    /// scene file's directory), its orientation and spacing honoured (world RAS, as 3D Slicer
+    /// shows it): the voxels whose label is in `labels` (every nonzero label when empty) are
+    /// the body, as a smoothed surface TetGen fills or as hexahedra on blocks of voxels.
+    Image {
+        file: PathBuf,
+        labels: Vec<i64>,
+        body: ImageBody,
+        /// Taubin smoothing iterations of the extracted surface.
+        smoothing: usize,
+    },
     /// A mesh file (relative paths are resolved against the scene file's directory).
     Mesh {
         file: PathBuf,
@@ -39,6 +50,22 @@ pub enum Geometry {
 }
 
 pub use crate::io::mesh_file::MeshFormat;
+
+/// How a labelled image becomes the body (`geometry.body`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum ImageBody {
+    /// The labels' surface, extracted (surface nets on the tissue fraction of blocks of
+    /// voxels about `discretization.size`), smoothed, and filled by TetGen (tets).
+    #[default]
+    Surface,
+    /// Hexahedra on blocks of voxels about `discretization.size` (a voxel-aligned body
+    /// exactly; a staircase on curved ones).
+    Voxels,
+}
+
+/// Taubin iterations of an image's surface unless `geometry.smoothing` says.
+pub const DEFAULT_IMAGE_SMOOTHING: usize = 10;
 
 /// `[geometry]` as written.
 #[derive(Debug, Clone, Serialize, Deserialize, Default)]
@@ -61,6 +88,14 @@ struct GeometryToml {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     surface: Option<PathBuf>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
+    image: Option<PathBuf>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    labels: Option<Vec<i64>>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    body: Option<ImageBody>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    smoothing: Option<usize>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     format: Option<MeshFormat>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     units: Option<f64>,
@@ -81,6 +116,9 @@ impl TryFrom<GeometryToml> for Geometry {
                 ("format", g.format.is_some()),
                 ("units", g.units.is_some()),
                 ("merge_duplicates", g.merge_duplicates.is_some()),
+                ("labels", g.labels.is_some()),
+                ("body", g.body.is_some()),
+                ("smoothing", g.smoothing.is_some()),
             ];
             match given.iter().find(|(k, set)| *set && !allowed.contains(k)) {
                 Some((k, _)) => Err(format!(
@@ -90,6 +128,25 @@ impl TryFrom<GeometryToml> for Geometry {
                 None => Ok(()),
             }
         };
+        if let Some(file) = g.image.clone() {
+            if g.mesh.is_some() || g.shape.is_some() || g.surface.is_some() {
+                return Err(
+                    "geometry: give one of `image = \"file\"`, `surface = \"file\"`, `mesh = \"file\"` or `shape`"
+                        .into(),
+                );
+            }
+            only(&["labels", "body", "smoothing"])?;
+            let body = g.body.unwrap_or_default();
+            if body == ImageBody::Voxels && g.smoothing.is_some() {
+                return Err("geometry: `smoothing` applies to body = \"surface\" (voxels are not smoothed)".into());
+            }
+            return Ok(Geometry::Image {
+                file,
+                labels: g.labels.unwrap_or_default(),
+                body,
+                smoothing: g.smoothing.unwrap_or(DEFAULT_IMAGE_SMOOTHING),
+            });
+        }
         if let Some(file) = g.surface.clone() {
             if g.mesh.is_some() || g.shape.is_some() {
                 return Err(
@@ -135,8 +192,8 @@ impl TryFrom<GeometryToml> for Geometry {
                 }
             }
             (Some(_), Some(s)) => Err(format!("geometry: give either `mesh = \"file\"` or `shape = \"{s}\"`, not both")),
-            (None, Some(s)) => Err(format!("geometry: unknown shape '{s}'; use \"box\", \"cylinder\", \"half_ellipsoid\", `mesh = \"file.inp|.msh|.vtk|.vtu\"` or `surface = \"file.stl|.obj\"`")),
-            (None, None) => Err("geometry: give `shape = \"box\" | \"cylinder\" | \"half_ellipsoid\"`, `mesh = \"file\"` or `surface = \"file.stl|.obj\"`".into()),
+            (None, Some(s)) => Err(format!("geometry: unknown shape '{s}'; use \"box\", \"cylinder\", \"half_ellipsoid\", `mesh = \"file.inp|.msh|.vtk|.vtu\"`, `surface = \"file.stl|.obj\"` or `image = \"labels.nii.gz|.nrrd\"`")),
+            (None, None) => Err("geometry: give `shape = \"box\" | \"cylinder\" | \"half_ellipsoid\"`, `mesh = \"file\"`, `surface = \"file.stl|.obj\"` or `image = \"labels.nii.gz|.nrrd\"`".into()),
         }
     }
 }
@@ -159,6 +216,18 @@ impl From<Geometry> for GeometryToml {
             Geometry::HalfEllipsoid { semi_axes } => GeometryToml {
                 shape: Some("half_ellipsoid".into()),
                 semi_axes: Some(semi_axes),
+                ..Default::default()
+            },
+            Geometry::Image {
+                file,
+                labels,
+                body,
+                smoothing,
+            } => GeometryToml {
+                image: Some(file),
+                labels: (!labels.is_empty()).then_some(labels),
+                body: Some(body),
+                smoothing: (body == ImageBody::Surface).then_some(smoothing),
                 ..Default::default()
             },
             Geometry::Surface { file, units } => GeometryToml {

@@ -79,13 +79,14 @@ pub fn load(path: &Path, overrides: &[String]) -> Result<Scene> {
     parse(&text, path, overrides)
 }
 
-/// A body from a surface file is filled with tetrahedra, so a scene that names no element gets
-/// tet4-anp (the non-locking tet) rather than the hex8 default it could not use.
+/// A body from a surface file (or an image's surface) is filled with tetrahedra, so a scene
+/// that names no element gets tet4-anp (the non-locking tet) rather than the hex8 default it
+/// could not use.
 fn surface_element_default(value: &mut toml::Table) -> bool {
-    let surface = value
-        .get("geometry")
-        .and_then(|g| g.get("surface"))
-        .is_some();
+    let g = value.get("geometry");
+    let surface = g.and_then(|g| g.get("surface")).is_some()
+        || (g.and_then(|g| g.get("image")).is_some()
+            && g.and_then(|g| g.get("body")).and_then(|b| b.as_str()) != Some("voxels"));
     let named = value
         .get("discretization")
         .and_then(|d| d.get("element"))

@@ -125,6 +125,10 @@ pub struct RegionSpec {
     /// An element set of the mesh file.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub elements: Option<String>,
+    /// Labels of the geometry's image (`geometry.image`): the points whose nearest voxel has
+    /// one of them.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub labels: Option<Vec<i64>>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub model: Option<String>,
     #[serde(default, skip_serializing_if = "Option::is_none")]

@@ -251,6 +251,20 @@ fn check_geometry(s: &Scene) -> std::result::Result<(), String> {
                 ));
             }
         }
+        Geometry::Image { file, labels, .. } => {
+            if crate::io::image::ImageFormat::from_path(file).is_none() {
+                return Err(format!(
+                    "geometry.image = '{}': unknown extension; use a NIfTI-1 (.nii, .nii.gz) or NRRD (.nrrd, .nhdr) labelmap",
+                    file.display()
+                ));
+            }
+            if labels.contains(&0) {
+                return Err("geometry.labels: label 0 is background (holes stay holes); list the tissue labels".into());
+            }
+            if s.discretization.size.is_none() {
+                return Err("geometry.image needs discretization.size (the element edge, m; the image's voxels are grouped in blocks about that size)".into());
+            }
+        }
         Geometry::Mesh {
             file,
             format,
@@ -305,7 +319,7 @@ fn check_discretization(s: &Scene) -> std::result::Result<(), String> {
         Geometry::Box { min, max } => Some([max[0] - min[0], max[1] - min[1], max[2] - min[2]]),
         Geometry::Cylinder { radius, height } => Some([2.0 * radius, 2.0 * radius, *height]),
         Geometry::HalfEllipsoid { semi_axes: a } => Some([2.0 * a[0], 2.0 * a[1], a[2]]),
-        Geometry::Mesh { .. } | Geometry::Surface { .. } => None,
+        Geometry::Mesh { .. } | Geometry::Surface { .. } | Geometry::Image { .. } => None,
     };
     if let (Some(e), Some(h), None) = (extent, d.size, d.divisions) {
         let n: f64 = e.iter().map(|l| (l / h).max(1.0)).product();
@@ -470,17 +484,29 @@ fn check_materials_and_curves(s: &Scene) -> std::result::Result<(), String> {
     check_material(&s.material, "material")?;
     for (name, r) in &s.regions {
         let key = format!("regions.{name}");
-        match (&r.select, &r.elements) {
-            (Some(Selection::Plane { .. }), _) | (Some(Selection::Set(_)), _) => {
+        match (&r.select, &r.elements, &r.labels) {
+            (Some(Selection::Plane { .. }), _, _) | (Some(Selection::Set(_)), _, _) => {
                 return Err(format!(
                     "{key}.select: a region is a volume; use a box, sphere or cylinder (or \
                      `elements = \"SET\"` for an element set of the mesh file)"
                 ))
             }
-            (Some(_), None) | (None, Some(_)) => {}
+            (Some(_), None, None) | (None, Some(_), None) => {}
+            (None, None, Some(labels)) => {
+                if !matches!(s.geometry, Geometry::Image { .. }) {
+                    return Err(format!(
+                        "{key}.labels selects voxels of the geometry's image: it needs `geometry.image`"
+                    ));
+                }
+                if labels.is_empty() || labels.contains(&0) {
+                    return Err(format!(
+                        "{key}.labels = {labels:?}: list one or more nonzero labels of the image"
+                    ));
+                }
+            }
             _ => {
                 return Err(format!(
-                    "{key}: give either `select = {{ box | sphere | cylinder = ... }}` or `elements = \"SET\"`"
+                    "{key}: give one of `select = {{ box | sphere | cylinder = ... }}`, `elements = \"SET\"` or `labels = [N, ...]`"
                 ))
             }
         }

@@ -35,9 +35,36 @@ pub(super) fn point_materials(
     let mut index = vec![0u16; n];
     let mut counts = Vec::new();
     let names: Vec<&String> = scene.regions.keys().collect();
+    let image = if scene.regions.values().any(|r| r.labels.is_some()) {
+        super::translate::geometry_image(scene)?
+    } else {
+        None
+    };
     for (k, (name, r)) in scene.regions.iter().enumerate() {
         let what = format!("region '{name}'");
         let members: Vec<usize> = match (&r.select, &r.elements) {
+            _ if r.labels.is_some() => {
+                let labels = r.labels.as_deref().unwrap_or_default();
+                let Some((im, path)) = image.as_ref() else {
+                    return Err(Error::Input(format!(
+                        "{what}: labels select voxels of geometry.image, which this scene has not"
+                    )));
+                };
+                let v: Vec<usize> = (0..n)
+                    .filter(|&p| {
+                        im.nearest(&places.position[p])
+                            .is_some_and(|l| labels.contains(&(l.round() as i64)))
+                    })
+                    .collect();
+                if v.is_empty() {
+                    return Err(Error::Input(format!(
+                        "{what}: no integration point lies in a voxel labelled {labels:?} of {} \
+                         (the labels' tissue may be smaller than the discretization.size)",
+                        path.display()
+                    )));
+                }
+                v
+            }
             (Some(sel), _) => sel
                 .select(&places.position, &what)
                 .map_err(|e| Error::Input(format!("{e} (a region selects integration points)")))?,

@@ -19,7 +19,7 @@ use crate::meshless::integration::TetRule;
 use crate::meshless::mls::MlsSettings;
 use crate::meshless::support::SupportRule;
 use crate::scene::{
-    BcMethod, CloudKind, ElementName, Geometry, IntegrationKind, Mesher, Method, Scene, SupportKind,
+    BcMethod, CloudKind, ElementName, Geometry, ImageBody, IntegrationKind, Mesher, Method, Scene, SupportKind,
 };
 use crate::solver::Settings;
 use crate::{Error, Result};
@@ -37,7 +37,101 @@ fn count(len: f64, h: f64, min: usize) -> usize {
 /// TetGen can fill).
 pub fn tetgen_meshed(scene: &Scene) -> bool {
     scene.discretization.mesher == Mesher::Tetgen
-        || matches!(scene.geometry, Geometry::Surface { .. })
+        || matches!(
+            scene.geometry,
+            Geometry::Surface { .. }
+                | Geometry::Image {
+                    body: ImageBody::Surface,
+                    ..
+                }
+        )
+}
+
+/// The scene's labelled image (`geometry.image`), read; None for other geometries.
+pub fn geometry_image(scene: &Scene) -> Result<Option<(crate::io::image::Image, PathBuf)>> {
+    match &scene.geometry {
+        Geometry::Image { file, .. } => {
+            let path = scene_path(scene, file);
+            let image = crate::io::image::read_image(&path)?;
+            log::info!(
+                "image {}: {:?} voxels of {:.4e} x {:.4e} x {:.4e} m",
+                path.display(),
+                image.dims,
+                image.spacing()[0],
+                image.spacing()[1],
+                image.spacing()[2]
+            );
+            Ok(Some((image, path)))
+        }
+        _ => Ok(None),
+    }
+}
+
+/// Voxels per block edge for an image body: the discretization's size over the smallest
+/// voxel spacing, at least 1.
+fn image_block(scene: &Scene, image: &crate::io::image::Image) -> usize {
+    let h = scene.discretization.size.unwrap_or(0.0);
+    let s = image.spacing().into_iter().fold(f64::INFINITY, f64::min);
+    ((h / s).round() as usize).max(1)
+}
+
+/// The hexahedra of an image's voxels (`body = "voxels"`), split into tets for tet elements.
+fn image_voxel_mesh(scene: &Scene, shape: ElementShape) -> Result<Mesh> {
+    let Some((image, path)) = geometry_image(scene)? else {
+        unreachable!("called for image geometries")
+    };
+    let Geometry::Image { labels, .. } = &scene.geometry else {
+        unreachable!("called for image geometries")
+    };
+    let mask = crate::geometry::image_body::tissue_mask(&image, labels);
+    let block = image_block(scene, &image);
+    let what = path.display().to_string();
+    let (mesh, dropped) = crate::geometry::image_body::voxel_mesh(&image, &mask, block, &what)?;
+    if dropped > 0 {
+        log::warn!("{what}: {dropped} block(s) of tissue apart from the body were dropped (they would float free)");
+    }
+    log::info!(
+        "voxel mesh of {what}: {} hexahedra of {block}^3 voxels, {} nodes",
+        mesh.num_cells(),
+        mesh.nodes.len()
+    );
+    Ok(match shape {
+        ElementShape::Hex8 => mesh,
+        ElementShape::Tet4 => crate::meshless::discretize::hex_to_tets(mesh),
+    })
+}
+
+/// The surface of an image's tissue (`body = "surface"`), for TetGen.
+#[cfg(feature = "tetgen")]
+fn image_surface(scene: &Scene) -> Result<crate::geometry::closed_surface::ClosedSurface> {
+    let Some((image, path)) = geometry_image(scene)? else {
+        unreachable!("called for image geometries")
+    };
+    let Geometry::Image {
+        labels, smoothing, ..
+    } = &scene.geometry
+    else {
+        unreachable!("called for image geometries")
+    };
+    let mask = crate::geometry::image_body::tissue_mask(&image, labels);
+    let block = image_block(scene, &image);
+    let what = path.display().to_string();
+    let (surface, report) =
+        crate::geometry::image_body::label_surface(&image, &mask, block, *smoothing, &what)?;
+    if report.islands > 0 {
+        log::warn!(
+            "{what}: {} piece(s) of tissue apart from the body were dropped (they would float free)",
+            report.islands
+        );
+    }
+    log::info!(
+        "surface of {what}: {} triangles at {block} voxel(s) a block, {} cavit{}, {:.4e} m^3",
+        surface.triangles.len(),
+        report.cavities,
+        if report.cavities == 1 { "y" } else { "ies" },
+        surface.volume()
+    );
+    Ok(surface)
 }
 
 /// Builds the scene's mesh (structured hex/tet or TetGen tets).
@@ -47,6 +141,13 @@ pub fn build_mesh(scene: &Scene) -> Result<Mesh> {
     let shape = kind.shape();
     if let Geometry::Mesh { .. } = &scene.geometry {
         return Ok(load_mesh(scene)?.mesh);
+    }
+    if let Geometry::Image {
+        body: ImageBody::Voxels,
+        ..
+    } = &scene.geometry
+    {
+        return image_voxel_mesh(scene, shape);
     }
     if tetgen_meshed(scene) {
         if shape != ElementShape::Tet4 {
@@ -216,6 +317,9 @@ fn tetgen_mesh(scene: &Scene) -> Result<Mesh> {
                 surface.volume()
             );
             tetgen::tetgen_surface(&surface, max_volume, d.radius_edge_ratio)
+        }
+        Geometry::Image { .. } => {
+            tetgen::tetgen_surface(&image_surface(scene)?, max_volume, d.radius_edge_ratio)
         }
         Geometry::Mesh { .. } => Err(Error::Input(
             "discretization.mesher = 'tetgen' meshes built-in shapes; a mesh file is used as it is (remove mesher)".into(),
@@ -495,7 +599,7 @@ pub fn domain(scene: &Scene) -> Option<Domain> {
         Geometry::HalfEllipsoid { semi_axes } => Some(Domain::HalfEllipsoid {
             semi_axes: Vector3::from(*semi_axes),
         }),
-        Geometry::Mesh { .. } | Geometry::Surface { .. } => None,
+        Geometry::Mesh { .. } | Geometry::Surface { .. } | Geometry::Image { .. } => None,
     }
 }
 
@@ -529,7 +633,7 @@ pub fn spacing(scene: &Scene) -> Result<f64> {
             .zip(div)
             .map(|(len, n)| len / n.max(1) as f64)
             .fold(f64::INFINITY, f64::min),
-        Geometry::Mesh { .. } | Geometry::Surface { .. } => {
+        Geometry::Mesh { .. } | Geometry::Surface { .. } | Geometry::Image { .. } => {
             return Err(Error::Input(
                 "a node spacing from `divisions` needs a built-in shape; give discretization.size"
                     .into(),
@@ -675,6 +779,18 @@ pub fn meshless_settings(scene: &Scene) -> Result<MeshlessSettings> {
                         file.display()
                     )
                 }
+                Geometry::Image {
+                    file,
+                    body: ImageBody::Surface,
+                    ..
+                } => format!(
+                    "vertices of a TetGen tet mesh of the labels' surface in {}",
+                    file.display()
+                ),
+                Geometry::Image { file, .. } => format!(
+                    "corners of the labelled voxels of {} (hexahedra split into six tets each)",
+                    file.display()
+                ),
                 _ if d.mesher == Mesher::Tetgen => "vertices of a TetGen tet mesh".into(),
                 _ => "vertices of a structured tet mesh".into(),
             };

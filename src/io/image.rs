@@ -1,0 +1,869 @@
+//! Volume images: labelmaps and scalar images in (NIfTI-1 `.nii`, `.nii.gz`; NRRD `.nrrd`,
+//! `.nhdr`), scalar images and displacement fields out, with the orientation and spacing of
+//! the file honoured.
+//!
+//! World coordinates are those 3D Slicer shows: RAS (x increasing to the patient's Right, y to
+//! Anterior, z to Superior), in metres inside hytled.
+//! NIfTI stores RAS in millimetres (its sform, else its qform, else its voxel sizes); NRRD
+//! stores its `space` (LPS for Slicer's files: x and y are negated into RAS) with `space
+//! directions` and `space origin`, millimetres unless `space units` says otherwise.
+//!
+//! Displacement fields are written as ITK and 3D Slicer read them as a displacement-field
+//! (grid) transform: vector components in LPS millimetres, on the image's grid (NIfTI: 5-D
+//! with intent VECTOR, the ANTs convention; NRRD: a `vector` axis first, `space:
+//! left-posterior-superior`).
+
+use std::io::{BufRead, Read, Write};
+use std::path::Path;
+
+use nalgebra::{Matrix3, Matrix4, Vector3};
+
+use super::file_error;
+use crate::{Error, Result};
+
+/// A 3-D image: voxel values and the map from voxel index to world position.
+#[derive(Debug, Clone)]
+pub struct Image {
+    /// Voxels along i, j, k.
+    pub dims: [usize; 3],
+    /// Values, i fastest: voxel (i, j, k) at `i + dims[0] * (j + dims[1] * k)`.
+    pub values: Vec<f64>,
+    /// Voxel index (i, j, k, 1) to world (RAS, m): the voxel's centre.
+    pub to_world: Matrix4<f64>,
+}
+
+impl Image {
+    /// An image of `dims` voxels with the index-to-world map `to_world` (RAS, m), all `value`.
+    pub fn filled(dims: [usize; 3], to_world: Matrix4<f64>, value: f64) -> Self {
+        Image {
+            dims,
+            values: vec![value; dims[0] * dims[1] * dims[2]],
+            to_world,
+        }
+    }
+
+    /// Number of voxels.
+    pub fn len(&self) -> usize {
+        self.values.len()
+    }
+
+    /// Whether the image holds no voxel.
+    pub fn is_empty(&self) -> bool {
+        self.values.is_empty()
+    }
+
+    /// Linear index of voxel (i, j, k).
+    pub fn index(&self, i: usize, j: usize, k: usize) -> usize {
+        i + self.dims[0] * (j + self.dims[1] * k)
+    }
+
+    /// World position (RAS, m) of continuous voxel index `ijk`.
+    pub fn world(&self, ijk: &Vector3<f64>) -> Vector3<f64> {
+        (self.to_world * ijk.push(1.0)).xyz()
+    }
+
+    /// The 3x3 part of the map: column c is the step (m) from one voxel to the next along c.
+    pub fn axes(&self) -> Matrix3<f64> {
+        self.to_world.fixed_view::<3, 3>(0, 0).into_owned()
+    }
+
+    /// Voxel spacing along i, j, k, m.
+    pub fn spacing(&self) -> [f64; 3] {
+        let a = self.axes();
+        [a.column(0).norm(), a.column(1).norm(), a.column(2).norm()]
+    }
+
+    /// The continuous voxel index of world point `x` (RAS, m).
+    pub fn index_of(&self, x: &Vector3<f64>) -> Vector3<f64> {
+        // Checked invertible on reading.
+        let inv = self.axes().try_inverse().unwrap_or_else(Matrix3::zeros);
+        inv * (x - self.to_world.fixed_view::<3, 1>(0, 3))
+    }
+
+    /// The value of the voxel nearest `x` (RAS, m); None outside the image.
+    pub fn nearest(&self, x: &Vector3<f64>) -> Option<f64> {
+        let c = self.index_of(x);
+        let mut ijk = [0usize; 3];
+        for a in 0..3 {
+            let r = c[a].round();
+            if !(r >= 0.0 && r < self.dims[a] as f64) {
+                return None;
+            }
+            ijk[a] = r as usize;
+        }
+        Some(self.values[self.index(ijk[0], ijk[1], ijk[2])])
+    }
+
+    /// Trilinear interpolation at `x` (RAS, m); None outside the voxel centres' hull (half a
+    /// voxel inside the image's outer faces).
+    pub fn trilinear(&self, x: &Vector3<f64>) -> Option<f64> {
+        let c = self.index_of(x);
+        let mut base = [0usize; 3];
+        let mut f = [0.0; 3];
+        for a in 0..3 {
+            let n = self.dims[a];
+            if !(c[a] >= 0.0 && c[a] <= (n - 1) as f64) {
+                return None;
+            }
+            let b = (c[a].floor() as usize).min(n.saturating_sub(2));
+            base[a] = b;
+            f[a] = if n == 1 { 0.0 } else { c[a] - b as f64 };
+        }
+        let mut v = 0.0;
+        for corner in 0..8 {
+            let d = [corner & 1, (corner >> 1) & 1, (corner >> 2) & 1];
+            let mut w = 1.0;
+            let mut at = [0usize; 3];
+            for a in 0..3 {
+                w *= if d[a] == 1 { f[a] } else { 1.0 - f[a] };
+                at[a] = (base[a] + d[a]).min(self.dims[a] - 1);
+            }
+            if w != 0.0 {
+                v += w * self.values[self.index(at[0], at[1], at[2])];
+            }
+        }
+        Some(v)
+    }
+}
+
+/// Image file formats, by extension.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ImageFormat {
+    /// NIfTI-1, `.nii` or `.nii.gz`.
+    Nifti,
+    /// NRRD, `.nrrd` (attached) or `.nhdr` (detached header, reading only).
+    Nrrd,
+}
+
+impl ImageFormat {
+    /// The format a path's extension names.
+    pub fn from_path(path: &Path) -> Option<Self> {
+        let name = path.file_name()?.to_string_lossy().to_ascii_lowercase();
+        if name.ends_with(".nii") || name.ends_with(".nii.gz") {
+            Some(ImageFormat::Nifti)
+        } else if name.ends_with(".nrrd") || name.ends_with(".nhdr") {
+            Some(ImageFormat::Nrrd)
+        } else {
+            None
+        }
+    }
+}
+
+/// Largest image read (voxels): 1 GiB of f64 values.
+const MAX_VOXELS: usize = 1 << 27;
+
+fn check_map(path: &Path, dims: [usize; 3], to_world: Matrix4<f64>) -> Result<Image> {
+    if dims.contains(&0) {
+        return Err(file_error(path, format!("the image has {dims:?} voxels; every axis needs at least one")));
+    }
+    let n = dims[0]
+        .checked_mul(dims[1])
+        .and_then(|v| v.checked_mul(dims[2]))
+        .filter(|&n| n <= MAX_VOXELS)
+        .ok_or_else(|| {
+            file_error(
+                path,
+                format!("the image has {dims:?} voxels, more than the {MAX_VOXELS} hytled reads; crop or resample it"),
+            )
+        })?;
+    let axes = to_world.fixed_view::<3, 3>(0, 0).into_owned();
+    let det = axes.determinant();
+    let scale = axes.column(0).norm() * axes.column(1).norm() * axes.column(2).norm();
+    if !to_world.iter().all(|v| v.is_finite()) || !(det.abs() > 1e-6 * scale) || scale == 0.0 {
+        return Err(file_error(
+            path,
+            format!(
+                "the image's voxel axes (columns, m) {:?} are degenerate: the voxels have no volume; fix the header's spacing and direction",
+                axes.as_slice()
+            ),
+        ));
+    }
+    Ok(Image::filled(dims, to_world, 0.0)).map(|mut im| {
+        im.values = vec![0.0; n];
+        im
+    })
+}
+
+/// Reads a NIfTI-1 or NRRD image (by extension): its first 3-D volume, values scaled as the
+/// file says, world positions RAS in metres.
+pub fn read_image(path: &Path) -> Result<Image> {
+    match ImageFormat::from_path(path) {
+        Some(ImageFormat::Nifti) => read_nifti(path),
+        Some(ImageFormat::Nrrd) => read_nrrd(path),
+        None => Err(file_error(
+            path,
+            "unknown image format; use NIfTI (.nii, .nii.gz) or NRRD (.nrrd, .nhdr)",
+        )),
+    }
+}
+
+/// The NIfTI length unit in m (xyzt_units bits 0-2: 1 m, 2 mm, 3 micron; 0, unknown, read as
+/// mm as 3D Slicer and ITK do).
+fn nifti_unit(xyzt_units: u8) -> f64 {
+    match xyzt_units & 7 {
+        1 => 1.0,
+        3 => 1e-6,
+        _ => 1e-3,
+    }
+}
+
+fn read_nifti(path: &Path) -> Result<Image> {
+    use nifti::{IntoNdArray, NiftiObject};
+    if !path.is_file() {
+        return Err(file_error(path, "no such image file"));
+    }
+    let object = super::catch_quietly(|| nifti::ReaderOptions::new().read_file(path))
+        .map_err(|_| file_error(path, "not a readable NIfTI-1 file (its reader failed)"))?
+        .map_err(|e| file_error(path, format!("not a readable NIfTI-1 file: {e}")))?;
+    let h = object.header().clone();
+    let ndim = h.dim[0] as usize;
+    if !(1..=7).contains(&ndim) {
+        return Err(file_error(path, format!("dim[0] = {ndim}; NIfTI allows 1 to 7")));
+    }
+    let size = |a: usize| if a <= ndim { h.dim[a].max(1) as usize } else { 1 };
+    let dims = [size(1), size(2), size(3)];
+    let extra: usize = (4..=ndim).map(size).product();
+    let unit = nifti_unit(h.xyzt_units);
+    let to_world = nifti_affine(&h).map_err(|m| file_error(path, m))? * unit;
+    let mut to_world = to_world;
+    to_world[(3, 3)] = 1.0;
+    let mut image = check_map(path, dims, to_world)?;
+    let array = super::catch_quietly(|| object.into_volume().into_ndarray::<f64>())
+        .map_err(|_| file_error(path, "its voxel data could not be read"))?
+        .map_err(|e| file_error(path, format!("its voxel data could not be read: {e}")))?;
+    if array.len() != image.len() * extra {
+        return Err(file_error(
+            path,
+            format!("it holds {} values for {dims:?} voxels", array.len()),
+        ));
+    }
+    if extra > 1 {
+        log::warn!(
+            "{}: the image has {extra} volumes (4-D or more); the first is read",
+            path.display()
+        );
+    }
+    let shape = array.shape().to_vec();
+    for k in 0..dims[2] {
+        for j in 0..dims[1] {
+            for i in 0..dims[0] {
+                let mut at = vec![0usize; shape.len()];
+                for (a, v) in [i, j, k].into_iter().enumerate().take(shape.len()) {
+                    at[a] = v;
+                }
+                let v = array[at.as_slice()];
+                let n = image.index(i, j, k);
+                image.values[n] = v;
+            }
+        }
+    }
+    if let Some(n) = image.values.iter().position(|v| !v.is_finite()) {
+        return Err(file_error(
+            path,
+            format!("voxel {n} holds {}, not a finite number", image.values[n]),
+        ));
+    }
+    Ok(image)
+}
+
+/// The NIfTI index-to-world map in the file's unit (RAS): the sform where its code is set, else
+/// the qform (quaternion, offsets, voxel sizes and qfac), else the voxel sizes alone.
+fn nifti_affine(h: &nifti::NiftiHeader) -> std::result::Result<Matrix4<f64>, String> {
+    let p = |a: usize| h.pixdim[a] as f64;
+    if h.sform_code > 0 {
+        let r = [h.srow_x, h.srow_y, h.srow_z];
+        let mut m = Matrix4::identity();
+        for (row, s) in r.iter().enumerate() {
+            for c in 0..4 {
+                m[(row, c)] = s[c] as f64;
+            }
+        }
+        return Ok(m);
+    }
+    for a in 1..=3 {
+        if !(p(a) > 0.0 && p(a).is_finite()) {
+            return Err(format!(
+                "voxel size pixdim[{a}] = {} must be positive (no sform is set, so the spacing comes from pixdim)",
+                p(a)
+            ));
+        }
+    }
+    let scale = Matrix3::from_diagonal(&Vector3::new(p(1), p(2), p(3)));
+    let (r, offset) = if h.qform_code > 0 {
+        let (b, c, d) = (h.quatern_b as f64, h.quatern_c as f64, h.quatern_d as f64);
+        let a = (1.0 - (b * b + c * c + d * d)).max(0.0).sqrt();
+        let mut r = Matrix3::new(
+            a * a + b * b - c * c - d * d,
+            2.0 * (b * c - a * d),
+            2.0 * (b * d + a * c),
+            2.0 * (b * c + a * d),
+            a * a + c * c - b * b - d * d,
+            2.0 * (c * d - a * b),
+            2.0 * (b * d - a * c),
+            2.0 * (c * d + a * b),
+            a * a + d * d - c * c - b * b,
+        );
+        if h.pixdim[0] < 0.0 {
+            r.column_mut(2).neg_mut();
+        }
+        (
+            r,
+            Vector3::new(h.quatern_x as f64, h.quatern_y as f64, h.quatern_z as f64),
+        )
+    } else {
+        (Matrix3::identity(), Vector3::zeros())
+    };
+    let mut m = Matrix4::identity();
+    m.fixed_view_mut::<3, 3>(0, 0).copy_from(&(r * scale));
+    m.fixed_view_mut::<3, 1>(0, 3).copy_from(&offset);
+    Ok(m)
+}
+
+/// NRRD header fields (lower-case keys) and where its data starts.
+struct NrrdHeader {
+    fields: Vec<(String, String)>,
+}
+
+impl NrrdHeader {
+    fn get(&self, key: &str) -> Option<&str> {
+        self.fields
+            .iter()
+            .find(|(k, _)| k == key)
+            .map(|(_, v)| v.as_str())
+    }
+}
+
+fn parse_vector(s: &str) -> Option<Vec<f64>> {
+    let t = s.trim();
+    let inner = t.strip_prefix('(')?.strip_suffix(')')?;
+    inner.split(',').map(|v| v.trim().parse().ok()).collect()
+}
+
+fn read_nrrd(path: &Path) -> Result<Image> {
+    let file = std::fs::File::open(path).map_err(|e| file_error(path, e))?;
+    let mut reader = std::io::BufReader::new(file);
+    let mut line = String::new();
+    let mut fields = Vec::new();
+    let mut first = true;
+    let mut line_no = 0usize;
+    loop {
+        line.clear();
+        let n = reader
+            .read_line(&mut line)
+            .map_err(|e| file_error(path, format!("the header is not text: {e}")))?;
+        line_no += 1;
+        let l = line.trim_end_matches(['\n', '\r']);
+        if first {
+            if !l.starts_with("NRRD000") {
+                return Err(file_error(path, "not a NRRD file (it does not begin with NRRD000N)"));
+            }
+            first = false;
+            continue;
+        }
+        if n == 0 || l.is_empty() {
+            break;
+        }
+        if l.starts_with('#') {
+            continue;
+        }
+        if let Some((k, v)) = l.split_once(": ") {
+            fields.push((k.trim().to_ascii_lowercase(), v.trim().to_string()));
+        } else if l.contains(":=") {
+            continue; // key/value pairs carry no geometry
+        } else {
+            return Err(file_error(
+                path,
+                format!("line {line_no}: '{}' is not a NRRD field (\"name: value\")", super::clip(l)),
+            ));
+        }
+    }
+    let h = NrrdHeader { fields };
+    let need = |k: &str| {
+        h.get(k)
+            .ok_or_else(|| file_error(path, format!("the NRRD header has no '{k}' field")))
+    };
+    let dimension: usize = need("dimension")?
+        .parse()
+        .map_err(|_| file_error(path, "dimension is not a whole number"))?;
+    let sizes: Vec<usize> = need("sizes")?
+        .split_whitespace()
+        .map(|s| s.parse().ok())
+        .collect::<Option<Vec<_>>>()
+        .filter(|v: &Vec<usize>| v.len() == dimension)
+        .ok_or_else(|| file_error(path, format!("sizes must list {dimension} whole numbers")))?;
+    let kinds: Vec<String> = h
+        .get("kinds")
+        .map(|k| k.split_whitespace().map(|s| s.to_ascii_lowercase()).collect())
+        .unwrap_or_default();
+    // The spatial axes: kinds 'domain'/'space' where given, else all axes (3 of them).
+    let spatial: Vec<usize> = if kinds.len() == dimension {
+        (0..dimension)
+            .filter(|&a| matches!(kinds[a].as_str(), "domain" | "space" | "time"))
+            .take(3)
+            .collect()
+    } else {
+        (0..dimension.min(3)).collect()
+    };
+    if spatial.len() != 3 || dimension > 4 {
+        return Err(file_error(
+            path,
+            format!("a 3-D image (three domain axes, at most one more) is needed; it has dimension {dimension} with kinds {kinds:?}"),
+        ));
+    }
+    if spatial.iter().enumerate().any(|(i, &a)| a != i + dimension - 3) {
+        return Err(file_error(path, "the three domain axes must be the last ones (a component axis first)"));
+    }
+    let lead = dimension - 3;
+    let components = if lead == 1 { sizes[0] } else { 1 };
+    let dims = [sizes[lead], sizes[lead + 1], sizes[lead + 2]];
+    // Orientation: space directions (one per axis, 'none' for non-spatial) or spacings.
+    let space = h.get("space").map(|s| s.to_ascii_lowercase());
+    let flip = match space.as_deref() {
+        None => [1.0, 1.0, 1.0],
+        Some("right-anterior-superior" | "ras" | "scanner-xyz" | "3d-right-handed") => [1.0, 1.0, 1.0],
+        Some("left-posterior-superior" | "lps") => [-1.0, -1.0, 1.0],
+        Some("left-anterior-superior" | "las") => [-1.0, 1.0, 1.0],
+        Some(s) => {
+            return Err(file_error(
+                path,
+                format!("space '{s}' is not supported; use right-anterior-superior or left-posterior-superior"),
+            ))
+        }
+    };
+    let unit = match h.get("space units") {
+        None => 1e-3,
+        Some(u) => {
+            let first = u
+                .split_whitespace()
+                .next()
+                .unwrap_or("")
+                .trim_matches('"')
+                .to_ascii_lowercase();
+            match first.as_str() {
+                "mm" | "" => 1e-3,
+                "m" => 1.0,
+                "cm" => 1e-2,
+                "um" | "micron" => 1e-6,
+                other => {
+                    return Err(file_error(path, format!("space units '{other}' unknown; use mm, cm, m or um")))
+                }
+            }
+        }
+    };
+    let mut to_world = Matrix4::identity();
+    if let Some(d) = h.get("space directions") {
+        let mut parts = Vec::new();
+        let mut rest = d.trim();
+        while !rest.is_empty() {
+            if let Some(r) = rest.strip_prefix("none") {
+                parts.push(None);
+                rest = r.trim_start();
+            } else if let Some(end) = rest.find(')') {
+                let v = parse_vector(&rest[..=end]).filter(|v| v.len() == 3).ok_or_else(|| {
+                    file_error(path, format!("space directions: '{}' is not a 3-vector", super::clip(&rest[..=end])))
+                })?;
+                parts.push(Some(v));
+                rest = rest[end + 1..].trim_start();
+            } else {
+                return Err(file_error(path, "space directions: expected (x,y,z) vectors or none"));
+            }
+        }
+        if parts.len() != dimension {
+            return Err(file_error(path, format!("space directions lists {} axes; dimension is {dimension}", parts.len())));
+        }
+        for a in 0..3 {
+            let v = parts[lead + a].clone().ok_or_else(|| {
+                file_error(path, format!("space directions: domain axis {} is 'none'", lead + a))
+            })?;
+            for r in 0..3 {
+                to_world[(r, a)] = v[r] * flip[r] * unit;
+            }
+        }
+        if let Some(o) = h.get("space origin") {
+            let o = parse_vector(o)
+                .filter(|v| v.len() == 3)
+                .ok_or_else(|| file_error(path, "space origin is not a 3-vector (x,y,z)"))?;
+            for r in 0..3 {
+                to_world[(r, 3)] = o[r] * flip[r] * unit;
+            }
+        }
+    } else if let Some(s) = h.get("spacings") {
+        let v: Vec<f64> = s
+            .split_whitespace()
+            .map(|x| x.parse().unwrap_or(f64::NAN))
+            .collect();
+        if v.len() != dimension {
+            return Err(file_error(path, "spacings must list one value per axis"));
+        }
+        for a in 0..3 {
+            to_world[(a, a)] = v[lead + a] * unit;
+        }
+    } else {
+        for a in 0..3 {
+            to_world[(a, a)] = unit;
+        }
+    }
+    let mut image = check_map(path, dims, to_world)?;
+    // The data.
+    let kind = need("type")?.to_ascii_lowercase();
+    let (bytes, read): (usize, fn(&[u8], bool) -> f64) = match kind.as_str() {
+        "signed char" | "int8" | "int8_t" => (1, |b, _| b[0] as i8 as f64),
+        "uchar" | "unsigned char" | "uint8" | "uint8_t" => (1, |b, _| b[0] as f64),
+        "short" | "short int" | "signed short" | "signed short int" | "int16" | "int16_t" => (2, |b, be| {
+            let a = [b[0], b[1]];
+            (if be { i16::from_be_bytes(a) } else { i16::from_le_bytes(a) }) as f64
+        }),
+        "ushort" | "unsigned short" | "unsigned short int" | "uint16" | "uint16_t" => (2, |b, be| {
+            let a = [b[0], b[1]];
+            (if be { u16::from_be_bytes(a) } else { u16::from_le_bytes(a) }) as f64
+        }),
+        "int" | "signed int" | "int32" | "int32_t" => (4, |b, be| {
+            let a = [b[0], b[1], b[2], b[3]];
+            (if be { i32::from_be_bytes(a) } else { i32::from_le_bytes(a) }) as f64
+        }),
+        "uint" | "unsigned int" | "uint32" | "uint32_t" => (4, |b, be| {
+            let a = [b[0], b[1], b[2], b[3]];
+            (if be { u32::from_be_bytes(a) } else { u32::from_le_bytes(a) }) as f64
+        }),
+        "float" => (4, |b, be| {
+            let a = [b[0], b[1], b[2], b[3]];
+            (if be { f32::from_be_bytes(a) } else { f32::from_le_bytes(a) }) as f64
+        }),
+        "double" => (8, |b, be| {
+            let a: [u8; 8] = std::array::from_fn(|i| b[i]);
+            if be { f64::from_be_bytes(a) } else { f64::from_le_bytes(a) }
+        }),
+        other => {
+            return Err(file_error(path, format!("type '{other}' is not supported (use an integer type, float or double)")))
+        }
+    };
+    let big = h.get("endian").is_some_and(|e| e.eq_ignore_ascii_case("big"));
+    let encoding = need("encoding")?.to_ascii_lowercase();
+    let mut raw = Vec::new();
+    match h.get("data file").or_else(|| h.get("datafile")) {
+        Some(f) => {
+            let data_path = path.parent().unwrap_or(Path::new(".")).join(f);
+            std::fs::File::open(&data_path)
+                .and_then(|mut d| d.read_to_end(&mut raw))
+                .map_err(|e| file_error(&data_path, format!("the NRRD data file: {e}")))?;
+        }
+        None => {
+            reader.read_to_end(&mut raw).map_err(|e| file_error(path, e))?;
+        }
+    }
+    let raw = match encoding.as_str() {
+        "raw" => raw,
+        "gzip" | "gz" => {
+            let mut out = Vec::new();
+            flate2::read::MultiGzDecoder::new(&raw[..])
+                .read_to_end(&mut out)
+                .map_err(|e| file_error(path, format!("its gzip data could not be inflated: {e}")))?;
+            out
+        }
+        other => {
+            return Err(file_error(path, format!("encoding '{other}' is not supported (use raw or gzip)")))
+        }
+    };
+    let need_bytes = image.len() * components * bytes;
+    if raw.len() < need_bytes {
+        return Err(file_error(
+            path,
+            format!("it holds {} bytes of data; {dims:?} voxels of {components} {kind} need {need_bytes}", raw.len()),
+        ));
+    }
+    // A detached or attached raw file may carry a header before the data: the data are last.
+    let start = if encoding == "raw" { raw.len() - need_bytes } else { 0 };
+    for (n, v) in image.values.iter_mut().enumerate() {
+        let at = start + n * components * bytes;
+        *v = read(&raw[at..at + bytes], big);
+    }
+    if let Some(n) = image.values.iter().position(|v| !v.is_finite()) {
+        return Err(file_error(path, format!("voxel {n} holds {}, not a finite number", image.values[n])));
+    }
+    Ok(image)
+}
+
+/// LPS from RAS (and back): x and y negated.
+fn lps(v: &Vector3<f64>) -> Vector3<f64> {
+    Vector3::new(-v.x, -v.y, v.z)
+}
+
+fn io_error(path: &Path, e: impl std::fmt::Display) -> Error {
+    file_error(path, format!("could not be written: {e}"))
+}
+
+/// The NIfTI header of a 3-D image on `grid`'s voxels (sform and qform, mm, RAS).
+fn nifti_header(grid: &Image) -> nifti::NiftiHeader {
+    let mut h = nifti::NiftiHeader::default();
+    let m = grid.to_world * 1e3;
+    let axes = grid.axes() * 1e3;
+    let s = grid.spacing().map(|v| v * 1e3);
+    for (row, dst) in [&mut h.srow_x, &mut h.srow_y, &mut h.srow_z].into_iter().enumerate() {
+        for c in 0..4 {
+            dst[c] = m[(row, c)] as f32;
+        }
+    }
+    h.sform_code = 1;
+    // qform: the rotation of the normalized axes (a reflection goes into qfac).
+    let mut r = Matrix3::from_fn(|i, j| axes[(i, j)] / s[j]);
+    let qfac = if r.determinant() < 0.0 {
+        r.column_mut(2).neg_mut();
+        -1.0
+    } else {
+        1.0
+    };
+    let q = nalgebra::UnitQuaternion::from_matrix(&r);
+    let q = if q.w < 0.0 { -q.into_inner() } else { q.into_inner() };
+    h.quatern_b = q.i as f32;
+    h.quatern_c = q.j as f32;
+    h.quatern_d = q.k as f32;
+    h.quatern_x = m[(0, 3)] as f32;
+    h.quatern_y = m[(1, 3)] as f32;
+    h.quatern_z = m[(2, 3)] as f32;
+    h.qform_code = 1;
+    h.pixdim = [qfac as f32, s[0] as f32, s[1] as f32, s[2] as f32, 1.0, 1.0, 1.0, 1.0];
+    h.xyzt_units = 2; // mm
+    h
+}
+
+/// Writes a scalar image (f32 values) as NIfTI-1 or NRRD (by extension), mm, RAS/LPS as
+/// the format keeps them.
+pub fn write_image(path: &Path, image: &Image) -> Result<()> {
+    match ImageFormat::from_path(path) {
+        Some(ImageFormat::Nifti) => {
+            let mut a = ndarray::Array3::<f32>::zeros(image.dims);
+            for k in 0..image.dims[2] {
+                for j in 0..image.dims[1] {
+                    for i in 0..image.dims[0] {
+                        a[[i, j, k]] = image.values[image.index(i, j, k)] as f32;
+                    }
+                }
+            }
+            let h = nifti_header(image);
+            nifti::writer::WriterOptions::new(path)
+                .reference_header(&h)
+                .write_nifti(&a)
+                .map_err(|e| io_error(path, e))
+        }
+        Some(ImageFormat::Nrrd) => {
+            let data: Vec<u8> = image
+                .values
+                .iter()
+                .flat_map(|&v| (v as f32).to_le_bytes())
+                .collect();
+            write_nrrd(path, image, 1, &data)
+        }
+        None => Err(file_error(path, "unknown image format; name it .nii, .nii.gz or .nrrd")),
+    }
+}
+
+/// Writes the displacement field `u` (RAS, m; one vector per voxel of `grid`, i fastest) as
+/// a displacement-field transform ITK and 3D Slicer read: components in LPS millimetres,
+/// NIfTI (5-D, intent VECTOR) or NRRD (vector axis first, LPS space), by extension.
+pub fn write_displacement_field(path: &Path, grid: &Image, u: &[Vector3<f64>]) -> Result<()> {
+    if u.len() != grid.len() {
+        return Err(Error::Input(format!(
+            "{} displacements for {} voxels",
+            u.len(),
+            grid.len()
+        )));
+    }
+    match ImageFormat::from_path(path) {
+        Some(ImageFormat::Nifti) => {
+            let [nx, ny, nz] = grid.dims;
+            let mut a = ndarray::Array5::<f32>::zeros((nx, ny, nz, 1, 3));
+            for k in 0..nz {
+                for j in 0..ny {
+                    for i in 0..nx {
+                        let v = lps(&u[grid.index(i, j, k)]) * 1e3;
+                        for c in 0..3 {
+                            a[[i, j, k, 0, c]] = v[c] as f32;
+                        }
+                    }
+                }
+            }
+            let mut h = nifti_header(grid);
+            h.intent_code = 1007; // NIFTI_INTENT_VECTOR, as ANTs and ITK write fields
+            nifti::writer::WriterOptions::new(path)
+                .reference_header(&h)
+                .write_nifti(&a)
+                .map_err(|e| io_error(path, e))
+        }
+        Some(ImageFormat::Nrrd) => {
+            let data: Vec<u8> = u
+                .iter()
+                .flat_map(|v| {
+                    let w = lps(v) * 1e3;
+                    [w.x as f32, w.y as f32, w.z as f32]
+                })
+                .flat_map(f32::to_le_bytes)
+                .collect();
+            write_nrrd(path, grid, 3, &data)
+        }
+        None => Err(file_error(path, "unknown image format; name it .nii, .nii.gz or .nrrd")),
+    }
+}
+
+/// An attached, gzip-encoded NRRD in LPS millimetres: `components` float values per voxel
+/// (a `vector` axis first when more than one).
+fn write_nrrd(path: &Path, grid: &Image, components: usize, data: &[u8]) -> Result<()> {
+    let m = grid.to_world;
+    let dir = |a: usize| {
+        let v = lps(&Vector3::new(m[(0, a)], m[(1, a)], m[(2, a)])) * 1e3;
+        format!("({:.17e},{:.17e},{:.17e})", v.x, v.y, v.z)
+    };
+    let origin = lps(&Vector3::new(m[(0, 3)], m[(1, 3)], m[(2, 3)])) * 1e3;
+    let [nx, ny, nz] = grid.dims;
+    let (dimension, sizes, directions, kinds) = if components > 1 {
+        (
+            4,
+            format!("{components} {nx} {ny} {nz}"),
+            format!("none {} {} {}", dir(0), dir(1), dir(2)),
+            "vector domain domain domain",
+        )
+    } else {
+        (
+            3,
+            format!("{nx} {ny} {nz}"),
+            format!("{} {} {}", dir(0), dir(1), dir(2)),
+            "domain domain domain",
+        )
+    };
+    let header = format!(
+        "NRRD0004\n# written by hytled\ntype: float\ndimension: {dimension}\nspace: left-posterior-superior\n\
+         sizes: {sizes}\nspace directions: {directions}\nkinds: {kinds}\nendian: little\nencoding: gzip\n\
+         space origin: ({:.17e},{:.17e},{:.17e})\nspace units: \"mm\" \"mm\" \"mm\"\n\n",
+        origin.x, origin.y, origin.z
+    );
+    let file = std::fs::File::create(path).map_err(|e| io_error(path, e))?;
+    let mut w = std::io::BufWriter::new(file);
+    w.write_all(header.as_bytes()).map_err(|e| io_error(path, e))?;
+    let mut gz = flate2::write::GzEncoder::new(w, flate2::Compression::fast());
+    gz.write_all(data).map_err(|e| io_error(path, e))?;
+    gz.finish()
+        .and_then(|mut w| w.flush())
+        .map_err(|e| io_error(path, e))
+}
+
+#[cfg(test)]
+pub(crate) mod tests {
+    use super::*;
+
+    /// An oblique, anisotropic map: a rotation about an oblique axis times spacings, offset.
+    pub(crate) fn oblique() -> Matrix4<f64> {
+        let r = nalgebra::Rotation3::from_axis_angle(
+            &nalgebra::Unit::new_normalize(Vector3::new(1.0, 2.0, 3.0)),
+            0.4,
+        );
+        let s = Matrix3::from_diagonal(&Vector3::new(1.0e-3, 1.5e-3, 2.0e-3));
+        let mut m = Matrix4::identity();
+        m.fixed_view_mut::<3, 3>(0, 0).copy_from(&(r.matrix() * s));
+        m.fixed_view_mut::<3, 1>(0, 3).copy_from(&Vector3::new(0.01, -0.02, 0.03));
+        m
+    }
+
+    fn ramp(dims: [usize; 3], to_world: Matrix4<f64>) -> Image {
+        let mut im = Image::filled(dims, to_world, 0.0);
+        for k in 0..dims[2] {
+            for j in 0..dims[1] {
+                for i in 0..dims[0] {
+                    let n = im.index(i, j, k);
+                    im.values[n] = (i + 10 * j + 100 * k) as f64;
+                }
+            }
+        }
+        im
+    }
+
+    /// Written and read back, in both formats and with an oblique reflected map: the same
+    /// voxels and the same world positions (within f32 header precision for NIfTI).
+    #[test]
+    fn images_round_trip_with_their_orientation() {
+        let dir = std::env::temp_dir().join(format!("hytled-image-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let mut reflected = oblique();
+        reflected.column_mut(1).neg_mut();
+        for map in [oblique(), reflected] {
+            let im = ramp([4, 3, 5], map);
+            for name in ["a.nii", "a.nii.gz", "a.nrrd"] {
+                let p = dir.join(name);
+                write_image(&p, &im).unwrap();
+                let back = read_image(&p).unwrap();
+                assert_eq!(back.dims, im.dims, "{name}");
+                assert_eq!(back.values, im.values, "{name}");
+                for ijk in [Vector3::zeros(), Vector3::new(3.0, 2.0, 4.0)] {
+                    let (a, b) = (im.world(&ijk), back.world(&ijk));
+                    assert!((a - b).norm() < 1e-9, "{name}: {a} vs {b}");
+                }
+            }
+        }
+        std::fs::remove_dir_all(&dir).ok();
+    }
+
+    /// The qform alone (no sform) gives the same map as the sform: the quaternion, qfac and
+    /// offsets are read as the NIfTI standard says.
+    #[test]
+    fn the_qform_gives_the_sforms_map() {
+        let mut m = oblique();
+        m.column_mut(2).neg_mut();
+        let im = Image::filled([2, 2, 2], m, 0.0);
+        let mut h = nifti_header(&im);
+        let with_sform = nifti_affine(&h).unwrap();
+        h.sform_code = 0;
+        let with_qform = nifti_affine(&h).unwrap();
+        assert!((with_sform - with_qform).amax() < 1e-5, "{with_sform} vs {with_qform}");
+        assert!((with_sform * 1e-3 - m).fixed_view::<3, 4>(0, 0).amax() < 1e-9);
+    }
+
+    /// Interpolation: exact for a linear field, None outside, nearest picks the voxel.
+    #[test]
+    fn trilinear_is_exact_for_a_linear_field() {
+        let im = ramp([4, 3, 5], oblique());
+        let ijk = Vector3::new(1.25, 0.5, 3.75);
+        let x = im.world(&ijk);
+        let v = im.trilinear(&x).unwrap();
+        assert!((v - (1.25 + 5.0 + 375.0)).abs() < 1e-9, "{v}");
+        assert_eq!(im.nearest(&x), Some((1 + 10 + 400) as f64));
+        assert!(im.trilinear(&im.world(&Vector3::new(-0.1, 0.0, 0.0))).is_none());
+    }
+
+    /// A displacement field written as NRRD: LPS millimetre components after a vector axis.
+    #[test]
+    fn a_displacement_field_is_written_in_lps_millimetres() {
+        let dir = std::env::temp_dir().join(format!("hytled-field-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let grid = Image::filled([2, 1, 1], Matrix4::identity() * 1e-3, 0.0);
+        let mut grid = grid;
+        grid.to_world[(3, 3)] = 1.0;
+        let u = vec![Vector3::new(1e-3, 2e-3, 3e-3), Vector3::new(-4e-3, 0.0, 0.5e-3)];
+        let p = dir.join("u.nrrd");
+        write_displacement_field(&p, &grid, &u).unwrap();
+        let bytes = std::fs::read(&p).unwrap();
+        let split = bytes.windows(2).position(|w| w == b"\n\n").unwrap();
+        let header = String::from_utf8_lossy(&bytes[..split]);
+        assert!(header.contains("kinds: vector domain domain domain"), "{header}");
+        assert!(header.contains("space: left-posterior-superior"), "{header}");
+        let mut raw = Vec::new();
+        flate2::read::GzDecoder::new(&bytes[split + 2..])
+            .read_to_end(&mut raw)
+            .unwrap();
+        let v: Vec<f32> = raw
+            .chunks(4)
+            .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+            .collect();
+        assert_eq!(v, vec![-1.0, -2.0, 3.0, 4.0, -0.0, 0.5]);
+        // NIfTI: 5-D, intent VECTOR, the same components.
+        let p = dir.join("u.nii");
+        write_displacement_field(&p, &grid, &u).unwrap();
+        use nifti::{IntoNdArray, NiftiObject};
+        let o = nifti::ReaderOptions::new().read_file(&p).unwrap();
+        assert_eq!(o.header().intent_code, 1007);
+        assert_eq!(&o.header().dim[..6], &[5, 2, 1, 1, 1, 3]);
+        let a = o.into_volume().into_ndarray::<f32>().unwrap();
+        assert_eq!(a[[0, 0, 0, 0, 0]], -1.0);
+        assert_eq!(a[[0, 0, 0, 0, 1]], -2.0);
+        assert_eq!(a[[1, 0, 0, 0, 0]], 4.0);
+        assert_eq!(a[[1, 0, 0, 0, 2]], 0.5);
+        std::fs::remove_dir_all(&dir).ok();
+    }
+}
