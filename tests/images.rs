@@ -235,3 +235,92 @@ fn a_labelled_ball_with_a_cavity_and_a_region() {
     println!("ball under gravity: steps {}, status {}", out.steps, out.status);
     assert_eq!(out.status, "converged");
 }
+
+/// Images out: the exact cube (fe hex8) with `output.image` a smooth synthetic image. The
+/// written field is the pull-back d(x) = F^-1 x - x inside the deformed cube (to the solver's
+/// tolerance) and zero outside; its file holds LPS millimetre components (d_x < 0 in RAS, so
+/// positive in LPS; d_z > 0 in both); the warped image matches the analytic warp I(F^-1 x)
+/// within trilinear interpolation's error bound (s^2 / 8 times the second derivatives).
+#[test]
+fn the_exact_cube_warps_a_synthetic_image_as_the_analytic_warp() {
+    use nifti::{IntoNdArray, NiftiObject};
+    let dir = folder("warp");
+    let s = 0.0025;
+    let n = 57;
+    let mut map = Matrix4::identity() * s;
+    map[(3, 3)] = 1.0;
+    for a in 0..3 {
+        map[(a, 3)] = -0.01;
+    }
+    let field = |x: &Vector3<f64>| (40.0 * x.x).sin() * (30.0 * x.y).cos() + 10.0 * x.z;
+    // |d2I/dx2| <= 1600, |d2I/dy2| <= 900, d2I/dz2 = 0.
+    let bound = s * s / 8.0 * (1600.0 + 900.0);
+    let mut im = Image::filled([n, n, n], map, 0.0);
+    for k in 0..n {
+        for j in 0..n {
+            for i in 0..n {
+                let x = im.world(&Vector3::new(i as f64, j as f64, k as f64));
+                let v = im.index(i, j, k);
+                im.values[v] = field(&x);
+            }
+        }
+    }
+    let file = dir.join("t1.nii.gz");
+    write_image(&file, &im).unwrap();
+    let out = dir.join("out");
+    let o = vec![
+        format!("output.image=\"{}\"", file.display()),
+        "solver.tolerance=1e-9".into(),
+    ];
+    let sc = hytled::scene::load(&path("cases/cube-compression.toml"), &o).unwrap();
+    let opts = RunOptions {
+        out: Some(out.clone()),
+        ..RunOptions::default()
+    };
+    let summary = run_scene(&sc, &opts).unwrap();
+    assert_eq!(summary.status, "converged");
+    let m = NeoHookean::from_young_poisson(3000.0, 0.49, 1000.0);
+    let (a, _, _) = uniaxial_stretch(&m, 0.8);
+    let finv = Matrix3::from_diagonal(&Vector3::new(1.0 / a, 1.0 / a, 1.0 / 0.8));
+    let d = nifti::ReaderOptions::new()
+        .read_file(out.join("cube-compression_displacement.nii.gz"))
+        .unwrap();
+    assert_eq!(d.header().intent_code, 1007);
+    let d = d.into_volume().into_ndarray::<f64>().unwrap();
+    let w = hytled::io::image::read_image(&out.join("cube-compression_warped.nii.gz")).unwrap();
+    let (mut inside, mut worst_d, mut worst_i) = (0usize, 0.0f64, 0.0f64);
+    for k in 0..n {
+        for j in 0..n {
+            for i in 0..n {
+                let x = im.world(&Vector3::new(i as f64, j as f64, k as f64));
+                let back = finv * x;
+                // LPS millimetres in the file, RAS metres here.
+                let lps = Vector3::new(d[[i, j, k, 0, 0]], d[[i, j, k, 0, 1]], d[[i, j, k, 0, 2]]);
+                let got = Vector3::new(-lps.x, -lps.y, lps.z) * 1e-3;
+                let v = im.index(i, j, k);
+                let margin = 1e-6;
+                if back.iter().all(|&c| (margin..=0.1 - margin).contains(&c)) {
+                    inside += 1;
+                    worst_d = worst_d.max((got - (back - x)).norm());
+                    worst_i = worst_i.max((w.values[v] - field(&back)).abs());
+                    if x.x > 0.01 {
+                        assert!(lps.x > 0.0, "d_x in LPS at {x}: {lps}");
+                    }
+                    if x.z > 0.01 {
+                        assert!(lps.z > 0.0, "d_z at {x}: {lps}");
+                    }
+                } else if back.iter().any(|&c| !(-margin..=0.1 + margin).contains(&c)) {
+                    assert_eq!(got, Vector3::zeros(), "outside at {x}");
+                    assert!((w.values[v] - im.values[v]).abs() < 1e-6, "outside at {x}");
+                }
+            }
+        }
+    }
+    println!(
+        "warp: {inside} voxels inside the deformed cube, largest field error {worst_d:.3e} m, \
+         largest image error {worst_i:.3e} (trilinear bound {bound:.3e}, f32 storage)"
+    );
+    assert!(inside > 20_000, "{inside}");
+    assert!(worst_d < 1e-7, "{worst_d:e}");
+    assert!(worst_i < bound + 1e-5, "{worst_i:e} vs {bound:e}");
+}

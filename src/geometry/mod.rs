@@ -12,6 +12,7 @@ pub mod shapes;
 pub mod surface_distance;
 #[cfg(feature = "tetgen")]
 pub mod tetgen;
+pub mod warp;
 pub mod winding;
 
 pub use mesh::{ElementShape, Mesh};

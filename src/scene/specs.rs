@@ -497,6 +497,12 @@ pub struct OutputSpec {
     /// Rows in the time-history CSV (dynamic).
     #[serde(default = "default_history")]
     pub history_rows: usize,
+    /// An image (NIfTI-1 or NRRD; relative to the scene file) to warp: on its grid the run
+    /// writes the displacement field that ITK and 3D Slicer load as a displacement-field
+    /// transform (`NAME_displacement`) and the image warped into the deformed configuration
+    /// (`NAME_warped`), in its format.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub image: Option<std::path::PathBuf>,
 }
 
 /// Frames of a dynamic run without `output.frames`.
@@ -510,6 +516,7 @@ impl Default for OutputSpec {
         OutputSpec {
             frames: None,
             history_rows: default_history(),
+            image: None,
         }
     }
 }

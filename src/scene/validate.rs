@@ -479,8 +479,20 @@ fn check_discretization(s: &Scene) -> std::result::Result<(), String> {
     Ok(())
 }
 
+/// `output.image`: a NIfTI-1 or NRRD file by its extension.
+fn check_output_image(s: &Scene) -> std::result::Result<(), String> {
+    match &s.output.image {
+        Some(f) if crate::io::image::ImageFormat::from_path(f).is_none() => Err(format!(
+            "output.image = '{}': unknown extension; give a NIfTI-1 (.nii, .nii.gz) or NRRD (.nrrd, .nhdr) image to warp",
+            f.display()
+        )),
+        _ => Ok(()),
+    }
+}
+
 /// The material, each region's material and selection, and the tabulated curves.
 fn check_materials_and_curves(s: &Scene) -> std::result::Result<(), String> {
+    check_output_image(s)?;
     check_material(&s.material, "material")?;
     for (name, r) in &s.regions {
         let key = format!("regions.{name}");

@@ -357,6 +357,17 @@ const LARGEST_BODY: f64 = 3.0;
 
 /// Meshes the scene, builds the quadrature points, masses, constraints and probes.
 pub fn prepare(scene: &Scene) -> Result<Prepared> {
+    if let Some(f) = &scene.output.image {
+        let p = translate::scene_path(scene, f);
+        if !p.is_file() {
+            return Err(Error::Input(format!(
+                "output.image = '{}': no such file ({}); give the image to warp (the run would \
+                 fail at its end)",
+                f.display(),
+                p.display()
+            )));
+        }
+    }
     if scene.solver.device == Device::Gpu {
         // Before the preprocessing, which can take minutes: a missing driver, NVRTC or GPU is
         // said at once (run, compare and sweep all prepare here).
@@ -514,7 +525,12 @@ pub fn run_scene(scene: &Scene, opts: &RunOptions) -> Result<Summary> {
         )?;
         let run = solver::run_streaming(model, &settings, &mut |m, t, u| frames.write(m, t, u));
         frames.write_series()?;
+        let image_written = match &run {
+            Ok(out) => output::write_image_outputs(&staging, &name, scene, &frames, &out.u),
+            Err(_) => Ok(()),
+        };
         let out = run.map_err(|e| with_setup_warnings(e, &prep.warnings))?;
+        image_written?;
         let summary = summarize(scene, &prep, &out, t0.elapsed().as_secs_f64());
         write_results(&staging, &name, &prep, &out, &summary, opts.vtu_format)?;
         d.commit()?;

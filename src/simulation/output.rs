@@ -283,6 +283,52 @@ impl<'a> FrameWriter<'a> {
         })
     }
 
+    /// The frame's cells as one mesh over its points (reference positions, m) and the
+    /// displacement (m) at each point for nodal values `u`: what `output.image` warps with.
+    pub fn deformation(&self, u: &[Vector3<f64>]) -> Result<(Mesh, Vec<Vector3<f64>>)> {
+        let mesh = match (self.meshless, self.coupled) {
+            (Some(m), _) => {
+                if m.background.num_cells() == 0 {
+                    return Err(Error::Input(
+                        "output.image needs the body's cells, and this meshless cloud has no background \
+                         tets (use integration = \"tets\" or cloud = \"mesh\")"
+                            .into(),
+                    ));
+                }
+                m.background.clone()
+            }
+            (None, Some(c)) => {
+                let fe = crate::meshless::discretize::hex_to_tets(c.fe_mesh.clone());
+                let inner = crate::meshless::discretize::hex_to_tets(c.interior.clone());
+                let mut cells = fe.cells;
+                cells.extend_from_slice(&inner.cells);
+                Mesh {
+                    nodes: c.nodes.clone(),
+                    shape: crate::geometry::ElementShape::Tet4,
+                    cells,
+                }
+            }
+            (None, None) => self.mesh.clone(),
+        };
+        let flat_u: Vec<f64> = u.iter().flat_map(|v| [v.x, v.y, v.z]).collect();
+        let disp = match &self.interp {
+            Some(rows) => interpolate(rows, &flat_u, 3),
+            None => flat_u,
+        };
+        let disp: Vec<Vector3<f64>> = disp
+            .chunks_exact(3)
+            .map(|c| Vector3::new(c[0], c[1], c[2]))
+            .collect();
+        if disp.len() != mesh.nodes.len() {
+            return Err(Error::Input(format!(
+                "output.image: {} displacements for the frame's {} points",
+                disp.len(),
+                mesh.nodes.len()
+            )));
+        }
+        Ok((mesh, disp))
+    }
+
     /// Writes the next frame at displacements `u` (m) and time `t` (s). Point data:
     /// displacement (m); the nodal Cauchy stress (Pa), Green-Lagrange strain, principal
     /// stretches (largest first), von Mises stress (Pa) and J, averaged from the points
@@ -537,7 +583,46 @@ pub fn write_outputs(
         frames.write(&mut prep.model, *t, u)?;
     }
     frames.write_series()?;
+    write_image_outputs(dir, &name, scene, &frames, &out.u)?;
     write_results(dir, &name, prep, out, summary, format)
+}
+
+/// `output.image`: on that image's grid, the displacement field that warps it into the
+/// deformed configuration (`NAME_displacement`, ITK's resampling convention, see
+/// [`crate::geometry::warp`]) and the image so warped (`NAME_warped`), in the image's format
+/// (NIfTI `.nii.gz` or NRRD `.nrrd`). Nothing without `output.image`.
+pub fn write_image_outputs(
+    dir: &Path,
+    name: &str,
+    scene: &Scene,
+    frames: &FrameWriter,
+    u: &[Vector3<f64>],
+) -> Result<()> {
+    let Some(file) = &scene.output.image else {
+        return Ok(());
+    };
+    let path = super::translate::scene_path(scene, file);
+    let image = crate::io::image::read_image(&path)?;
+    let (mesh, disp) = frames.deformation(u)?;
+    let (d, covered) = crate::geometry::warp::pull_back(&image, &mesh, &disp)?;
+    let warped = crate::geometry::warp::warp(&image, &d);
+    let ext = match crate::io::image::ImageFormat::from_path(&path) {
+        Some(crate::io::image::ImageFormat::Nrrd) => "nrrd",
+        _ => "nii.gz",
+    };
+    crate::io::image::write_displacement_field(
+        &dir.join(format!("{name}_displacement.{ext}")),
+        &image,
+        &d,
+    )?;
+    crate::io::image::write_image(&dir.join(format!("{name}_warped.{ext}")), &warped)?;
+    let largest = d.iter().map(|v| v.norm()).fold(0.0, f64::max);
+    log::info!(
+        "output.image {}: {covered} of {} voxels in the deformed body, largest displacement {largest:.4e} m; wrote {name}_displacement.{ext} and {name}_warped.{ext}",
+        path.display(),
+        image.len()
+    );
+    Ok(())
 }
 
 /// The files of a run besides its frames: the integration points of adaptive runs,
