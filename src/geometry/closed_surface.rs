@@ -206,6 +206,32 @@ pub fn check_closed_surface(
     })
 }
 
+/// `surface` with every vertex moved by `distance` (m; positive out of the material) along
+/// its angle-weighted normal, checked again (a distance beyond the surface's smallest radius
+/// of curvature folds it: refused as a crossing). `what` names it in errors.
+pub fn offset(surface: &ClosedSurface, distance: f64, what: &str) -> Result<ClosedSurface> {
+    let p = &surface.points;
+    let mut normals = vec![Vector3::zeros(); p.len()];
+    for t in &surface.triangles {
+        let n = (p[t[1]] - p[t[0]]).cross(&(p[t[2]] - p[t[0]])).normalize();
+        for k in 0..3 {
+            let a = t[k];
+            let (u, v) = (p[t[(k + 1) % 3]] - p[a], p[t[(k + 2) % 3]] - p[a]);
+            normals[a] += n * u.angle(&v);
+        }
+    }
+    let points = p
+        .iter()
+        .zip(&normals)
+        .map(|(x, n)| x + n.normalize() * distance)
+        .collect();
+    check_closed_surface(
+        &format!("{what} (offset by {distance} m)"),
+        points,
+        surface.triangles.clone(),
+    )
+}
+
 /// A point inside the cavity bounded by the triangles `members` (oriented out of the
 /// material, so into the cavity): a little off one of its larger triangles, where the whole
 /// surface winds zero times (no material).

@@ -270,6 +270,17 @@ pub struct ContactSpec {
     /// The surface file's length unit in m (1; 0.001 for mm).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub units: Option<f64>,
+    /// `file` a labelled image: the labels whose surface is the rigid surface (every nonzero
+    /// label when not given), extracted as `geometry.image`'s.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub labels: Option<Vec<i64>>,
+    /// Moves the surface along its normals by this much, m (positive outward: a gap).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub offset: Option<f64>,
+    /// The tissue lies inside the closed surface (the skull around the brain); false: the
+    /// rigid solid is inside it (a tool).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub inside: Option<bool>,
     /// The rigid body's displacement at the end of its curve, m.
     #[serde(default)]
     pub motion: [f64; 3],

@@ -616,13 +616,32 @@ fn check_conditions(s: &Scene) -> std::result::Result<(), String> {
                     && !matches!((c.min, c.max), (Some(a), Some(b)) if !(a < b)),
                 &["center", "axis", "radius", "min", "max"],
             ),
-            "surface" => (
-                "`file` (a closed surface: .stl, .obj, .vtk, .vtp) and `units` > 0 when given",
-                c.file.as_ref().is_some_and(|f| {
-                    crate::io::surface_file::SurfaceFormat::from_path(f).is_some()
-                }) && c.units.is_none_or(|u| u > 0.0 && u.is_finite()),
-                &["file", "units"],
-            ),
+            "surface" => {
+                let image = c
+                    .file
+                    .as_ref()
+                    .is_some_and(|f| crate::io::image::ImageFormat::from_path(f).is_some());
+                if image {
+                    (
+                        "`file` (a labelled image: .nii, .nii.gz, .nrrd), `labels` nonzero when given, \
+                         a finite `offset` (m) and discretization.size (the blocks of voxels)",
+                        c.labels.as_ref().is_none_or(|l| !l.contains(&0))
+                            && c.offset.is_none_or(f64::is_finite)
+                            && s.discretization.size.is_some(),
+                        &["file", "labels", "offset", "inside"],
+                    )
+                } else {
+                    (
+                        "`file` (a closed surface: .stl, .obj, .vtk, .vtp, or a labelled image: .nii, \
+                         .nii.gz, .nrrd), `units` > 0 and a finite `offset` (m) when given",
+                        c.file.as_ref().is_some_and(|f| {
+                            crate::io::surface_file::SurfaceFormat::from_path(f).is_some()
+                        }) && c.units.is_none_or(|u| u > 0.0 && u.is_finite())
+                            && c.offset.is_none_or(f64::is_finite),
+                        &["file", "units", "offset", "inside"],
+                    )
+                }
+            }
             other => {
                 return Err(format!(
                     "{key}.shape = '{other}': use \"plane\", \"sphere\", \"cylinder\" or \"surface\""
@@ -642,6 +661,9 @@ fn check_conditions(s: &Scene) -> std::result::Result<(), String> {
             ("max", c.max.is_some()),
             ("file", c.file.is_some()),
             ("units", c.units.is_some()),
+            ("labels", c.labels.is_some()),
+            ("offset", c.offset.is_some()),
+            ("inside", c.inside.is_some()),
         ];
         if let Some((k, _)) = given.iter().find(|(k, g)| *g && !allowed.contains(k)) {
             return Err(format!("{key}.{k} does not apply to a {}", c.shape));

@@ -141,7 +141,7 @@ pub(super) fn scene_contact(
         let shape = match (c.shape.as_str(), &c.file) {
             ("surface", Some(file)) => {
                 let path = super::translate::scene_path(scene, file);
-                let surface = crate::io::surface_file::read_surface(&path, c.units.unwrap_or(1.0))?;
+                let surface = super::translate::rigid_surface(scene, &path, c)?;
                 crate::bc::contact::RigidShape::Surface(std::sync::Arc::new(
                     crate::geometry::surface_distance::SurfaceDistance::new(surface)?,
                 ))

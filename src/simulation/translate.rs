@@ -75,6 +75,43 @@ fn image_block(scene: &Scene, image: &crate::io::image::Image) -> usize {
     ((h / s).round() as usize).max(1)
 }
 
+/// A `shape = "surface"` contact's closed surface: read from a surface file, or extracted from
+/// a labelled image's `labels` (as `geometry.image`'s, on blocks about `discretization.size`);
+/// moved along its normals by `offset` (m) and, with `inside`, turned to face in (the solid is
+/// then everything outside it: a skull around the tissue).
+pub fn rigid_surface(
+    scene: &Scene,
+    path: &std::path::Path,
+    c: &crate::scene::ContactSpec,
+) -> Result<crate::geometry::closed_surface::ClosedSurface> {
+    let what = path.display().to_string();
+    let mut surface = if crate::io::image::ImageFormat::from_path(path).is_some() {
+        let image = crate::io::image::read_image(path)?;
+        let labels = c.labels.clone().unwrap_or_default();
+        let mask = crate::geometry::image_body::tissue_mask(&image, &labels);
+        let block = image_block(scene, &image);
+        crate::geometry::image_body::label_surface(
+            &image,
+            &mask,
+            block,
+            crate::scene::DEFAULT_IMAGE_SMOOTHING,
+            &what,
+        )?
+        .0
+    } else {
+        crate::io::surface_file::read_surface(path, c.units.unwrap_or(1.0))?
+    };
+    if let Some(offset) = c.offset.filter(|&o| o != 0.0) {
+        surface = crate::geometry::closed_surface::offset(&surface, offset, &what)?;
+    }
+    if c.inside == Some(true) {
+        for t in surface.triangles.iter_mut() {
+            t.swap(1, 2);
+        }
+    }
+    Ok(surface)
+}
+
 /// The hexahedra of an image's voxels (`body = "voxels"`), split into tets for tet elements.
 fn image_voxel_mesh(scene: &Scene, shape: ElementShape) -> Result<Mesh> {
     let Some((image, path)) = geometry_image(scene)? else {
