@@ -200,6 +200,35 @@ pub struct Contact {
     is_active: Vec<bool>,
     /// The first point found pushed into while its nodes are prescribed.
     conflict: Option<Conflict>,
+    /// Surface tools (a distance query is a tree search): each point's position in the tool's
+    /// frame at its last exact query and its depth there.
+    clearance: Vec<Vec<(Vector3<f64>, f64)>>,
+}
+
+/// The depth of `x` (m) in `shape` displaced by `d` (m), or for a surface tool an upper bound
+/// that is still negative where the point cannot have reached it: the depth is
+/// 1-Lipschitz in position, so a point that was `-c` deep at `y0` is at most `-c + |y - y0|`
+/// deep now. Exact values refresh `cache`. The normal is meaningful only where the depth is
+/// exact (a bound is negative, and negative depths of points not in contact are skipped).
+fn depth_with_clearance(
+    shape: &RigidShape,
+    x: &Vector3<f64>,
+    d: &Vector3<f64>,
+    cache: Option<&mut (Vector3<f64>, f64)>,
+) -> (f64, Vector3<f64>) {
+    match (shape, cache) {
+        (RigidShape::Surface(tool), Some(c)) => {
+            let y = x - d;
+            let bound = c.1 + (y - c.0).norm();
+            if bound < 0.0 {
+                return (bound, Vector3::z());
+            }
+            let (depth, n) = tool.signed_distance(&y);
+            *c = (y, depth);
+            (depth, n)
+        }
+        _ => shape.signed_depth(x, d),
+    }
 }
 
 /// Gauss-Seidel sweeps at most per step. Points near the edge of a flat-ended indenter switch
@@ -249,6 +278,10 @@ impl Contact {
             }
         }
         let n = bodies.len();
+        let clearance = points
+            .iter()
+            .map(|p| vec![(Vector3::repeat(f64::NAN), f64::INFINITY); p.len()])
+            .collect();
         Ok(Contact {
             bodies,
             points,
@@ -262,6 +295,7 @@ impl Contact {
             active: Vec::new(),
             is_active: Vec::new(),
             conflict: None,
+            clearance,
         })
     }
 
@@ -398,7 +432,8 @@ impl Contact {
                 for k in 0..count {
                     let i = if sweep == 0 { k } else { self.active[k] };
                     let p = &self.points[b][i];
-                    let (depth, n) = shape.signed_depth(&position(p, u), &d);
+                    let cache = (self.lambda[i] == 0.0).then(|| &mut self.clearance[b][i]);
+                    let (depth, n) = depth_with_clearance(shape, &position(p, u), &d, cache);
                     if depth <= 0.0 && self.lambda[i] == 0.0 {
                         continue;
                     }
@@ -462,7 +497,8 @@ impl Contact {
                 // not visit into the body, which then joins them).
                 after = 0.0;
                 for (i, p) in self.points[b].iter().enumerate() {
-                    let depth = shape.signed_depth(&position(p, u), &d).0;
+                    let cache = (self.lambda[i] == 0.0).then(|| &mut self.clearance[b][i]);
+                    let depth = depth_with_clearance(shape, &position(p, u), &d, cache).0;
                     after = after.max(depth);
                     if depth > self.tolerance && !self.is_active[i] {
                         self.active.push(i);

@@ -172,12 +172,15 @@ pub struct SurfaceReport {
 
 /// The surface of the image's tissue: the 0.5 level of the tissue fraction on blocks of
 /// `block` voxels, by surface nets, smoothed by `smoothing` Taubin iterations (lambda 0.5,
-/// mu -0.53), checked closed, oriented and not crossing itself. `what` names the image.
+/// mu -0.53), checked closed, oriented and not crossing itself; with `cavities`, the closed
+/// holes inside (ventricles) are kept as cavities, else only the outer surface (a skull's
+/// inner wall). `what` names the image.
 pub fn label_surface(
     image: &Image,
     mask: &[bool],
     block: usize,
     smoothing: usize,
+    cavities: bool,
     what: &str,
 ) -> Result<(ClosedSurface, SurfaceReport)> {
     use fast_surface_nets::ndshape::{RuntimeShape, Shape};
@@ -200,6 +203,10 @@ pub fn label_surface(
                 sdf[at as usize] = (0.5 - fraction[i + m[0] * (j + m[1] * k)]) as f32;
             }
         }
+    }
+    let filled = remove_ambiguities(&mut sdf, p);
+    if filled > 0 {
+        log::info!("{what}: {filled} block sample(s) set inside to keep the surface manifold");
     }
     let mut buffer = fast_surface_nets::SurfaceNetsBuffer::default();
     fast_surface_nets::surface_nets(
@@ -229,7 +236,7 @@ pub fn label_surface(
         .chunks_exact(3)
         .map(|t| [t[0] as usize, t[1] as usize, t[2] as usize])
         .collect();
-    let report = keep_main_body(&points, &mut triangles);
+    let report = keep_main_body(&points, &mut triangles, cavities);
     taubin(&mut points, &triangles, smoothing);
     let points: Vec<Vector3<f64>> = points.into_iter().map(|v| world(image, v)).collect();
     let surface = check_closed_surface(what, points, triangles).map_err(|e| {
@@ -242,9 +249,76 @@ pub fn label_surface(
     Ok((surface, report))
 }
 
-/// Keeps the largest piece of the surface and the pieces inside it (cavities), in the
+/// Makes every grid cell's inside corners one edge-connected group, and its outside corners
+/// one (returns how many samples it set inside). Surface nets puts one vertex in each cell the
+/// surface crosses; where a cell's corners fall in two inside (or two outside) groups (two
+/// voxels meeting at an edge or a corner: a thin bridge), two sheets would share that vertex
+/// and the surface would not be manifold, which TetGen cannot fill. Such cells get their
+/// outside corners set just inside (tissue closes the gap), repeated until none is left; the
+/// values stay close to zero, so the surface moves by a fraction of a block there only.
+fn remove_ambiguities(sdf: &mut [f32], p: [usize; 3]) -> usize {
+    const JUST_INSIDE: f32 = -1e-3;
+    let at = |x: usize, y: usize, z: usize| x + p[0] * (y + p[1] * z);
+    let groups = |inside: [bool; 8], want: bool| -> usize {
+        let mut parent: [usize; 8] = std::array::from_fn(|i| i);
+        fn root(parent: &mut [usize; 8], mut i: usize) -> usize {
+            while parent[i] != i {
+                i = parent[i];
+            }
+            i
+        }
+        for a in 0..8 {
+            for bit in [1, 2, 4] {
+                let b = a | bit;
+                if b != a && inside[a] == want && inside[b] == want {
+                    let (ra, rb) = (root(&mut parent, a), root(&mut parent, b));
+                    parent[ra] = rb;
+                }
+            }
+        }
+        (0..8)
+            .filter(|&i| inside[i] == want && root(&mut parent, i) == i)
+            .count()
+    };
+    let mut changed_total = 0;
+    loop {
+        let mut changed = 0;
+        for z in 0..p[2] - 1 {
+            for y in 0..p[1] - 1 {
+                for x in 0..p[0] - 1 {
+                    let idx: [usize; 8] = std::array::from_fn(|i| {
+                        at(x + (i & 1), y + ((i >> 1) & 1), z + ((i >> 2) & 1))
+                    });
+                    let inside = idx.map(|i| sdf[i] < 0.0);
+                    let n_in = inside.iter().filter(|&&b| b).count();
+                    if n_in < 2 || n_in > 6 {
+                        continue;
+                    }
+                    if groups(inside, true) > 1 || groups(inside, false) > 1 {
+                        for (k, &i) in idx.iter().enumerate() {
+                            if !inside[k] {
+                                sdf[i] = JUST_INSIDE;
+                                changed += 1;
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        changed_total += changed;
+        if changed == 0 {
+            return changed_total;
+        }
+    }
+}
+
+/// Keeps the largest piece of the surface and, with `cavities`, the pieces inside it, in the
 /// surface-nets orientation (every piece faces the same way relative to the tissue).
-fn keep_main_body(points: &[Vector3<f64>], triangles: &mut Vec<[usize; 3]>) -> SurfaceReport {
+fn keep_main_body(
+    points: &[Vector3<f64>],
+    triangles: &mut Vec<[usize; 3]>,
+    cavities: bool,
+) -> SurfaceReport {
     let mut parent: Vec<usize> = (0..points.len()).collect();
     fn root(parent: &mut [usize], mut i: usize) -> usize {
         while parent[i] != i {
@@ -283,6 +357,8 @@ fn keep_main_body(points: &[Vector3<f64>], triangles: &mut Vec<[usize; 3]>) -> S
             true
         } else if v.signum() == sign {
             report.islands += 1;
+            false
+        } else if !cavities {
             false
         } else {
             // A cavity: kept when inside the main body.
@@ -413,7 +489,7 @@ mod tests {
             }
         }
         let mask = tissue_mask(&im, &[1]);
-        let (s, r) = label_surface(&im, &mask, 1, 0, "box.nii").unwrap();
+        let (s, r) = label_surface(&im, &mask, 1, 0, true, "box.nii").unwrap();
         assert_eq!((r.cavities, r.islands), (0 + 1, 0));
         assert_eq!(s.holes.len(), 1);
         // Face centres on the voxel faces (x = 1.5 mm and 9.5 mm).
@@ -426,7 +502,7 @@ mod tests {
         let exact = (512.0 - 8.0) * 1e-9;
         let v = s.volume();
         assert!((v - exact).abs() / exact < 0.1, "{v} vs {exact}");
-        let (s2, _) = label_surface(&im, &mask, 1, 10, "box.nii").unwrap();
+        let (s2, _) = label_surface(&im, &mask, 1, 10, true, "box.nii").unwrap();
         assert!((s2.volume() - exact).abs() / exact < 0.1, "{}", s2.volume());
     }
 
@@ -437,7 +513,7 @@ mod tests {
         let n = im.index(0, 0, 0);
         im.values[n] = 1.0;
         let mask = tissue_mask(&im, &[]);
-        let (_, r) = label_surface(&im, &mask, 1, 2, "box.nii").unwrap();
+        let (_, r) = label_surface(&im, &mask, 1, 2, true, "box.nii").unwrap();
         assert_eq!(r.islands, 1);
         let (_, dropped) = voxel_mesh(&im, &mask, 1, "box.nii").unwrap();
         assert_eq!(dropped, 1);

@@ -95,6 +95,7 @@ pub fn rigid_surface(
             &mask,
             block,
             crate::scene::DEFAULT_IMAGE_SMOOTHING,
+            false,
             &what,
         )?
         .0
@@ -154,7 +155,7 @@ fn image_surface(scene: &Scene) -> Result<crate::geometry::closed_surface::Close
     let block = image_block(scene, &image);
     let what = path.display().to_string();
     let (surface, report) =
-        crate::geometry::image_body::label_surface(&image, &mask, block, *smoothing, &what)?;
+        crate::geometry::image_body::label_surface(&image, &mask, block, *smoothing, true, &what)?;
     if report.islands > 0 {
         log::warn!(
             "{what}: {} piece(s) of tissue apart from the body were dropped (they would float free)",
