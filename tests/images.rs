@@ -435,3 +435,57 @@ position = [0.05, 0.05, 0.0]
         assert!(f[0].abs().max(f[1].abs()) < tol_lateral * weight, "{what}: {f:?}");
     }
 }
+
+/// The MNI case (cases/mni-brain-shift.toml) prepares: the labelmap's brain with its
+/// ventricles as cavities (no node near their centre), the white matter and tumour regions,
+/// the craniotomy measurements on surface nodes, the skull around the brain.
+#[test]
+fn the_mni_case_prepares() {
+    let sc = hytled::scene::load(&path("cases/mni-brain-shift.toml"), &[]).unwrap();
+    let prep = hytled::simulation::prepare(&sc).unwrap_or_else(|e| panic!("{e}"));
+    let nodes = prep.mesh.nodes.len();
+    let regions: std::collections::BTreeMap<_, _> = prep.regions.iter().cloned().collect();
+    println!("mni: {nodes} nodes, {} tets, regions {regions:?}", prep.mesh.num_cells());
+    assert!((8_000..20_000).contains(&nodes), "{nodes}");
+    assert!(regions["white_matter"] > 10_000 && regions["tumour"] > 10, "{regions:?}");
+    // The lateral ventricles' centre of mass (scripts/make_mni_case.py: (0, -14.6, 14.4) mm)
+    // lies between the two ventricles, in tissue; their bodies are at x = +-15 mm or so:
+    // check that the mesh volume is the labelled brain's less the ventricles (1731.2 cm^3).
+    let volume: f64 = (0..prep.mesh.num_cells())
+        .map(|e| {
+            let c = prep.mesh.cell(e);
+            let x: Vec<Vector3<f64>> = c.iter().map(|&i| prep.mesh.nodes[i]).collect();
+            (x[1] - x[0]).cross(&(x[2] - x[0])).dot(&(x[3] - x[0])).abs() / 6.0
+        })
+        .sum();
+    println!("mni: volume {:.1} cm^3", volume * 1e6);
+    assert!((volume * 1e6 - 1731.2).abs() < 0.03 * 1731.2, "{volume}");
+}
+
+/// The whole MNI case (about 30 s on 2 cores): converged, the weight carried by the skull,
+/// the craniotomy and the brainstem, the tumour displaced, the warped T1 written.
+/// `cargo test --release --test images -- --ignored mni_case_runs`.
+#[test]
+#[ignore]
+fn the_mni_case_runs() {
+    let dir = folder("mni");
+    let sc = hytled::scene::load(&path("cases/mni-brain-shift.toml"), &[]).unwrap();
+    let opts = RunOptions {
+        out: Some(dir.clone()),
+        ..RunOptions::default()
+    };
+    let s = run_scene(&sc, &opts).unwrap();
+    let total: f64 = ["skull", "craniotomy", "brainstem"]
+        .iter()
+        .map(|b| s.reactions[*b][2])
+        .sum();
+    let u = Vector3::from(s.probes["tumour_centre"].displacement);
+    println!(
+        "mni: {} steps, {}, {:.1} s, reactions carry {total:.4} N, tumour {u:?} m",
+        s.steps, s.status, s.wall_seconds.total
+    );
+    assert_eq!(s.status, "converged");
+    assert!((total - s.loads["gravity"][2].abs()).abs() < 1e-2 * total);
+    assert!(u.norm() > 1e-3);
+    assert!(dir.join("mni-brain-shift_warped.nii.gz").is_file());
+}
