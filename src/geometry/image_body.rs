@@ -13,7 +13,7 @@ use nalgebra::Vector3;
 
 use super::closed_surface::{check_closed_surface, ClosedSurface};
 use super::{ElementShape, Mesh};
-use crate::io::image::Image;
+use super::image::Image;
 use crate::{Error, Result};
 
 /// Which voxels are tissue: those whose label is in `labels` (all nonzero labels when empty).

@@ -4,6 +4,7 @@ pub mod cell_grid;
 pub mod closed_surface;
 pub mod domain;
 pub mod dome;
+pub mod image;
 pub mod image_body;
 pub mod mesh;
 pub mod quality;

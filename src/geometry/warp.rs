@@ -11,7 +11,7 @@
 use nalgebra::Vector3;
 
 use super::{ElementShape, Mesh};
-use crate::io::image::Image;
+use super::image::Image;
 use crate::{Error, Result};
 
 /// The pull-back field d(x) = X - x (m, RAS) at the voxel centres of `grid` for the body
@@ -30,7 +30,7 @@ pub fn pull_back(grid: &Image, mesh: &Mesh, u: &[Vector3<f64>]) -> Result<(Vec<V
         )));
     }
     let tets = if mesh.shape == ElementShape::Hex8 {
-        crate::meshless::discretize::hex_to_tets(mesh.clone())
+        super::mesh::hex_to_tets(mesh.clone())
     } else {
         mesh.clone()
     };

@@ -148,38 +148,7 @@ struct MeshlessRest {
     support: SupportRule,
 }
 
-/// Hexahedra split into six tets around the 0-6 diagonal (they tile each hex exactly, which is
-/// all integration and the boundary triangles need; tets of neighbouring hexes need not match).
-pub fn hex_to_tets(mesh: Mesh) -> Mesh {
-    if mesh.shape == ElementShape::Tet4 {
-        return mesh;
-    }
-    const SPLIT: [[usize; 4]; 6] = [
-        [0, 1, 2, 6],
-        [0, 2, 3, 6],
-        [0, 3, 7, 6],
-        [0, 7, 4, 6],
-        [0, 4, 5, 6],
-        [0, 5, 1, 6],
-    ];
-    let mut cells = Vec::with_capacity(mesh.num_cells() * 24);
-    for e in 0..mesh.num_cells() {
-        let c = mesh.cell(e);
-        for t in SPLIT {
-            let mut q = t.map(|a| c[a]);
-            let p = |i: usize| mesh.nodes[q[i]];
-            if crate::geometry::quality::tet_signed_volume(&p(0), &p(1), &p(2), &p(3)) < 0.0 {
-                q.swap(2, 3);
-            }
-            cells.extend(q);
-        }
-    }
-    Mesh {
-        nodes: mesh.nodes,
-        shape: ElementShape::Tet4,
-        cells,
-    }
-}
+pub use crate::geometry::mesh::hex_to_tets;
 
 /// Delaunay tetrahedralization of `nodes` (TetGen), as flat node-index quadruples.
 #[cfg(feature = "tetgen")]

@@ -298,8 +298,8 @@ impl<'a> FrameWriter<'a> {
                 m.background.clone()
             }
             (None, Some(c)) => {
-                let fe = crate::meshless::discretize::hex_to_tets(c.fe_mesh.clone());
-                let inner = crate::meshless::discretize::hex_to_tets(c.interior.clone());
+                let fe = crate::geometry::mesh::hex_to_tets(c.fe_mesh.clone());
+                let inner = crate::geometry::mesh::hex_to_tets(c.interior.clone());
                 let mut cells = fe.cells;
                 cells.extend_from_slice(&inner.cells);
                 Mesh {

@@ -135,7 +135,7 @@ fn image_voxel_mesh(scene: &Scene, shape: ElementShape) -> Result<Mesh> {
     );
     Ok(match shape {
         ElementShape::Hex8 => mesh,
-        ElementShape::Tet4 => crate::meshless::discretize::hex_to_tets(mesh),
+        ElementShape::Tet4 => crate::geometry::mesh::hex_to_tets(mesh),
     })
 }
 
