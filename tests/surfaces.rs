@@ -314,3 +314,87 @@ fn a_surface_scene_without_an_element_takes_tet4_anp() {
         .to_string();
     assert!(e.contains("tetrahedra") && e.contains("tet4-anp"), "{e}");
 }
+
+/// A region given by a closed surface nested in the body (`[regions.NAME] surface`): TetGen
+/// meshes it as an internal boundary, so every tet lies on one side of it. With the region's
+/// material the body's, the cube read as STL is still exact (the internal facets change the
+/// mesh, not the answer); a stiffer inclusion stiffens it; a surface outside the body, or
+/// crossing it, is refused naming the region.
+#[test]
+fn a_nested_surface_is_a_conforming_region() {
+    let dir = folder("nested");
+    let body = dir.join("cube.stl");
+    write_ascii_stl(&body, &cube());
+    let inner = dir.join("inclusion.stl");
+    write_ascii_stl(
+        &inner,
+        &(common::box_corners([0.03, 0.03, 0.03], [0.07, 0.07, 0.07]), common::box_triangles()),
+    );
+    let region = |file: &Path, e: f64| {
+        format!(
+            "regions.inclusion={{ surface = \"{}\", youngs_modulus = {e} }}",
+            file.display()
+        )
+    };
+    let same = cube_run(&body, &["discretization.method=fe", &region(&inner, 3000.0)]).unwrap();
+    let (ef, eu) = cube_errors(&same, 0.1);
+    println!("inclusion of the same material: force {ef:.2e}, lateral {eu:.2e}, {} nodes", same.nodes);
+    assert!(ef < 1e-6 && eu < 1e-5, "{ef:e} {eu:e}");
+    // The tets conform: each has all its vertices on one side of the inclusion's faces (or on
+    // them).
+    let o = vec![
+        format!("geometry={{ surface = \"{}\" }}", body.display()),
+        "discretization.element=tet4-anp".into(),
+        "discretization.size=0.025".into(),
+        "references={}".into(),
+        region(&inner, 30000.0),
+    ];
+    let sc = hytled::scene::load(&path("cases/cube-compression.toml"), &o).unwrap();
+    let prep = hytled::simulation::prepare(&sc).unwrap();
+    let inside = |x: &nalgebra::Vector3<f64>, strict: bool| {
+        // STL holds single precision: 0.03 reads as 0.029999999329...
+        let eps = if strict { -1e-7 } else { 1e-7 };
+        x.iter().all(|&c| c > 0.03 - eps && c < 0.07 + eps)
+    };
+    let on_faces = prep
+        .mesh
+        .nodes
+        .iter()
+        .filter(|x| inside(x, false) && !inside(x, true))
+        .count();
+    println!("nodes on the inclusion's faces: {on_faces}");
+    let mut straddling = 0;
+    for e in 0..prep.mesh.num_cells() {
+        let c = prep.mesh.cell(e);
+        let any_in = c.iter().any(|&i| inside(&prep.mesh.nodes[i], true));
+        let any_out = c.iter().any(|&i| !inside(&prep.mesh.nodes[i], false));
+        if any_in && any_out {
+            straddling += 1;
+        }
+    }
+    let points = prep.regions.iter().find(|r| r.0 == "inclusion").map(|r| r.1);
+    println!("stiff inclusion: {} tets, {straddling} straddling, region points {points:?}", prep.mesh.num_cells());
+    assert_eq!(straddling, 0);
+    assert!(points.is_some_and(|n| n > 0));
+    let stiff = cube_run(&body, &["discretization.method=fe", &region(&inner, 30000.0)]).unwrap();
+    let (f0, f1) = (same.reactions["top"][2], stiff.reactions["top"][2]);
+    println!("top force: uniform {f0:.6} N, stiff inclusion {f1:.6} N");
+    assert!(f1 < f0 && stiff.status == "converged", "{f0} {f1}");
+    // Outside the body, and crossing it.
+    let outside = dir.join("outside.stl");
+    write_ascii_stl(
+        &outside,
+        &(common::box_corners([0.2, 0.2, 0.2], [0.3, 0.3, 0.3]), common::box_triangles()),
+    );
+    let crossing = dir.join("crossing.stl");
+    write_ascii_stl(
+        &crossing,
+        &(common::box_corners([0.05, 0.03, 0.03], [0.15, 0.07, 0.07]), common::box_triangles()),
+    );
+    for (file, says) in [(&outside, "outside the body"), (&crossing, "cross")] {
+        let e = cube_run(&body, &["discretization.method=fe", &region(file, 3000.0)])
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("region 'inclusion'") && e.contains(says), "{e}");
+    }
+}

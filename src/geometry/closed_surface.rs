@@ -206,6 +206,67 @@ pub fn check_closed_surface(
     })
 }
 
+/// The body `body` with the closed surfaces `inner` (a name for messages, the surface) inside
+/// its material, for TetGen: one point list (the body's, then each inner surface's), the body's
+/// triangles and cavities, and the inner surfaces' triangles as internal facets. Errors name
+/// the surface: one outside the body or in a cavity, or one crossing the body or another.
+pub fn nest(
+    body: ClosedSurface,
+    inner: &[(String, ClosedSurface)],
+) -> Result<(ClosedSurface, Vec<Vec<usize>>)> {
+    if inner.is_empty() {
+        return Ok((body, Vec::new()));
+    }
+    let mut points = body.points.clone();
+    let mut all: Vec<[usize; 3]> = body.triangles.clone();
+    let mut owner: Vec<usize> = vec![0; all.len()];
+    let mut internal = Vec::new();
+    for (k, (name, s)) in inner.iter().enumerate() {
+        let x = s.points[s.triangles[0][0]];
+        let w = winding_number(&x, &body.points, body.triangles.iter().map(|t| &t[..]));
+        if w < 0.5 {
+            return Err(Error::Input(format!(
+                "region '{name}': its surface (vertex at {}) lies outside the body's material \
+                 (outside the body or in a cavity); a region surface must lie inside the body",
+                at(&x)
+            )));
+        }
+        let base = points.len();
+        points.extend_from_slice(&s.points);
+        for t in &s.triangles {
+            let t = t.map(|i| i + base);
+            all.push(t);
+            owner.push(k + 1);
+            internal.push(t.to_vec());
+        }
+    }
+    let (lo, hi) = bounds(&points);
+    if let Some((a, b)) = self_intersection(&points, &all, (hi - lo).norm()) {
+        let name = |o: usize| {
+            if o == 0 {
+                "the body's surface".to_string()
+            } else {
+                format!("region '{}'", inner[o - 1].0)
+            }
+        };
+        return Err(Error::Input(format!(
+            "{} and {} cross (near {}); a region surface must lie inside the body without \
+             touching its surface or another region's",
+            name(owner[a]),
+            name(owner[b]),
+            at(&points[all[a][0]])
+        )));
+    }
+    Ok((
+        ClosedSurface {
+            points,
+            triangles: body.triangles,
+            holes: body.holes,
+        },
+        internal,
+    ))
+}
+
 /// `surface` with every vertex moved by `distance` (m; positive out of the material) along
 /// its angle-weighted normal, checked again (a distance beyond the surface's smallest radius
 /// of curvature folds it: refused as a crossing). `what` names it in errors.

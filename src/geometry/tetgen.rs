@@ -446,10 +446,12 @@ fn snap_to_half_ellipsoid(
 /// `max_volume` (m^3) and `radius_edge_ratio`.
 pub fn tetgen_surface(
     surface: &super::closed_surface::ClosedSurface,
+    internal: &[Vec<usize>],
     max_volume: Option<f64>,
     radius_edge_ratio: Option<f64>,
 ) -> Result<Mesh> {
-    let facets: Vec<Vec<usize>> = surface.triangles.iter().map(|t| t.to_vec()).collect();
+    let mut facets: Vec<Vec<usize>> = surface.triangles.iter().map(|t| t.to_vec()).collect();
+    facets.extend(internal.iter().cloned());
     run_tetgen(
         "surface",
         Plc {

@@ -129,6 +129,14 @@ pub struct RegionSpec {
     /// one of them.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub labels: Option<Vec<i64>>,
+    /// A closed surface file (STL, OBJ, VTK poly data; relative to the scene file) nested in
+    /// the body: the points inside it. A body TetGen fills from a surface or an image is
+    /// meshed with this surface as an internal boundary (its elements conform).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub surface: Option<PathBuf>,
+    /// The region surface file's length unit in m (1; 0.001 for mm).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub units: Option<f64>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub model: Option<String>,
     #[serde(default, skip_serializing_if = "Option::is_none")]

@@ -496,6 +496,27 @@ fn check_materials_and_curves(s: &Scene) -> std::result::Result<(), String> {
     check_material(&s.material, "material")?;
     for (name, r) in &s.regions {
         let key = format!("regions.{name}");
+        if let Some(f) = &r.surface {
+            if r.select.is_some() || r.elements.is_some() || r.labels.is_some() {
+                return Err(format!(
+                    "{key}: give one of `select`, `elements`, `labels` or `surface`"
+                ));
+            }
+            if crate::io::surface_file::SurfaceFormat::from_path(f).is_none() {
+                return Err(format!(
+                    "{key}.surface = '{}': unknown extension; use .stl, .obj, .vtk or .vtp",
+                    f.display()
+                ));
+            }
+            if r.units.is_some_and(|u| !(u > 0.0 && u.is_finite())) {
+                return Err(format!("{key}.units: a positive factor to metres"));
+            }
+            check_material(&s.material.with(r), &key)?;
+            continue;
+        }
+        if r.units.is_some() {
+            return Err(format!("{key}.units applies to `surface = \"FILE\"`"));
+        }
         match (&r.select, &r.elements, &r.labels) {
             (Some(Selection::Plane { .. }), _, _) | (Some(Selection::Set(_)), _, _) => {
                 return Err(format!(
@@ -518,7 +539,7 @@ fn check_materials_and_curves(s: &Scene) -> std::result::Result<(), String> {
             }
             _ => {
                 return Err(format!(
-                    "{key}: give one of `select = {{ box | sphere | cylinder = ... }}`, `elements = \"SET\"` or `labels = [N, ...]`"
+                    "{key}: give one of `select = {{ box | sphere | cylinder = ... }}`, `elements = \"SET\"`, `labels = [N, ...]` or `surface = \"FILE\"`"
                 ))
             }
         }

@@ -43,6 +43,19 @@ pub(super) fn point_materials(
     for (k, (name, r)) in scene.regions.iter().enumerate() {
         let what = format!("region '{name}'");
         let members: Vec<usize> = match (&r.select, &r.elements) {
+            _ if r.surface.is_some() => {
+                let surface = super::translate::region_surface(scene, name)?;
+                let tool = crate::geometry::surface_distance::SurfaceDistance::new(surface)?;
+                let v: Vec<usize> = (0..n)
+                    .filter(|&p| tool.signed_distance(&places.position[p]).0 > 0.0)
+                    .collect();
+                if v.is_empty() {
+                    return Err(Error::Input(format!(
+                        "{what}: no integration point lies inside its surface (is it inside the body, in the body's units?)"
+                    )));
+                }
+                v
+            }
             _ if r.labels.is_some() => {
                 let labels = r.labels.as_deref().unwrap_or_default();
                 let Some((im, path)) = image.as_ref() else {

@@ -113,6 +113,39 @@ pub fn rigid_surface(
     Ok(surface)
 }
 
+/// The closed surface of `[regions.NAME] surface`, read (checked, outward).
+pub fn region_surface(
+    scene: &Scene,
+    name: &str,
+) -> Result<crate::geometry::closed_surface::ClosedSurface> {
+    let r = scene
+        .regions
+        .get(name)
+        .ok_or_else(|| Error::Input(format!("no region '{name}'")))?;
+    let file = r
+        .surface
+        .as_ref()
+        .ok_or_else(|| Error::Input(format!("region '{name}' has no surface")))?;
+    crate::io::surface_file::read_surface(&scene_path(scene, file), r.units.unwrap_or(1.0))
+}
+
+/// The body's surface with the scene's region surfaces inside it, for TetGen to mesh as
+/// internal boundaries (checked: inside the body's material, crossing neither it nor each
+/// other).
+#[cfg(feature = "tetgen")]
+fn with_region_surfaces(
+    scene: &Scene,
+    body: crate::geometry::closed_surface::ClosedSurface,
+) -> Result<(crate::geometry::closed_surface::ClosedSurface, Vec<Vec<usize>>)> {
+    let mut inner = Vec::new();
+    for (name, r) in &scene.regions {
+        if r.surface.is_some() {
+            inner.push((name.clone(), region_surface(scene, name)?));
+        }
+    }
+    crate::geometry::closed_surface::nest(body, &inner)
+}
+
 /// The hexahedra of an image's voxels (`body = "voxels"`), split into tets for tet elements.
 fn image_voxel_mesh(scene: &Scene, shape: ElementShape) -> Result<Mesh> {
     let Some((image, path)) = geometry_image(scene)? else {
@@ -354,10 +387,12 @@ fn tetgen_mesh(scene: &Scene) -> Result<Mesh> {
                 surface.triangles.len(),
                 surface.volume()
             );
-            tetgen::tetgen_surface(&surface, max_volume, d.radius_edge_ratio)
+            let (surface, extra) = with_region_surfaces(scene, surface)?;
+            tetgen::tetgen_surface(&surface, &extra, max_volume, d.radius_edge_ratio)
         }
         Geometry::Image { .. } => {
-            tetgen::tetgen_surface(&image_surface(scene)?, max_volume, d.radius_edge_ratio)
+            let (surface, extra) = with_region_surfaces(scene, image_surface(scene)?)?;
+            tetgen::tetgen_surface(&surface, &extra, max_volume, d.radius_edge_ratio)
         }
         Geometry::Mesh { .. } => Err(Error::Input(
             "discretization.mesher = 'tetgen' meshes built-in shapes; a mesh file is used as it is (remove mesher)".into(),
