@@ -398,3 +398,30 @@ fn a_nested_surface_is_a_conforming_region() {
         assert!(e.contains("region 'inclusion'") && e.contains(says), "{e}");
     }
 }
+
+/// The compressed cylinder read as an STL prism of 31 sides, meshed by TetGen at its own 10 mm
+/// and solved with the quadratic tet10: within REFERENCE.md's compression tolerances (force
+/// 2 % and inside the band -6.98 ... -6.85 N, u_x 1 %). Measured on 2026-11-27: -6.853281 N
+/// (0.96 %), u_x 6.982412e-3 m (0.11 %), 23,596 nodes, 55 s on 2 cores.
+/// `cargo test --release --test surfaces -- --ignored within_the_reference`.
+#[test]
+#[ignore]
+fn the_cylinder_read_as_stl_is_within_the_reference_with_tet10() {
+    let dir = folder("cylinder-tet10");
+    let file = dir.join("cylinder.stl");
+    write_ascii_stl(&file, &cylinder(31));
+    let o: Vec<String> = vec![
+        "discretization.size=0.01".into(),
+        "discretization.element=tet10".into(),
+        "boundaries.bottom.select={ plane = { axis = \"z\", value = 0.0 } }".into(),
+        "boundaries.top.select={ plane = { axis = \"z\", value = 0.1 } }".into(),
+        format!("geometry={{ surface = \"{}\" }}", file.display()),
+    ];
+    let sc = hytled::scene::load(&path("cases/tet-cylinder-compression.toml"), &o).unwrap();
+    let s = run_scene(&sc, &RunOptions::default()).unwrap();
+    let f = s.reactions["top"][2];
+    let u = s.probes["mid_edge"].displacement[0];
+    println!("STL cylinder, tet10: {} nodes, F {f:.6} N, u_x {u:.6e} m", s.nodes);
+    assert!((-6.98..=-6.85).contains(&f) && (f + 6.92).abs() < 0.02 * 6.92, "{f}");
+    assert!((u - 0.00699).abs() < 0.01 * 0.00699, "{u}");
+}
