@@ -487,3 +487,37 @@ fn the_mni_case_runs() {
     assert!(u.norm() > 1e-3);
     assert!(dir.join("mni-brain-shift_warped.nii.gz").is_file());
 }
+
+/// Broken or unusable images are refused naming the file and what is wrong; a hexahedral
+/// element with the surface body says to use tets or the voxels body.
+#[test]
+fn broken_images_are_refused_naming_the_file() {
+    let dir = folder("broken");
+    let truncated = dir.join("truncated.nii");
+    std::fs::write(&truncated, b"garbage").unwrap();
+    let short = dir.join("short.nrrd");
+    std::fs::write(&short, b"NRRD0004\ntype: float\ndimension: 3\nsizes: 2 2 2\nencoding: raw\n\n\0\0").unwrap();
+    let sizes = dir.join("sizes.nrrd");
+    std::fs::write(&sizes, b"NRRD0004\ntype: float\ndimension: 3\nsizes: 2 2\nencoding: raw\n\n").unwrap();
+    let missing = dir.join("missing.nii.gz");
+    let run = |file: &Path, element: &str| {
+        let o = vec![
+            format!("geometry={{ image = \"{}\" }}", file.display()),
+            "references={}".into(),
+            format!("discretization.element={element}"),
+        ];
+        let sc = hytled::scene::load(&path("cases/cube-compression.toml"), &o).unwrap();
+        run_scene(&sc, &RunOptions::default()).unwrap_err().to_string()
+    };
+    for (file, says) in [
+        (&truncated, "truncated"),
+        (&short, "32"),
+        (&sizes, "sizes must list 3"),
+        (&missing, "no such image file"),
+    ] {
+        let e = run(file, "tet4-anp");
+        assert!(e.contains(&file.display().to_string()) && e.contains(says), "{e}");
+    }
+    let e = run(&missing, "hex8");
+    assert!(e.contains("body = \"voxels\""), "{e}");
+}

@@ -111,7 +111,15 @@ fn read_nifti(path: &Path) -> Result<Image> {
     }
     let object = super::catch_quietly(|| nifti::ReaderOptions::new().read_file(path))
         .map_err(|_| file_error(path, "not a readable NIfTI-1 file (its reader failed)"))?
-        .map_err(|e| file_error(path, format!("not a readable NIfTI-1 file: {e}")))?;
+        .map_err(|e| {
+            let why = match &e {
+                nifti::NiftiError::Io(io) if io.kind() == std::io::ErrorKind::UnexpectedEof => {
+                    "the file ends before its header and voxels do (truncated?)".to_string()
+                }
+                other => other.to_string(),
+            };
+            file_error(path, format!("not a readable NIfTI-1 file: {why}"))
+        })?;
     let h = object.header().clone();
     let ndim = h.dim[0] as usize;
     if !(1..=7).contains(&ndim) {

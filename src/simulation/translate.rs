@@ -222,7 +222,12 @@ pub fn build_mesh(scene: &Scene) -> Result<Mesh> {
     }
     if tetgen_meshed(scene) {
         if shape != ElementShape::Tet4 {
-            return Err(Error::Input("discretization.mesher = 'tetgen' (and geometry.surface, which TetGen fills) makes tetrahedra: use element = 'tet4' or 'tet4-anp'".into()));
+            let what = match &scene.geometry {
+                Geometry::Image { .. } => "geometry.image with body = \"surface\" (TetGen fills the labels' surface) makes tetrahedra: use element = 'tet4-anp', 'tet4' or 'tet10', or body = \"voxels\" for hexahedra",
+                Geometry::Surface { .. } => "geometry.surface (TetGen fills it) makes tetrahedra: use element = 'tet4-anp', 'tet4' or 'tet10'",
+                _ => "discretization.mesher = 'tetgen' makes tetrahedra: use element = 'tet4-anp', 'tet4' or 'tet10'",
+            };
+            return Err(Error::Input(what.into()));
         }
         log::info!("meshing with TetGen");
         let m = tetgen_mesh(scene)?;
