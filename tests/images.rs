@@ -52,14 +52,21 @@ fn tet_volume(mesh: &hytled::geometry::Mesh) -> f64 {
         .map(|e| {
             let c = mesh.cell(e);
             let x: Vec<Vector3<f64>> = c.iter().map(|&i| mesh.nodes[i]).collect();
-            (x[1] - x[0]).cross(&(x[2] - x[0])).dot(&(x[3] - x[0])).abs() / 6.0
+            (x[1] - x[0])
+                .cross(&(x[2] - x[0]))
+                .dot(&(x[3] - x[0]))
+                .abs()
+                / 6.0
         })
         .sum()
 }
 
 fn cube_run(file: &Path, extra: &[&str]) -> hytled::Result<Summary> {
     let mut o: Vec<String> = vec![
-        format!("geometry={{ image = \"{}\", body = \"voxels\" }}", file.display()),
+        format!(
+            "geometry={{ image = \"{}\", body = \"voxels\" }}",
+            file.display()
+        ),
         "discretization.element=hex8".into(),
         "discretization.size=0.0125".into(),
         "references={}".into(),
@@ -100,14 +107,19 @@ fn a_voxel_aligned_labelled_box_reproduces_the_exact_cube() {
             let s = cube_run(&file, &[method, "geometry.labels=[3]"])
                 .unwrap_or_else(|e| panic!("{name} {method}: {e}"));
             let (ef, eu) = cube_errors(&s);
-            println!("{name} {method}: nodes {}, force {ef:.2e}, lateral {eu:.2e}", s.nodes);
+            println!(
+                "{name} {method}: nodes {}, force {ef:.2e}, lateral {eu:.2e}",
+                s.nodes
+            );
             assert_eq!(s.nodes, 729, "{name}: 8^3 voxels make 9^3 nodes");
             assert!(ef < tol_f && eu < tol_u, "{name} {method}: {ef:e} {eu:e}");
         }
     }
     // A label the image lacks is an error naming it.
     let file = dir.join("cube.nii.gz");
-    let e = cube_run(&file, &["geometry.labels=[7]"]).unwrap_err().to_string();
+    let e = cube_run(&file, &["geometry.labels=[7]"])
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("cube.nii.gz") && e.contains("no block"), "{e}");
 }
 
@@ -130,7 +142,10 @@ fn an_oblique_image_gives_the_same_answer_rotated() {
         let v = |x: Vector3<f64>| format!("[{:.17e}, {:.17e}, {:.17e}]", x.x, x.y, x.z);
         let g = dir_g * Vector3::new(0.0, 0.0, -9.81);
         let mut o = vec![
-            format!("geometry={{ image = \"{}\", body = \"voxels\" }}", file.display()),
+            format!(
+                "geometry={{ image = \"{}\", body = \"voxels\" }}",
+                file.display()
+            ),
             "discretization.element=hex8".into(),
             "discretization.size=0.0125".into(),
             "references={}".into(),
@@ -138,9 +153,15 @@ fn an_oblique_image_gives_the_same_answer_rotated() {
             "solver.tolerance=1e-10".into(),
             "material.youngs_modulus=300000.0".into(),
             format!("loads.g={{ gravity = {} }}", v(g)),
-            format!("probes.corner={{ position = {} }}", v(f(Vector3::new(0.1, 0.1, 0.1)))),
+            format!(
+                "probes.corner={{ position = {} }}",
+                v(f(Vector3::new(0.1, 0.1, 0.1)))
+            ),
         ];
-        for (k, c) in [[0.0, 0.0], [0.1, 0.0], [0.0, 0.1], [0.1, 0.1]].iter().enumerate() {
+        for (k, c) in [[0.0, 0.0], [0.1, 0.0], [0.0, 0.1], [0.1, 0.1]]
+            .iter()
+            .enumerate()
+        {
             let centre = f(Vector3::new(c[0], c[1], 0.0));
             o.push(format!(
                 "boundaries.tie{k}={{ select = {{ sphere = {{ center = {}, radius = 0.02 }} }}, fix = [\"x\", \"y\", \"z\"] }}",
@@ -184,8 +205,18 @@ fn a_labelled_ball_with_a_cavity_and_a_region() {
                 if d.norm() <= 12.0 {
                     let cav = (d - Vector3::new(5.0, 0.0, 0.0)).norm() <= 4.0;
                     let hard = (d + Vector3::new(6.0, 0.0, 0.0)).norm() <= 3.0;
-                    im.values[v] = if cav { 0.0 } else if hard { 2.0 } else { 1.0 };
-                    if cav { cavity += 1 } else { tissue += 1 }
+                    im.values[v] = if cav {
+                        0.0
+                    } else if hard {
+                        2.0
+                    } else {
+                        1.0
+                    };
+                    if cav {
+                        cavity += 1
+                    } else {
+                        tissue += 1
+                    }
                 }
             }
         }
@@ -237,7 +268,10 @@ fn a_labelled_ball_with_a_cavity_and_a_region() {
     let hard = prep.regions.iter().find(|(n, _)| n == "hard").map(|r| r.1);
     assert!(hard.is_some_and(|n| n > 0), "{:?}", prep.regions);
     let out = run_scene(&sc, &RunOptions::default()).unwrap();
-    println!("ball under gravity: steps {}, status {}", out.steps, out.status);
+    println!(
+        "ball under gravity: steps {}, status {}",
+        out.steps, out.status
+    );
     assert_eq!(out.status, "converged");
 }
 
@@ -361,7 +395,11 @@ fn the_tissue_rests_inside_a_rigid_closed_surface() {
         for j in 0..48 {
             for i in 0..48 {
                 let x = im.world(&Vector3::new(i as f64, j as f64, k as f64));
-                if x.z > 0.0 && x.z < 0.165 && (-0.045..0.165).contains(&x.x) && (-0.045..0.165).contains(&x.y) {
+                if x.z > 0.0
+                    && x.z < 0.165
+                    && (-0.045..0.165).contains(&x.x)
+                    && (-0.045..0.165).contains(&x.y)
+                {
                     let v = im.index(i, j, k);
                     im.values[v] = 1.0;
                 }
@@ -435,9 +473,16 @@ position = [0.05, 0.05, 0.0]
         // The STL floor is the plane; the image's floor is flat only to the Taubin smoothing's
         // reach from the rounded walls (within 5.6e-5 m of z = 0 under the cube, measured on
         // this image: 1 % of the gap holds it).
-        let (tol_u, tol_lateral) = if what == "image" { (0.01 * gap, 0.01) } else { (1e-9, 1e-9) };
+        let (tol_u, tol_lateral) = if what == "image" {
+            (0.01 * gap, 0.01)
+        } else {
+            (1e-9, 1e-9)
+        };
         assert!(du < tol_u, "{what}: {du:e}");
-        assert!(f[0].abs().max(f[1].abs()) < tol_lateral * weight, "{what}: {f:?}");
+        assert!(
+            f[0].abs().max(f[1].abs()) < tol_lateral * weight,
+            "{what}: {f:?}"
+        );
     }
 }
 
@@ -450,9 +495,15 @@ fn the_mni_case_prepares() {
     let prep = hytled::simulation::prepare(&sc).unwrap_or_else(|e| panic!("{e}"));
     let nodes = prep.mesh.nodes.len();
     let regions: std::collections::BTreeMap<_, _> = prep.regions.iter().cloned().collect();
-    println!("mni: {nodes} nodes, {} tets, regions {regions:?}", prep.mesh.num_cells());
+    println!(
+        "mni: {nodes} nodes, {} tets, regions {regions:?}",
+        prep.mesh.num_cells()
+    );
     assert!((8_000..20_000).contains(&nodes), "{nodes}");
-    assert!(regions["white_matter"] > 10_000 && regions["tumour"] > 10, "{regions:?}");
+    assert!(
+        regions["white_matter"] > 10_000 && regions["tumour"] > 10,
+        "{regions:?}"
+    );
     // The mesh's volume is the labelled brain's less the ventricles (scripts/make_mni_case.py:
     // 1731.2 cm^3), within the surface's block resolution.
     let volume = tet_volume(&prep.mesh);
@@ -496,9 +547,17 @@ fn broken_images_are_refused_naming_the_file() {
     let truncated = dir.join("truncated.nii");
     std::fs::write(&truncated, b"garbage").unwrap();
     let short = dir.join("short.nrrd");
-    std::fs::write(&short, b"NRRD0004\ntype: float\ndimension: 3\nsizes: 2 2 2\nencoding: raw\n\n\0\0").unwrap();
+    std::fs::write(
+        &short,
+        b"NRRD0004\ntype: float\ndimension: 3\nsizes: 2 2 2\nencoding: raw\n\n\0\0",
+    )
+    .unwrap();
     let sizes = dir.join("sizes.nrrd");
-    std::fs::write(&sizes, b"NRRD0004\ntype: float\ndimension: 3\nsizes: 2 2\nencoding: raw\n\n").unwrap();
+    std::fs::write(
+        &sizes,
+        b"NRRD0004\ntype: float\ndimension: 3\nsizes: 2 2\nencoding: raw\n\n",
+    )
+    .unwrap();
     let missing = dir.join("missing.nii.gz");
     let run = |file: &Path, element: &str| {
         let o = vec![
@@ -507,7 +566,9 @@ fn broken_images_are_refused_naming_the_file() {
             format!("discretization.element={element}"),
         ];
         let sc = hytled::scene::load(&path("cases/cube-compression.toml"), &o).unwrap();
-        run_scene(&sc, &RunOptions::default()).unwrap_err().to_string()
+        run_scene(&sc, &RunOptions::default())
+            .unwrap_err()
+            .to_string()
     };
     for (file, says) in [
         (&truncated, "truncated"),
@@ -516,7 +577,10 @@ fn broken_images_are_refused_naming_the_file() {
         (&missing, "no such image file"),
     ] {
         let e = run(file, "tet4-anp");
-        assert!(e.contains(&file.display().to_string()) && e.contains(says), "{e}");
+        assert!(
+            e.contains(&file.display().to_string()) && e.contains(says),
+            "{e}"
+        );
     }
     let e = run(&missing, "hex8");
     assert!(e.contains("body = \"voxels\""), "{e}");

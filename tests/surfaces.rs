@@ -328,7 +328,10 @@ fn a_nested_surface_is_a_conforming_region() {
     let inner = dir.join("inclusion.stl");
     write_ascii_stl(
         &inner,
-        &(common::box_corners([0.03, 0.03, 0.03], [0.07, 0.07, 0.07]), common::box_triangles()),
+        &(
+            common::box_corners([0.03, 0.03, 0.03], [0.07, 0.07, 0.07]),
+            common::box_triangles(),
+        ),
     );
     let region = |file: &Path, e: f64| {
         format!(
@@ -336,9 +339,16 @@ fn a_nested_surface_is_a_conforming_region() {
             file.display()
         )
     };
-    let same = cube_run(&body, &["discretization.method=fe", &region(&inner, 3000.0)]).unwrap();
+    let same = cube_run(
+        &body,
+        &["discretization.method=fe", &region(&inner, 3000.0)],
+    )
+    .unwrap();
     let (ef, eu) = cube_errors(&same, 0.1);
-    println!("inclusion of the same material: force {ef:.2e}, lateral {eu:.2e}, {} nodes", same.nodes);
+    println!(
+        "inclusion of the same material: force {ef:.2e}, lateral {eu:.2e}, {} nodes",
+        same.nodes
+    );
     assert!(ef < 1e-6 && eu < 1e-5, "{ef:e} {eu:e}");
     // The tets conform: each has all its vertices on one side of the inclusion's faces (or on
     // them).
@@ -372,11 +382,22 @@ fn a_nested_surface_is_a_conforming_region() {
             straddling += 1;
         }
     }
-    let points = prep.regions.iter().find(|r| r.0 == "inclusion").map(|r| r.1);
-    println!("stiff inclusion: {} tets, {straddling} straddling, region points {points:?}", prep.mesh.num_cells());
+    let points = prep
+        .regions
+        .iter()
+        .find(|r| r.0 == "inclusion")
+        .map(|r| r.1);
+    println!(
+        "stiff inclusion: {} tets, {straddling} straddling, region points {points:?}",
+        prep.mesh.num_cells()
+    );
     assert_eq!(straddling, 0);
     assert!(points.is_some_and(|n| n > 0));
-    let stiff = cube_run(&body, &["discretization.method=fe", &region(&inner, 30000.0)]).unwrap();
+    let stiff = cube_run(
+        &body,
+        &["discretization.method=fe", &region(&inner, 30000.0)],
+    )
+    .unwrap();
     let (f0, f1) = (same.reactions["top"][2], stiff.reactions["top"][2]);
     println!("top force: uniform {f0:.6} N, stiff inclusion {f1:.6} N");
     assert!(f1 < f0 && stiff.status == "converged", "{f0} {f1}");
@@ -384,12 +405,18 @@ fn a_nested_surface_is_a_conforming_region() {
     let outside = dir.join("outside.stl");
     write_ascii_stl(
         &outside,
-        &(common::box_corners([0.2, 0.2, 0.2], [0.3, 0.3, 0.3]), common::box_triangles()),
+        &(
+            common::box_corners([0.2, 0.2, 0.2], [0.3, 0.3, 0.3]),
+            common::box_triangles(),
+        ),
     );
     let crossing = dir.join("crossing.stl");
     write_ascii_stl(
         &crossing,
-        &(common::box_corners([0.05, 0.03, 0.03], [0.15, 0.07, 0.07]), common::box_triangles()),
+        &(
+            common::box_corners([0.05, 0.03, 0.03], [0.15, 0.07, 0.07]),
+            common::box_triangles(),
+        ),
     );
     for (file, says) in [(&outside, "outside the body"), (&crossing, "cross")] {
         let e = cube_run(&body, &["discretization.method=fe", &region(file, 3000.0)])
@@ -431,8 +458,14 @@ fn the_cylinder_read_as_stl_is_within_the_reference_with_tet10() {
         let s = run_scene(&sc, &RunOptions::default()).unwrap();
         let f = s.reactions["top"][c];
         let u = s.probes["mid_edge"].displacement[0];
-        let (ef, eu) = ((f - f_ref).abs() / f_ref.abs(), (u - u_ref).abs() / u_ref.abs());
-        println!("{case}: {} nodes, F {f:.6} N ({ef:.2e}), u_x {u:.6e} m ({eu:.2e})", s.nodes);
+        let (ef, eu) = (
+            (f - f_ref).abs() / f_ref.abs(),
+            (u - u_ref).abs() / u_ref.abs(),
+        );
+        println!(
+            "{case}: {} nodes, F {f:.6} N ({ef:.2e}), u_x {u:.6e} m ({eu:.2e})",
+            s.nodes
+        );
         assert!(ef < tol_f && eu < tol_u, "{case}: {ef:e} {eu:e}");
     }
 }

@@ -453,7 +453,11 @@ pub(crate) mod tests {
                 }
             }));
             let s = check_closed_surface("c.stl", p2, t2).unwrap();
-            assert!((s.volume() - (1.0 - 1.0 / 27.0)).abs() < 1e-14, "{}", s.volume());
+            assert!(
+                (s.volume() - (1.0 - 1.0 / 27.0)).abs() < 1e-14,
+                "{}",
+                s.volume()
+            );
             assert_eq!(s.holes.len(), 1);
             let h = s.holes[0];
             assert!(h.iter().all(|&x| x > 1.0 / 3.0 && x < 2.0 / 3.0), "{h}");
@@ -489,7 +493,10 @@ pub(crate) mod tests {
         p2.extend(p.iter().map(|x| x + Vector3::new(3.0, 0.0, 0.0)));
         t2.extend(t.iter().map(|t| t.map(|i| i + 8)));
         let e = err(p2, t2);
-        assert!(e.contains("2 separate bodies") && e.contains("triangle 12"), "{e}");
+        assert!(
+            e.contains("2 separate bodies") && e.contains("triangle 12"),
+            "{e}"
+        );
         // A cube with one top corner pushed down through the bottom: its faces cross.
         let mut crossing = p.clone();
         crossing[7] = Vector3::new(0.3, 0.3, -0.5);

@@ -12,8 +12,8 @@
 use nalgebra::Vector3;
 
 use super::closed_surface::{check_closed_surface, ClosedSurface};
-use super::{ElementShape, Mesh};
 use super::image::Image;
+use super::{ElementShape, Mesh};
 use crate::{Error, Result};
 
 /// Which voxels are tissue: those whose label is in `labels` (all nonzero labels when empty).
@@ -94,12 +94,24 @@ pub fn voxel_mesh(image: &Image, mask: &[bool], block: usize, what: &str) -> Res
                     stack.push(n);
                 }
             };
-            if i > 0 { visit(i - 1, j, k) }
-            if i + 1 < m[0] { visit(i + 1, j, k) }
-            if j > 0 { visit(i, j - 1, k) }
-            if j + 1 < m[1] { visit(i, j + 1, k) }
-            if k > 0 { visit(i, j, k - 1) }
-            if k + 1 < m[2] { visit(i, j, k + 1) }
+            if i > 0 {
+                visit(i - 1, j, k)
+            }
+            if i + 1 < m[0] {
+                visit(i + 1, j, k)
+            }
+            if j > 0 {
+                visit(i, j - 1, k)
+            }
+            if j + 1 < m[1] {
+                visit(i, j + 1, k)
+            }
+            if k > 0 {
+                visit(i, j, k - 1)
+            }
+            if k + 1 < m[2] {
+                visit(i, j, k + 1)
+            }
         }
         sizes.push(size);
     }
@@ -145,7 +157,9 @@ pub fn voxel_mesh(image: &Image, mask: &[bool], block: usize, what: &str) -> Res
                     id[key]
                 });
                 if reflected {
-                    hex = [hex[4], hex[5], hex[6], hex[7], hex[0], hex[1], hex[2], hex[3]];
+                    hex = [
+                        hex[4], hex[5], hex[6], hex[7], hex[0], hex[1], hex[2], hex[3],
+                    ];
                 }
                 cells.extend_from_slice(&hex);
             }
@@ -341,11 +355,15 @@ fn keep_main_body(
         let tris: Vec<[usize; 3]> = members.iter().map(|&k| triangles[k]).collect();
         super::dome::enclosed_volume(points, &tris)
     };
-    let list: Vec<(Vec<usize>, f64)> = pieces.into_values().map(|m| {
-        let v = volume(&m);
-        (m, v)
-    }).collect();
-    let Some(main) = (0..list.len()).max_by(|&a, &b| list[a].1.abs().total_cmp(&list[b].1.abs())) else {
+    let list: Vec<(Vec<usize>, f64)> = pieces
+        .into_values()
+        .map(|m| {
+            let v = volume(&m);
+            (m, v)
+        })
+        .collect();
+    let Some(main) = (0..list.len()).max_by(|&a, &b| list[a].1.abs().total_cmp(&list[b].1.abs()))
+    else {
         return SurfaceReport::default();
     };
     let sign = list[main].1.signum();
@@ -469,7 +487,10 @@ mod tests {
                 }
                 let sp = im.spacing();
                 let expect = 512.0 * sp[0] * sp[1] * sp[2];
-                assert!((volume - expect).abs() < 1e-12 * expect / s, "{volume} vs {expect}");
+                assert!(
+                    (volume - expect).abs() < 1e-12 * expect / s,
+                    "{volume} vs {expect}"
+                );
             }
         }
     }

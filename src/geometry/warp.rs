@@ -10,8 +10,8 @@
 
 use nalgebra::Vector3;
 
-use super::{ElementShape, Mesh};
 use super::image::Image;
+use super::{ElementShape, Mesh};
 use crate::{Error, Result};
 
 /// The pull-back field d(x) = X - x (m, RAS) at the voxel centres of `grid` for the body
@@ -21,7 +21,11 @@ use crate::{Error, Result};
 ///
 /// Each deformed tet is rasterized over the voxels of its bounding box in index space (an
 /// affine map keeps barycentric coordinates), so the cost is about the voxels the body covers.
-pub fn pull_back(grid: &Image, mesh: &Mesh, u: &[Vector3<f64>]) -> Result<(Vec<Vector3<f64>>, usize)> {
+pub fn pull_back(
+    grid: &Image,
+    mesh: &Mesh,
+    u: &[Vector3<f64>],
+) -> Result<(Vec<Vector3<f64>>, usize)> {
     if u.len() != mesh.nodes.len() {
         return Err(Error::Input(format!(
             "{} displacements for {} mesh nodes",
@@ -52,7 +56,9 @@ pub fn pull_back(grid: &Image, mesh: &Mesh, u: &[Vector3<f64>]) -> Result<(Vec<V
         let Some(inv) = m.try_inverse() else {
             continue; // a flat deformed tet covers no voxel centre
         };
-        let (lo, hi) = p.iter().fold((p[0], p[0]), |(l, h), q| (l.inf(q), h.sup(q)));
+        let (lo, hi) = p
+            .iter()
+            .fold((p[0], p[0]), |(l, h), q| (l.inf(q), h.sup(q)));
         let mut range = [(0usize, 0usize); 3];
         let mut empty = false;
         for a in 0..3 {
@@ -123,12 +129,9 @@ mod tests {
     /// image is I(F^-1 x) exactly.
     #[test]
     fn a_homogeneous_deformation_pulls_back_exactly() {
-        let mesh = crate::geometry::shapes::box_tet(
-            Vector3::zeros(),
-            Vector3::repeat(0.01),
-            [3, 3, 3],
-        )
-        .unwrap();
+        let mesh =
+            crate::geometry::shapes::box_tet(Vector3::zeros(), Vector3::repeat(0.01), [3, 3, 3])
+                .unwrap();
         let f = Matrix3::new(1.1, 0.05, 0.0, 0.0, 1.1, 0.0, 0.02, 0.0, 0.8);
         let u: Vec<Vector3<f64>> = mesh.nodes.iter().map(|x| f * x - x).collect();
         let mut map = Matrix4::identity() * 5e-4;
@@ -159,7 +162,12 @@ mod tests {
                     let back = finv * x;
                     let inside = back.iter().all(|&c| (1e-9..=0.01 - 1e-9).contains(&c));
                     if inside {
-                        assert!((d[v] - (back - x)).norm() < 1e-15, "{} vs {}", d[v], back - x);
+                        assert!(
+                            (d[v] - (back - x)).norm() < 1e-15,
+                            "{} vs {}",
+                            d[v],
+                            back - x
+                        );
                         let exact = 3.0 + 100.0 * back.x - 50.0 * back.y + 20.0 * back.z;
                         assert!((warped.values[v] - exact).abs() < 1e-12);
                         checked += 1;

@@ -51,7 +51,10 @@ const MAX_VOXELS: usize = 1 << 27;
 
 fn check_map(path: &Path, dims: [usize; 3], to_world: Matrix4<f64>) -> Result<Image> {
     if dims.contains(&0) {
-        return Err(file_error(path, format!("the image has {dims:?} voxels; every axis needs at least one")));
+        return Err(file_error(
+            path,
+            format!("the image has {dims:?} voxels; every axis needs at least one"),
+        ));
     }
     let n = dims[0]
         .checked_mul(dims[1])
@@ -123,9 +126,18 @@ fn read_nifti(path: &Path) -> Result<Image> {
     let h = object.header().clone();
     let ndim = h.dim[0] as usize;
     if !(1..=7).contains(&ndim) {
-        return Err(file_error(path, format!("dim[0] = {ndim}; NIfTI allows 1 to 7")));
+        return Err(file_error(
+            path,
+            format!("dim[0] = {ndim}; NIfTI allows 1 to 7"),
+        ));
     }
-    let size = |a: usize| if a <= ndim { h.dim[a].max(1) as usize } else { 1 };
+    let size = |a: usize| {
+        if a <= ndim {
+            h.dim[a].max(1) as usize
+        } else {
+            1
+        }
+    };
     let dims = [size(1), size(2), size(3)];
     let extra: usize = (4..=ndim).map(size).product();
     let unit = nifti_unit(h.xyzt_units);
@@ -260,7 +272,10 @@ fn read_nrrd(path: &Path) -> Result<Image> {
         let l = line.trim_end_matches(['\n', '\r']);
         if first {
             if !l.starts_with("NRRD000") {
-                return Err(file_error(path, "not a NRRD file (it does not begin with NRRD000N)"));
+                return Err(file_error(
+                    path,
+                    "not a NRRD file (it does not begin with NRRD000N)",
+                ));
             }
             first = false;
             continue;
@@ -278,7 +293,10 @@ fn read_nrrd(path: &Path) -> Result<Image> {
         } else {
             return Err(file_error(
                 path,
-                format!("line {line_no}: '{}' is not a NRRD field (\"name: value\")", super::clip(l)),
+                format!(
+                    "line {line_no}: '{}' is not a NRRD field (\"name: value\")",
+                    super::clip(l)
+                ),
             ));
         }
     }
@@ -298,7 +316,11 @@ fn read_nrrd(path: &Path) -> Result<Image> {
         .ok_or_else(|| file_error(path, format!("sizes must list {dimension} whole numbers")))?;
     let kinds: Vec<String> = h
         .get("kinds")
-        .map(|k| k.split_whitespace().map(|s| s.to_ascii_lowercase()).collect())
+        .map(|k| {
+            k.split_whitespace()
+                .map(|s| s.to_ascii_lowercase())
+                .collect()
+        })
         .unwrap_or_default();
     // The spatial axes: kinds 'domain'/'space' where given, else all axes (3 of them).
     let spatial: Vec<usize> = if kinds.len() == dimension {
@@ -315,8 +337,15 @@ fn read_nrrd(path: &Path) -> Result<Image> {
             format!("a 3-D image (three domain axes, at most one more) is needed; it has dimension {dimension} with kinds {kinds:?}"),
         ));
     }
-    if spatial.iter().enumerate().any(|(i, &a)| a != i + dimension - 3) {
-        return Err(file_error(path, "the three domain axes must be the last ones (a component axis first)"));
+    if spatial
+        .iter()
+        .enumerate()
+        .any(|(i, &a)| a != i + dimension - 3)
+    {
+        return Err(file_error(
+            path,
+            "the three domain axes must be the last ones (a component axis first)",
+        ));
     }
     let lead = dimension - 3;
     let components = if lead == 1 { sizes[0] } else { 1 };
@@ -350,7 +379,10 @@ fn read_nrrd(path: &Path) -> Result<Image> {
                 "cm" => 1e-2,
                 "um" | "micron" => 1e-6,
                 other => {
-                    return Err(file_error(path, format!("space units '{other}' unknown; use mm, cm, m or um")))
+                    return Err(file_error(
+                        path,
+                        format!("space units '{other}' unknown; use mm, cm, m or um"),
+                    ))
                 }
             }
         }
@@ -364,21 +396,41 @@ fn read_nrrd(path: &Path) -> Result<Image> {
                 parts.push(None);
                 rest = r.trim_start();
             } else if let Some(end) = rest.find(')') {
-                let v = parse_vector(&rest[..=end]).filter(|v| v.len() == 3).ok_or_else(|| {
-                    file_error(path, format!("space directions: '{}' is not a 3-vector", super::clip(&rest[..=end])))
-                })?;
+                let v = parse_vector(&rest[..=end])
+                    .filter(|v| v.len() == 3)
+                    .ok_or_else(|| {
+                        file_error(
+                            path,
+                            format!(
+                                "space directions: '{}' is not a 3-vector",
+                                super::clip(&rest[..=end])
+                            ),
+                        )
+                    })?;
                 parts.push(Some(v));
                 rest = rest[end + 1..].trim_start();
             } else {
-                return Err(file_error(path, "space directions: expected (x,y,z) vectors or none"));
+                return Err(file_error(
+                    path,
+                    "space directions: expected (x,y,z) vectors or none",
+                ));
             }
         }
         if parts.len() != dimension {
-            return Err(file_error(path, format!("space directions lists {} axes; dimension is {dimension}", parts.len())));
+            return Err(file_error(
+                path,
+                format!(
+                    "space directions lists {} axes; dimension is {dimension}",
+                    parts.len()
+                ),
+            ));
         }
         for a in 0..3 {
             let v = parts[lead + a].clone().ok_or_else(|| {
-                file_error(path, format!("space directions: domain axis {} is 'none'", lead + a))
+                file_error(
+                    path,
+                    format!("space directions: domain axis {} is 'none'", lead + a),
+                )
             })?;
             for r in 0..3 {
                 to_world[(r, a)] = v[r] * flip[r] * unit;
@@ -414,35 +466,68 @@ fn read_nrrd(path: &Path) -> Result<Image> {
     let (bytes, read): (usize, fn(&[u8], bool) -> f64) = match kind.as_str() {
         "signed char" | "int8" | "int8_t" => (1, |b, _| b[0] as i8 as f64),
         "uchar" | "unsigned char" | "uint8" | "uint8_t" => (1, |b, _| b[0] as f64),
-        "short" | "short int" | "signed short" | "signed short int" | "int16" | "int16_t" => (2, |b, be| {
-            let a = [b[0], b[1]];
-            (if be { i16::from_be_bytes(a) } else { i16::from_le_bytes(a) }) as f64
-        }),
-        "ushort" | "unsigned short" | "unsigned short int" | "uint16" | "uint16_t" => (2, |b, be| {
-            let a = [b[0], b[1]];
-            (if be { u16::from_be_bytes(a) } else { u16::from_le_bytes(a) }) as f64
-        }),
+        "short" | "short int" | "signed short" | "signed short int" | "int16" | "int16_t" => {
+            (2, |b, be| {
+                let a = [b[0], b[1]];
+                (if be {
+                    i16::from_be_bytes(a)
+                } else {
+                    i16::from_le_bytes(a)
+                }) as f64
+            })
+        }
+        "ushort" | "unsigned short" | "unsigned short int" | "uint16" | "uint16_t" => {
+            (2, |b, be| {
+                let a = [b[0], b[1]];
+                (if be {
+                    u16::from_be_bytes(a)
+                } else {
+                    u16::from_le_bytes(a)
+                }) as f64
+            })
+        }
         "int" | "signed int" | "int32" | "int32_t" => (4, |b, be| {
             let a = [b[0], b[1], b[2], b[3]];
-            (if be { i32::from_be_bytes(a) } else { i32::from_le_bytes(a) }) as f64
+            (if be {
+                i32::from_be_bytes(a)
+            } else {
+                i32::from_le_bytes(a)
+            }) as f64
         }),
         "uint" | "unsigned int" | "uint32" | "uint32_t" => (4, |b, be| {
             let a = [b[0], b[1], b[2], b[3]];
-            (if be { u32::from_be_bytes(a) } else { u32::from_le_bytes(a) }) as f64
+            (if be {
+                u32::from_be_bytes(a)
+            } else {
+                u32::from_le_bytes(a)
+            }) as f64
         }),
         "float" => (4, |b, be| {
             let a = [b[0], b[1], b[2], b[3]];
-            (if be { f32::from_be_bytes(a) } else { f32::from_le_bytes(a) }) as f64
+            (if be {
+                f32::from_be_bytes(a)
+            } else {
+                f32::from_le_bytes(a)
+            }) as f64
         }),
         "double" => (8, |b, be| {
             let a: [u8; 8] = std::array::from_fn(|i| b[i]);
-            if be { f64::from_be_bytes(a) } else { f64::from_le_bytes(a) }
+            if be {
+                f64::from_be_bytes(a)
+            } else {
+                f64::from_le_bytes(a)
+            }
         }),
         other => {
-            return Err(file_error(path, format!("type '{other}' is not supported (use an integer type, float or double)")))
+            return Err(file_error(
+                path,
+                format!("type '{other}' is not supported (use an integer type, float or double)"),
+            ))
         }
     };
-    let big = h.get("endian").is_some_and(|e| e.eq_ignore_ascii_case("big"));
+    let big = h
+        .get("endian")
+        .is_some_and(|e| e.eq_ignore_ascii_case("big"));
     let encoding = need("encoding")?.to_ascii_lowercase();
     let mut raw = Vec::new();
     match h.get("data file").or_else(|| h.get("datafile")) {
@@ -453,7 +538,9 @@ fn read_nrrd(path: &Path) -> Result<Image> {
                 .map_err(|e| file_error(&data_path, format!("the NRRD data file: {e}")))?;
         }
         None => {
-            reader.read_to_end(&mut raw).map_err(|e| file_error(path, e))?;
+            reader
+                .read_to_end(&mut raw)
+                .map_err(|e| file_error(path, e))?;
         }
     }
     let raw = match encoding.as_str() {
@@ -462,11 +549,16 @@ fn read_nrrd(path: &Path) -> Result<Image> {
             let mut out = Vec::new();
             flate2::read::MultiGzDecoder::new(&raw[..])
                 .read_to_end(&mut out)
-                .map_err(|e| file_error(path, format!("its gzip data could not be inflated: {e}")))?;
+                .map_err(|e| {
+                    file_error(path, format!("its gzip data could not be inflated: {e}"))
+                })?;
             out
         }
         other => {
-            return Err(file_error(path, format!("encoding '{other}' is not supported (use raw or gzip)")))
+            return Err(file_error(
+                path,
+                format!("encoding '{other}' is not supported (use raw or gzip)"),
+            ))
         }
     };
     let need_bytes = image.len() * components * bytes;
@@ -477,13 +569,20 @@ fn read_nrrd(path: &Path) -> Result<Image> {
         ));
     }
     // A detached or attached raw file may carry a header before the data: the data are last.
-    let start = if encoding == "raw" { raw.len() - need_bytes } else { 0 };
+    let start = if encoding == "raw" {
+        raw.len() - need_bytes
+    } else {
+        0
+    };
     for (n, v) in image.values.iter_mut().enumerate() {
         let at = start + n * components * bytes;
         *v = read(&raw[at..at + bytes], big);
     }
     if let Some(n) = image.values.iter().position(|v| !v.is_finite()) {
-        return Err(file_error(path, format!("voxel {n} holds {}, not a finite number", image.values[n])));
+        return Err(file_error(
+            path,
+            format!("voxel {n} holds {}, not a finite number", image.values[n]),
+        ));
     }
     Ok(image)
 }
@@ -503,7 +602,10 @@ fn nifti_header(grid: &Image) -> nifti::NiftiHeader {
     let m = grid.to_world * 1e3;
     let axes = grid.axes() * 1e3;
     let s = grid.spacing().map(|v| v * 1e3);
-    for (row, dst) in [&mut h.srow_x, &mut h.srow_y, &mut h.srow_z].into_iter().enumerate() {
+    for (row, dst) in [&mut h.srow_x, &mut h.srow_y, &mut h.srow_z]
+        .into_iter()
+        .enumerate()
+    {
         for c in 0..4 {
             dst[c] = m[(row, c)] as f32;
         }
@@ -518,7 +620,11 @@ fn nifti_header(grid: &Image) -> nifti::NiftiHeader {
         1.0
     };
     let q = nalgebra::UnitQuaternion::from_matrix(&r);
-    let q = if q.w < 0.0 { -q.into_inner() } else { q.into_inner() };
+    let q = if q.w < 0.0 {
+        -q.into_inner()
+    } else {
+        q.into_inner()
+    };
     h.quatern_b = q.i as f32;
     h.quatern_c = q.j as f32;
     h.quatern_d = q.k as f32;
@@ -526,7 +632,16 @@ fn nifti_header(grid: &Image) -> nifti::NiftiHeader {
     h.quatern_y = m[(1, 3)] as f32;
     h.quatern_z = m[(2, 3)] as f32;
     h.qform_code = 1;
-    h.pixdim = [qfac as f32, s[0] as f32, s[1] as f32, s[2] as f32, 1.0, 1.0, 1.0, 1.0];
+    h.pixdim = [
+        qfac as f32,
+        s[0] as f32,
+        s[1] as f32,
+        s[2] as f32,
+        1.0,
+        1.0,
+        1.0,
+        1.0,
+    ];
     h.xyzt_units = 2; // mm
     h
 }
@@ -558,7 +673,10 @@ pub fn write_image(path: &Path, image: &Image) -> Result<()> {
                 .collect();
             write_nrrd(path, image, 1, &data)
         }
-        None => Err(file_error(path, "unknown image format; name it .nii, .nii.gz or .nrrd")),
+        None => Err(file_error(
+            path,
+            "unknown image format; name it .nii, .nii.gz or .nrrd",
+        )),
     }
 }
 
@@ -605,7 +723,10 @@ pub fn write_displacement_field(path: &Path, grid: &Image, u: &[Vector3<f64>]) -
                 .collect();
             write_nrrd(path, grid, 3, &data)
         }
-        None => Err(file_error(path, "unknown image format; name it .nii, .nii.gz or .nrrd")),
+        None => Err(file_error(
+            path,
+            "unknown image format; name it .nii, .nii.gz or .nrrd",
+        )),
     }
 }
 
@@ -642,7 +763,8 @@ fn write_nrrd(path: &Path, grid: &Image, components: usize, data: &[u8]) -> Resu
     );
     let file = std::fs::File::create(path).map_err(|e| io_error(path, e))?;
     let mut w = std::io::BufWriter::new(file);
-    w.write_all(header.as_bytes()).map_err(|e| io_error(path, e))?;
+    w.write_all(header.as_bytes())
+        .map_err(|e| io_error(path, e))?;
     let mut gz = flate2::write::GzEncoder::new(w, flate2::Compression::fast());
     gz.write_all(data).map_err(|e| io_error(path, e))?;
     gz.finish()
@@ -663,7 +785,8 @@ pub(crate) mod tests {
         let s = Matrix3::from_diagonal(&Vector3::new(1.0e-3, 1.5e-3, 2.0e-3));
         let mut m = Matrix4::identity();
         m.fixed_view_mut::<3, 3>(0, 0).copy_from(&(r.matrix() * s));
-        m.fixed_view_mut::<3, 1>(0, 3).copy_from(&Vector3::new(0.01, -0.02, 0.03));
+        m.fixed_view_mut::<3, 1>(0, 3)
+            .copy_from(&Vector3::new(0.01, -0.02, 0.03));
         m
     }
 
@@ -716,7 +839,10 @@ pub(crate) mod tests {
         let with_sform = nifti_affine(&h).unwrap();
         h.sform_code = 0;
         let with_qform = nifti_affine(&h).unwrap();
-        assert!((with_sform - with_qform).amax() < 1e-5, "{with_sform} vs {with_qform}");
+        assert!(
+            (with_sform - with_qform).amax() < 1e-5,
+            "{with_sform} vs {with_qform}"
+        );
         assert!((with_sform * 1e-3 - m).fixed_view::<3, 4>(0, 0).amax() < 1e-9);
     }
 
@@ -729,7 +855,9 @@ pub(crate) mod tests {
         let v = im.trilinear(&x).unwrap();
         assert!((v - (1.25 + 5.0 + 375.0)).abs() < 1e-9, "{v}");
         assert_eq!(im.nearest(&x), Some((1 + 10 + 400) as f64));
-        assert!(im.trilinear(&im.world(&Vector3::new(-0.1, 0.0, 0.0))).is_none());
+        assert!(im
+            .trilinear(&im.world(&Vector3::new(-0.1, 0.0, 0.0)))
+            .is_none());
     }
 
     /// A displacement field written as NRRD: LPS millimetre components after a vector axis.
@@ -740,14 +868,23 @@ pub(crate) mod tests {
         let grid = Image::filled([2, 1, 1], Matrix4::identity() * 1e-3, 0.0);
         let mut grid = grid;
         grid.to_world[(3, 3)] = 1.0;
-        let u = vec![Vector3::new(1e-3, 2e-3, 3e-3), Vector3::new(-4e-3, 0.0, 0.5e-3)];
+        let u = vec![
+            Vector3::new(1e-3, 2e-3, 3e-3),
+            Vector3::new(-4e-3, 0.0, 0.5e-3),
+        ];
         let p = dir.join("u.nrrd");
         write_displacement_field(&p, &grid, &u).unwrap();
         let bytes = std::fs::read(&p).unwrap();
         let split = bytes.windows(2).position(|w| w == b"\n\n").unwrap();
         let header = String::from_utf8_lossy(&bytes[..split]);
-        assert!(header.contains("kinds: vector domain domain domain"), "{header}");
-        assert!(header.contains("space: left-posterior-superior"), "{header}");
+        assert!(
+            header.contains("kinds: vector domain domain domain"),
+            "{header}"
+        );
+        assert!(
+            header.contains("space: left-posterior-superior"),
+            "{header}"
+        );
         let mut raw = Vec::new();
         flate2::read::GzDecoder::new(&bytes[split + 2..])
             .read_to_end(&mut raw)

@@ -138,7 +138,10 @@ impl TryFrom<GeometryToml> for Geometry {
             only(&["labels", "body", "smoothing"])?;
             let body = g.body.unwrap_or_default();
             if body == ImageBody::Voxels && g.smoothing.is_some() {
-                return Err("geometry: `smoothing` applies to body = \"surface\" (voxels are not smoothed)".into());
+                return Err(
+                    "geometry: `smoothing` applies to body = \"surface\" (voxels are not smoothed)"
+                        .into(),
+                );
             }
             return Ok(Geometry::Image {
                 file,

@@ -19,7 +19,8 @@ use crate::meshless::integration::TetRule;
 use crate::meshless::mls::MlsSettings;
 use crate::meshless::support::SupportRule;
 use crate::scene::{
-    BcMethod, CloudKind, ElementName, Geometry, ImageBody, IntegrationKind, Mesher, Method, Scene, SupportKind,
+    BcMethod, CloudKind, ElementName, Geometry, ImageBody, IntegrationKind, Mesher, Method, Scene,
+    SupportKind,
 };
 use crate::solver::Settings;
 use crate::{Error, Result};
@@ -136,7 +137,10 @@ pub fn region_surface(
 fn with_region_surfaces(
     scene: &Scene,
     body: crate::geometry::closed_surface::ClosedSurface,
-) -> Result<(crate::geometry::closed_surface::ClosedSurface, Vec<Vec<usize>>)> {
+) -> Result<(
+    crate::geometry::closed_surface::ClosedSurface,
+    Vec<Vec<usize>>,
+)> {
     let mut inner = Vec::new();
     for (name, r) in &scene.regions {
         if r.surface.is_some() {
