@@ -110,29 +110,8 @@ pub fn check_closed_surface(
         }
     }
     // Connected pieces: one outer piece, and pieces nested in it as cavities (even-odd).
-    let mut parent: Vec<usize> = (0..points.len()).collect();
-    fn root(parent: &mut [usize], mut i: usize) -> usize {
-        while parent[i] != i {
-            parent[i] = parent[parent[i]];
-            i = parent[i];
-        }
-        i
-    }
-    for t in &triangles {
-        for e in 0..2 {
-            let (a, b) = (root(&mut parent, t[e]), root(&mut parent, t[e + 1]));
-            parent[a] = b;
-        }
-    }
-    let mut piece_of_root: HashMap<usize, usize> = HashMap::new();
-    let piece: Vec<usize> = (0..triangles.len())
-        .map(|k| {
-            let r = root(&mut parent, triangles[k][0]);
-            let n = piece_of_root.len();
-            *piece_of_root.entry(r).or_insert(n)
-        })
-        .collect();
-    let pieces = piece_of_root.len();
+    let piece = pieces_of(points.len(), &triangles);
+    let pieces = piece.iter().max().map_or(0, |&p| p + 1);
     if let Some((k, m)) = self_intersection(&points, &triangles, diag) {
         return Err(bad(format!(
             "the surface crosses itself: triangles {k} and {m} intersect (near {}); repair it \
@@ -322,6 +301,34 @@ fn cavity_point(
         }
     }
     None
+}
+
+/// The connected piece of each triangle (sharing vertices), numbered 0.. in order of first
+/// appearance; `n_points` is the number of vertices the triangles index.
+pub(crate) fn pieces_of(n_points: usize, triangles: &[[usize; 3]]) -> Vec<usize> {
+    let mut parent: Vec<usize> = (0..n_points).collect();
+    fn root(parent: &mut [usize], mut i: usize) -> usize {
+        while parent[i] != i {
+            parent[i] = parent[parent[i]];
+            i = parent[i];
+        }
+        i
+    }
+    for t in triangles {
+        for e in 0..2 {
+            let (a, b) = (root(&mut parent, t[e]), root(&mut parent, t[e + 1]));
+            parent[a] = b;
+        }
+    }
+    let mut piece_of_root: HashMap<usize, usize> = HashMap::new();
+    triangles
+        .iter()
+        .map(|t| {
+            let r = root(&mut parent, t[0]);
+            let n = piece_of_root.len();
+            *piece_of_root.entry(r).or_insert(n)
+        })
+        .collect()
 }
 
 /// Whether segment p q crosses triangle a b c (at a point strictly inside both, within

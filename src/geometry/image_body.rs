@@ -333,30 +333,17 @@ fn keep_main_body(
     triangles: &mut Vec<[usize; 3]>,
     cavities: bool,
 ) -> SurfaceReport {
-    let mut parent: Vec<usize> = (0..points.len()).collect();
-    fn root(parent: &mut [usize], mut i: usize) -> usize {
-        while parent[i] != i {
-            parent[i] = parent[parent[i]];
-            i = parent[i];
-        }
-        i
-    }
-    for t in triangles.iter() {
-        for e in 0..2 {
-            let (a, b) = (root(&mut parent, t[e]), root(&mut parent, t[e + 1]));
-            parent[a] = b;
-        }
-    }
-    let mut pieces: std::collections::BTreeMap<usize, Vec<usize>> = Default::default();
-    for (k, t) in triangles.iter().enumerate() {
-        pieces.entry(root(&mut parent, t[0])).or_default().push(k);
+    let piece = super::closed_surface::pieces_of(points.len(), triangles);
+    let mut pieces: Vec<Vec<usize>> = vec![Vec::new(); piece.iter().max().map_or(0, |&p| p + 1)];
+    for (k, &p) in piece.iter().enumerate() {
+        pieces[p].push(k);
     }
     let volume = |members: &[usize]| {
         let tris: Vec<[usize; 3]> = members.iter().map(|&k| triangles[k]).collect();
         super::dome::enclosed_volume(points, &tris)
     };
     let list: Vec<(Vec<usize>, f64)> = pieces
-        .into_values()
+        .into_iter()
         .map(|m| {
             let v = volume(&m);
             (m, v)

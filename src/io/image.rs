@@ -78,10 +78,8 @@ fn check_map(path: &Path, dims: [usize; 3], to_world: Matrix4<f64>) -> Result<Im
             ),
         ));
     }
-    Ok(Image::filled(dims, to_world, 0.0)).map(|mut im| {
-        im.values = vec![0.0; n];
-        im
-    })
+    debug_assert_eq!(n, dims[0] * dims[1] * dims[2]);
+    Ok(Image::filled(dims, to_world, 0.0))
 }
 
 /// Reads a NIfTI-1 or NRRD image (by extension): its first 3-D volume, values scaled as the
