@@ -364,6 +364,39 @@ impl Contact {
         self.bodies[b].shape.core_points()
     }
 
+    /// The final displacement (m, at curve factor 1) of rigid body `name`.
+    pub fn motion(&self, name: &str) -> Result<Vector3<f64>> {
+        Ok(self.bodies[self.index(name)?].motion)
+    }
+
+    /// Moves rigid body `name` to a new final displacement `motion` (m, from its reference
+    /// position, reached along its curve): a tool's new position between runs of one model.
+    /// Errors naming the bodies there are, or a motion that is not finite.
+    pub fn set_motion(&mut self, name: &str, motion: Vector3<f64>) -> Result<()> {
+        let k = self.index(name)?;
+        if !motion.iter().all(|c| c.is_finite()) {
+            return Err(Error::Input(format!(
+                "contact '{name}': motion {:?} m is not finite",
+                motion.as_slice()
+            )));
+        }
+        self.bodies[k].motion = motion;
+        Ok(())
+    }
+
+    fn index(&self, name: &str) -> Result<usize> {
+        self.bodies
+            .iter()
+            .position(|b| b.name == name)
+            .ok_or_else(|| {
+                let names: Vec<&str> = self.names().collect();
+                Error::Input(format!(
+                    "no rigid body named '{name}'; the model's contact bodies: {}",
+                    names.join(", ")
+                ))
+            })
+    }
+
     /// Each body's displacement at load fraction `tau`, m.
     pub fn body_displacement(&self, b: usize, tau: f64) -> Vector3<f64> {
         let body = &self.bodies[b];

@@ -225,6 +225,8 @@ pub struct Loads {
     touched: Vec<u32>,
     /// Each load's total force at the last `apply`, N.
     totals: Vec<Vector3<f64>>,
+    /// Each load's factor on top of its curve ([`Self::set_factor`]; 1 as prepared).
+    factors: Vec<f64>,
 }
 
 impl Loads {
@@ -314,7 +316,40 @@ impl Loads {
         }
         out.touched = (0..n as u32).filter(|&j| reached[j as usize]).collect();
         out.totals = vec![Vector3::zeros(); out.items.len()];
+        out.factors = vec![1.0; out.items.len()];
         Ok(out)
+    }
+
+    /// Scales load `name` by `factor` (its full value becomes `factor` x the prepared one;
+    /// 1 restores it): a heavier or lighter gravity, a new pressure, between runs of one
+    /// model. Errors naming the loads there are, or a factor that is not finite.
+    pub fn set_factor(&mut self, name: &str, factor: f64) -> Result<()> {
+        let k = self.index(name)?;
+        if !factor.is_finite() {
+            return Err(Error::Input(format!(
+                "load '{name}': factor {factor} is not finite"
+            )));
+        }
+        self.factors[k] = factor;
+        Ok(())
+    }
+
+    /// The factor of load `name` ([`Self::set_factor`]).
+    pub fn factor(&self, name: &str) -> Result<f64> {
+        Ok(self.factors[self.index(name)?])
+    }
+
+    fn index(&self, name: &str) -> Result<usize> {
+        self.names.iter().position(|n| n == name).ok_or_else(|| {
+            Error::Input(format!(
+                "no load named '{name}'; the model's loads: {}",
+                if self.names.is_empty() {
+                    "none".to_string()
+                } else {
+                    self.names.join(", ")
+                }
+            ))
+        })
     }
 
     /// No load at all.
@@ -339,8 +374,14 @@ impl Loads {
         for &j in &self.touched {
             out[j as usize] = Vector3::zeros();
         }
-        for ((item, curve), total) in self.items.iter().zip(&self.curves).zip(&mut self.totals) {
-            let s = curve.value(tau);
+        for (((item, curve), total), factor) in self
+            .items
+            .iter()
+            .zip(&self.curves)
+            .zip(&mut self.totals)
+            .zip(&self.factors)
+        {
+            let s = curve.value(tau) * factor;
             match item {
                 Prepared::Fixed {
                     nodes,

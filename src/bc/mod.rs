@@ -22,6 +22,42 @@ pub struct Boundary {
     /// taking the place of `components`' values on the prescribed components.
     pub node_values: Option<Vec<[f64; 3]>>,
     pub curve: LoadCurve,
+    /// Measured displacements (`[measured]`): how `node_values` come from the measured
+    /// points' displacements, so that new measurements at the same points can replace them
+    /// ([`Self::set_measured`]). None for other boundaries.
+    pub measured: Option<std::sync::Arc<MeasuredMap>>,
+}
+
+/// How the node values of a measured boundary follow from the displacements measured at its
+/// points: node k's value is the sum of w u_j over its row's (j, w) (one (j, 1) for points
+/// matched to nodes, the moving least-squares fit's weights for interpolated ones).
+#[derive(Debug, Clone, PartialEq)]
+pub struct MeasuredMap {
+    /// The measured points' positions, m, in the file's order.
+    pub points: Vec<[f64; 3]>,
+    /// Per node of the boundary: (measured point, weight) pairs.
+    pub rows: Vec<Vec<(u32, f64)>>,
+    /// The displacements in force at the points, m (the file's, or the last
+    /// [`Boundary::set_measured`]'s).
+    pub values: Vec<[f64; 3]>,
+}
+
+impl MeasuredMap {
+    /// The node values (m) for displacements `u` (m) measured at [`Self::points`].
+    pub fn node_values(&self, u: &[[f64; 3]]) -> Vec<[f64; 3]> {
+        self.rows
+            .iter()
+            .map(|row| {
+                let mut v = [0.0; 3];
+                for &(j, w) in row {
+                    for (c, vc) in v.iter_mut().enumerate() {
+                        *vc += w * u[j as usize][c];
+                    }
+                }
+                v
+            })
+            .collect()
+    }
 }
 
 impl Boundary {
@@ -38,7 +74,41 @@ impl Boundary {
             components,
             node_values: None,
             curve,
+            measured: None,
         }
+    }
+
+    /// New measured displacements (m), one [x, y, z] per measured point in the order of the
+    /// file the boundary was read from ([`MeasuredMap::points`]): its node values follow
+    /// (matched or interpolated as prepared). An error for a boundary that is not measured or
+    /// a count that does not match.
+    pub fn set_measured(&mut self, u: &[[f64; 3]]) -> Result<()> {
+        let map = self.measured.as_ref().ok_or_else(|| {
+            Error::Input(format!(
+                "boundary '{}' is not a [measured] boundary; set its displacement instead",
+                self.name
+            ))
+        })?;
+        if u.len() != map.points.len() {
+            return Err(Error::Input(format!(
+                "measured '{}': {} displacements for its {} measured points; give one [ux, uy, uz] \
+                 per point, in the order of its file",
+                self.name,
+                u.len(),
+                map.points.len()
+            )));
+        }
+        if let Some(j) = u.iter().position(|x| !x.iter().all(|c| c.is_finite())) {
+            return Err(Error::Input(format!(
+                "measured '{}': the displacement of point {j} is not finite",
+                self.name
+            )));
+        }
+        self.node_values = Some(map.node_values(u));
+        if let Some(m) = self.measured.as_mut() {
+            std::sync::Arc::make_mut(m).values = u.to_vec();
+        }
+        Ok(())
     }
 
     /// Final prescribed value (m) of component `c` at the boundary's `k`-th node; None where

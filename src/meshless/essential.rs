@@ -16,6 +16,9 @@ struct Component {
     corr: ComponentCorrection,
     amplitude: Vec<f64>,
     curve: Vec<LoadCurve>,
+    /// Where each constrained node's value comes from: (model boundary, the node's place in
+    /// it), for [`Corrector::set_values`].
+    sources: Vec<(usize, usize)>,
     /// Columns (indices into the constrained nodes) of each model boundary.
     columns: Vec<Vec<usize>>,
     target: Vec<f64>,
@@ -219,7 +222,7 @@ impl MeshlessCorrector {
             } else {
                 phi_rows.clone()
             };
-            let amplitude: Vec<f64> = nodes
+            let sources: Vec<(usize, usize)> = nodes
                 .iter()
                 .map(|&i| {
                     let b = &boundaries[owner[i]];
@@ -229,8 +232,12 @@ impl MeshlessCorrector {
                         Some(_) => b.nodes.iter().position(|&j| j == i).unwrap_or(0),
                         None => 0,
                     };
-                    b.value(k, c).unwrap_or(0.0)
+                    (owner[i], k)
                 })
+                .collect();
+            let amplitude: Vec<f64> = sources
+                .iter()
+                .map(|&(b, k)| boundaries[b].value(k, c).unwrap_or(0.0))
                 .collect();
             let curve: Vec<LoadCurve> = nodes
                 .iter()
@@ -268,6 +275,7 @@ impl MeshlessCorrector {
                     corr,
                     amplitude: members.iter().map(|&m| amplitude[m]).collect(),
                     curve: members.iter().map(|&m| curve[m].clone()).collect(),
+                    sources: members.iter().map(|&m| sources[m]).collect(),
                     columns,
                     target: vec![0.0; ne],
                 });
@@ -469,6 +477,34 @@ impl Corrector for MeshlessCorrector {
                 self.nodal[j].dot(&(u_next[j] - u_prev[j])) * 0.5
             })
             .sum()
+    }
+
+    fn set_values(&mut self, boundaries: &[Boundary]) -> Result<()> {
+        if boundaries.len() != self.num_boundaries {
+            return Err(crate::Error::Input(format!(
+                "the meshless corrections were built for {} boundaries, not {}; prepare the model again",
+                self.num_boundaries,
+                boundaries.len()
+            )));
+        }
+        for it in self.items.iter_mut() {
+            for c in it.comps.iter_mut() {
+                let comp = c.corr.component();
+                for (m, &(b, k)) in c.sources.iter().enumerate() {
+                    let bd = &boundaries[b];
+                    c.amplitude[m] = bd.value(k, comp).ok_or_else(|| {
+                        crate::Error::Input(format!(
+                            "boundary '{}': component {} is no longer prescribed; its meshless \
+                             correction was built for it: prepare the model again",
+                            bd.name,
+                            ["x", "y", "z"][comp]
+                        ))
+                    })?;
+                    c.curve[m] = bd.curve.clone();
+                }
+            }
+        }
+        Ok(())
     }
 
     fn touched(&self) -> &[u32] {

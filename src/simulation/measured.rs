@@ -3,7 +3,7 @@
 use nalgebra::Vector3;
 
 use super::{load_curve, scene_path};
-use crate::bc::Boundary;
+use crate::bc::{Boundary, MeasuredMap};
 use crate::io::measured::{parse_measured, MeasuredAt};
 use crate::io::model::MeshInput;
 use crate::scene::{MeasuredSpec, Scene};
@@ -55,27 +55,36 @@ pub(super) fn boundary(
         for m in &points {
             xs.push(position(m, input, &where_)?);
         }
-        let us: Vec<Vector3<f64>> = points.iter().map(|m| m.u).collect();
-        let (taken, values) = interpolated(
+        let us: Vec<[f64; 3]> = points.iter().map(|m| [m.u.x, m.u.y, m.u.z]).collect();
+        let (taken, rows) = interpolated(
             name,
             &path,
-            (&xs, &us),
+            &xs,
             (nodes, candidates),
             (spec.tolerance, DEFAULT_TOLERANCE * (hi - lo).norm()),
         )?;
+        let map = MeasuredMap {
+            points: xs.iter().map(|x| [x.x, x.y, x.z]).collect(),
+            rows,
+            values: us,
+        };
         return Ok(Boundary {
             name: name.into(),
             nodes: taken,
             components: [Some(0.0); 3],
-            node_values: Some(values),
+            node_values: Some(map.node_values(&map.values)),
             curve: load_curve(scene, &spec.curve)?,
+            measured: Some(std::sync::Arc::new(map)),
         });
     }
+    let mut xs = Vec::with_capacity(points.len());
     let mut taken: Vec<(usize, usize)> = Vec::new(); // (node, line)
     let mut line_of = vec![0usize; nodes.len()]; // 0: not taken
     let mut values = Vec::new();
-    for m in &points {
+    let mut rows = Vec::new();
+    for (j, m) in points.iter().enumerate() {
         let x = position(m, input, &where_)?;
+        xs.push([x.x, x.y, x.z]);
         let nn = tree
             .query(&[x.x, x.y, x.z])
             .nearest_n::<kiddo::SquaredEuclidean<f64>>(std::num::NonZero::<usize>::MIN)
@@ -112,13 +121,19 @@ pub(super) fn boundary(
         line_of[node] = m.line;
         taken.push((node, m.line));
         values.push([m.u.x, m.u.y, m.u.z]);
+        rows.push(vec![(j as u32, 1.0)]);
     }
     Ok(Boundary {
         name: name.into(),
         nodes: taken.iter().map(|t| t.0).collect(),
         components: [Some(0.0); 3],
-        node_values: Some(values),
+        node_values: Some(values.clone()),
         curve: load_curve(scene, &spec.curve)?,
+        measured: Some(std::sync::Arc::new(MeasuredMap {
+            points: xs,
+            rows,
+            values,
+        })),
     })
 }
 
@@ -160,14 +175,16 @@ const FIT_POINTS: usize = 12;
 /// points (weights (1 - (d / r)^2)^2 with r 1.5 x the farthest of them; the moment matrix
 /// pseudo-inverted, so points on a plane or a line fit in their own span). It reproduces any
 /// linear field exactly at any spacing; for a smooth field its error is of the order of the
-/// spacing squared times the field's second derivatives. Returns the nodes and their values.
+/// spacing squared times the field's second derivatives. Returns the nodes and, per node, the
+/// fit's weights on the measured points (its value is their weighted sum).
+#[allow(clippy::type_complexity)]
 fn interpolated(
     name: &str,
     path: &std::path::Path,
-    (xs, us): (&[Vector3<f64>], &[Vector3<f64>]),
+    xs: &[Vector3<f64>],
     (nodes, candidates): (&[Vector3<f64>], &[usize]),
     (reach, off_patch): (Option<f64>, f64),
-) -> Result<(Vec<usize>, Vec<[f64; 3]>)> {
+) -> Result<(Vec<usize>, Vec<Vec<(u32, f64)>>)> {
     use kiddo::{ImmutableKdTree, SquaredEuclidean};
     use nalgebra::{Matrix4, Vector4};
     let what = || format!("measured '{name}' ({})", path.display());
@@ -197,7 +214,7 @@ fn interpolated(
     let spacing = gaps[gaps.len() / 2];
     let reach = reach.unwrap_or(spacing);
     let k = std::num::NonZero::new(FIT_POINTS.min(xs.len())).expect("at least 3");
-    let (mut taken, mut values) = (Vec::new(), Vec::new());
+    let (mut taken, mut rows) = (Vec::new(), Vec::new());
     for &i in candidates {
         let y = nodes[i];
         let q = [y.x, y.y, y.z];
@@ -234,21 +251,27 @@ fn interpolated(
             continue;
         }
         let r = 1.5 * near.last().map_or(0.0, |n| n.distance.sqrt()).max(1e-300);
-        let (mut a, mut b) = (Matrix4::<f64>::zeros(), [Vector4::<f64>::zeros(); 3]);
+        let mut a = Matrix4::<f64>::zeros();
+        let mut pw: Vec<(u32, Vector4<f64>)> = Vec::with_capacity(near.len());
         for n in &near {
             let j = n.item as usize;
             let d = (xs[j] - y) / r;
             let w = (1.0 - d.norm_squared()).max(0.0).powi(2);
             let p = Vector4::new(1.0, d.x, d.y, d.z);
             a += p * p.transpose() * w;
-            for (c, bc) in b.iter_mut().enumerate() {
-                *bc += p * (w * us[j][c]);
-            }
+            pw.push((j as u32, p * w));
         }
         let inv = a
             .pseudo_inverse(1e-10 * a.norm())
             .map_err(|e| Error::Input(format!("{}: fit at node {i}: {e}", what())))?;
-        values.push(std::array::from_fn(|c| (inv * b[c])[0]));
+        // The fit's value at the node is the first coefficient, row 0 of the inverse applied
+        // to sum_j p_j w_j u_j: linear in the measurements, with these weights.
+        let row0 = inv.row(0);
+        rows.push(
+            pw.iter()
+                .map(|(j, p)| (*j, row0.dot(&p.transpose())))
+                .collect::<Vec<_>>(),
+        );
         taken.push(i);
     }
     if taken.is_empty() {
@@ -264,5 +287,5 @@ fn interpolated(
         xs.len(),
         taken.len()
     );
-    Ok((taken, values))
+    Ok((taken, rows))
 }

@@ -13,6 +13,7 @@ mod loads;
 mod measured;
 mod output;
 mod regions;
+mod session;
 mod summary;
 mod surface;
 mod translate;
@@ -21,6 +22,7 @@ use build_coupled::prepare_coupled;
 use build_fe::prepare_fe;
 use build_meshless::prepare_meshless;
 pub use output::{write_outputs, write_results, FrameLabels, FrameWriter};
+pub use session::{Session, Solution};
 pub use summary::{element_label, method_name, summarize};
 use surface::Discretized;
 pub use translate::{
@@ -171,6 +173,7 @@ fn boundaries_only(
             components: comps,
             node_values: None,
             curve: load_curve(scene, &b.curve)?,
+            measured: None,
         });
     }
     Ok(out)

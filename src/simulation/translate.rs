@@ -642,6 +642,7 @@ pub fn settings(scene: &Scene, progress: bool) -> Settings {
         progress_lines: None,
         device: s.device,
         stages: stages(scene),
+        warm_start: None,
         initial_velocity: None,
         initial_motion: scene.initial.as_ref().map(|i| {
             [

@@ -23,6 +23,7 @@ use crate::Result;
 pub use forces::{Fields, Forces};
 pub use integrate::{
     keep_warm, run, run_streaming, Device, FrameSink, Mode, RunOutput, Settings, StepEstimate,
+    WarmStart,
 };
 
 /// A raw pointer that may cross threads: each parallel task writes a disjoint index range.
@@ -55,6 +56,9 @@ pub trait Corrector: Send {
     /// Work (J) of the last correction's constraint forces over the increment
     /// (u_next - u_prev) / 2 (central difference, as for directly prescribed DOFs).
     fn work(&self, u_next: &[Vector3<f64>], u_prev: &[Vector3<f64>]) -> f64;
+    /// Takes the prescribed values and curves of `boundaries` (the model's, whose nodes and
+    /// prescribed components are those the corrector was built for) for the next runs.
+    fn set_values(&mut self, boundaries: &[Boundary]) -> Result<()>;
     /// The nodes whose displacements [`Self::correct`] may change, ascending. The time loop
     /// measures the step's change on these after the correction and on all others during
     /// its update, so it needs no second pass over every node.
@@ -98,6 +102,58 @@ pub struct Model<M: Material> {
     pub masses_uneven: bool,
     /// `mass` holds the fictitious masses of [`Self::scale_masses`] (relaxation only).
     pub mass_scaled: bool,
+    /// What the constraints and the corrector were built on: per boundary, its name, nodes
+    /// and prescribed components ([`Self::apply_boundary_changes`]).
+    layout: Vec<BoundaryLayout>,
+}
+
+/// The part of a [`Boundary`] that the model's constraints and corrections are built on (its
+/// values and curve may change between runs; these may not).
+#[derive(Debug, Clone, PartialEq)]
+struct BoundaryLayout {
+    name: String,
+    nodes: Vec<usize>,
+    prescribed: [bool; 3],
+    per_node: bool,
+}
+
+impl BoundaryLayout {
+    fn of(b: &Boundary) -> Self {
+        BoundaryLayout {
+            name: b.name.clone(),
+            nodes: b.nodes.clone(),
+            prescribed: b.components.map(|c| c.is_some()),
+            per_node: b.node_values.is_some(),
+        }
+    }
+}
+
+/// Checks what a boundary's values may hold: `node_values` one entry per node, and every
+/// prescribed value finite.
+fn check_boundary_values(b: &Boundary) -> Result<()> {
+    if let Some(v) = &b.node_values {
+        if v.len() != b.nodes.len() {
+            return Err(crate::Error::Input(format!(
+                "boundary '{}': {} node values for its {} nodes; give one [x, y, z] per node, in \
+                 the order of its nodes",
+                b.name,
+                v.len(),
+                b.nodes.len()
+            )));
+        }
+    }
+    for k in 0..b.nodes.len().max(1) {
+        for c in 0..3 {
+            if let Some(x) = b.value(k, c).filter(|x| !x.is_finite()) {
+                return Err(crate::Error::Input(format!(
+                    "boundary '{}': prescribed {} displacement {x} m (its entry {k}) is not finite",
+                    b.name,
+                    ["x", "y", "z"][c]
+                )));
+            }
+        }
+    }
+    Ok(())
 }
 
 impl<M: Material> Model<M> {
@@ -167,7 +223,11 @@ impl<M: Material> Model<M> {
                 nodes[i].as_slice()
             )));
         }
+        for b in &boundaries {
+            check_boundary_values(b)?;
+        }
         let constraints = Constraints::new(&boundaries, n)?;
+        let layout = boundaries.iter().map(BoundaryLayout::of).collect();
         let forces = Forces::with_materials(materials, point_material, &points, &slots, n);
         let corrected = vec![false; boundaries.len()];
         Ok(Model {
@@ -186,6 +246,7 @@ impl<M: Material> Model<M> {
             contact: None,
             masses_uneven: false,
             mass_scaled: false,
+            layout,
         })
     }
 
@@ -288,6 +349,69 @@ impl<M: Material> Model<M> {
         self.constraints = Constraints::new(&direct, self.nodes.len())?;
         self.corrector = Some(corrector);
         self.corrected = corrected;
+        Ok(())
+    }
+
+    /// Takes changes of the boundaries' values into the constraints and corrections the time
+    /// loop imposes: `boundaries[k].components`' values, `node_values` and `curve` may change
+    /// between runs of one model (a new measurement, a new tool position); every run calls
+    /// this first ([`integrate::run`]), so a change made on `self.boundaries` is never
+    /// ignored. A change the model cannot take is an error that says so: a boundary added,
+    /// removed or renamed, its nodes, which components it prescribes, or whether its values
+    /// are per node (the quadrature points, masses, meshless corrections and contact were
+    /// built on them: prepare the model again).
+    pub fn apply_boundary_changes(&mut self) -> Result<()> {
+        if self.boundaries.len() != self.layout.len() {
+            return Err(crate::Error::Input(format!(
+                "the model was built with {} boundaries and now has {}: boundaries cannot be added \
+                 or removed after preparing; prepare the model again with them",
+                self.layout.len(),
+                self.boundaries.len()
+            )));
+        }
+        for (b, was) in self.boundaries.iter().zip(&self.layout) {
+            let now = BoundaryLayout::of(b);
+            if now != *was {
+                let what = if now.name != was.name {
+                    format!("was renamed from '{}'", was.name)
+                } else if now.nodes != was.nodes {
+                    format!(
+                        "its nodes changed ({} -> {})",
+                        was.nodes.len(),
+                        now.nodes.len()
+                    )
+                } else if now.prescribed != was.prescribed {
+                    "the components it prescribes changed (a free component cannot become \
+                     prescribed nor the reverse)"
+                        .to_string()
+                } else {
+                    "its values changed between uniform and per node".to_string()
+                };
+                return Err(crate::Error::Input(format!(
+                    "boundary '{}' {what} after the model was prepared: the constraints and \
+                     corrections were built on its nodes and components, so only its values and \
+                     curve may change between runs; prepare the model again for a new selection",
+                    b.name
+                )));
+            }
+            check_boundary_values(b)?;
+        }
+        let direct: Vec<Boundary> = self
+            .boundaries
+            .iter()
+            .enumerate()
+            .map(|(k, b)| {
+                let mut b = b.clone();
+                if self.corrected.get(k).copied().unwrap_or(false) {
+                    b.nodes.clear();
+                }
+                b
+            })
+            .collect();
+        self.constraints = Constraints::new(&direct, self.nodes.len())?;
+        if let Some(c) = self.corrector.as_mut() {
+            c.set_values(&self.boundaries)?;
+        }
         Ok(())
     }
 

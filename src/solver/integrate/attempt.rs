@@ -252,10 +252,37 @@ impl<'a, M: Material> Pass<'a, M> {
         let n = model.nodes.len();
         let c = fastest_wave(model);
         let dynamic = s.mode == Mode::Dynamic;
+        let warm = s.warm_start.as_ref();
+        if let Some(w) = warm {
+            if dynamic {
+                return Err(Error::Input(
+                    "a warm start continues a relaxation from its equilibrium; a dynamic run's answer \
+                     is its path from the initial state, so it cannot start from another run's end"
+                        .into(),
+                ));
+            }
+            if w.u.len() != n {
+                return Err(Error::Input(format!(
+                    "the warm start has {} displacements for the model's {n} nodes: it comes from \
+                     another model; start from the unloaded state",
+                    w.u.len()
+                )));
+            }
+            if let Some(i) = w.u.iter().position(|x| !x.iter().all(|c| c.is_finite())) {
+                return Err(Error::Input(format!(
+                    "the warm start's displacement of node {i} is not finite; start from the \
+                     unloaded state"
+                )));
+            }
+        }
         let hints = Hints::new(s, critical);
         let mut time = Timeline::new(s, dt_factor * dt_crit, dt_factor)?;
         let dt = time.dt;
-        check_contact_start(model, dt)?;
+        // A warm start begins deformed, the rigid bodies at their final positions: the check
+        // of the unloaded body against them does not apply.
+        if warm.is_none() {
+            check_contact_start(model, dt)?;
+        }
         let (lo, hi) = model.nodes.iter().fold(
             (
                 Vector3::repeat(f64::INFINITY),
@@ -264,24 +291,34 @@ impl<'a, M: Material> Pass<'a, M> {
             |(l, h), p| (l.inf(p), h.sup(p)),
         );
         let size = (hi - lo).norm();
-        let load_steps = s.load_steps.unwrap_or_else(|| {
-            // The slowest shear wave sets how fast the load may come.
-            model
-                .forces
-                .materials
-                .iter()
-                .map(|m| auto_load_steps((hi - lo).max(), m.lame().1, m.density(), dt))
-                .max()
-                .unwrap_or(400)
-        });
+        let load_steps = if warm.is_some() {
+            // Everything at its final value from the first step (Timeline: 0 load steps is
+            // the full load).
+            0
+        } else {
+            s.load_steps.unwrap_or_else(|| {
+                // The slowest shear wave sets how fast the load may come.
+                model
+                    .forces
+                    .materials
+                    .iter()
+                    .map(|m| auto_load_steps((hi - lo).max(), m.lame().1, m.density(), dt))
+                    .max()
+                    .unwrap_or(400)
+            })
+        };
         time.load_steps = load_steps;
+        if warm.is_some() {
+            // Load stages lie below the full load the warm start begins at.
+            time.cap = 1.0;
+        }
 
         let has_loads = !model.loads.is_empty();
         if has_loads && model.f_ext.len() != n {
             model.f_ext = vec![Vector3::zeros(); n];
         }
         let zero = vec![Vector3::zeros(); n];
-        let mut u = zero.clone();
+        let mut u = warm.map_or_else(|| zero.clone(), |w| w.u.clone());
         let mut u_prev = zero.clone();
         let u_next = zero.clone();
         let cons = model.constraints.clone();
@@ -323,12 +360,15 @@ impl<'a, M: Material> Pass<'a, M> {
         let progress = Progress::new(s, time.total_steps);
         let damped = dynamic && s.damping > 0.0;
         let ledger = Ledger::new(if damped { n.div_ceil(NODE_BLOCK) } else { 0 });
-        let relax = Relaxation::new(
+        let mut relax = Relaxation::new(
             if dynamic { 0 } else { n },
             load_steps,
             s.estimate_interval,
             s.tolerance,
         );
+        if let Some(w) = warm.and_then(|w| w.omega_min) {
+            relax.start_at(w, dt);
+        }
         let updates = StepUpdates {
             dt_initial: dt,
             dt_min: dt,

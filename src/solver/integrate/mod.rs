@@ -102,6 +102,22 @@ pub struct Settings {
     /// the relaxation has converged there (a load stage: its state is kept in
     /// [`RunOutput::stages`]), then goes on.
     pub stages: Vec<f64>,
+    /// Relaxation: start from this state (a previous run's equilibrium, [`RunOutput::warm_start`])
+    /// instead of the unloaded body, with every load, prescribed value and rigid-body position
+    /// at its final value from the first step. A re-solve after a small change of the inputs
+    /// then has only the change to relax. None (the default): from the unloaded state, the
+    /// load coming on over `load_steps`.
+    pub warm_start: Option<WarmStart>,
+}
+
+/// Where a warm-started relaxation begins ([`Settings::warm_start`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct WarmStart {
+    /// Displacements (nodal parameters) to start from, m, one per node.
+    pub u: Vec<Vector3<f64>>,
+    /// The lowest circular frequency the previous relaxation settled on, rad/s: the
+    /// convergence rate starts from it instead of from a first estimate.
+    pub omega_min: Option<f64>,
 }
 
 /// Where the time loop runs ([`Settings::device`]; scene `solver.device`, CLI `--device`).
@@ -141,6 +157,7 @@ impl Default for Settings {
             initial_motion: None,
             device: Device::Cpu,
             stages: Vec::new(),
+            warm_start: None,
         }
     }
 }
@@ -242,6 +259,22 @@ pub struct RunOutput {
     /// The largest nodal force component (internal forces) at any recorded row, N: the
     /// scale of the equilibrium residual of a run whose load ends at zero.
     pub peak_nodal_force: f64,
+}
+
+impl RunOutput {
+    /// The state a later relaxation of the same model may start from ([`Settings::warm_start`]):
+    /// the final displacements and the last accepted estimate of the lowest frequency.
+    pub fn warm_start(&self) -> WarmStart {
+        WarmStart {
+            u: self.u.clone(),
+            omega_min: self
+                .relaxation
+                .iter()
+                .rev()
+                .find(|r| r.accepted)
+                .map(|r| r.omega_min),
+        }
+    }
 }
 
 /// Estimates of the critical step during a run ([`Settings::step_update`]).
@@ -529,6 +562,7 @@ fn run_on_pool<M: Material>(
     s: &Settings,
     sink: Option<&mut FrameSink<'_, M>>,
 ) -> Result<RunOutput> {
+    model.apply_boundary_changes()?;
     if rayon::current_thread_index().is_some() {
         run_on_worker(model, s, sink)
     } else {
@@ -642,6 +676,11 @@ fn run_on_worker<M: Material>(
                     )));
                 }
                 let next = factor * RETRY_FACTOR;
+                let from = if s.warm_start.is_some() {
+                    "the warm start's state"
+                } else {
+                    "the unloaded state"
+                };
                 let how = if s.step_update {
                     ", estimating the step again as the body deforms"
                 } else {
@@ -651,12 +690,12 @@ fn run_on_worker<M: Material>(
                 if s.progress || s.progress_lines.is_some() {
                     eprintln!(
                         "warning: relaxation unstable after {steps} steps at dt_factor {factor:.4}; \
-                         restarting from the unloaded state at {next:.4}{how} (restart {} of at most {retries})",
+                         restarting from {from} at {next:.4}{how} (restart {} of at most {retries})",
                         restarts.len() + 1
                     );
                 }
                 restarts.push(format!(
-                    "relaxation restarted from the unloaded state with solver.dt_factor = {next:.4}{how} \
+                    "relaxation restarted from {from} with solver.dt_factor = {next:.4}{how} \
                      (restart {} of at most {retries}, solver.retries) after {steps} steps at \
                      dt_factor = {factor:.4}: {msg}",
                     restarts.len() + 1

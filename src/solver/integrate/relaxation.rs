@@ -65,6 +65,16 @@ impl Relaxation {
         }
     }
 
+    /// A warm start: the rate from the lowest frequency `omega` (rad/s) a previous relaxation
+    /// of the model settled on, kept by the first observation (which otherwise sets it from
+    /// the Rayleigh quotient of the loaded shape).
+    pub(super) fn start_at(&mut self, omega: f64, dt: f64) {
+        if omega > 0.0 && omega.is_finite() {
+            self.r = rate_from_omega(omega, dt);
+            self.omega_in_use = Some(omega);
+        }
+    }
+
     /// The rate for a step shortened to `dt` (s), from the frequency in use.
     pub(super) fn shorten(&mut self, dt: f64) {
         if let Some(w) = self.omega_in_use {
@@ -94,7 +104,7 @@ impl Relaxation {
         if self.ref_step == usize::MAX {
             let num: f64 = u.iter().zip(f).map(|(x, y)| x.dot(y)).sum();
             let den: f64 = u.iter().zip(mass).map(|(x, m)| m * x.norm_squared()).sum();
-            if num > 0.0 && den > 0.0 {
+            if num > 0.0 && den > 0.0 && self.omega_in_use.is_none() {
                 self.r = rate_from_omega((num / den).sqrt(), dt);
                 self.omega_in_use = Some((num / den).sqrt());
             }

@@ -1,0 +1,340 @@
+//! Prepare once, solve many times: the intra-operative loop, where a model built before
+//! surgery is solved again each time new displacements are measured or a tool moves.
+//!
+//! A [`Session`] holds a prepared scene. Between solves, boundary displacements, measured
+//! displacements, rigid-body (tool) positions and load factors change on the model; each
+//! relaxation after the first starts from the last equilibrium ([`Settings::warm_start`]),
+//! so it relaxes only the change.
+//!
+//! ```no_run
+//! use hytled::simulation::Session;
+//!
+//! let scene = hytled::scene::load("cases/brain-shift.toml".as_ref(), &[])?;
+//! let mut session = Session::new(scene)?;
+//! let first = session.solve()?; // from the unloaded state
+//! println!("{} steps", first.output.steps);
+//! // New measurements at the same points: 10 % more displacement.
+//! let points = session.measured_points("exposed")?.len();
+//! let mut u = session.measured_displacements("exposed")?;
+//! u.iter_mut().flatten().for_each(|c| *c *= 1.1);
+//! assert_eq!(u.len(), points);
+//! session.set_measured("exposed", &u)?;
+//! let next = session.solve()?; // from the first equilibrium
+//! println!("{} steps (warm: {})", next.output.steps, next.warm);
+//! # Ok::<(), hytled::Error>(())
+//! ```
+
+use std::time::Instant;
+
+use nalgebra::Vector3;
+
+use super::{prepare, settings, summarize, Prepared};
+use crate::material::Solid;
+use crate::report::Summary;
+use crate::scene::Scene;
+use crate::solver::{Fields, Mode, Model, RunOutput, Settings, WarmStart};
+use crate::{Error, Result};
+
+/// A prepared scene solved as often as its inputs change.
+pub struct Session {
+    scene: Scene,
+    prep: Prepared,
+    settings: Settings,
+    /// The last converged relaxation's state: where the next solve starts.
+    warm: Option<WarmStart>,
+    /// Seconds the preparation took.
+    prepare_seconds: f64,
+    /// Warm starts of a model that keeps its physical masses: the scaled ones they relax with
+    /// ([`Model::scale_masses`]), made at the first warm start.
+    warm_masses: Option<Vec<f64>>,
+    /// The state in `warm` came from a run with `warm_masses`.
+    warm_from_swapped: bool,
+}
+
+/// What one solve produced.
+pub struct Solution {
+    /// The run's summary (reactions, probes, steps, times, warnings), as `hytled run` prints.
+    pub summary: Summary,
+    /// The time loop's output: displacements `u` (m, nodal parameters), internal forces, history.
+    pub output: RunOutput,
+    /// Whether the solve started from the previous equilibrium.
+    pub warm: bool,
+}
+
+impl Session {
+    /// Meshes the scene and builds its model ([`prepare`]): the expensive part, done once.
+    pub fn new(scene: Scene) -> Result<Self> {
+        let t0 = Instant::now();
+        let prep = prepare(&scene)?;
+        let settings = settings(&scene, false);
+        Ok(Session {
+            scene,
+            prep,
+            settings,
+            warm: None,
+            prepare_seconds: t0.elapsed().as_secs_f64(),
+            warm_masses: None,
+            warm_from_swapped: false,
+        })
+    }
+
+    /// The scene the session was prepared from.
+    pub fn scene(&self) -> &Scene {
+        &self.scene
+    }
+
+    /// The prepared discretization (mesh, model, probes, warnings).
+    pub fn prepared(&self) -> &Prepared {
+        &self.prep
+    }
+
+    /// The model, for changes the setters below do not cover. Boundary values changed on
+    /// `model.boundaries` are taken by the next solve ([`Model::apply_boundary_changes`]).
+    pub fn model_mut(&mut self) -> &mut Model<Solid> {
+        &mut self.prep.model
+    }
+
+    /// The integrator settings the solves use (from the scene's `[solver]`); change them here
+    /// (device, tolerance, progress).
+    pub fn settings_mut(&mut self) -> &mut Settings {
+        &mut self.settings
+    }
+
+    /// Seconds the preparation (meshing, shape functions, masses) took.
+    pub fn prepare_seconds(&self) -> f64 {
+        self.prepare_seconds
+    }
+
+    /// Whether the next [`Self::solve`] starts from the last equilibrium.
+    pub fn is_warm(&self) -> bool {
+        self.warm.is_some()
+    }
+
+    /// The next solve starts from the unloaded state.
+    pub fn forget(&mut self) {
+        self.warm = None;
+    }
+
+    fn boundary_mut(&mut self, name: &str) -> Result<&mut crate::bc::Boundary> {
+        let model = &mut self.prep.model;
+        let names: Vec<String> = model.boundaries.iter().map(|b| b.name.clone()).collect();
+        model
+            .boundaries
+            .iter_mut()
+            .find(|b| b.name == name)
+            .ok_or_else(|| {
+                Error::Input(format!(
+                    "no boundary named '{name}'; the model's boundaries: {}",
+                    if names.is_empty() {
+                        "none".to_string()
+                    } else {
+                        names.join(", ")
+                    }
+                ))
+            })
+    }
+
+    /// New final displacement (m) of the components of boundary `name` given as Some; None
+    /// leaves a component as it is. A component the boundary leaves free cannot become
+    /// prescribed (its selection and components were prepared), nor a measured boundary take
+    /// a uniform value ([`Self::set_measured`]).
+    pub fn set_displacement(&mut self, name: &str, value: [Option<f64>; 3]) -> Result<()> {
+        let b = self.boundary_mut(name)?;
+        if b.measured.is_some() || b.node_values.is_some() {
+            return Err(Error::Input(format!(
+                "boundary '{name}' prescribes a value per node (measured displacements); give new \
+                 measurements with set_measured"
+            )));
+        }
+        for (c, v) in value.iter().enumerate() {
+            let Some(v) = v else { continue };
+            if !v.is_finite() {
+                return Err(Error::Input(format!(
+                    "boundary '{name}': {} displacement {v} m is not finite",
+                    ["x", "y", "z"][c]
+                )));
+            }
+            if b.components[c].is_none() {
+                return Err(Error::Input(format!(
+                    "boundary '{name}' leaves its {} component free, so it cannot prescribe one \
+                     now; prescribe it in the scene ([boundaries.{name}] displacement or fix) and \
+                     prepare again",
+                    ["x", "y", "z"][c]
+                )));
+            }
+        }
+        for (c, v) in value.iter().enumerate() {
+            if let Some(v) = v {
+                b.components[c] = Some(*v);
+            }
+        }
+        Ok(())
+    }
+
+    /// The final displacement (m) of each component of boundary `name` (None: free); for a
+    /// measured boundary, zeros on its prescribed components (its values are per node).
+    pub fn displacement(&mut self, name: &str) -> Result<[Option<f64>; 3]> {
+        Ok(self.boundary_mut(name)?.components)
+    }
+
+    /// The positions (m) of the measured points of `[measured.NAME]`, in its file's order.
+    pub fn measured_points(&mut self, name: &str) -> Result<Vec<[f64; 3]>> {
+        let b = self.boundary_mut(name)?;
+        let map = b.measured.as_ref().ok_or_else(|| {
+            Error::Input(format!("boundary '{name}' is not a [measured] boundary"))
+        })?;
+        Ok(map.points.clone())
+    }
+
+    /// The displacements (m) in force at the measured points of `[measured.NAME]`: those of
+    /// its file, or of the last [`Self::set_measured`].
+    pub fn measured_displacements(&mut self, name: &str) -> Result<Vec<[f64; 3]>> {
+        let b = self.boundary_mut(name)?;
+        let map = b.measured.as_ref().ok_or_else(|| {
+            Error::Input(format!("boundary '{name}' is not a [measured] boundary"))
+        })?;
+        Ok(map.values.clone())
+    }
+
+    /// New displacements (m) measured at the points of `[measured.NAME]` (one per point, in
+    /// its file's order): matched or interpolated onto the surface nodes as prepared.
+    pub fn set_measured(&mut self, name: &str, u: &[[f64; 3]]) -> Result<()> {
+        self.boundary_mut(name)?.set_measured(u)
+    }
+
+    /// New final displacement (m) of rigid body `[contact.NAME]` from its reference position.
+    pub fn set_tool_motion(&mut self, name: &str, motion: [f64; 3]) -> Result<()> {
+        self.contact_mut(name)?
+            .set_motion(name, Vector3::from(motion))
+    }
+
+    /// The final displacement (m) of rigid body `[contact.NAME]`.
+    pub fn tool_motion(&mut self, name: &str) -> Result<[f64; 3]> {
+        let m = self.contact_mut(name)?.motion(name)?;
+        Ok([m.x, m.y, m.z])
+    }
+
+    fn contact_mut(&mut self, name: &str) -> Result<&mut crate::bc::contact::Contact> {
+        self.prep.model.contact.as_mut().ok_or_else(|| {
+            Error::Input(format!(
+                "no rigid body named '{name}': the scene has no [contact]"
+            ))
+        })
+    }
+
+    /// Scales load `[loads.NAME]` by `factor` (1: as in the scene).
+    pub fn set_load_factor(&mut self, name: &str, factor: f64) -> Result<()> {
+        self.prep.model.loads.set_factor(name, factor)
+    }
+
+    /// The factor of load `[loads.NAME]`.
+    pub fn load_factor(&self, name: &str) -> Result<f64> {
+        self.prep.model.loads.factor(name)
+    }
+
+    /// Solves with the inputs as they are now. A relaxation starts from the last converged
+    /// equilibrium where there is one (warm); should that attempt fail (a change too large
+    /// to take from there: an instability after the restarts), it solves again from the
+    /// unloaded state and says so in the summary's warnings. Dynamic runs always start from
+    /// the initial state.
+    pub fn solve(&mut self) -> Result<Solution> {
+        let warm = match (&self.warm, self.settings.mode) {
+            (Some(w), Mode::Relaxation) => Some(w.clone()),
+            _ => None,
+        };
+        let Some(w) = warm else {
+            return self.run(None);
+        };
+        match self.run(Some(w)) {
+            Err(Error::Unstable(msg)) => {
+                let mut cold = self.run(None)?;
+                cold.summary.warnings.push(format!(
+                    "the warm start from the last equilibrium failed ({msg}); solved again from \
+                     the unloaded state"
+                ));
+                Ok(cold)
+            }
+            r => r,
+        }
+    }
+
+    /// Solves from the unloaded state, whatever came before.
+    pub fn solve_cold(&mut self) -> Result<Solution> {
+        self.run(None)
+    }
+
+    /// Whether a warm start relaxes with scaled masses where the model keeps its physical
+    /// ones: a model of tet4-anp elements alone keeps them in a cold relaxation (their
+    /// rims collapsed under scaled masses while the load came on from zero), but a warm start begins loaded and moves only by
+    /// the change. Not where the scene chose its masses (`solver.mass_scaling`), nor with a
+    /// meshless correction, which was built with the model's masses.
+    fn scales_warm_masses(&self) -> bool {
+        let m = &self.prep.model;
+        self.scene.solver.mass_scaling.is_none() && !m.mass_scaled && m.corrector.is_none()
+    }
+
+    fn run(&mut self, warm: Option<WarmStart>) -> Result<Solution> {
+        let t0 = Instant::now();
+        let is_warm = warm.is_some();
+        // The steady state does not depend on the masses; scaled ones make every node's
+        // step bound alike, so the change relaxes in a fraction of the steps (brain-shift:
+        // 305 against 1,804 with the physical masses).
+        let swap = is_warm && self.scales_warm_masses();
+        // The lowest frequency carried over holds for the masses it was estimated with.
+        let warm = warm.map(|mut w| {
+            if swap && !self.warm_from_swapped {
+                w.omega_min = None;
+            }
+            w
+        });
+        let physical = swap.then(|| {
+            let model = &mut self.prep.model;
+            let physical = (model.mass.clone(), model.masses_uneven);
+            match &self.warm_masses {
+                Some(m) => {
+                    model.mass.copy_from_slice(m);
+                    model.masses_uneven = true;
+                    model.mass_scaled = true;
+                }
+                None => {
+                    if model.scale_masses().is_ok() && model.mass_scaled {
+                        self.warm_masses = Some(model.mass.clone());
+                    }
+                }
+            }
+            physical
+        });
+        self.settings.warm_start = warm;
+        let out = super::solve(&mut self.prep, &self.settings);
+        self.settings.warm_start = None;
+        if let Some((physical, uneven)) = physical {
+            let model = &mut self.prep.model;
+            model.mass = physical;
+            model.masses_uneven = uneven;
+            model.mass_scaled = false;
+        }
+        let out = out?;
+        let mut summary = summarize(&self.scene, &self.prep, &out, t0.elapsed().as_secs_f64());
+        // The preparation happened once, before the first solve (`prepare_seconds`).
+        summary.wall_seconds.preprocess = 0.0;
+        if is_warm {
+            summary.warnings.retain(|w| !w.contains("output.frames"));
+        }
+        self.warm_from_swapped = swap;
+        // Only a converged relaxation is an equilibrium to start from.
+        self.warm =
+            (self.settings.mode == Mode::Relaxation && summary.converged).then(|| out.warm_start());
+        Ok(Solution {
+            summary,
+            output: out,
+            warm: is_warm,
+        })
+    }
+
+    /// Per node at displacements `u` (m): Cauchy stress (Pa) and Green-Lagrange strain
+    /// (9 values each, row-major), von Mises stress (Pa) and J, averaged from the quadrature
+    /// points as the VTU outputs are ([`Model::nodal_fields`]).
+    pub fn nodal_fields(&mut self, u: &[Vector3<f64>]) -> Fields {
+        self.prep.model.nodal_fields(u)
+    }
+}
