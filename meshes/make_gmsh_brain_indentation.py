@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Conforming tetrahedral meshes of the brain-indentation benchmark (issue 40, REFERENCE.md
+"""Conforming tetrahedral meshes of the brain-indentation benchmark (issue 40, docs/reference.md
 "Brain indentation benchmark"; cases/brain-indentation-benchmark*.toml, studies/indentation/).
 
 Run from anywhere:  python3 meshes/make_gmsh_brain_indentation.py [LEVEL ...]

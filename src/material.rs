@@ -74,7 +74,7 @@ pub enum Concrete<'a, M> {
     Itself(&'a M),
 }
 
-/// Compressible neo-Hookean solid in the form ABAQUS uses (REFERENCE.md;
+/// Compressible neo-Hookean solid in the form ABAQUS uses (docs/reference.md;
 /// `mtled-fe-coupled-ebc-cylinder.txt` eq. 7):
 /// W = mu/2 (J^(-2/3) tr C - 3) + kappa/2 (J - 1)^2.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -151,7 +151,7 @@ pub fn inv_cbrt_lanes<const L: usize>(x: [f64; L]) -> [f64; L] {
 
 /// Homogeneous uniaxial stretch of the neo-Hookean solid with free lateral faces:
 /// F = diag(a, a, stretch) with a such that the lateral Cauchy stress vanishes
-/// (REFERENCE.md "Cube"). From sigma = mu J^(-5/3) dev(B) + kappa (J - 1) I with J = a^2 stretch:
+/// (docs/reference.md "Cube"). From sigma = mu J^(-5/3) dev(B) + kappa (J - 1) I with J = a^2 stretch:
 /// sigma_xx = mu J^(-5/3) (a^2 - stretch^2) / 3 + kappa (J - 1) = 0, solved by bisection
 /// (sigma_xx rises monotonically with a). Returns (a, J, sigma_zz in Pa).
 pub fn uniaxial_stretch(m: &NeoHookean, stretch: f64) -> (f64, f64, f64) {
@@ -193,7 +193,7 @@ impl Material for NeoHookean {
         0.5 * self.mu * (r * r * tr_c - 3.0) + 0.5 * self.kappa * (j - 1.0).powi(2)
     }
 
-    /// S = mu J^(-2/3) (I - tr(C)/3 C^-1) + kappa J (J - 1) C^-1 (REFERENCE.md; not Horton 2010
+    /// S = mu J^(-2/3) (I - tr(C)/3 C^-1) + kappa J (J - 1) C^-1 (docs/reference.md; not Horton 2010
     /// eq. 42, which is not stress-free at C = I).
     #[inline]
     fn pk2_stress(&self, f: &Matrix3<f64>, j: f64) -> Matrix3<f64> {
@@ -848,7 +848,7 @@ mod tests {
 
     #[test]
     fn uniaxial_cube_root_matches_reference() {
-        // Exact cube (REFERENCE.md): F = diag(a, a, 0.8), lateral Cauchy stress zero at a = 1.11574668.
+        // Exact cube (docs/reference.md): F = diag(a, a, 0.8), lateral Cauchy stress zero at a = 1.11574668.
         let m = mat();
         let f = Matrix3::from_diagonal(&nalgebra::Vector3::new(1.11574668, 1.11574668, 0.8));
         let sig = m.cauchy(&f);
@@ -862,7 +862,7 @@ mod tests {
 
     #[test]
     fn uniaxial_stretch_matches_the_reference_cube_and_the_kernel() {
-        // REFERENCE.md: E = 3000 Pa, nu = 0.49, 20 % compression.
+        // docs/reference.md: E = 3000 Pa, nu = 0.49, 20 % compression.
         let m = NeoHookean::from_young_poisson(3000.0, 0.49, 1000.0);
         let (a, j, szz) = uniaxial_stretch(&m, 0.8);
         assert!((a - 1.11574668).abs() < 5e-9, "{a}");

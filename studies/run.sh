@@ -135,7 +135,7 @@ adaptive_cylinder() {
 }
 
 # Issue 21: the three cylinder cases on unstructured tets against the SfePy reference
-# (REFERENCE.md): a Gmsh series (meshes/make_gmsh_cylinders.py: 1,982 / 4,208 / 8,743 /
+# (docs/reference.md): a Gmsh series (meshes/make_gmsh_cylinders.py: 1,982 / 4,208 / 8,743 /
 # 17,917 nodes) and a TetGen series (mesher = "tetgen", size 12 / 9 / 7 mm: 2,697 / 4,386 /
 # 8,314 nodes); fe tet4-anp, meshless MLS and MMLS (one point per tet, radius supports,
 # EBCIEM), coupled with one FE layer around the essential faces (the unstructured-tet
@@ -197,8 +197,8 @@ tets_tetgen() {
   sweep cases/cylinder-$c.toml --set solver.mode=relaxation --set discretization.mesher=tetgen \
     --set discretization.element=tet4-anp --set "references.force.quantity=reaction.top.${refs[0]}" \
     --set "references.force.value=${refs[1]}" --set "references.probe_ux.value=${refs[2]}" \
-    --set 'references.force.source=SfePy (REFERENCE.md)' \
-    --set 'references.probe_ux.source=SfePy (REFERENCE.md)' \
+    --set 'references.force.source=SfePy (docs/reference.md)' \
+    --set 'references.probe_ux.source=SfePy (docs/reference.md)' \
     "$@" --vary discretization.size=0.012,0.009,0.007 --out studies/tets/$out-$c
 }
 
@@ -234,7 +234,7 @@ brain-compressible() {
 
 # Issue 40: the indentation benchmark (cases/brain-indentation-benchmark.toml: the plug driven
 # on conforming Gmsh meshes graded at its rim, meshes/make_gmsh_brain_indentation.py; the
-# REFERENCE.md SfePy force at 1-5 mm through load stages). fe tet4-anp and tet10, the coupled
+# docs/reference.md SfePy force at 1-5 mm through load stages). fe tet4-anp and tet10, the coupled
 # method with its tet4-anp layer (the unstructured-tet defaults: one layer around the essential
 # boundaries, linear MLS), with a quadratic layer, and with a quadratic layer and the MMLS
 # interior, on levels c1-c4; fe tet4-anp alone on c5.

@@ -31,7 +31,7 @@ struct Row {
     force_error: f64,
 }
 
-/// The exact cube (REFERENCE.md) meshless with MMLS + EBCIEM and adaptive integration at
+/// The exact cube (docs/reference.md) meshless with MMLS + EBCIEM and adaptive integration at
 /// `tolerance`: points used and the mean / largest nodal error against the exact field
 /// u = ((a - 1) x, (a - 1) y, -0.2 z), a = 1.11574668.
 fn cube_row(size: &str, tolerance: f64) -> Row {

@@ -204,7 +204,7 @@ fn transition_cells_next_to_a_concentrated_drive_take_the_full_rule() {
 /// The case as shipped: the plug {r <= 5 mm, z >= 27.5 mm} is a meshed sub-volume of the
 /// TetGen mesh (a ring of nodes on its outline, graded there), driven exactly, and the quadratic
 /// tet's force is within 2 % of the independent SfePy reference of the same problem
-/// (REFERENCE.md "Brain indentation benchmark": -51.38 mN).
+/// (docs/reference.md "Brain indentation benchmark": -51.38 mN).
 #[cfg(feature = "tetgen")]
 #[test]
 fn builtin_brain_indentation_drives_its_plug_and_meets_the_reference() {

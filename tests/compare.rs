@@ -28,7 +28,7 @@ fn compare_on_the_exact_cube_gives_three_accurate_rows() {
             .unwrap_or_else(|| panic!("{}: {:?}", r.method, r.error));
         assert_eq!(s.method, r.method);
         assert!(s.converged);
-        // Exact cube (REFERENCE.md): F_z = -7.63269 N, lateral stretch 1.11574668.
+        // Exact cube (docs/reference.md): F_z = -7.63269 N, lateral stretch 1.11574668.
         let f = s.reactions["top"][2];
         assert!(
             (f + 7.63269).abs() / 7.63269 < 0.01,

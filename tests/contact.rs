@@ -1,4 +1,4 @@
-//! Issue 23, rigid contact: a frictionless plate compressing the cube (REFERENCE.md's exact
+//! Issue 23, rigid contact: a frictionless plate compressing the cube (docs/reference.md's exact
 //! uniaxial solution), a ball indenting it in dynamics (energy balance, no point through the
 //! surface), the brain indented by a rigid cylinder, and the scene's checks.
 
@@ -10,7 +10,7 @@ use hytled::simulation::{prepare, run_scene, settings, RunOptions};
 
 /// The cube case with the driven top face replaced by a rigid plate that starts on the top
 /// face and moves 20 mm down: frictionless, so the top slides and the exact solution is the
-/// homogeneous one of REFERENCE.md (F_z = -7.63269 N, lateral stretch a = 1.11574668).
+/// homogeneous one of docs/reference.md (F_z = -7.63269 N, lateral stretch a = 1.11574668).
 fn plate(extra: &[&str]) -> Summary {
     plate_run(extra).unwrap_or_else(|e| panic!("{extra:?}: {e}"))
 }

@@ -107,7 +107,7 @@ fn run(case: &str, overrides: &[&str]) -> (Prepared, Vec<Vector3<f64>>, hytled::
     (p, out.u, sum)
 }
 
-/// Exact cube (REFERENCE.md): lateral stretch a = 1.11574668, F_z = -7.63269 N; u = (a - 1) x,
+/// Exact cube (docs/reference.md): lateral stretch a = 1.11574668, F_z = -7.63269 N; u = (a - 1) x,
 /// (a - 1) y, -0.2 z.
 fn cube_nodal_error(p: &Prepared, u: &[Vector3<f64>]) -> (f64, f64) {
     let c = p.coupled.as_ref().unwrap();
@@ -291,7 +291,7 @@ fn mixed_inputs_match_the_built_in_coupled_cylinder() {
 }
 
 /// Runs `case` with `method` (extra overrides) at the test resolution; returns (reaction, probe
-/// u_x, relative errors vs REFERENCE.md).
+/// u_x, relative errors vs docs/reference.md).
 fn cylinder(case: &str, method: &[&str]) -> (f64, f64, f64, f64) {
     let mut o: Vec<String> = vec![
         "discretization.divisions=[6,3,12]".into(),
@@ -309,7 +309,7 @@ fn cylinder(case: &str, method: &[&str]) -> (f64, f64, f64, f64) {
     )
 }
 
-/// Cylinder cases (REFERENCE.md table) with 1,573 nodes: the coupled result is within 5 % of
+/// Cylinder cases (docs/reference.md table) with 1,573 nodes: the coupled result is within 5 % of
 /// the reference and closer to FE hex8 on the same nodes than pure meshless (Horton's
 /// configuration: grid integration, 8 nearest nodes) is.
 fn cylinder_case(case: &str) {

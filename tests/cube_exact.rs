@@ -1,4 +1,4 @@
-//! Cube under unconstrained compression against the exact homogeneous solution (REFERENCE.md,
+//! Cube under unconstrained compression against the exact homogeneous solution (docs/reference.md,
 //! "Cube": a = 1.11574668, F_z = -7.63269 N).
 
 mod common;

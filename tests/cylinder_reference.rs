@@ -1,5 +1,5 @@
 //! Cylinder compression, extension and shear against the ABAQUS C3D20H reference of
-//! `mtled-fe-coupled-ebc-cylinder.txt` Table 1 (REFERENCE.md, "Cylinder"). Hex8 on the
+//! `mtled-fe-coupled-ebc-cylinder.txt` Table 1 (docs/reference.md, "Cylinder"). Hex8 on the
 //! 4,389-node O-grid (divisions 8, 4, 20): reaction within 3 %, probe u_x within 5 %.
 //! tet4-anp: reaction within 5 % (relaxation on the same mesh split into 23,040 tets; dynamic
 //! on divisions 6, 3, 16 = 9,216 tets to keep the suite fast).

@@ -274,7 +274,7 @@ fn exact_uniaxial_reference_is_the_published_cube_and_follows_the_material() {
     let s = load(CUBE, &[]).unwrap();
     let f = s.references["top_force"].value.unwrap();
     let ux = s.references["lateral"].value.unwrap();
-    // REFERENCE.md: F_z = -7.63269 N, a = 1.11574668.
+    // docs/reference.md: F_z = -7.63269 N, a = 1.11574668.
     assert!((f + 7.63269).abs() < 1e-5, "{f}");
     assert!((ux - 0.011574668).abs() < 1e-9, "{ux}");
     // Softer in bulk, more lateral bulging; stiffer, less.

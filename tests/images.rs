@@ -1,7 +1,7 @@
 //! Issue 42, labelled images in: `[geometry] image` (NIfTI-1, NRRD) with the image's
 //! orientation and spacing honoured, its labels as the body (voxels or an extracted surface),
 //! label-0 holes kept, and `[regions] labels`. A voxel-aligned labelled box reproduces the
-//! exact cube (REFERENCE.md); an oblique copy of the image gives the same answer rotated.
+//! exact cube (docs/reference.md); an oblique copy of the image gives the same answer rotated.
 
 mod common;
 use common::path;

@@ -1,5 +1,5 @@
 //! Issue 40: the brain-indentation benchmark (cases/brain-indentation-benchmark.toml, the
-//! REFERENCE.md SfePy force at 1-5 mm), the quadratic tet10 element, relaxation load stages
+//! docs/reference.md SfePy force at 1-5 mm), the quadratic tet10 element, relaxation load stages
 //! and mass scaling. Coarse Gmsh level c1 (570 vertices) here; studies/indentation has the
 //! refinement.
 
@@ -9,7 +9,7 @@ use common::*;
 const CASE: &str = "cases/brain-indentation-benchmark.toml";
 const C1: &str = "geometry.mesh=../meshes/brain-indentation-c1.msh";
 
-/// tet10 reproduces the exact homogeneous cube (REFERENCE.md "Cube") on split-prism tets in
+/// tet10 reproduces the exact homogeneous cube (docs/reference.md "Cube") on split-prism tets in
 /// relaxation, and balances its energy in a dynamic run with its HRZ masses (quasi-static:
 /// the reaction within 1e-5 of the static value).
 #[test]

@@ -1,6 +1,6 @@
 //! Issue 23, loads: gravity, point forces, dead tractions, follower pressure and tabulated load
 //! curves, checked for every method against exact solutions (the homogeneous uniaxial cube,
-//! REFERENCE.md), the small-strain column under its own weight and global equilibrium.
+//! docs/reference.md), the small-strain column under its own weight and global equilibrium.
 
 use std::path::{Path, PathBuf};
 
@@ -11,7 +11,7 @@ use hytled::simulation::{run_scene, RunOptions};
 mod common;
 use common::ALL_METHODS;
 
-/// A 0.1 m cube on the symmetry planes x = 0, y = 0, z = 0 (REFERENCE.md, "Cube"), relaxation,
+/// A 0.1 m cube on the symmetry planes x = 0, y = 0, z = 0 (docs/reference.md, "Cube"), relaxation,
 /// E = 3000 Pa, nu = 0.49, with `extra` TOML appended (loads, curves).
 fn cube(extra: &str) -> String {
     format!(
@@ -191,7 +191,7 @@ position = [0.01, 0.01, 0.1]
 }
 
 /// The cube pulled by a uniform dead traction t on its top: the exact solution is homogeneous
-/// (REFERENCE.md), with the first Piola stress P_zz = t = sigma_zz a^2 for the stretch lambda
+/// (docs/reference.md), with the first Piola stress P_zz = t = sigma_zz a^2 for the stretch lambda
 /// whose lateral stress vanishes. The traction for lambda = 1.1 is applied; the corner moves
 /// by ((a - 1) L, (a - 1) L, (lambda - 1) L), and the load's total is t times the area.
 #[test]

@@ -1,6 +1,6 @@
 //! Issue 23, measured displacements: a file of displacements on part of the surface, matched to
 //! its nodes and ramped by a curve (the image-driven brain-shift workflow), checked on the cube
-//! whose exact homogeneous field is given on its top face (REFERENCE.md).
+//! whose exact homogeneous field is given on its top face (docs/reference.md).
 
 mod common;
 use common::{box_inp, box_node_id, path};
@@ -9,7 +9,7 @@ use std::path::PathBuf;
 
 use hytled::simulation::{run_scene, RunOptions};
 
-const A: f64 = 1.11574668; // REFERENCE.md: lateral stretch of the cube compressed by 20 %
+const A: f64 = 1.11574668; // docs/reference.md: lateral stretch of the cube compressed by 20 %
 
 fn folder(name: &str) -> PathBuf {
     let d = std::env::temp_dir().join(format!("hytled-measured-{name}-{}", std::process::id()));
@@ -42,7 +42,7 @@ fn exact_top(n: usize, jitter: f64) -> String {
 }
 
 /// Relative errors of the top force and the corner's lateral displacement against the exact
-/// cube (REFERENCE.md: F_z = -7.63269 N, u_x = (a - 1) 0.1 m).
+/// cube (docs/reference.md: F_z = -7.63269 N, u_x = (a - 1) 0.1 m).
 fn errors(s: &hytled::report::Summary) -> (f64, f64) {
     let f = s.reactions["top"][2];
     let u = s.probes["corner"].displacement[0];

@@ -153,7 +153,7 @@ fn cube_meshless_ebciem_relaxation_matches_exact_solution() {
         .position(|b| b.name == "top")
         .unwrap()];
     let err_f = (top.z - -7.63269).abs() / 7.63269;
-    // Exact field: u = ((a - 1) x, (a - 1) y, -0.2 z) (REFERENCE.md, cube).
+    // Exact field: u = ((a - 1) x, (a - 1) y, -0.2 z) (docs/reference.md, cube).
     let a = 1.11574668;
     let mut sum = 0.0;
     for x in &prep.model.nodes {
@@ -358,7 +358,7 @@ fn cylinder_meshless(case: &str, mode: &str) -> hytled::report::Summary {
     )
 }
 
-/// Reaction and probe u_x within 5 % of ABAQUS C3D20H (REFERENCE.md, cylinder table; measured
+/// Reaction and probe u_x within 5 % of ABAQUS C3D20H (docs/reference.md, cylinder table; measured
 /// 3.26/1.77 %, 0.54/1.20 %, 1.48/0.14 % for compression/extension/shear by relaxation, the
 /// same to 0.02 % dynamically).
 fn check_cylinder(case: &str, mode: &str) {
@@ -406,7 +406,7 @@ fn cylinder_shear_meshless_dynamic() {
 
 #[test]
 fn cube_meshless_mmls_relaxation_matches_exact_solution() {
-    // Modified MLS, quadratic basis, EBCIEM (thesis chapters 3-4; REFERENCE.md cube).
+    // Modified MLS, quadratic basis, EBCIEM (thesis chapters 3-4; docs/reference.md cube).
     let s = run_case(
         "cases/cube-compression.toml",
         &[
@@ -625,7 +625,7 @@ fn cloud_label_column_gives_sets_for_boundaries() {
         "boundaries.bottom.select={ set = \"1\" }",
         "boundaries.top.select={ set = \"2\" }",
         // The exact reference needs the driven face as a plane; with sets, the published value
-        // (REFERENCE.md) stands in.
+        // (docs/reference.md) stands in.
         "references.top_force={ quantity = \"reaction.top.z\", value = -7.63269 }",
         "references.lateral={ quantity = \"probe.corner.x\", value = 0.011574668 }",
     ]);

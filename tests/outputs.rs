@@ -1,6 +1,6 @@
 //! Issue 23, results for ParaView: nodal Cauchy stress, Green-Lagrange strain and principal
 //! stretches, boundary labels and regions as VTU arrays, checked on the exact cube
-//! (REFERENCE.md: F = diag(a, a, 0.8), sigma_zz = -613.1215 Pa, lateral stress zero).
+//! (docs/reference.md: F = diag(a, a, 0.8), sigma_zz = -613.1215 Pa, lateral stress zero).
 
 mod common;
 use common::path;

@@ -1,5 +1,5 @@
 //! Issue 23, tissue regions and the Ogden material: exact homogeneous solutions of the cube
-//! (REFERENCE.md) with one-term Ogden tissue, and with two regions side by side.
+//! (docs/reference.md) with one-term Ogden tissue, and with two regions side by side.
 
 use std::path::PathBuf;
 

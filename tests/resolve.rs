@@ -1,6 +1,6 @@
 //! Issue 43, prepare once and solve again: changes made on a prepared model between solves
 //! (boundary values, measured displacements, tool positions, load factors) are taken, checked
-//! against the exact cube (REFERENCE.md) and against cold solves of scenes written with the new
+//! against the exact cube (docs/reference.md) and against cold solves of scenes written with the new
 //! values; warm-started relaxations reach the cold answer in a fraction of its steps; changes
 //! the model cannot take are errors.
 
@@ -11,8 +11,8 @@ use std::path::PathBuf;
 
 use hytled::simulation::{prepare, settings, solve, Session};
 
-const A: f64 = 1.11574668; // REFERENCE.md: lateral stretch of the cube compressed by 20 %
-const F_EXACT: f64 = -7.63269; // REFERENCE.md: top force of the cube compressed by 20 %, N
+const A: f64 = 1.11574668; // docs/reference.md: lateral stretch of the cube compressed by 20 %
+const F_EXACT: f64 = -7.63269; // docs/reference.md: top force of the cube compressed by 20 %, N
 
 fn folder(name: &str) -> PathBuf {
     let d = std::env::temp_dir().join(format!("hytled-resolve-{name}-{}", std::process::id()));

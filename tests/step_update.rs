@@ -276,7 +276,7 @@ duration = 20.0
     )
 }
 
-/// Neo-Hookean (REFERENCE.md's form, W = mu/2 (J^-2/3 tr C - 3) + kappa/2 (J - 1)^2) in
+/// Neo-Hookean (docs/reference.md's form, W = mu/2 (J^-2/3 tr C - 3) + kappa/2 (J - 1)^2) in
 /// uniaxial strain l: the nominal stress dW/dl (Pa) and the tangent d2W/dl2 (Pa), written out
 /// by hand. E = 3 kPa, nu = 0.3.
 fn uniaxial_strain(l: f64) -> (f64, f64) {

@@ -1,6 +1,6 @@
 //! Issue 42, surfaces in: a body given as a closed surface file (`[geometry] surface`), STL
 //! (ASCII and binary) or OBJ, checked and filled by TetGen for every method. The cube read as a
-//! surface reproduces the exact homogeneous solution (REFERENCE.md) with fe and within the
+//! surface reproduces the exact homogeneous solution (docs/reference.md) with fe and within the
 //! integration error with meshless; the cylinder read as a surface gives the built-in TetGen
 //! cylinder's answer; broken surfaces are refused naming the file and where.
 
@@ -75,7 +75,7 @@ fn cube_run(file: &Path, extra: &[&str]) -> hytled::Result<Summary> {
 }
 
 /// Relative errors of the top force and the corner's lateral displacement against the exact
-/// uniaxial solution (REFERENCE.md: the cube compressed by 20 %) for a cube of `edge` m.
+/// uniaxial solution (docs/reference.md: the cube compressed by 20 %) for a cube of `edge` m.
 fn cube_errors(s: &Summary, edge: f64) -> (f64, f64) {
     let m = NeoHookean::from_young_poisson(3000.0, 0.49, 1000.0);
     let (a, _, sigma) = uniaxial_stretch(&m, 1.0 - 0.02 / edge);
@@ -428,7 +428,7 @@ fn a_nested_surface_is_a_conforming_region() {
 
 /// The cylinder cases read as an STL prism of 63 sides (its cross-section 0.17 % below the
 /// circle's; 31 sides, 0.68 % below, put the extension and shear forces 0.8-0.9 % low), meshed by
-/// TetGen at 10 mm and solved with the quadratic tet10: within REFERENCE.md's tolerances
+/// TetGen at 10 mm and solved with the quadratic tet10: within docs/reference.md's tolerances
 /// (compression force 2 %, u_x 1 %; extension and shear 0.5 %). Measured on 2026-11-27 (28,329
 /// nodes): compression -6.785973 N (1.94 %; below the band -6.98 ... -6.85) and u_x 0.27 %,
 /// extension 0.27 % and 0.15 %, shear 0.16 % and 0.000 %; 27-73 s each on 2 cores.

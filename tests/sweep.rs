@@ -47,12 +47,12 @@ fn sweep_runs_every_combination_and_keeps_failures_as_rows() {
             .unwrap_or_else(|| panic!("run {}: {:?}", r.run, r.error));
         assert_eq!(s.method, r.values["discretization.method"]);
         // The row's error is the larger reference error, recomputed here from the exact cube
-        // (REFERENCE.md): force -7.63269 N, corner u_x = 0.011574668 m.
+        // (docs/reference.md): force -7.63269 N, corner u_x = 0.011574668 m.
         let f = s.reactions["top"][2];
         let ux = s.probes["corner"].displacement[0];
         let exact = ((f + 7.63269).abs() / 7.63269).max((ux - 0.011574668).abs() / 0.011574668);
         let e = r.error_vs_reference().unwrap();
-        // (The scene computes the exact values to machine precision; REFERENCE.md rounds them
+        // (The scene computes the exact values to machine precision; docs/reference.md rounds them
         // to 6 and 8 digits.)
         assert!((e - exact).abs() < 2e-6, "{e} vs {exact}");
         assert!(e < 0.01, "run {}: {e}", r.run);
@@ -147,7 +147,7 @@ fn check_pareto(rows: &[SweepRow]) {
 
 #[test]
 fn fe_cylinder_refinement_converges_with_a_positive_observed_order() {
-    // The FE hex8 cylinder under compression against ABAQUS (REFERENCE.md) at three O-grid
+    // The FE hex8 cylinder under compression against ABAQUS (docs/reference.md) at three O-grid
     // resolutions: the error falls and the fitted order is positive.
     let varies = [vary("discretization.divisions=[2,1,4],[4,2,8],[6,3,12]")];
     let rows = sweep::run_sweep(

@@ -1,5 +1,5 @@
 //! Issue 21: the coupled method on unstructured tetrahedral meshes (Gmsh cylinders of
-//! `meshes/make_gmsh_cylinders.py`, SfePy references of REFERENCE.md in
+//! `meshes/make_gmsh_cylinders.py`, SfePy references of docs/reference.md in
 //! `cases/tet-cylinder-*.toml`), and near-incompressible runs that agree or warn.
 
 mod common;
@@ -137,7 +137,7 @@ fn errors(case: &str, overrides: &[&str]) -> (f64, f64) {
 }
 
 /// Issue 21, item 2, on the 4,208-node Gmsh cylinder with default settings: coupled within
-/// the tolerances REFERENCE.md gives its SfePy figures (reaction / probe u_x: compression 2 /
+/// the tolerances docs/reference.md gives its SfePy figures (reaction / probe u_x: compression 2 /
 /// 1 %, extension and shear 0.5 / 0.5 %, inside the issue's 2 % and 1 %), more accurate than
 /// fe tet4-anp in every case, and its worst error below the worst of MMLS (one point per tet),
 /// the most accurate pure method here, which misses the compression probe's 1 %.

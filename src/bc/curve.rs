@@ -10,7 +10,7 @@ use crate::{Error, Result};
 #[derive(Debug, Clone, PartialEq, Default)]
 pub enum LoadCurve {
     /// d(t) = d_max (10 - 15 tau + 6 tau^2) tau^3: zero velocity and acceleration at both ends
-    /// (REFERENCE.md, the curve of every benchmark case).
+    /// (docs/reference.md, the curve of every benchmark case).
     #[default]
     Smooth,
     /// d(t) = d_max tau.

@@ -104,6 +104,31 @@ fn surface_element_default(value: &mut toml::Table) -> bool {
     false
 }
 
+/// A scene given as a JSON object (a Python dict through `json.dumps`), with the same keys,
+/// overrides and checks as a scene file: its relative paths resolve against `base_dir`, and
+/// errors name it as `BASE_DIR/<dict>`.
+pub fn from_json(json: &str, base_dir: &Path, overrides: &[String]) -> Result<Scene> {
+    let file = base_dir.join("<dict>");
+    let err = |message: String| Error::Scene {
+        file: file.clone(),
+        message,
+    };
+    let value: serde_json::Value =
+        serde_json::from_str(json).map_err(|e| err(format!("not a JSON object: {e}")))?;
+    if !value.is_object() {
+        return Err(err(
+            "a scene is a table of tables (a dict), not a list or a value".into(),
+        ));
+    }
+    let table = toml::Value::try_from(&value).map_err(|e| {
+        err(format!(
+            "{e} (None / null has no place in a scene: leave the key out)"
+        ))
+    })?;
+    let text = toml::to_string(&table).map_err(|e| err(e.to_string()))?;
+    parse(&text, &file, overrides)
+}
+
 /// Parses scene text (see [`load`]); `path` names the source in errors.
 pub fn parse(text: &str, path: &Path, overrides: &[String]) -> Result<Scene> {
     let err = |message: String| Error::Scene {

@@ -470,7 +470,7 @@ pub struct ReferenceSpec {
     #[serde(default)]
     pub value: Option<f64>,
     /// `"uniaxial"`: the exact homogeneous solution of a box stretched or compressed along one
-    /// axis with free lateral faces (REFERENCE.md "Cube"), computed from the scene's material,
+    /// axis with free lateral faces (docs/reference.md "Cube"), computed from the scene's material,
     /// box and prescribed displacement, so it follows `--set material.poisson_ratio=...`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub exact: Option<String>,

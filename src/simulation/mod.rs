@@ -21,7 +21,7 @@ mod translate;
 use build_coupled::prepare_coupled;
 use build_fe::prepare_fe;
 use build_meshless::prepare_meshless;
-pub use output::{write_outputs, write_results, FrameLabels, FrameWriter};
+pub use output::{write_outputs, write_results, FrameLabels, FrameWriter, PointFields};
 pub use session::{Session, Solution};
 pub use summary::{element_label, method_name, summarize};
 use surface::Discretized;

@@ -15,7 +15,7 @@ use crate::material::Solid;
 use crate::meshless::discretize::MeshlessBuild;
 use crate::report::Summary;
 use crate::scene::Scene;
-use crate::solver::{Model, RunOutput};
+use crate::solver::{Fields, Model, RunOutput};
 use crate::{Error, Result};
 
 /// VTU cells making each of `n` points a VTK vertex (type 1), so ParaView draws them:
@@ -225,6 +225,20 @@ type FrameGeometry<'a> = (
     Option<&'a [usize]>,
 );
 
+/// The fields of one state at the points of the VTU frames ([`FrameWriter::point_fields`]):
+/// reference positions (m), cells as VTK writes them (connectivity, offsets, VTK cell types),
+/// displacement (m) and the nodal Cauchy stress (Pa), Green-Lagrange strain, von Mises stress
+/// (Pa) and J ([`Model::nodal_fields`]; meshless: interpolated with the shape functions).
+#[derive(Debug, Clone)]
+pub struct PointFields {
+    pub points: Vec<Vector3<f64>>,
+    pub connectivity: Vec<usize>,
+    pub offsets: Vec<usize>,
+    pub types: Vec<u8>,
+    pub displacement: Vec<Vector3<f64>>,
+    pub fields: Fields,
+}
+
 /// Sums `rows` (entries, weights) of `values` (`width` numbers per entry) into one entry per row.
 fn interpolate(rows: &[(Vec<usize>, Vec<f64>)], values: &[f64], width: usize) -> Vec<f64> {
     let mut out = vec![0.0; rows.len() * width];
@@ -249,7 +263,6 @@ impl<'a> FrameWriter<'a> {
         labels: FrameLabels,
         format: VtuFormat,
     ) -> Result<Self> {
-        std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
         let interp: Option<Vec<(Vec<usize>, Vec<f64>)>> = match (meshless, coupled) {
             (None, Some(c)) => Some(
                 c.vertex_weights()?
@@ -329,59 +342,51 @@ impl<'a> FrameWriter<'a> {
         Ok((mesh, disp))
     }
 
-    /// Writes the next frame at displacements `u` (m) and time `t` (s). Point data:
-    /// displacement (m); the nodal Cauchy stress (Pa), Green-Lagrange strain, principal
-    /// stretches (largest first), von Mises stress (Pa) and J, averaged from the points
-    /// ([`Model::nodal_fields`]; meshless: interpolated to the background vertices with the
-    /// shape functions); `boundary_NAME` (1 on the nodes a boundary holds). Cell data: the
-    /// points' Cauchy stress, von Mises stress and J (meshless and coupled: the mean over the
-    /// cell's points) and, with regions, `region`.
-    pub fn write(&mut self, model: &mut Model<Solid>, t: f64, u: &[Vector3<f64>]) -> Result<()> {
-        let points = model.stress_fields(u);
-        let nodal = model.nodal_fields(u);
-        let file = format!("{}_{:04}.vtu", self.name, self.series.len());
-        let path = self.dir.join(&file);
-        // The frame's points and cells: FE mesh, meshless background tets (or vertices),
-        // coupled FE layer and interior; `owner` maps points to cells (None: one per element).
-        let (xs, (conn, offsets, types), owner): FrameGeometry<'_> =
-            match (self.meshless, self.coupled) {
-                (Some(m), _) => {
-                    let b = &m.background;
-                    let cells = if b.num_cells() == 0 {
-                        // A cloud without tets: each vertex a VTK vertex.
-                        let n = b.nodes.len();
-                        ((0..n).collect(), (1..=n).collect(), vec![1u8; n])
-                    } else {
-                        let npc = b.shape.nodes_per_cell();
-                        (
-                            b.cells.clone(),
-                            (1..=b.num_cells()).map(|e| e * npc).collect(),
-                            vec![b.shape.vtk_type(); b.num_cells()],
-                        )
-                    };
-                    (&b.nodes, cells, Some(&m.owner[..]))
-                }
-                (None, Some(c)) => (&c.nodes, c.vtu_cells(), Some(&c.owner[..])),
-                (None, None) => {
-                    let m = self.mesh;
-                    let npc = m.shape.nodes_per_cell();
+    /// The frame's points and cells: FE mesh, meshless background tets (or vertices),
+    /// coupled FE layer and interior; `owner` maps points to cells (None: one per element).
+    fn geometry(&self) -> FrameGeometry<'a> {
+        match (self.meshless, self.coupled) {
+            (Some(m), _) => {
+                let b = &m.background;
+                let cells = if b.num_cells() == 0 {
+                    // A cloud without tets: each vertex a VTK vertex.
+                    let n = b.nodes.len();
+                    ((0..n).collect(), (1..=n).collect(), vec![1u8; n])
+                } else {
+                    let npc = b.shape.nodes_per_cell();
                     (
-                        &m.nodes,
-                        (
-                            m.cells.clone(),
-                            (1..=m.num_cells()).map(|e| e * npc).collect(),
-                            vec![m.shape.vtk_type(); m.num_cells()],
-                        ),
-                        None,
+                        b.cells.clone(),
+                        (1..=b.num_cells()).map(|e| e * npc).collect(),
+                        vec![b.shape.vtk_type(); b.num_cells()],
                     )
-                }
-            };
-        let ncell = types.len();
-        // Displacements and nodal fields at the frame's points.
+                };
+                (&b.nodes, cells, Some(&m.owner[..]))
+            }
+            (None, Some(c)) => (&c.nodes, c.vtu_cells(), Some(&c.owner[..])),
+            (None, None) => {
+                let m = self.mesh;
+                let npc = m.shape.nodes_per_cell();
+                (
+                    &m.nodes,
+                    (
+                        m.cells.clone(),
+                        (1..=m.num_cells()).map(|e| e * npc).collect(),
+                        vec![m.shape.vtk_type(); m.num_cells()],
+                    ),
+                    None,
+                )
+            }
+        }
+    }
+
+    /// Displacements (m, x y z per point) and nodal fields at the frame's points for nodal
+    /// values `u` (m).
+    fn at_points(&self, model: &mut Model<Solid>, u: &[Vector3<f64>]) -> (Vec<f64>, Fields) {
+        let nodal = model.nodal_fields(u);
         let flat_u: Vec<f64> = u.iter().flat_map(|v| [v.x, v.y, v.z]).collect();
-        let (disp, at_points) = match (&self.interp, self.meshless) {
+        match (&self.interp, self.meshless) {
             (Some(rows), Some(_)) => {
-                let mut f = crate::solver::Fields::zeros(rows.len());
+                let mut f = Fields::zeros(rows.len());
                 let (c, e, j) = (
                     interpolate(rows, &nodal.cauchy, 9),
                     interpolate(rows, &nodal.green, 9),
@@ -399,7 +404,44 @@ impl<'a> FrameWriter<'a> {
             }
             (Some(rows), None) => (interpolate(rows, &flat_u, 3), nodal),
             (None, _) => (flat_u, nodal),
-        };
+        }
+    }
+
+    /// A state's fields on the frame's points, in memory: what [`Self::write`] writes as
+    /// point data, with the frame's cells.
+    pub fn point_fields(&self, model: &mut Model<Solid>, u: &[Vector3<f64>]) -> PointFields {
+        let (xs, (connectivity, offsets, types), _) = self.geometry();
+        let (disp, fields) = self.at_points(model, u);
+        PointFields {
+            points: xs.to_vec(),
+            connectivity,
+            offsets,
+            types,
+            displacement: disp
+                .chunks_exact(3)
+                .map(|c| Vector3::new(c[0], c[1], c[2]))
+                .collect(),
+            fields,
+        }
+    }
+
+    /// Writes the next frame at displacements `u` (m) and time `t` (s). Point data:
+    /// displacement (m); the nodal Cauchy stress (Pa), Green-Lagrange strain, principal
+    /// stretches (largest first), von Mises stress (Pa) and J, averaged from the points
+    /// ([`Model::nodal_fields`]; meshless: interpolated to the background vertices with the
+    /// shape functions); `boundary_NAME` (1 on the nodes a boundary holds). Cell data: the
+    /// points' Cauchy stress, von Mises stress and J (meshless and coupled: the mean over the
+    /// cell's points) and, with regions, `region`.
+    pub fn write(&mut self, model: &mut Model<Solid>, t: f64, u: &[Vector3<f64>]) -> Result<()> {
+        let points = model.stress_fields(u);
+        let file = format!("{}_{:04}.vtu", self.name, self.series.len());
+        if self.series.is_empty() {
+            std::fs::create_dir_all(&self.dir).map_err(|e| Error::io(&self.dir, e))?;
+        }
+        let path = self.dir.join(&file);
+        let (xs, (conn, offsets, types), owner) = self.geometry();
+        let ncell = types.len();
+        let (disp, at_points) = self.at_points(model, u);
         let stretches: Vec<f64> = (0..at_points.len())
             .flat_map(|v| at_points.principal_stretches(v))
             .collect();

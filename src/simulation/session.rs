@@ -28,11 +28,11 @@ use std::time::Instant;
 
 use nalgebra::Vector3;
 
-use super::{prepare, settings, summarize, Prepared};
+use super::{prepare, settings, summarize, FrameLabels, FrameWriter, PointFields, Prepared};
 use crate::material::Solid;
 use crate::report::Summary;
 use crate::scene::Scene;
-use crate::solver::{Fields, Mode, Model, RunOutput, Settings, WarmStart};
+use crate::solver::{Mode, Model, RunOutput, Settings, WarmStart};
 use crate::{Error, Result};
 
 /// A prepared scene solved as often as its inputs change.
@@ -331,10 +331,38 @@ impl Session {
         })
     }
 
-    /// Per node at displacements `u` (m): Cauchy stress (Pa) and Green-Lagrange strain
-    /// (9 values each, row-major), von Mises stress (Pa) and J, averaged from the quadrature
-    /// points as the VTU outputs are ([`Model::nodal_fields`]).
-    pub fn nodal_fields(&mut self, u: &[Vector3<f64>]) -> Fields {
-        self.prep.model.nodal_fields(u)
+    /// The fields of nodal values `u` (m) at the points of the VTU frames, with their cells
+    /// ([`PointFields`]: FE nodes; meshless and coupled, their output points, displacements
+    /// and stresses interpolated with the shape functions), as `run --out` writes them.
+    pub fn point_fields(&mut self, u: &[Vector3<f64>]) -> Result<PointFields> {
+        let Prepared {
+            model,
+            mesh,
+            meshless,
+            coupled,
+            ..
+        } = &mut self.prep;
+        if u.len() != model.nodes.len() {
+            return Err(Error::Input(format!(
+                "{} displacements for the model's {} nodes",
+                u.len(),
+                model.nodes.len()
+            )));
+        }
+        let labels = FrameLabels {
+            boundaries: Vec::new(),
+            point_cells: Vec::new(),
+        };
+        // Nothing is written: the writer's folder is never created.
+        let writer = FrameWriter::new(
+            std::path::Path::new(""),
+            "fields",
+            mesh,
+            meshless.as_ref(),
+            coupled.as_ref(),
+            labels,
+            crate::io::vtu::VtuFormat::default(),
+        )?;
+        Ok(writer.point_fields(model, u))
     }
 }

@@ -504,7 +504,7 @@ impl<M: Material> Model<M> {
 
     /// The force each boundary applies to the body, N: the sum over its nodes of the internal
     /// minus the external nodal forces (`self.f_ext`, the last step's loads; at equilibrium
-    /// F_int = F_ext + R), negative along the axis in compression as in REFERENCE.md.
+    /// F_int = F_ext + R), negative along the axis in compression as in docs/reference.md.
     /// Boundaries imposed by a corrector report its constraint force instead.
     /// Rigid contact bodies follow the boundaries with the force they applied in the last
     /// correction ([`Self::reaction_names`]).

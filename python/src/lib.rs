@@ -1,0 +1,355 @@
+//! Python bindings of hytled: a thin layer over the library's public API
+//! ([`hytled::scene`], [`hytled::simulation::Session`]). The Python package `hytled` wraps these
+//! classes (python/hytled/__init__.py); units are SI throughout.
+
+use std::path::PathBuf;
+
+use numpy::ndarray::{Array1, Array2, Array3};
+use numpy::{IntoPyArray, PyReadonlyArray2};
+use pyo3::create_exception;
+use pyo3::exceptions::PyException;
+use pyo3::prelude::*;
+use pyo3::types::PyDict;
+
+use hytled::simulation::Session;
+use hytled::solver::Device;
+
+create_exception!(
+    _hytled,
+    HytledError,
+    PyException,
+    "An error of hytled; `kind` and `exit_code` as the CLI gives them."
+);
+create_exception!(
+    _hytled,
+    SceneError,
+    HytledError,
+    "A scene that cannot be read or does not follow the schema (exit code 2)."
+);
+create_exception!(
+    _hytled,
+    InputError,
+    HytledError,
+    "An input that cannot be used: geometry, selection, mesh, values (exit code 2)."
+);
+create_exception!(
+    _hytled,
+    UnstableError,
+    HytledError,
+    "The explicit integration diverged or an element inverted (exit code 3)."
+);
+create_exception!(
+    _hytled,
+    FileError,
+    HytledError,
+    "A file that cannot be read or written (exit code 5)."
+);
+create_exception!(
+    _hytled,
+    InterruptedRun,
+    HytledError,
+    "A run stopped by SIGINT or SIGTERM (exit codes 130, 143)."
+);
+
+/// The library's error as the Python exception of its kind, with `kind` and `exit_code`.
+fn to_py(e: hytled::Error) -> PyErr {
+    let msg = e.to_string();
+    let err = match &e {
+        hytled::Error::Scene { .. } => SceneError::new_err(msg),
+        hytled::Error::Input(_) | hytled::Error::InvalidElement { .. } => InputError::new_err(msg),
+        hytled::Error::Unstable(_) => UnstableError::new_err(msg),
+        hytled::Error::Io { .. } => FileError::new_err(msg),
+        hytled::Error::Interrupted { .. } => InterruptedRun::new_err(msg),
+    };
+    Python::attach(|py| {
+        let v = err.value(py);
+        let _ = v.setattr("kind", e.kind());
+        let _ = v.setattr("exit_code", e.exit_code());
+    });
+    err
+}
+
+/// A validated scene: from a TOML file or a dict (as JSON), with `--set` style overrides.
+#[pyclass(module = "hytled._hytled")]
+struct Scene {
+    inner: hytled::scene::Scene,
+}
+
+#[pymethods]
+impl Scene {
+    /// Reads and checks a scene file; `overrides` are the CLI's `--set KEY.PATH=VALUE`.
+    #[staticmethod]
+    #[pyo3(signature = (path, overrides = Vec::new()))]
+    fn from_file(path: PathBuf, overrides: Vec<String>) -> PyResult<Self> {
+        let inner = hytled::scene::load(&path, &overrides).map_err(to_py)?;
+        Ok(Scene { inner })
+    }
+
+    /// Reads and checks a scene given as JSON text (a dict through json.dumps); relative
+    /// paths resolve against `base_dir`.
+    #[staticmethod]
+    #[pyo3(signature = (json, base_dir, overrides = Vec::new()))]
+    fn from_json(json: &str, base_dir: PathBuf, overrides: Vec<String>) -> PyResult<Self> {
+        let inner = hytled::scene::from_json(json, &base_dir, &overrides).map_err(to_py)?;
+        Ok(Scene { inner })
+    }
+
+    /// The scene's name (or "run").
+    #[getter]
+    fn name(&self) -> String {
+        self.inner.name.clone().unwrap_or_else(|| "run".into())
+    }
+
+    /// The scene with every default filled in, as JSON text.
+    fn to_json(&self) -> PyResult<String> {
+        serde_json_string(&self.inner)
+    }
+}
+
+fn serde_json_string<T: serde::Serialize>(v: &T) -> PyResult<String> {
+    serde_json::to_string(v).map_err(|e| HytledError::new_err(e.to_string()))
+}
+
+/// A prepared model: meshed and discretized once, solved as often as its inputs change.
+#[pyclass(module = "hytled._hytled")]
+struct Model {
+    /// The session behind a lock: a Python class may be shared between threads.
+    session: std::sync::Mutex<Session>,
+}
+
+fn vec3_array(v: &[nalgebra::Vector3<f64>]) -> Array2<f64> {
+    let flat: Vec<f64> = v.iter().flat_map(|x| [x.x, x.y, x.z]).collect();
+    Array2::from_shape_vec((v.len(), 3), flat).expect("3 per entry")
+}
+
+fn rows_array(v: &[[f64; 3]]) -> Array2<f64> {
+    let flat: Vec<f64> = v.iter().flatten().copied().collect();
+    Array2::from_shape_vec((v.len(), 3), flat).expect("3 per entry")
+}
+
+impl Model {
+    fn lock(&self) -> std::sync::MutexGuard<'_, Session> {
+        // A panic while solving poisons the lock; the session is still whole (errors are
+        // values), so it is used as it is.
+        self.session
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+    }
+}
+
+#[pymethods]
+impl Model {
+    /// Prepares `scene` (meshing, shape functions, masses, boundaries); `device` "cpu" or
+    /// "gpu" overrides the scene's `solver.device`.
+    #[new]
+    #[pyo3(signature = (scene, device = None))]
+    fn new(py: Python<'_>, scene: &Scene, device: Option<&str>) -> PyResult<Self> {
+        let mut s = scene.inner.clone();
+        if let Some(d) = device {
+            s.solver.device = match d {
+                "cpu" => Device::Cpu,
+                "gpu" => Device::Gpu,
+                other => {
+                    return Err(InputError::new_err(format!(
+                        "device '{other}': give \"cpu\" or \"gpu\""
+                    )))
+                }
+            };
+        }
+        let session = py.detach(|| Session::new(s)).map_err(to_py)?;
+        Ok(Model {
+            session: std::sync::Mutex::new(session),
+        })
+    }
+
+    /// Solves with the inputs as they are: from the last equilibrium where there is one
+    /// (relaxation), else from the unloaded state; `cold=True` always from the unloaded state.
+    /// Returns a dict of numpy arrays and values (see hytled.Result).
+    #[pyo3(signature = (cold = false))]
+    fn solve<'py>(&mut self, py: Python<'py>, cold: bool) -> PyResult<Bound<'py, PyDict>> {
+        let session = &mut *self.lock();
+        let (sol, fields) = py
+            .detach(|| {
+                let sol = if cold {
+                    session.solve_cold()
+                } else {
+                    session.solve()
+                }?;
+                let fields = session.point_fields(&sol.output.u)?;
+                Ok((sol, fields))
+            })
+            .map_err(to_py)?;
+        let d = PyDict::new(py);
+        let p = fields.points.len();
+        d.set_item("points", vec3_array(&fields.points).into_pyarray(py))?;
+        d.set_item(
+            "connectivity",
+            Array1::from_vec(fields.connectivity.iter().map(|&c| c as i64).collect())
+                .into_pyarray(py),
+        )?;
+        d.set_item(
+            "offsets",
+            Array1::from_vec(fields.offsets.iter().map(|&c| c as i64).collect()).into_pyarray(py),
+        )?;
+        d.set_item(
+            "cell_types",
+            Array1::from_vec(fields.types.clone()).into_pyarray(py),
+        )?;
+        d.set_item(
+            "displacement",
+            vec3_array(&fields.displacement).into_pyarray(py),
+        )?;
+        let tensor =
+            |v: &[f64]| Array3::from_shape_vec((p, 3, 3), v.to_vec()).expect("9 per point");
+        d.set_item("stress", tensor(&fields.fields.cauchy).into_pyarray(py))?;
+        d.set_item("strain", tensor(&fields.fields.green).into_pyarray(py))?;
+        d.set_item(
+            "von_mises",
+            Array1::from_vec(fields.fields.von_mises.clone()).into_pyarray(py),
+        )?;
+        d.set_item(
+            "j",
+            Array1::from_vec(fields.fields.j.clone()).into_pyarray(py),
+        )?;
+        d.set_item(
+            "nodal_parameters",
+            vec3_array(&sol.output.u).into_pyarray(py),
+        )?;
+        d.set_item("summary", serde_json_string(&sol.summary)?)?;
+        d.set_item("steps", sol.output.steps)?;
+        d.set_item("warm", sol.warm)?;
+        d.set_item("converged", sol.summary.converged)?;
+        Ok(d)
+    }
+
+    /// Forgets the last equilibrium: the next solve starts from the unloaded state.
+    fn forget(&mut self) {
+        self.lock().forget();
+    }
+
+    /// Whether the next solve starts from the last equilibrium.
+    #[getter]
+    fn warm(&self) -> bool {
+        self.lock().is_warm()
+    }
+
+    /// Seconds the preparation took.
+    #[getter]
+    fn prepare_seconds(&self) -> f64 {
+        self.lock().prepare_seconds()
+    }
+
+    /// Reference positions of the model's nodes, m (N, 3).
+    #[getter]
+    fn nodes<'py>(&self, py: Python<'py>) -> Bound<'py, numpy::PyArray2<f64>> {
+        vec3_array(&self.lock().prepared().model.nodes).into_pyarray(py)
+    }
+
+    /// Warnings of the preparation.
+    #[getter]
+    fn warnings(&self) -> Vec<String> {
+        self.lock().prepared().warnings.clone()
+    }
+
+    /// Names of the boundaries (measured ones included), loads and rigid bodies.
+    #[getter]
+    fn boundary_names(&self) -> Vec<String> {
+        let s = self.lock();
+        let m = &s.prepared().model;
+        m.boundaries.iter().map(|b| b.name.clone()).collect()
+    }
+
+    #[getter]
+    fn load_names(&self) -> Vec<String> {
+        self.lock().prepared().model.loads.names().to_vec()
+    }
+
+    #[getter]
+    fn tool_names(&self) -> Vec<String> {
+        let s = self.lock();
+        let m = &s.prepared().model;
+        m.contact
+            .as_ref()
+            .map(|c| c.names().map(String::from).collect())
+            .unwrap_or_default()
+    }
+
+    /// New final displacement (m) of boundary `name`'s prescribed components; None leaves one.
+    fn set_displacement(&mut self, name: &str, value: [Option<f64>; 3]) -> PyResult<()> {
+        self.lock().set_displacement(name, value).map_err(to_py)
+    }
+
+    /// The final displacement (m) of each component of boundary `name` (None: free).
+    fn displacement(&mut self, name: &str) -> PyResult<[Option<f64>; 3]> {
+        self.lock().displacement(name).map_err(to_py)
+    }
+
+    /// Positions (m) of the measured points of `[measured.NAME]`, in its file's order (M, 3).
+    fn measured_points<'py>(
+        &mut self,
+        py: Python<'py>,
+        name: &str,
+    ) -> PyResult<Bound<'py, numpy::PyArray2<f64>>> {
+        let p = self.lock().measured_points(name).map_err(to_py)?;
+        Ok(rows_array(&p).into_pyarray(py))
+    }
+
+    /// Displacements (m) in force at the measured points of `[measured.NAME]` (M, 3).
+    fn measured_displacements<'py>(
+        &mut self,
+        py: Python<'py>,
+        name: &str,
+    ) -> PyResult<Bound<'py, numpy::PyArray2<f64>>> {
+        let u = self.lock().measured_displacements(name).map_err(to_py)?;
+        Ok(rows_array(&u).into_pyarray(py))
+    }
+
+    /// New displacements (m) measured at the points of `[measured.NAME]` (M, 3).
+    fn set_measured(&mut self, name: &str, u: PyReadonlyArray2<'_, f64>) -> PyResult<()> {
+        let a = u.as_array();
+        if a.ncols() != 3 {
+            return Err(InputError::new_err(format!(
+                "measured '{name}': an array of shape (M, 3) is needed, not {:?}",
+                a.shape()
+            )));
+        }
+        let rows: Vec<[f64; 3]> = a.rows().into_iter().map(|r| [r[0], r[1], r[2]]).collect();
+        self.lock().set_measured(name, &rows).map_err(to_py)
+    }
+
+    /// New final displacement (m) of rigid body `[contact.NAME]` from its reference position.
+    fn set_tool_motion(&mut self, name: &str, motion: [f64; 3]) -> PyResult<()> {
+        self.lock().set_tool_motion(name, motion).map_err(to_py)
+    }
+
+    /// The final displacement (m) of rigid body `[contact.NAME]`.
+    fn tool_motion(&mut self, name: &str) -> PyResult<[f64; 3]> {
+        self.lock().tool_motion(name).map_err(to_py)
+    }
+
+    /// Scales load `[loads.NAME]` by `factor` (1: as in the scene).
+    fn set_load_factor(&mut self, name: &str, factor: f64) -> PyResult<()> {
+        self.lock().set_load_factor(name, factor).map_err(to_py)
+    }
+
+    /// The factor of load `[loads.NAME]`.
+    fn load_factor(&self, name: &str) -> PyResult<f64> {
+        self.lock().load_factor(name).map_err(to_py)
+    }
+}
+
+/// The compiled part of the hytled package.
+#[pymodule]
+fn _hytled(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    let py = m.py();
+    m.add_class::<Scene>()?;
+    m.add_class::<Model>()?;
+    m.add("HytledError", py.get_type::<HytledError>())?;
+    m.add("SceneError", py.get_type::<SceneError>())?;
+    m.add("InputError", py.get_type::<InputError>())?;
+    m.add("UnstableError", py.get_type::<UnstableError>())?;
+    m.add("FileError", py.get_type::<FileError>())?;
+    m.add("InterruptedRun", py.get_type::<InterruptedRun>())?;
+    m.add("__version__", env!("CARGO_PKG_VERSION"))?;
+    Ok(())
+}

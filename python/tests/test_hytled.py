@@ -1,0 +1,135 @@
+"""Tests of the Python package against the exact cube (docs/reference.md, docs/reference.md) and
+the Rust library's own answers, and of the re-solve loop (issue 43)."""
+
+import os
+import pathlib
+import runpy
+import sys
+
+import numpy as np
+import pytest
+
+import hytled
+
+ROOT = pathlib.Path(__file__).resolve().parents[2]
+CUBE = ROOT / "cases" / "cube-compression.toml"
+A = 1.11574668  # lateral stretch of the cube compressed by 20 % (docs/reference.md)
+F_EXACT = -7.63269  # its top force, N
+
+
+def cube(**overrides):
+    o = {"discretization.size": 0.025}
+    o.update(overrides)
+    return hytled.Model(CUBE, overrides=o)
+
+
+def test_the_cube_from_a_file_is_exact_and_its_arrays_are_shaped():
+    r = cube().solve()
+    assert r.converged and not r.warm
+    assert abs(r.reactions["top"][2] - F_EXACT) < 1e-5 * abs(F_EXACT)
+    p = len(r.points)
+    assert p == 125
+    assert r.displacement.shape == (p, 3) and r.stress.shape == (p, 3, 3)
+    assert r.strain.shape == (p, 3, 3) and r.von_mises.shape == (p,) and r.j.shape == (p,)
+    corner = np.argmin(np.linalg.norm(r.points - [0.1, 0.1, 0.1], axis=1))
+    assert abs(r.displacement[corner, 0] - (A - 1) * 0.1) < 1e-7
+    # Homogeneous: J = a^2 0.8 and sigma_xx = 0 at every node.
+    assert np.allclose(r.j, A * A * 0.8, rtol=1e-5)
+    assert np.abs(r.stress[:, 0, 0]).max() < 1e-3 * np.abs(r.stress[:, 2, 2]).max()
+    assert r.summary["units"].startswith("SI")
+    assert r.probes["corner"].shape == (3,)
+
+
+def test_a_scene_as_a_dict_gives_the_file_s_answer():
+    tomllib = pytest.importorskip("tomllib")
+
+    with open(CUBE, "rb") as f:
+        d = tomllib.load(f)
+    d["discretization"]["size"] = np.float64(0.025)
+    r = hytled.Model(d, base_dir=CUBE.parent).solve()
+    assert abs(r.reactions["top"][2] - F_EXACT) < 1e-5 * abs(F_EXACT)
+    s = hytled.Scene(d)
+    assert s.name == "cube-compression"
+    assert s.to_dict()["discretization"]["size"] == 0.025
+
+
+def test_errors_carry_the_cli_s_kind_and_exit_code():
+    with pytest.raises(hytled.SceneError) as e:
+        hytled.Scene(CUBE, overrides={"solver.dt_fator": 0.5})
+    assert e.value.kind == "scene" and e.value.exit_code == 2
+    assert "dt_factor" in str(e.value)  # the CLI's suggestion
+    with pytest.raises(hytled.FileError) as e:
+        hytled.Scene("no-such-scene.toml")
+    assert e.value.exit_code == 5
+    m = cube()
+    with pytest.raises(hytled.InputError) as e:
+        m.set_displacement("lid", z=0.0)
+    assert "symmetry_x" in str(e.value) and e.value.kind == "input"
+    with pytest.raises(hytled.InputError):
+        m.set_displacement("top", x=0.01)  # a free component
+    with pytest.raises(hytled.HytledError):
+        m.set_load_factor("gravity", 2.0)
+    with pytest.raises(hytled.InputError):
+        m.set_measured("top", np.zeros((3, 3)))
+    with pytest.raises(hytled.InputError):
+        hytled.Model(CUBE, device="tpu")
+
+
+def test_a_changed_boundary_resolves_warm_to_the_cold_answer():
+    m = cube(**{"solver.tolerance": 1e-9})
+    m.solve()
+    assert m.warm
+    m.set_displacement("top", z=-0.01)
+    warm = m.solve()
+    cold = cube(**{"solver.tolerance": 1e-9, "boundaries.top.displacement.z": -0.01}).solve()
+    assert warm.warm and not cold.warm
+    assert np.abs(warm.displacement - cold.displacement).max() < 1e-8
+    assert abs(warm.reactions["top"][2] - cold.reactions["top"][2]) < 1e-6
+
+
+def test_load_factors_and_the_gpu_flag_pass_through():
+    d = {
+        "geometry": {"shape": "box", "min": [0, 0, 0], "max": [0.1, 0.1, 0.1]},
+        "discretization": {"method": "fe", "element": "hex8", "size": 0.025},
+        "material": {"model": "neo-hookean", "youngs_modulus": 3000.0,
+                     "poisson_ratio": 0.49, "density": 1000.0},
+        "boundaries": {"base": {"select": {"plane": {"axis": "z", "value": 0.0}},
+                                "fix": ["all"]}},
+        "loads": {"g": {"gravity": [0.0, 0.0, -9.81]}},
+        "solver": {"mode": "relaxation", "tolerance": 1e-9},
+    }
+    m = hytled.Model(d)
+    r1 = m.solve()
+    m.set_load_factor("g", 2.0)
+    r2 = m.solve()
+    assert r2.warm and m.load_factor("g") == 2.0
+    # The base carries the weight: rho g V = 1000 x 9.81 x 1e-3 N, twice with factor 2.
+    assert abs(r1.reactions["base"][2] - 9.81) < 1e-6
+    assert abs(r2.reactions["base"][2] - 19.62) < 1e-6
+    try:
+        g = hytled.Model(d, device="gpu")
+    except hytled.HytledError as e:  # no GPU here: said before any work
+        assert "GPU" in str(e) or "CUDA" in str(e) or "driver" in str(e), str(e)
+    else:
+        assert abs(g.solve().reactions["base"][2] - 9.81) < 1e-6
+
+
+def test_results_convert_to_meshio_and_pyvista():
+    r = cube().solve()
+    meshio = pytest.importorskip("meshio")
+    mm = r.to_meshio()
+    assert isinstance(mm, meshio.Mesh)
+    assert mm.cells[0].type == "hexahedron" and len(mm.cells[0].data) == 64
+    assert np.array_equal(mm.point_data["displacement"], r.displacement)
+    pv = pytest.importorskip("pyvista")
+    g = r.to_pyvista(deformed=True)
+    assert g.n_cells == 64 and g.n_points == 125
+    assert np.allclose(g.points, r.points + r.displacement)
+
+
+def test_the_resolve_example_runs_warm_in_a_third_of_the_steps(monkeypatch):
+    monkeypatch.chdir(ROOT)
+    example = runpy.run_path(str(ROOT / "python" / "examples" / "resolve.py"))
+    first, again = example["main"]()
+    assert again.warm and again.converged
+    assert 3 * again.steps <= first.steps
