@@ -30,6 +30,11 @@ pub mod simulation;
 pub mod solver;
 pub mod sweep;
 
+/// The examples of the Rust API guide (docs/rust-api.md), compiled and run as doc tests.
+#[doc = include_str!("../docs/rust-api.md")]
+#[cfg(doctest)]
+pub struct RustApiGuide;
+
 /// Whether the kernels (force lanes, sparse solves) may use AVX2 (`HYTLED_NO_AVX2` set in the environment turns it
 /// off, e.g. to compare the two paths).
 pub(crate) fn simd_available() -> bool {
