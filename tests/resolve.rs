@@ -36,21 +36,25 @@ fn exact_top(scale: f64) -> (String, Vec<[f64; 3]>) {
     (s, u)
 }
 
-/// The cube case at 25 mm with its top face driven by `[measured.top]` at `scale` x the exact
-/// field, and `extra` overrides.
-fn measured_cube(name: &str, scale: f64, extra: &[&str]) -> hytled::scene::Scene {
-    let dir = folder(name);
-    std::fs::write(dir.join("top.csv"), exact_top(scale).0).unwrap();
+/// The cube case's text without its `[boundaries.top]` table, with `insert` in its place,
+/// written to `name.toml` in a folder of this test.
+fn cube_without_top(name: &str, insert: &str) -> PathBuf {
     let text = std::fs::read_to_string(path("cases/cube-compression.toml")).unwrap();
     let start = text.find("[boundaries.top]").unwrap();
     let end = start + text[start..].find("\n\n").unwrap();
-    let text = format!(
-        "{}[measured.top]\nfile = \"top.csv\"\ntolerance = 0.003\ncurve = \"smooth\"\n{}",
-        &text[..start],
-        &text[end..]
+    let file = folder(name).join(format!("{name}.toml"));
+    std::fs::write(&file, format!("{}{insert}{}", &text[..start], &text[end..])).unwrap();
+    file
+}
+
+/// The cube case at 25 mm with its top face driven by `[measured.top]` at `scale` x the exact
+/// field, and `extra` overrides.
+fn measured_cube(name: &str, scale: f64, extra: &[&str]) -> hytled::scene::Scene {
+    std::fs::write(folder(name).join("top.csv"), exact_top(scale).0).unwrap();
+    let file = cube_without_top(
+        name,
+        "[measured.top]\nfile = \"top.csv\"\ntolerance = 0.003\ncurve = \"smooth\"\n",
     );
-    let file = dir.join("cube.toml");
-    std::fs::write(&file, text).unwrap();
     let mut o: Vec<String> = vec![
         "discretization.size=0.025".into(),
         "solver.tolerance=1e-9".into(),
@@ -164,12 +168,7 @@ fn tool_positions_and_load_factors_change_between_solves() {
         )
     };
     let scene_with = |z: f64| {
-        let text = std::fs::read_to_string(path("cases/cube-compression.toml")).unwrap();
-        let start = text.find("[boundaries.top]").unwrap();
-        let end = start + text[start..].find("\n\n").unwrap();
-        let dir = folder("plate");
-        let file = dir.join("plate.toml");
-        std::fs::write(&file, format!("{}{}", &text[..start], &text[end..])).unwrap();
+        let file = cube_without_top("plate", "");
         let o: Vec<String> = vec![
             "references={}".into(),
             "discretization.size=0.025".into(),
@@ -206,12 +205,7 @@ fn tool_positions_and_load_factors_change_between_solves() {
         o
     };
     let load = |o: Vec<String>| {
-        let text = std::fs::read_to_string(path("cases/cube-compression.toml")).unwrap();
-        let start = text.find("[boundaries.top]").unwrap();
-        let end = start + text[start..].find("\n\n").unwrap();
-        let dir = folder("gravity");
-        let file = dir.join("g.toml");
-        std::fs::write(&file, format!("{}{}", &text[..start], &text[end..])).unwrap();
+        let file = cube_without_top("gravity", "");
         let o: Vec<String> = o.into_iter().filter(|s| s != "boundaries.top=").collect();
         hytled::scene::load(&file, &o).unwrap()
     };
