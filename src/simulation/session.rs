@@ -177,23 +177,22 @@ impl Session {
         Ok(self.boundary_mut(name)?.components)
     }
 
+    fn measured_map(&mut self, name: &str) -> Result<&crate::bc::MeasuredMap> {
+        self.boundary_mut(name)?
+            .measured
+            .as_deref()
+            .ok_or_else(|| Error::Input(format!("boundary '{name}' is not a [measured] boundary")))
+    }
+
     /// The positions (m) of the measured points of `[measured.NAME]`, in its file's order.
     pub fn measured_points(&mut self, name: &str) -> Result<Vec<[f64; 3]>> {
-        let b = self.boundary_mut(name)?;
-        let map = b.measured.as_ref().ok_or_else(|| {
-            Error::Input(format!("boundary '{name}' is not a [measured] boundary"))
-        })?;
-        Ok(map.points.clone())
+        Ok(self.measured_map(name)?.points.clone())
     }
 
     /// The displacements (m) in force at the measured points of `[measured.NAME]`: those of
     /// its file, or of the last [`Self::set_measured`].
     pub fn measured_displacements(&mut self, name: &str) -> Result<Vec<[f64; 3]>> {
-        let b = self.boundary_mut(name)?;
-        let map = b.measured.as_ref().ok_or_else(|| {
-            Error::Input(format!("boundary '{name}' is not a [measured] boundary"))
-        })?;
-        Ok(map.values.clone())
+        Ok(self.measured_map(name)?.values.clone())
     }
 
     /// New displacements (m) measured at the points of `[measured.NAME]` (one per point, in

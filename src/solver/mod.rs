@@ -142,7 +142,9 @@ fn check_boundary_values(b: &Boundary) -> Result<()> {
             )));
         }
     }
-    for k in 0..b.nodes.len().max(1) {
+    // Per-node values replace the uniform ones on the prescribed components.
+    let entries = b.node_values.as_ref().map_or(1, Vec::len);
+    for k in 0..entries {
         for c in 0..3 {
             if let Some(x) = b.value(k, c).filter(|x| !x.is_finite()) {
                 return Err(crate::Error::Input(format!(
