@@ -64,8 +64,8 @@ fn run(dir: &std::path::Path, overrides: &[&str]) -> hytled::report::Summary {
 /// boundary's label marks exactly the top face's nodes.
 #[test]
 fn nodal_fields_and_labels_on_the_exact_cube() {
-    for (method, tol) in [
-        (&["discretization.method=fe"][..], 1e-6),
+    for (run_id, (method, tol)) in [
+        (&["discretization.method=fe"][..], 1e-6_f64),
         (
             &[
                 "discretization.method=fe",
@@ -73,15 +73,21 @@ fn nodal_fields_and_labels_on_the_exact_cube() {
             ],
             1e-6,
         ),
+        // tet10 is written as the eight linear tets of each element's split, every one with
+        // its element's cell values.
+        (
+            &["discretization.method=fe", "discretization.element=tet10"],
+            1e-5,
+        ),
         // Meshless: smoothed by the shape functions, with the integration error of the cube
         // tests (2 %).
         (&["discretization.method=meshless"], 2e-2),
-    ] {
-        let dir = std::env::temp_dir().join(format!(
-            "hytled-outputs-{}-{}",
-            method.len(),
-            std::process::id()
-        ));
+    ]
+    .into_iter()
+    .enumerate()
+    {
+        let dir =
+            std::env::temp_dir().join(format!("hytled-outputs-{run_id}-{}", std::process::id()));
         let _s = run(&dir, method);
         let (point, cell, xyz) = last_frame(&dir, "cube-compression", 1);
         for k in [
@@ -100,7 +106,17 @@ fn nodal_fields_and_labels_on_the_exact_cube() {
                 point.keys()
             );
         }
-        assert!(cell.contains_key("cauchy_stress"));
+        // One value per cell, each the cell's mean of the exact uniaxial stress.
+        let cell_sig = &cell["cauchy_stress"];
+        let cells = cell["J"].len();
+        assert_eq!(cell_sig.len(), 9 * cells, "{method:?}");
+        for c in 0..cells {
+            let zz = cell_sig[9 * c + 8];
+            assert!(
+                (zz + 613.1215).abs() < 613.1215 * tol.max(1e-3),
+                "{method:?}: cell {c} {zz}"
+            );
+        }
         let n = xyz.len() / 3;
         let (sig, e, l) = (
             &point["cauchy_stress"],
@@ -131,22 +147,33 @@ fn nodal_fields_and_labels_on_the_exact_cube() {
 }
 
 /// With a region, every cell carries its material index: the cells of the region's half 1,
-/// the others 0.
+/// the others 0 (tet10: each of an element's eight split cells its element's index).
 #[test]
 fn region_cells_are_labelled() {
-    let dir = std::env::temp_dir().join(format!("hytled-outputs-region-{}", std::process::id()));
-    run(
-        &dir,
-        &[
-            "references={}",
-            "regions.hard.select={ box = { min = [0.05, -1.0, -1.0], max = [1.0, 1.0, 1.0] } }",
-            "regions.hard.youngs_modulus=6000",
-        ],
-    );
-    let (_, cell, _) = last_frame(&dir, "cube-compression", 1);
-    let r = &cell["region"];
-    assert_eq!(r.len(), 64);
-    assert_eq!(r.iter().filter(|&&x| x == 1.0).count(), 32);
-    assert!(r.iter().all(|&x| x == 0.0 || x == 1.0));
-    let _ = std::fs::remove_dir_all(&dir);
+    for (element, cells) in [("hex8", 64), ("tet10", 64 * 6 * 8)] {
+        let dir = std::env::temp_dir().join(format!(
+            "hytled-outputs-region-{element}-{}",
+            std::process::id()
+        ));
+        let e = format!("discretization.element={element}");
+        run(
+            &dir,
+            &[
+                "references={}",
+                &e,
+                "regions.hard.select={ box = { min = [0.05, -1.0, -1.0], max = [1.0, 1.0, 1.0] } }",
+                "regions.hard.youngs_modulus=6000",
+            ],
+        );
+        let (_, cell, _) = last_frame(&dir, "cube-compression", 1);
+        let r = &cell["region"];
+        assert_eq!(r.len(), cells, "{element}");
+        assert_eq!(
+            r.iter().filter(|&&x| x == 1.0).count(),
+            cells / 2,
+            "{element}"
+        );
+        assert!(r.iter().all(|&x| x == 0.0 || x == 1.0));
+        let _ = std::fs::remove_dir_all(&dir);
+    }
 }

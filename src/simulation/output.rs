@@ -158,9 +158,13 @@ fn write_history_plots(dir: &Path, model: &Model<Solid>, out: &RunOutput) -> Res
 pub struct FrameLabels {
     /// Per boundary: its name and, per model node, whether it holds the node.
     pub boundaries: Vec<(String, Vec<bool>)>,
-    /// Per quadrature point (discretization order) its cell in the frame's cells and its
-    /// material index; empty without regions.
+    /// Per quadrature point (discretization order) a cell of the frame's cells it lies in
+    /// and its material index (a point of a split element once per cell of the split);
+    /// empty without regions.
     pub point_cells: Vec<(usize, u16)>,
+    /// Frame cells per FE element: 8 for tet10 (written as the eight linear tets of
+    /// [`crate::fe::tet10::Tet10Mesh::split`], element `e` as cells 8e..8e+7), else 1.
+    pub element_cells: usize,
 }
 
 impl FrameLabels {
@@ -179,25 +183,58 @@ impl FrameLabels {
                 (b.name.clone(), on)
             })
             .collect();
+        let fe = prep.meshless.is_none() && prep.coupled.is_none();
+        let element_cells = if fe && prep.kind == crate::fe::ElementKind::Tet10 {
+            8
+        } else {
+            1
+        };
         let point_cells = if prep.point_material.is_empty() {
             Vec::new()
         } else {
-            let owner: Vec<usize> = match (&prep.meshless, &prep.coupled) {
-                (Some(m), _) => m.owner.clone(),
-                (None, Some(c)) => c.owner.clone(),
-                // One point per element.
-                (None, None) => (0..prep.point_material.len()).collect(),
-            };
-            owner
-                .into_iter()
-                .zip(prep.point_material.iter().copied())
-                .collect()
+            match (&prep.meshless, &prep.coupled) {
+                (Some(m), _) => m
+                    .owner
+                    .iter()
+                    .copied()
+                    .zip(prep.point_material.iter().copied())
+                    .collect(),
+                (None, Some(c)) => c
+                    .owner
+                    .iter()
+                    .copied()
+                    .zip(prep.point_material.iter().copied())
+                    .collect(),
+                (None, None) => {
+                    let per_element = element_points(
+                        prep.point_material.len(),
+                        prep.mesh.num_cells(),
+                        element_cells,
+                    );
+                    prep.point_material
+                        .iter()
+                        .enumerate()
+                        .flat_map(|(p, &m)| {
+                            let e = p / per_element;
+                            (element_cells * e..element_cells * (e + 1)).map(move |c| (c, m))
+                        })
+                        .collect()
+                }
+            }
         };
         FrameLabels {
             boundaries,
             point_cells,
+            element_cells,
         }
     }
+}
+
+/// Quadrature points per FE element, for `points` points over `cells` frame cells of which
+/// `element_cells` make one element (at least 1).
+fn element_points(points: usize, cells: usize, element_cells: usize) -> usize {
+    let elements = (cells / element_cells.max(1)).max(1);
+    (points / elements).max(1)
 }
 
 /// Writes the VTU frames of a run into a folder, one file per frame as the frames come, and
@@ -445,10 +482,26 @@ impl<'a> FrameWriter<'a> {
         let stretches: Vec<f64> = (0..at_points.len())
             .flat_map(|v| at_points.principal_stretches(v))
             .collect();
-        // Cell values: per element, or the mean of each cell's points.
+        // Cell values: per element, or the mean of each cell's points (a split element's
+        // cells each take the mean of the element's points).
+        let element_cells = self.labels.element_cells.max(1);
         let cells_of = |values: &[f64], width: usize| -> Vec<f64> {
             let Some(owner) = owner else {
-                return values.to_vec();
+                if element_cells == 1 {
+                    return values.to_vec();
+                }
+                let per_element = element_points(values.len() / width, ncell, element_cells);
+                let mut out = vec![0.0; ncell * width];
+                for (e, pts) in values.chunks(per_element * width).enumerate() {
+                    let n = (pts.len() / width).max(1) as f64;
+                    for c in 0..width {
+                        let mean = pts.iter().skip(c).step_by(width).sum::<f64>() / n;
+                        for k in element_cells * e..(element_cells * (e + 1)).min(ncell) {
+                            out[k * width + c] = mean;
+                        }
+                    }
+                }
+                return out;
             };
             let mut sum = vec![0.0; ncell * width];
             let mut count = vec![0usize; ncell];

@@ -351,6 +351,7 @@ impl Session {
         let labels = FrameLabels {
             boundaries: Vec::new(),
             point_cells: Vec::new(),
+            element_cells: 1,
         };
         // Nothing is written: the writer's folder is never created.
         let writer = FrameWriter::new(
