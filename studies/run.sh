@@ -8,7 +8,7 @@
 # cores, e.g. JOBS=4 THREADS=2 on 8 cores, or the wall times of study 1 compete).
 # Studies (a study name runs all its jobs): timestep incompressibility large-deformation
 # irregular spin speed-accuracy fe-layers adaptive tets brain-convergence brain-compressible
-# indentation brain-builtin.
+# indentation brain-builtin (indentation-patches, patches-cylinders: the mean-dilatation patches).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 H=${HYTLED:-target/release/hytled}
@@ -247,6 +247,33 @@ indentation() {
     --preset 'coupled-tet10-mmls=discretization.method=coupled;discretization.element=tet10;discretization.basis=quadratic' \
     --vary "geometry.mesh=$BI-c1.msh,$BI-c2.msh,$BI-c3.msh,$BI-c4.msh" --out studies/indentation
 }
+# Issue 40, mean-dilatation patches: the coupled defaults (tet4-anp layer, linear MLS interior
+# whose points share their mean J over patches of 8 interior tets) level by level against each
+# point's own J and with FE layers along the whole surface, the patch size on c4, and the tet
+# cylinders (Gmsh series) both ways.
+PATCH1='discretization.mean_dilatation_patch=1'
+indentation-patches() {
+  sweep cases/brain-indentation-benchmark.toml \
+    --preset 'coupled=discretization.method=coupled;discretization.element=tet4-anp' \
+    --preset "coupled-patch1=discretization.method=coupled;discretization.element=tet4-anp;$PATCH1" \
+    --preset 'coupled-surface=discretization.method=coupled;discretization.element=tet4-anp;discretization.fe_region=surface;discretization.fe_layers=2' \
+    --vary "geometry.mesh=$BI-c2.msh,$BI-c3.msh,$BI-c4.msh,$BI-c5.msh" \
+    --out studies/indentation-patches/levels
+  sweep cases/brain-indentation-benchmark.toml \
+    --set discretization.method=coupled --set discretization.element=tet4-anp \
+    --set "geometry.mesh=$BI-c4.msh" --vary discretization.mean_dilatation_patch=1,4,6,8,12,16 \
+    --out studies/indentation-patches/size
+}
+GMSH='../meshes/cylinder-gmsh'
+patches-cylinders() {
+  for c in compression extension shear; do
+    sweep "cases/tet-cylinder-$c.toml" \
+      --preset 'coupled=discretization.method=coupled' \
+      --preset "coupled-patch1=discretization.method=coupled;$PATCH1" \
+      --vary "geometry.mesh=$GMSH-h75.msh,$GMSH-h57.msh,$GMSH-h43.msh,$GMSH-h33.msh" \
+      --out "studies/indentation-patches/cylinder-$c"
+  done
+}
 indentation-fine() {
   sweep cases/brain-indentation-benchmark.toml --preset "$FE_ANP" \
     --vary "geometry.mesh=$BI-c5.msh" --out studies/indentation-fine
@@ -280,7 +307,7 @@ ALL=(speed-accuracy-compression speed-accuracy-extension speed-accuracy-shear sp
   tets-anp-tetgen-compression tets-anp-tetgen-extension tets-anp-tetgen-shear
   tets-global-gmsh-compression tets-global-gmsh-extension tets-global-gmsh-shear
   brain-convergence brain-convergence-fine brain-compressible indentation indentation-fine
-  brain-builtin-indentation brain-builtin-contact)
+  indentation-patches patches-cylinders brain-builtin-indentation brain-builtin-contact)
 
 if [ "${1:-}" = --list ]; then printf '%s\n' "${ALL[@]}"; exit 0; fi
 # A study name stands for its jobs.

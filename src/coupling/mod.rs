@@ -48,6 +48,9 @@ pub struct CoupledSettings {
     pub interface_scale: f64,
     /// Mean dilatation over each transition cell's Gauss points (no volumetric locking).
     pub mean_dilatation: bool,
+    /// Tet interiors: face-connected interior tets per mean-dilatation patch
+    /// ([`crate::meshless::integration::tet_patches`]); 1 = each point its own J.
+    pub mean_dilatation_patch: usize,
     /// Points of the transition cells.
     pub transition_rule: TransitionRule,
     /// Nodes of loads concentrated on a few nodes (a small driven footprint): transition
@@ -801,18 +804,49 @@ fn assemble(
         owner.extend(std::iter::repeat_n(e, b.len()));
     }
     let nf = fe_mesh.num_cells();
-    #[allow(clippy::needless_range_loop)] // p indexes the point table and its owners alike
-    for p in 0..ml_qp.len() {
-        let r = ml_qp.slots(p);
-        ids.clear();
-        ids.extend(
-            ml_qp.nodes[r.clone()]
+    // Tet interiors: the points of a patch of about `mean_dilatation_patch` face-connected
+    // tets form one mean-dilatation group (contiguous, in order of the patches' first tet).
+    let patches = (interior.shape == ElementShape::Tet4 && s.mean_dilatation_patch > 1)
+        .then(|| crate::meshless::integration::tet_patches(&interior, s.mean_dilatation_patch));
+    let order = interior_point_order(patches.as_deref(), &tet_owner);
+    let global_ids = |p: usize| -> Vec<usize> {
+        ml_qp.nodes[ml_qp.slots(p)]
+            .iter()
+            .map(|&i| mls_nodes[i as usize])
+            .collect()
+    };
+    for group in &order {
+        if group.len() > 1 {
+            let pts: Vec<_> = group
                 .iter()
-                .map(|&i| mls_nodes[i as usize]),
-        );
-        qp.push(&ids, &ml_qp.dphi[r], ml_qp.weights[p], PointKind::Standard);
-        owner.push(nf + tet_owner[p]);
+                .map(|&p| {
+                    (
+                        global_ids(p),
+                        ml_qp.dphi[ml_qp.slots(p)].to_vec(),
+                        ml_qp.weights[p],
+                    )
+                })
+                .collect();
+            qp.push_group(&pts);
+        } else {
+            for &p in group {
+                qp.push(
+                    &global_ids(p),
+                    &ml_qp.dphi[ml_qp.slots(p)],
+                    ml_qp.weights[p],
+                    PointKind::Standard,
+                );
+            }
+        }
+        owner.extend(group.iter().map(|&p| nf + tet_owner[p]));
     }
+    let interior_order: Vec<usize> = order.into_iter().flatten().collect();
+    let adaptive_points = adaptive_points.map(|(x, level): (Vec<Vector3<f64>>, Vec<u8>)| {
+        (
+            interior_order.iter().map(|&p| x[p]).collect(),
+            interior_order.iter().map(|&p| level[p]).collect(),
+        )
+    });
     // Every MLS node must be reached by enough points to carry mass and stiffness (one-point
     // hexahedra reach their corner nodes once, so FE nodes are not checked).
     let mut count = vec![0usize; n];
@@ -855,4 +889,24 @@ fn assemble(
     };
     build.lumped_volume = build.lumped_masses(&|_| 1.0);
     Ok(build)
+}
+
+/// The interior points in the order they enter the point table, as groups: with `patches`
+/// (each interior tet's patch) one group per patch in order of first appearance, points in
+/// their own order within it; without, each point alone.
+fn interior_point_order(patches: Option<&[usize]>, tet_owner: &[usize]) -> Vec<Vec<usize>> {
+    let Some(patch) = patches else {
+        return (0..tet_owner.len()).map(|p| vec![p]).collect();
+    };
+    let mut slot = vec![usize::MAX; patch.iter().max().map_or(0, |&g| g + 1)];
+    let mut groups: Vec<Vec<usize>> = Vec::new();
+    for (p, &t) in tet_owner.iter().enumerate() {
+        let g = patch[t];
+        if slot[g] == usize::MAX {
+            slot[g] = groups.len();
+            groups.push(Vec::new());
+        }
+        groups[slot[g]].push(p);
+    }
+    groups
 }

@@ -279,6 +279,92 @@ pub fn cluster_bin(mesh: &Mesh, w: &[f64], tets_per_point: f64) -> Option<f64> {
         .then(|| (tets_per_point * w.iter().sum::<f64>() / n as f64).cbrt())
 }
 
+/// Patches of about `size` face-connected tets of `mesh`, for mean dilatation over the
+/// integration points of each patch: grown breadth first from the lowest unassigned tet until
+/// the patch holds `size` tets; a patch left with fewer than half of `size` (hemmed in by
+/// others) joins a neighbouring patch of at least that size through a shared face where the
+/// two hold at most 1.5 x `size`. Returns
+/// each tet's patch, numbered in order of their first tet; deterministic.
+pub fn tet_patches(mesh: &Mesh, size: usize) -> Vec<usize> {
+    let n = mesh.num_cells();
+    let size = size.max(1);
+    let mut faces: std::collections::HashMap<[usize; 3], Vec<usize>> =
+        std::collections::HashMap::new();
+    for e in 0..n {
+        let c = mesh.cell(e);
+        for skip in 0..4 {
+            let mut f = [0usize; 3];
+            for (k, a) in (0..4).filter(|&a| a != skip).enumerate() {
+                f[k] = c[a];
+            }
+            f.sort_unstable();
+            faces.entry(f).or_default().push(e);
+        }
+    }
+    let mut adj: Vec<Vec<usize>> = vec![Vec::new(); n];
+    for t in faces.values() {
+        if let [a, b] = t[..] {
+            adj[a].push(b);
+            adj[b].push(a);
+        }
+    }
+    // The map's order is arbitrary: sorted neighbour lists make the patches deterministic.
+    adj.iter_mut().for_each(|a| a.sort_unstable());
+    let mut patch = vec![usize::MAX; n];
+    let mut sizes = Vec::new();
+    let mut queue = std::collections::VecDeque::new();
+    for start in 0..n {
+        if patch[start] != usize::MAX {
+            continue;
+        }
+        let g = sizes.len();
+        patch[start] = g;
+        queue.clear();
+        queue.push_back(start);
+        let mut members = 1;
+        while let Some(e) = queue.pop_front() {
+            for &f in &adj[e] {
+                if members < size && patch[f] == usize::MAX {
+                    patch[f] = g;
+                    members += 1;
+                    queue.push_back(f);
+                }
+            }
+        }
+        sizes.push(members);
+    }
+    let big: Vec<bool> = sizes.iter().map(|&m| 2 * m >= size).collect();
+    let mut target: Vec<usize> = (0..sizes.len()).collect();
+    let mut total = sizes.clone();
+    for e in 0..n {
+        let g = patch[e];
+        if !big[g] && target[g] == g {
+            // Into the first big neighbour that stays within 1.5 x the size.
+            let fits = |f: &&usize| {
+                let h = patch[**f];
+                big[h] && 2 * (total[h] + sizes[g]) <= 3 * size
+            };
+            if let Some(&f) = adj[e].iter().find(fits) {
+                target[g] = patch[f];
+                total[patch[f]] += sizes[g];
+            }
+        }
+    }
+    let mut number = vec![usize::MAX; sizes.len()];
+    let mut next = 0;
+    patch
+        .iter()
+        .map(|&g| {
+            let t = target[g];
+            if number[t] == usize::MAX {
+                number[t] = next;
+                next += 1;
+            }
+            number[t]
+        })
+        .collect()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -536,5 +622,53 @@ mod tests {
             assert!(cw.iter().all(|&v| v > 0.0));
         }
         assert!(cluster_bin(&mesh, &w, 1.0).is_none());
+    }
+
+    /// Patches cover every tet once, are face-connected, hold at most 1.5 x the size asked
+    /// for and about that many on average.
+    #[test]
+    fn tet_patches_are_connected_and_about_the_size_asked() {
+        let mesh = cylinder_tet(0.05, 0.1, 4, 3, 8).unwrap();
+        let n = mesh.num_cells();
+        for size in [1, 4, 8, 20] {
+            let patch = tet_patches(&mesh, size);
+            assert_eq!(patch.len(), n);
+            let count = patch.iter().max().unwrap() + 1;
+            let mut members = vec![Vec::new(); count];
+            for (e, &g) in patch.iter().enumerate() {
+                members[g].push(e);
+            }
+            let shares_face = |a: usize, b: usize| {
+                let (ca, cb) = (mesh.cell(a), mesh.cell(b));
+                ca.iter().filter(|v| cb.contains(v)).count() == 3
+            };
+            for m in &members {
+                assert!(
+                    !m.is_empty() && 2 * m.len() <= 3 * size.max(1) + 1,
+                    "{size}: {}",
+                    m.len()
+                );
+                // Connected: a walk over shared faces from the first tet reaches them all.
+                let mut seen = vec![m[0]];
+                let mut k = 0;
+                while k < seen.len() {
+                    let e = seen[k];
+                    for &f in m {
+                        if !seen.contains(&f) && shares_face(e, f) {
+                            seen.push(f);
+                        }
+                    }
+                    k += 1;
+                }
+                assert_eq!(seen.len(), m.len(), "{size}: a patch is not face-connected");
+            }
+            let mean = n as f64 / count as f64;
+            println!("size {size}: {count} patches of {n} tets, mean {mean:.2}");
+            assert!(
+                mean > 0.6 * size as f64 && mean <= 1.5 * size as f64,
+                "{size}: {mean}"
+            );
+            assert_eq!(tet_patches(&mesh, size), patch, "deterministic");
+        }
     }
 }

@@ -332,6 +332,14 @@ fn check_discretization(s: &Scene) -> std::result::Result<(), String> {
             ));
         }
     }
+    if let Some(k) = d.mean_dilatation_patch_given {
+        if !(1..=1000).contains(&k) {
+            return Err(format!(
+                "discretization.mean_dilatation_patch = {k}: must be between 1 (each point its \
+                 own J) and 1000 interior tets"
+            ));
+        }
+    }
     if let Some(k) = d.tets_per_point_given {
         if !(1.0..=1000.0).contains(&k) {
             return Err(format!(

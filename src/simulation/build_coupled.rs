@@ -125,6 +125,7 @@ pub(super) fn prepare_coupled(scene: &Scene) -> Result<Prepared> {
         rule: translate::support_rule(scene),
         interface_scale: d.interface_scale,
         mean_dilatation: d.mean_dilatation,
+        mean_dilatation_patch: d.mean_dilatation_patch(),
         transition_rule: match d.transition_rule() {
             crate::scene::TransitionRuleKind::Full => coupling::TransitionRule::Full,
             crate::scene::TransitionRuleKind::Interior => coupling::TransitionRule::Interior,

@@ -553,6 +553,8 @@ impl<M: Material> Forces<M> {
         let ss = SharedMut(self.group_s.as_mut_ptr());
         let (materials, point_material) = (&self.materials, &self.point_material);
         let first = &self.group_first;
+        // Unchecked reads of u below: every node id is below num_nodes (Self::new).
+        let simd = self.simd && u.len() >= self.num_nodes;
         self.group_j
             .par_iter_mut()
             .with_min_len(CHUNK / 8)
@@ -571,7 +573,28 @@ impl<M: Material> Forces<M> {
                 };
                 let (mut wj, mut w) = (0.0, 0.0);
                 for (k, p) in (a..b).enumerate() {
-                    let f = deformation_gradient(qp, p, u);
+                    // The AVX2 gradient makes the portable loop's products and sums in its
+                    // order (bitwise the same F); MLS points have 20-60 supports.
+                    #[cfg(target_arch = "x86_64")]
+                    let f = if simd {
+                        let r = qp.slots(p);
+                        // SAFETY: `simd` is set only where the CPU has AVX2 and u holds every
+                        // node; node ids are below num_nodes (Self::new).
+                        unsafe {
+                            super::lanes_avx2::any_gradient(
+                                &qp.nodes[r.clone()],
+                                &qp.dphi[r],
+                                u.as_ptr(),
+                            )
+                        }
+                    } else {
+                        deformation_gradient(qp, p, u)
+                    };
+                    #[cfg(not(target_arch = "x86_64"))]
+                    let f = {
+                        let _ = simd;
+                        deformation_gradient(qp, p, u)
+                    };
                     let j = f.determinant();
                     fs[k] = f;
                     ss[k][0] = j;
