@@ -113,7 +113,7 @@ fn nodal_fields_and_labels_on_the_exact_cube() {
         for c in 0..cells {
             let zz = cell_sig[9 * c + 8];
             assert!(
-                (zz + 613.1215).abs() < 613.1215 * tol.max(1e-3),
+                (zz + 613.1215).abs() < 613.1215 * tol,
                 "{method:?}: cell {c} {zz}"
             );
         }

@@ -140,10 +140,11 @@ pub(super) fn prepare_coupled(scene: &Scene) -> Result<Prepared> {
         // Faces that do not match up leave the warning out; the build reports its own errors.
         let faces = crate::geometry::quality::boundary_faces(&mesh).ok();
         if let (Some(bnd), Some(faces)) = (&mesh_boundaries, faces) {
-            let small = |b: &&crate::bc::Boundary| {
-                is_concentrated_drive(b, driven_area_share(&faces, &mesh, b))
-            };
-            for b in bnd.iter().filter(small) {
+            for b in bnd {
+                let share = driven_area_share(&faces, &mesh, b);
+                if !is_concentrated_drive(b, share) {
+                    continue;
+                }
                 warnings.push(format!(
                     "discretization.fe_region = 'surface' puts linear tets along the whole surface, \
                      the rim of boundary '{}' (it drives {:.1} % of the surface area) included, and the \
@@ -152,7 +153,7 @@ pub(super) fn prepare_coupled(scene: &Scene) -> Result<Prepared> {
                      +6.6 / +1.8 / +0.54 % with the default fe_region = 'essential'); use the \
                      default, or element = 'tet10'",
                     b.name,
-                    100.0 * driven_area_share(&faces, &mesh, b),
+                    100.0 * share,
                 ));
             }
         }
