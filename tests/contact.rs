@@ -175,8 +175,8 @@ fn the_brain_indented_by_a_rigid_cylinder() {
     }
 }
 
-/// Contact keys are checked: a shape's required keys, keys of other shapes, unknown shapes,
-/// a name shared with a boundary.
+/// Contact keys are checked: a shape's required keys (a rounded rim within the cylinder),
+/// keys of other shapes, unknown shapes, a name shared with a boundary.
 #[test]
 fn contact_scene_errors_name_the_key() {
     for (spec, want) in [
@@ -185,6 +185,10 @@ fn contact_scene_errors_name_the_key() {
         ("{ shape = \"cylinder\", center = [0.0, 0.0, 0.1], axis = [0.0, 0.0, 1.0], radius = 1.0, min = 2.0, max = 1.0 }", "min` < `max"),
         ("{ shape = \"sphere\", center = [0.0, 0.0, 0.1], radius = 1.0, normal = [0.0, 0.0, 1.0] }", "contact.top_plate.normal does not apply"),
         ("{ shape = \"cone\" }", "use \"plane\""),
+        ("{ shape = \"cylinder\", center = [0.0, 0.0, 0.1], axis = [0.0, 0.0, 1.0], radius = 0.01, edge_radius = 0.01 }", "less than `radius`"),
+        ("{ shape = \"cylinder\", center = [0.0, 0.0, 0.1], axis = [0.0, 0.0, 1.0], radius = 0.01, edge_radius = -0.001 }", "`edge_radius` >= 0"),
+        ("{ shape = \"cylinder\", center = [0.0, 0.0, 0.1], axis = [0.0, 0.0, 1.0], radius = 0.01, min = 0.0, max = 0.004, edge_radius = 0.002 }", "half of `max - min`"),
+        ("{ shape = \"sphere\", center = [0.0, 0.0, 0.1], radius = 1.0, edge_radius = 0.1 }", "contact.top_plate.edge_radius does not apply"),
     ] {
         let e = hytled::scene::load(
             &path("cases/cube-compression.toml"),

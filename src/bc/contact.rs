@@ -32,13 +32,17 @@ pub enum RigidShape {
     /// A solid ball.
     Sphere { center: Vector3<f64>, radius: f64 },
     /// A solid cylinder of `radius` about the line through `center` along the unit `axis`,
-    /// between `min` and `max` along it (from `center`; None: unbounded), with flat ends.
+    /// between `min` and `max` along it (from `center`; None: unbounded), with flat ends whose
+    /// rims are rounded to `edge_radius` (m; 0: sharp): the points within `edge_radius` of the
+    /// cylinder of radius `radius - edge_radius` between `min + edge_radius` and
+    /// `max - edge_radius`.
     Cylinder {
         center: Vector3<f64>,
         axis: Vector3<f64>,
         radius: f64,
         min: Option<f64>,
         max: Option<f64>,
+        edge_radius: f64,
     },
     /// The solid a closed surface encloses (a tool or the skull from a file), its depth the
     /// signed distance to the surface.
@@ -95,11 +99,16 @@ impl RigidShape {
                 radius,
                 min,
                 max,
+                edge_radius,
             } => {
+                // A rounded rim is the sharp cylinder shrunk by the edge radius and offset by
+                // it: the offset adds the radius to the exact signed distance.
+                let e = *edge_radius;
+                let radius = radius - e;
                 let r = x - center - d;
                 let s = r.dot(axis);
-                let lo = min.unwrap_or(f64::NEG_INFINITY);
-                let hi = max.unwrap_or(f64::INFINITY);
+                let lo = min.map_or(f64::NEG_INFINITY, |m| m + e);
+                let hi = max.map_or(f64::INFINITY, |m| m - e);
                 let radial = r - axis * s;
                 let dist = radial.norm();
                 let out = if dist > 0.0 {
@@ -116,7 +125,7 @@ impl RigidShape {
                 } else {
                     (hi - s, *axis)
                 };
-                match (side > 0.0, end > 0.0) {
+                let (depth, n) = match (side > 0.0, end > 0.0) {
                     (true, true) if side <= end => (side, out),
                     (true, true) => (end, end_n),
                     (false, true) => (side, out),
@@ -127,7 +136,8 @@ impl RigidShape {
                         let l = v.norm();
                         (-l, v / l)
                     }
-                }
+                };
+                (depth + e, n)
             }
         }
     }
@@ -600,6 +610,7 @@ mod tests {
             radius: 1.0,
             min: Some(0.0),
             max: None,
+            edge_radius: 0.0,
         };
         // Near the flat end: pushed down; near the side: pushed out.
         let (depth, n) = punch
@@ -613,6 +624,57 @@ mod tests {
         assert!(punch
             .penetration(&Vector3::new(0.0, 0.0, -0.01), &Vector3::zeros())
             .is_none());
+    }
+
+    /// A rounded rim: the depth is the exact signed distance to the rounded surface (known
+    /// at points on the flat end, the side and the torus of the rim), and its normal is the
+    /// outward gradient of the distance (central differences along it give -1).
+    #[test]
+    fn a_rounded_rim_is_the_offset_of_the_shrunk_cylinder() {
+        let (r, e) = (1.0, 0.2);
+        let punch = RigidShape::Cylinder {
+            center: Vector3::zeros(),
+            axis: Vector3::z(),
+            radius: r,
+            min: Some(0.0),
+            max: Some(2.0),
+            edge_radius: e,
+        };
+        let zero = Vector3::zeros();
+        // On the flat end and on the side, as the sharp cylinder.
+        let (d, n) = punch.signed_depth(&Vector3::new(0.5, 0.0, 0.05), &zero);
+        assert!((d - 0.05).abs() < 1e-15 && n == -Vector3::z(), "{d} {n:?}");
+        let (d, n) = punch.signed_depth(&Vector3::new(0.0, 0.95, 1.0), &zero);
+        assert!((d - 0.05).abs() < 1e-15 && (n - Vector3::y()).norm() < 1e-15);
+        // Inside the sharp corner but outside the rounded rim: the torus about the circle
+        // of radius r - e at height e, tube radius e.
+        let x = Vector3::new(0.95, 0.0, 0.05);
+        let torus = e - ((x.x - (r - e)).powi(2) + (x.z - e).powi(2)).sqrt();
+        let (d, _) = punch.signed_depth(&x, &zero);
+        assert!(d < 0.0 && (d - torus).abs() < 1e-15, "{d} vs {torus}");
+        assert!(punch.penetration(&x, &zero).is_none());
+        // Inside the rim: pushed out along the torus' normal, at 45 degrees here.
+        let (d, n) = punch
+            .penetration(&Vector3::new(0.9, 0.0, 0.1), &zero)
+            .unwrap();
+        let want = Vector3::new(1.0, 0.0, -1.0).normalize();
+        assert!((d - (e - 0.1 * 2f64.sqrt())).abs() < 1e-15 && (n - want).norm() < 1e-12);
+        // The normal is the outward gradient of the distance, moved by the motion `d`.
+        let shift = Vector3::new(0.01, -0.02, 0.3);
+        let h = 1e-7;
+        for x in [
+            Vector3::new(0.93, 0.1, 0.04),
+            Vector3::new(0.7, -0.5, 0.12),
+            Vector3::new(-0.99, 0.05, 1.95),
+            Vector3::new(1.1, 0.0, -0.05),
+        ] {
+            let x = x + shift;
+            let (_, n) = punch.signed_depth(&x, &shift);
+            let slope = (punch.signed_depth(&(x + n * h), &shift).0
+                - punch.signed_depth(&(x - n * h), &shift).0)
+                / (2.0 * h);
+            assert!((slope + 1.0).abs() < 1e-6, "{x:?}: slope {slope}");
+        }
     }
 
     /// Two points sharing nodes through their rows are pushed out together: the sweeps

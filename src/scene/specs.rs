@@ -252,7 +252,7 @@ pub struct MeasuredSpec {
 /// points touch without friction (the body stays outside it): `shape = "plane"` with `point`
 /// and `normal` (pointing to the body), `"sphere"` with `center` and `radius`, or
 /// `"cylinder"` with `center`, `axis`, `radius` and optional `min` / `max` (the extent along
-/// the axis from `center`, flat ends). `select` limits the surface points that may touch it.
+/// the axis from `center`, flat ends) and `edge_radius` (the ends' rims rounded). `select` limits the surface points that may touch it.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct ContactSpec {
@@ -271,6 +271,10 @@ pub struct ContactSpec {
     pub min: Option<f64>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub max: Option<f64>,
+    /// `shape = "cylinder"`: the radius its flat ends' rims are rounded to, m (default 0: a
+    /// sharp rim); less than `radius`, and than half of `max - min` when both are given.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub edge_radius: Option<f64>,
     /// `shape = "surface"`: a closed surface file (STL, OBJ, VTK poly data; relative to the
     /// scene file), the rigid solid it encloses.
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -332,6 +336,7 @@ impl ContactSpec {
                 radius: self.radius.unwrap_or(0.0),
                 min: self.min,
                 max: self.max,
+                edge_radius: self.edge_radius.unwrap_or(0.0),
             },
         }
     }

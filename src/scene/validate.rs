@@ -637,14 +637,21 @@ fn check_conditions(s: &Scene) -> std::result::Result<(), String> {
                 c.center.is_some() && positive(c.radius),
                 &["center", "radius"],
             ),
-            "cylinder" => (
-                "`center`, a non-zero `axis` and `radius` > 0 (m); `min` < `max` along the axis when given",
-                c.center.is_some()
-                    && nonzero(c.axis)
-                    && positive(c.radius)
-                    && !matches!((c.min, c.max), (Some(a), Some(b)) if !(a < b)),
-                &["center", "axis", "radius", "min", "max"],
-            ),
+            "cylinder" => {
+                let e = c.edge_radius.unwrap_or(0.0);
+                (
+                    "`center`, a non-zero `axis` and `radius` > 0 (m); `min` < `max` along the axis when \
+                     given; `edge_radius` >= 0 (m), less than `radius` and than half of `max - min`",
+                    c.center.is_some()
+                        && nonzero(c.axis)
+                        && positive(c.radius)
+                        && !matches!((c.min, c.max), (Some(a), Some(b)) if !(a < b))
+                        && e >= 0.0
+                        && c.radius.is_some_and(|r| e < r)
+                        && !matches!((c.min, c.max), (Some(a), Some(b)) if !(2.0 * e < b - a)),
+                    &["center", "axis", "radius", "min", "max", "edge_radius"],
+                )
+            }
             "surface" => {
                 let image = c
                     .file
@@ -672,9 +679,8 @@ fn check_conditions(s: &Scene) -> std::result::Result<(), String> {
                 }
             }
             other => {
-                return Err(format!(
-                    "{key}.shape = '{other}': use \"plane\", \"sphere\", \"cylinder\" or \"surface\""
-                ))
+                let shapes = "\"plane\", \"sphere\", \"cylinder\" or \"surface\"";
+                return Err(format!("{key}.shape = '{other}': use {shapes}"));
             }
         };
         if !ok {
@@ -688,6 +694,7 @@ fn check_conditions(s: &Scene) -> std::result::Result<(), String> {
             ("axis", c.axis.is_some()),
             ("min", c.min.is_some()),
             ("max", c.max.is_some()),
+            ("edge_radius", c.edge_radius.is_some()),
             ("file", c.file.is_some()),
             ("units", c.units.is_some()),
             ("labels", c.labels.is_some()),
