@@ -252,7 +252,8 @@ pub struct MeasuredSpec {
 /// points touch without friction (the body stays outside it): `shape = "plane"` with `point`
 /// and `normal` (pointing to the body), `"sphere"` with `center` and `radius`, or
 /// `"cylinder"` with `center`, `axis`, `radius` and optional `min` / `max` (the extent along
-/// the axis from `center`, flat ends) and `edge_radius` (the ends' rims rounded). `select` limits the surface points that may touch it.
+/// the axis from `center`, flat ends) and `edge_radius` (the ends' rims rounded). `select`
+/// limits the surface points that may touch it.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct ContactSpec {

@@ -92,6 +92,24 @@ pub(super) fn scene_contact(
             on_face[i] = true;
         }
     }
+    // A quadratic FE layer's surface faces are listed by their corners: their edge nodes are
+    // on the surface too (without them a plate passed through the middles of the edges).
+    if let Discretized::Coupled(b) = d {
+        if let Some(q) = &b.quadratic {
+            let mut face_edges = std::collections::HashSet::new();
+            for (f, _) in &s.faces {
+                for k in 0..f.len() {
+                    let (a, c) = (f[k], f[(k + 1) % f.len()]);
+                    face_edges.insert([a.min(c), a.max(c)]);
+                }
+            }
+            for (node, ends) in &q.edges {
+                if face_edges.contains(ends) {
+                    on_face[*node] = true;
+                }
+            }
+        }
+    }
     let (lo, hi) = crate::geometry::select::bounds(d.nodes());
     let diag = (hi - lo).norm();
     let tolerance = CONTACT_TOLERANCE * diag;
