@@ -353,10 +353,6 @@ pub(super) fn prepare_coupled(scene: &Scene) -> Result<Prepared> {
         input.as_ref(),
         &mut warnings,
     )?;
-    // The FE layer's quadratic faces take contact on their nodes as fe tet10 does.
-    if kind == ElementKind::Tet10 && model.contact.is_some() {
-        warnings.push(super::build_fe::TET10_CONTACT_WARNING.to_string());
-    }
     if let Some(method) = bc_method {
         let tris: Vec<[usize; 3]> = if method == BcMethod::Ebciem {
             let mut faces = quality::boundary_faces(&build.fe_mesh)

@@ -133,9 +133,6 @@ pub(super) fn prepare_fe(scene: &Scene) -> Result<Prepared> {
         input.as_ref(),
         &mut warnings,
     )?;
-    if t10.is_some() && model.contact.is_some() {
-        warnings.push(TET10_CONTACT_WARNING.to_string());
-    }
     Ok(Prepared {
         mesh,
         meshless: None,
@@ -151,13 +148,3 @@ pub(super) fn prepare_fe(scene: &Scene) -> Result<Prepared> {
         preprocess_seconds: t0.elapsed().as_secs_f64(),
     })
 }
-
-/// Contact acts on nodes, and a quadratic face's corner nodes carry no share of a uniform
-/// pressure: under a tool's flat end they are free to leave it (studies/README.md, issue 40,
-/// contact). Exact with a flat plate on a flat face (tests/contact.rs), not verified beyond.
-pub const TET10_CONTACT_WARNING: &str = "contact with element 'tet10' is not verified beyond a \
-flat plate on a flat face: contact acts on the surface nodes, and a quadratic face's corner \
-nodes carry no share of a uniform pressure, so under a tool they may leave its surface (on \
-cases/brain-contact.toml 14 of the 33 corner nodes under the indenter's end stay 0.01-0.23 mm \
-below it, and the force falls 8.5 % from the 8 / 2 mm mesh to the 6 / 1 mm one); linear \
-elements (element = \"tet4-anp\") give every surface node its share";
