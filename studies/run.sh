@@ -293,7 +293,9 @@ brain-builtin-contact() {
   sweep cases/brain-contact.toml \
     --preset 'default-4mm=discretization.size=0.004' --preset "h4-1mm=$(ref 0.004 0.001)" \
     --preset "h4-0.5mm=$(ref 0.004 0.0005)" --preset "h3-0.5mm=$(ref 0.003 0.0005)" \
-    --preset "h3-0.3mm=$(ref 0.003 0.0003)" --out studies/brain-builtin-contact
+    --preset "h3-0.3mm=$(ref 0.003 0.0003)" \
+    --preset 'fe-tet4-anp-4mm=discretization.size=0.004;discretization.method=fe' \
+    --out studies/brain-builtin-contact
 }
 
 ALL=(speed-accuracy-compression speed-accuracy-extension speed-accuracy-shear speed-accuracy-dynamic

@@ -36,6 +36,21 @@ impl LoadCurve {
         })
     }
 
+    /// The smallest and largest factor the curve takes at any load fraction (a table: over
+    /// its points, linear between them and held beyond).
+    pub fn factor_range(&self) -> (f64, f64) {
+        match self {
+            LoadCurve::Smooth | LoadCurve::Ramp | LoadCurve::SmoothReturn => (0.0, 1.0),
+            LoadCurve::Constant => (1.0, 1.0),
+            LoadCurve::Table(t) => t
+                .factor
+                .iter()
+                .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &f| {
+                    (lo.min(f), hi.max(f))
+                }),
+        }
+    }
+
     /// Names of the built-in curves.
     pub const BUILTIN: [&'static str; 4] = ["smooth", "ramp", "constant", "smooth-return"];
 
@@ -164,6 +179,35 @@ pub fn parse_curve_csv(text: &str, source: &str) -> Result<Vec<[f64; 2]>> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The factor range bounds every value the curve takes (sampled densely), and is reached.
+    #[test]
+    fn factor_range_bounds_the_curve() {
+        let table =
+            CurveTable::from_times(&[[0.0, 0.2], [0.3, 1.4], [0.6, -0.5], [1.0, 0.8]], 1.0, "t")
+                .unwrap();
+        for (c, want) in [
+            (LoadCurve::Smooth, (0.0, 1.0)),
+            (LoadCurve::Ramp, (0.0, 1.0)),
+            (LoadCurve::SmoothReturn, (0.0, 1.0)),
+            (LoadCurve::Constant, (1.0, 1.0)),
+            (LoadCurve::Table(Arc::new(table)), (-0.5, 1.4)),
+        ] {
+            let (lo, hi) = c.factor_range();
+            assert_eq!((lo, hi), want, "{c:?}");
+            let values: Vec<f64> = (-100..=1100).map(|k| c.value(k as f64 / 1000.0)).collect();
+            assert!(values.iter().all(|&v| lo <= v && v <= hi), "{c:?}");
+            let (vlo, vhi) = values
+                .iter()
+                .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &v| {
+                    (a.min(v), b.max(v))
+                });
+            assert!(
+                (vlo - lo).abs() < 1e-12 && (vhi - hi).abs() < 1e-12,
+                "{c:?}"
+            );
+        }
+    }
 
     #[test]
     fn smooth_curve_has_zero_rate_at_ends_and_reaches_one() {

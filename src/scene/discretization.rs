@@ -52,7 +52,8 @@ pub enum FeRegionKind {
     #[default]
     Surface,
     /// `fe_layers` cell layers around the nodes of the essential boundaries (fixed or driven
-    /// components) only; free surfaces are meshless (coupled paper sect. 3.2).
+    /// components) and the surface a `[contact]` rigid body can reach; the other free surfaces
+    /// are meshless (coupled paper sect. 3.2).
     Essential,
 }
 

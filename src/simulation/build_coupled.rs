@@ -176,6 +176,11 @@ pub(super) fn prepare_coupled(scene: &Scene) -> Result<Prepared> {
                 .filter(|b| b.components.iter().any(|c| c.is_some()))
                 .flat_map(|b| b.nodes.iter().cloned())
                 .collect();
+            if !scene.contact.is_empty() {
+                let faces = crate::geometry::quality::boundary_faces(&mesh)
+                    .map_err(|e| Error::Input(format!("coupled: {e}")))?;
+                nodes.extend(super::loads::contact_reach(scene, &mesh.nodes, &faces)?);
+            }
             nodes.sort_unstable();
             nodes.dedup();
             coupling::FeRegion::Around(nodes)

@@ -156,19 +156,9 @@ pub(super) fn scene_contact(
                 })
             })
             .collect::<Result<Vec<_>>>()?;
-        let shape = match (c.shape.as_str(), &c.file) {
-            ("surface", Some(file)) => {
-                let path = super::translate::scene_path(scene, file);
-                let surface = super::translate::rigid_surface(scene, &path, c)?;
-                crate::bc::contact::RigidShape::Surface(std::sync::Arc::new(
-                    crate::geometry::surface_distance::SurfaceDistance::new(surface)?,
-                ))
-            }
-            _ => c.rigid_shape(),
-        };
         let body = RigidBody {
             name: name.clone(),
-            shape,
+            shape: contact_shape(scene, c)?,
             motion: Vector3::from(c.motion),
             curve: load_curve(scene, &c.curve)?,
         };
@@ -216,6 +206,69 @@ pub(super) fn scene_contact(
         }
     }
     Ok(Some(contact))
+}
+
+/// A `[contact.NAME]` body's rigid surface: the analytic shape, or the closed surface of its
+/// `file`.
+fn contact_shape(
+    scene: &Scene,
+    c: &crate::scene::ContactSpec,
+) -> Result<crate::bc::contact::RigidShape> {
+    Ok(match (c.shape.as_str(), &c.file) {
+        ("surface", Some(file)) => {
+            let path = super::translate::scene_path(scene, file);
+            let surface = super::translate::rigid_surface(scene, &path, c)?;
+            crate::bc::contact::RigidShape::Surface(std::sync::Arc::new(
+                crate::geometry::surface_distance::SurfaceDistance::new(surface)?,
+            ))
+        }
+        _ => c.rigid_shape(),
+    })
+}
+
+/// The surface nodes (of `faces`, on `nodes` in m) that the scene's rigid bodies may touch:
+/// those within their faces' longest edge of a body anywhere along its straight path (motion
+/// times the curve's factors, from the smallest to the largest, sampled at most half the
+/// smallest such edge apart, 200 positions at most). A body's `select` is not applied (a
+/// superset). The coupled method puts its FE layer around these nodes, as around the essential
+/// boundaries, since contact holds them as a driven boundary holds its nodes.
+pub(super) fn contact_reach(
+    scene: &Scene,
+    nodes: &[Vector3<f64>],
+    faces: &[Vec<usize>],
+) -> Result<Vec<usize>> {
+    let mut margin = vec![0.0f64; nodes.len()];
+    for f in faces {
+        for k in 0..f.len() {
+            let (a, b) = (f[k], f[(k + 1) % f.len()]);
+            let l = (nodes[a] - nodes[b]).norm();
+            margin[a] = margin[a].max(l);
+            margin[b] = margin[b].max(l);
+        }
+    }
+    let on: Vec<usize> = (0..nodes.len()).filter(|&i| margin[i] > 0.0).collect();
+    let finest = on.iter().map(|&i| margin[i]).fold(f64::INFINITY, f64::min);
+    let mut reached = vec![false; nodes.len()];
+    for c in scene.contact.values() {
+        let shape = contact_shape(scene, c)?;
+        let (lo, hi) = load_curve(scene, &c.curve)?.factor_range();
+        let motion = Vector3::from(c.motion);
+        let travel = motion.norm() * (hi - lo);
+        let positions = if travel > 0.0 && finest.is_finite() {
+            (2.0 * travel / finest).ceil().clamp(1.0, 200.0) as usize
+        } else {
+            1
+        };
+        for k in 0..=positions {
+            let d = motion * (lo + (hi - lo) * k as f64 / positions as f64);
+            for &i in &on {
+                if !reached[i] && shape.signed_depth(&nodes[i], &d).0 > -margin[i] {
+                    reached[i] = true;
+                }
+            }
+        }
+    }
+    Ok((0..nodes.len()).filter(|&i| reached[i]).collect())
 }
 
 /// Penetration a contact correction may leave, as a fraction of the body's bounding-box
