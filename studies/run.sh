@@ -8,7 +8,8 @@
 # cores, e.g. JOBS=4 THREADS=2 on 8 cores, or the wall times of study 1 compete).
 # Studies (a study name runs all its jobs): timestep incompressibility large-deformation
 # irregular spin speed-accuracy fe-layers adaptive tets brain-convergence brain-compressible
-# indentation brain-builtin (indentation-patches, patches-cylinders: the mean-dilatation patches).
+# indentation brain-builtin pareto-tets (indentation-patches, patches-cylinders: the
+# mean-dilatation patches).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 H=${HYTLED:-target/release/hytled}
@@ -264,15 +265,28 @@ indentation-patches() {
     --set "geometry.mesh=$BI-c4.msh" --vary discretization.mean_dilatation_patch=1,4,6,8,12,16 \
     --out studies/indentation-patches/size
 }
-GMSH='../meshes/cylinder-gmsh'
+GMSH_STEM='../meshes/cylinder-gmsh'
 patches-cylinders() {
   for c in compression extension shear; do
     sweep "cases/tet-cylinder-$c.toml" \
       --preset 'coupled=discretization.method=coupled' \
       --preset "coupled-patch1=discretization.method=coupled;$PATCH1" \
-      --vary "geometry.mesh=$GMSH-h75.msh,$GMSH-h57.msh,$GMSH-h43.msh,$GMSH-h33.msh" \
+      --vary "geometry.mesh=$GMSH_STEM-h75.msh,$GMSH_STEM-h57.msh,$GMSH_STEM-h43.msh,$GMSH_STEM-h33.msh" \
       --out "studies/indentation-patches/cylinder-$c"
   done
+}
+# Issue 40, the Pareto front on unstructured tets: every method with its defaults (meshless one
+# point per tet), fe tet10 among them, on the first three Gmsh cylinders (h33 with tet10 is
+# about 130,000 nodes). The benchmark's front is the `indentation` sweep.
+FE_TET10='fe-tet10=discretization.method=fe;discretization.element=tet10'
+pareto-tets-compression() { pareto_tets compression; }
+pareto-tets-extension() { pareto_tets extension; }
+pareto-tets-shear() { pareto_tets shear; }
+pareto_tets() {
+  sweep cases/tet-cylinder-$1.toml --preset "$FE_ANP" --preset "$FE_TET10" --preset "$MLS1" \
+    --preset "$MMLS1" --preset 'coupled=discretization.method=coupled' \
+    --vary "geometry.mesh=$GMSH_STEM-h75.msh,$GMSH_STEM-h57.msh,$GMSH_STEM-h43.msh" \
+    --out "studies/pareto-tets/$1"
 }
 indentation-fine() {
   sweep cases/brain-indentation-benchmark.toml --preset "$FE_ANP" \
@@ -309,7 +323,8 @@ ALL=(speed-accuracy-compression speed-accuracy-extension speed-accuracy-shear sp
   tets-anp-tetgen-compression tets-anp-tetgen-extension tets-anp-tetgen-shear
   tets-global-gmsh-compression tets-global-gmsh-extension tets-global-gmsh-shear
   brain-convergence brain-convergence-fine brain-compressible indentation indentation-fine
-  indentation-patches patches-cylinders brain-builtin-indentation brain-builtin-contact)
+  indentation-patches patches-cylinders brain-builtin-indentation brain-builtin-contact
+  pareto-tets-compression pareto-tets-extension pareto-tets-shear)
 
 if [ "${1:-}" = --list ]; then printf '%s\n' "${ALL[@]}"; exit 0; fi
 # A study name stands for its jobs.

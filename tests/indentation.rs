@@ -218,3 +218,63 @@ fn a_linear_surface_layer_around_a_concentrated_drive_is_warned_of() {
     );
     assert!(warned(&[]).is_empty());
 }
+
+/// Merged interior points (`tets_per_point`) follow the mesh's grading. Levels c3 and c4 are
+/// graded at the plug's rim; binning their points on a regular grid sized by the mean tet put
+/// dozens of the rim's small tets into one point whose support missed the bin's edge: on c4 a
+/// surface node beside the rim got no point and no mass (the run refused), on c3 one node got
+/// a single point (warned). Grouping face-connected tets reaches every meshless node with at
+/// least two points, with volume kept and about `tets_per_point` times fewer interior points;
+/// the pure meshless interior (four points per tet, merged) on c4 as well.
+#[test]
+fn merged_points_follow_a_graded_mesh() {
+    for (level, k) in [("c3", 2.0), ("c4", 2.0), ("c4", 3.0)] {
+        let mesh = format!("geometry.mesh=../meshes/brain-indentation-{level}.msh");
+        let tpp = format!("discretization.tets_per_point={k}");
+        for method in ["coupled", "meshless"] {
+            if method == "meshless" && (level, k) != ("c4", 2.0) {
+                continue;
+            }
+            let o = [
+                mesh.clone(),
+                tpp.clone(),
+                "discretization.element=tet4-anp".to_string(),
+                format!("discretization.method={method}"),
+            ];
+            let s = hytled::scene::load(&path(CASE), &o).unwrap();
+            let p = hytled::simulation::prepare(&s)
+                .unwrap_or_else(|e| panic!("{level}, {k}, {method}: {e}"));
+            let few: Vec<_> = p
+                .warnings
+                .iter()
+                .filter(|w| w.contains("fewer than two"))
+                .collect();
+            assert!(few.is_empty(), "{level}, {k}, {method}: {few:?}");
+            if let Some(c) = &p.coupled {
+                let tets = c.interior.num_cells() as f64;
+                let ratio = tets / c.meshless_points as f64;
+                println!(
+                    "{level}, {k} tets per point: {} interior tets into {} points ({ratio:.2})",
+                    tets, c.meshless_points
+                );
+                assert!(ratio > 0.75 * k && ratio < 1.25 * k, "{ratio}");
+            }
+            if let Some(ml) = &p.meshless {
+                let tets = ml.background.num_cells() as f64;
+                let ratio = tets / ml.points.len() as f64;
+                println!("meshless {level}: {ratio:.2} tets (of four points each) per point");
+                assert_eq!(ml.removed_nodes, 0);
+                assert!(ratio > 0.75 * k && ratio < 1.25 * k, "{ratio}");
+                let v: f64 = ml.points.weights.iter().sum();
+                let v0: f64 = (0..ml.background.num_cells())
+                    .map(|e| {
+                        let c = ml.background.cell(e);
+                        let x = |i: usize| ml.background.nodes[c[i]];
+                        (x(1) - x(0)).cross(&(x(2) - x(0))).dot(&(x(3) - x(0))) / 6.0
+                    })
+                    .sum();
+                assert!((v - v0).abs() < 1e-9 * v0, "{v} {v0}");
+            }
+        }
+    }
+}

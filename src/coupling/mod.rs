@@ -62,7 +62,7 @@ pub struct CoupledSettings {
     /// alone; its base rule is `tet_rule`.
     pub adaptive: Option<crate::meshless::adaptive::AdaptiveSettings>,
     /// Interior tets merged per integration point (1: `tet_rule` in every tet; see
-    /// [`crate::meshless::integration::cluster_points`]).
+    /// [`crate::meshless::integration::cluster_tets`]).
     pub tets_per_point: f64,
 }
 
@@ -727,12 +727,9 @@ fn assemble(
                 (pts.positions, pts.weights, pts.owner)
             }
             None => {
-                use crate::meshless::integration::{cluster_bin, cluster_points, tet_points};
+                use crate::meshless::integration::{cluster_tets, tet_points};
                 let (p, w, o) = tet_points(&interior, s.tet_rule).map_err(bad_tet)?;
-                match cluster_bin(&interior, &w, s.tets_per_point) {
-                    Some(bin) => cluster_points(&p, &w, &o, bin),
-                    None => (p, w, o),
-                }
+                cluster_tets(&interior, &p, &w, &o, s.tets_per_point).unwrap_or((p, w, o))
             }
         }
     };

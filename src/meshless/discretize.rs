@@ -290,9 +290,8 @@ pub fn build(settings: MeshlessSettings, protected: &ProtectedNodes) -> Result<M
             tets_per_point,
         } => {
             let (p, w, o) = integration::tet_points(&background, rule)?;
-            match integration::cluster_bin(&background, &w, tets_per_point) {
-                Some(bin) => {
-                    let (p, w, o) = integration::cluster_points(&p, &w, &o, bin);
+            match integration::cluster_tets(&background, &p, &w, &o, tets_per_point) {
+                Some((p, w, o)) => {
                     let name = format!(
                         "{} background tets x {} points merged into {} (about {} tets per point)",
                         background.num_cells(),

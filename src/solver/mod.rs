@@ -221,7 +221,10 @@ impl<M: Material> Model<M> {
             .collect();
         if let Some(i) = mass.iter().position(|&m| !(m > 0.0)) {
             return Err(crate::Error::Input(format!(
-                "node {i} at {:?} m belongs to no element or integration point, so it has no mass; remove unused nodes",
+                "node {i} at {:?} m belongs to no element and lies in no integration point's support, so it \
+                 has no mass: remove unused nodes from the mesh, or, for a meshless node, give the \
+                 points larger supports (discretization.dilatation, support_nodes) or more points \
+                 (tets_per_point, point_ratio)",
                 nodes[i].as_slice()
             )));
         }
