@@ -8,8 +8,8 @@
 # cores, e.g. JOBS=4 THREADS=2 on 8 cores, or the wall times of study 1 compete).
 # Studies (a study name runs all its jobs): timestep incompressibility large-deformation
 # irregular spin speed-accuracy fe-layers adaptive tets brain-convergence brain-compressible
-# indentation brain-builtin pareto-tets (indentation-patches, patches-cylinders: the
-# mean-dilatation patches).
+# indentation brain-builtin pareto-tets (indentation-patches, patches-cylinders,
+# meshless-patches: the mean-dilatation patches).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 H=${HYTLED:-target/release/hytled}
@@ -288,6 +288,25 @@ pareto_tets() {
     --vary "geometry.mesh=$GMSH_STEM-h75.msh,$GMSH_STEM-h57.msh,$GMSH_STEM-h43.msh" \
     --out "studies/pareto-tets/$1"
 }
+# Issue 40, mean-dilatation patches for pure meshless (default 8 on a tet mesh's vertices):
+# MLS with four points per tet, patches of 8 against each point its own J, on the tet cylinders,
+# the benchmark, and the structured hexahedral cylinder where they stay off.
+meshless-patches() {
+  for c in compression extension shear; do
+    sweep "cases/tet-cylinder-$c.toml" --set discretization.method=meshless \
+      --vary discretization.mean_dilatation_patch=1,8 \
+      --vary "geometry.mesh=$GMSH_STEM-h75.msh,$GMSH_STEM-h57.msh" \
+      --out "studies/meshless-patches/tet-cylinder-$c"
+  done
+  for c in compression shear; do
+    sweep "cases/cylinder-$c.toml" --set discretization.method=meshless \
+      --vary discretization.mean_dilatation_patch=1,8 --out "studies/meshless-patches/cylinder-$c"
+  done
+  sweep cases/brain-indentation-benchmark.toml --set discretization.method=meshless \
+    --set discretization.element=tet4-anp --vary discretization.mean_dilatation_patch=1,8 \
+    --vary "geometry.mesh=$BI-c2.msh,$BI-c3.msh,$BI-c4.msh" \
+    --out studies/meshless-patches/indentation
+}
 indentation-fine() {
   sweep cases/brain-indentation-benchmark.toml --preset "$FE_ANP" \
     --vary "geometry.mesh=$BI-c5.msh" --out studies/indentation-fine
@@ -324,7 +343,7 @@ ALL=(speed-accuracy-compression speed-accuracy-extension speed-accuracy-shear sp
   tets-global-gmsh-compression tets-global-gmsh-extension tets-global-gmsh-shear
   brain-convergence brain-convergence-fine brain-compressible indentation indentation-fine
   indentation-patches patches-cylinders brain-builtin-indentation brain-builtin-contact
-  pareto-tets-compression pareto-tets-extension pareto-tets-shear)
+  pareto-tets-compression pareto-tets-extension pareto-tets-shear meshless-patches)
 
 if [ "${1:-}" = --list ]; then printf '%s\n' "${ALL[@]}"; exit 0; fi
 # A study name stands for its jobs.

@@ -137,12 +137,14 @@ fn ebciem_and_sebciem_impose_prescribed_values_and_correction_does_not() {
     assert!(errors[2].1 > 1e-6, "correction error {:e} m", errors[2].1);
 }
 
-#[test]
-fn cube_meshless_ebciem_relaxation_matches_exact_solution() {
-    let sc = scene(
-        "cases/cube-compression.toml",
-        &["discretization.method=meshless", "discretization.size=0.02"],
-    );
+/// The meshless cube compression case with `overrides`, in relaxation: the top's reaction error
+/// against the exact uniaxial solution, each node's displacement error (m) against the exact
+/// field u = ((a - 1) x, (a - 1) y, -0.2 z) (docs/reference.md, cube), and the model's
+/// mean-dilatation groups.
+fn meshless_cube_errors(overrides: &[&str]) -> (f64, Vec<f64>, usize) {
+    let mut o = vec!["discretization.method=meshless"];
+    o.extend_from_slice(overrides);
+    let sc = scene("cases/cube-compression.toml", &o);
     let mut prep = prepare(&sc).unwrap();
     let out = run(&mut prep, &sc);
     assert!(out.converged);
@@ -153,22 +155,76 @@ fn cube_meshless_ebciem_relaxation_matches_exact_solution() {
         .position(|b| b.name == "top")
         .unwrap()];
     let err_f = (top.z - -7.63269).abs() / 7.63269;
-    // Exact field: u = ((a - 1) x, (a - 1) y, -0.2 z) (docs/reference.md, cube).
     let a = 1.11574668;
-    let mut sum = 0.0;
-    for x in &prep.model.nodes {
-        let exact = Vector3::new((a - 1.0) * x.x, (a - 1.0) * x.y, -0.2 * x.z);
-        sum += (interpolate(&prep, x, &out.u) - exact).norm();
-    }
-    let mean = sum / prep.model.nodes.len() as f64;
+    let errs = prep
+        .model
+        .nodes
+        .iter()
+        .map(|x| {
+            let exact = Vector3::new((a - 1.0) * x.x, (a - 1.0) * x.y, -0.2 * x.z);
+            (interpolate(&prep, x, &out.u) - exact).norm()
+        })
+        .collect();
+    (err_f, errs, prep.model.points.groups.len())
+}
+
+#[test]
+fn cube_meshless_ebciem_relaxation_matches_exact_solution() {
+    let (err_f, errs, _) = meshless_cube_errors(&["discretization.size=0.02"]);
+    let mean = errs.iter().sum::<f64>() / errs.len() as f64;
     println!(
-        "cube meshless: F_z = {} N (error {:.4} %), mean nodal error {:.3e} mm",
-        top.z,
+        "cube meshless: F_z error {:.4} %, mean nodal error {:.3e} mm",
         100.0 * err_f,
         1e3 * mean
     );
     assert!(err_f < 0.02, "reaction error {err_f}");
     assert!(mean < 0.05e-3, "mean nodal error {mean} m");
+}
+
+/// The mean-dilatation patches of a pure meshless model (`mean_dilatation_patch`, opt-in) keep
+/// the patch test only to within the MLS quadrature's own error, which they amplify. MLS shape
+/// functions integrated by a tet rule are not integration-consistent, so even with each point
+/// its own J the TetGen
+/// cube misses the exact uniaxial solution (docs/reference.md, cube) slightly; sharing J over a
+/// patch softens the volumetric response and lets that error grow 2-3x in the mean (measured:
+/// 0.029 -> 0.072 mm at 25 mm, 0.014 -> 0.033 mm at 12.5 mm, of a 20 mm top displacement), but
+/// it falls under refinement (worst 0.71 -> 0.18 mm), and at 12.5 mm both meet the bounds of the
+/// structured meshless cube test (reaction 2 %, mean nodal error 0.05 mm). This is why the
+/// patches are not the meshless default (tests/surfaces.rs's STL cube: corner 3.7 % off).
+#[test]
+fn meshless_patches_on_tetgen_tets_keep_the_cube_close_to_exact() {
+    let cube = |size: &str, patch: &str| {
+        let (err_f, errs, groups) = meshless_cube_errors(&[
+            "discretization.mesher=tetgen",
+            "discretization.element=tet4-anp",
+            &format!("discretization.size={size}"),
+            "solver.mode=relaxation",
+            &format!("discretization.mean_dilatation_patch={patch}"),
+        ]);
+        let worst = errs.iter().fold(0.0f64, |m, &e| m.max(e));
+        let mean = errs.iter().sum::<f64>() / errs.len() as f64;
+        println!(
+            "TetGen cube meshless, size {size}, patch {patch}: {} nodes, {groups} groups, F_z \
+             error {err_f:.2e}, mean / worst nodal error {:.3e} / {:.3e} mm",
+            errs.len(),
+            1e3 * mean,
+            1e3 * worst
+        );
+        (err_f, mean, worst, groups)
+    };
+    let fine = cube("0.0125", "8");
+    for (patch, (err_f, mean, _, groups)) in [("8", fine), ("1", cube("0.0125", "1"))] {
+        assert_eq!(groups > 0, patch == "8");
+        assert!(err_f < 0.02, "{patch}: reaction error {err_f}");
+        assert!(mean < 0.05e-3, "{patch}: mean nodal error {mean} m");
+    }
+    let coarse = cube("0.025", "8");
+    assert!(
+        fine.2 < 0.5 * coarse.2,
+        "worst {:e} -> {:e} m",
+        coarse.2,
+        fine.2
+    );
 }
 
 #[test]

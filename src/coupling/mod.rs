@@ -805,7 +805,7 @@ fn assemble(
     // tets form one mean-dilatation group (contiguous, in order of the patches' first tet).
     let patches = (interior.shape == ElementShape::Tet4 && s.mean_dilatation_patch > 1)
         .then(|| crate::meshless::integration::tet_patches(&interior, s.mean_dilatation_patch));
-    let order = interior_point_order(patches.as_deref(), &tet_owner);
+    let order = crate::meshless::integration::patch_point_groups(patches.as_deref(), &tet_owner);
     let global_ids = |p: usize| -> Vec<usize> {
         ml_qp.nodes[ml_qp.slots(p)]
             .iter()
@@ -886,24 +886,4 @@ fn assemble(
     };
     build.lumped_volume = build.lumped_masses(&|_| 1.0);
     Ok(build)
-}
-
-/// The interior points in the order they enter the point table, as groups: with `patches`
-/// (each interior tet's patch) one group per patch in order of first appearance, points in
-/// their own order within it; without, each point alone.
-fn interior_point_order(patches: Option<&[usize]>, tet_owner: &[usize]) -> Vec<Vec<usize>> {
-    let Some(patch) = patches else {
-        return (0..tet_owner.len()).map(|p| vec![p]).collect();
-    };
-    let mut slot = vec![usize::MAX; patch.iter().max().map_or(0, |&g| g + 1)];
-    let mut groups: Vec<Vec<usize>> = Vec::new();
-    for (p, &t) in tet_owner.iter().enumerate() {
-        let g = patch[t];
-        if slot[g] == usize::MAX {
-            slot[g] = groups.len();
-            groups.push(Vec::new());
-        }
-        groups[slot[g]].push(p);
-    }
-    groups
 }

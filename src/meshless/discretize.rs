@@ -99,6 +99,69 @@ pub struct MeshlessSettings {
     /// Background tets wanted even for grid integration: their boundary faces carry the
     /// EBCIEM boundary integrals.
     pub boundary_tets: bool,
+    /// Face-connected background tets whose integration points share their mean J
+    /// ([`integration::tet_patches`]; 1 = each point its own; grid points have no tet and
+    /// keep their own).
+    pub mean_dilatation_patch: usize,
+}
+
+/// Mean dilatation over patches of about `size` face-connected background tets (issue 40): the
+/// points of a patch form one group that shares its weighted mean J, the stress the exact
+/// gradient of the patch's energy ([`crate::solver::forces`]), as in the coupled method's tet
+/// interior. One J per point locks the linear MLS interior at nu = 0.49: four points per tet
+/// make 4-6 volumetric constraints per node. The points are reordered group by group, their
+/// positions, owners and levels with them; unchanged for `size` 1 or points without a tet
+/// (grid integration).
+fn patch_groups(
+    points: QuadraturePoints,
+    positions: Vec<Vector3<f64>>,
+    owner: Vec<usize>,
+    level: Vec<u8>,
+    background: &Mesh,
+    size: usize,
+) -> (QuadraturePoints, Vec<Vector3<f64>>, Vec<usize>, Vec<u8>) {
+    let tets = background.num_cells();
+    if size <= 1
+        || tets == 0
+        || background.shape != ElementShape::Tet4
+        || owner.iter().any(|&t| t >= tets)
+    {
+        return (points, positions, owner, level);
+    }
+    let patch = integration::tet_patches(background, size);
+    let order = integration::patch_point_groups(Some(&patch), &owner);
+    let mut qp = QuadraturePoints::with_capacity(points.len(), points.nodes.len());
+    let point = |p: usize| {
+        let r = points.slots(p);
+        (
+            points.nodes[r.clone()]
+                .iter()
+                .map(|&i| i as usize)
+                .collect::<Vec<_>>(),
+            points.dphi[r].to_vec(),
+            points.weights[p],
+        )
+    };
+    for group in &order {
+        if let [p] = group[..] {
+            let (ids, dphi, w) = point(p);
+            qp.push(&ids, &dphi, w, points.kinds[p]);
+        } else {
+            qp.push_group(&group.iter().map(|&p| point(p)).collect::<Vec<_>>());
+        }
+    }
+    let flat: Vec<usize> = order.into_iter().flatten().collect();
+    let level = if level.len() == flat.len() {
+        flat.iter().map(|&p| level[p]).collect()
+    } else {
+        level
+    };
+    (
+        qp,
+        flat.iter().map(|&p| positions[p]).collect(),
+        flat.iter().map(|&p| owner[p]).collect(),
+        level,
+    )
 }
 
 /// Nodes and background tets of the settings' cloud, with its description.
@@ -109,6 +172,7 @@ fn nodes_and_tets(s: MeshlessSettings) -> Result<(Mesh, String, MeshlessRest)> {
         integration: s.integration,
         mls: s.mls,
         support: s.support,
+        patch: s.mean_dilatation_patch,
     };
     let (nodes, name) = match s.cloud {
         CloudSource::Mesh { mesh, description } => {
@@ -146,6 +210,7 @@ struct MeshlessRest {
     integration: Integration,
     mls: MlsSettings,
     support: SupportRule,
+    patch: usize,
 }
 
 pub use crate::geometry::mesh::hex_to_tets;
@@ -246,6 +311,7 @@ pub fn build(settings: MeshlessSettings, protected: &ProtectedNodes) -> Result<M
         integration,
         mls,
         support: rule,
+        patch,
     } = rest;
     check_build_memory(
         (
@@ -356,6 +422,16 @@ pub fn build(settings: MeshlessSettings, protected: &ProtectedNodes) -> Result<M
                     m[old] = new;
                 }
                 m
+            };
+            let (points, positions, owner, point_level) =
+                patch_groups(points, positions, owner, point_level, &background, patch);
+            let integration_name = if points.groups.is_empty() {
+                integration_name
+            } else {
+                format!(
+                    "{integration_name}; mean J shared over {} patches of about {patch} tets",
+                    points.groups.len()
+                )
             };
             return Ok(MeshlessBuild {
                 nodes,

@@ -358,6 +358,26 @@ pub fn tet_patches(mesh: &Mesh, size: usize) -> Vec<usize> {
         .collect()
 }
 
+/// The integration points in the order they enter the point table, as groups: with `patches`
+/// (each tet's patch, [`tet_patches`]) one group per patch in order of first appearance, points
+/// in their own order within it; without, each point alone. `owner[p]`: point p's tet.
+pub fn patch_point_groups(patches: Option<&[usize]>, owner: &[usize]) -> Vec<Vec<usize>> {
+    let Some(patch) = patches else {
+        return (0..owner.len()).map(|p| vec![p]).collect();
+    };
+    let mut slot = vec![usize::MAX; patch.iter().max().map_or(0, |&g| g + 1)];
+    let mut groups: Vec<Vec<usize>> = Vec::new();
+    for (p, &t) in owner.iter().enumerate() {
+        let g = patch[t];
+        if slot[g] == usize::MAX {
+            slot[g] = groups.len();
+            groups.push(Vec::new());
+        }
+        groups[slot[g]].push(p);
+    }
+    groups
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

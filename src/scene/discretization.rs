@@ -435,12 +435,10 @@ impl Discretization {
     }
 
     /// Background tets per integration point: as given, else 1 (one `tet_rule` per tet).
-    /// Merging trades a quadrature error that does not vanish under refinement for fewer
-    /// points. Coupled, 4,208-node Gmsh cylinder (one point per transition tet): worst error
-    /// over compression, extension and shear 1.43 % with 1 (16,194 interior points), 0.90 %
-    /// with 3 (5,555 points, 1.1-1.4x fe tet4-anp's solve against 1.5-1.9x); at 17,917 nodes
-    /// 0.59 % with 1 and 1.61 % with 3 (reactions 0.5-0.8 % softer at every resolution); with
-    /// 5 relaxation finds spurious modes (12,120 steps in compression, 4.7 % off).
+    /// Merging (face-connected clusters, [`crate::meshless::integration::cluster_tets`])
+    /// softens: coupled defaults on the 1,982-17,917-node Gmsh cylinders, worst error over
+    /// reaction and probe 0.17-0.81 % with 1, 0.50-2.59 % with 2, 1.39-4.02 % with 3
+    /// (2026-11-28, with the mean-dilatation patches); with 5 relaxation found spurious modes.
     pub fn tets_per_point(&self) -> f64 {
         self.tets_per_point_given.unwrap_or(1.0)
     }
@@ -453,6 +451,20 @@ impl Discretization {
     pub fn mean_dilatation_patch(&self) -> usize {
         self.mean_dilatation_patch_given
             .unwrap_or(DEFAULT_MEAN_DILATATION_PATCH)
+    }
+
+    /// Background tets per mean-dilatation patch of a pure meshless scene: as given, else 1
+    /// (each point its own J). Given, the points of about that many face-connected background
+    /// tets share their mean J. On the Gmsh tet cylinders (4,208 nodes, four points per tet) 8
+    /// takes MLS from 3.08 / 2.50 % to 0.41 / 0.78 % in compression and the indentation
+    /// benchmark from 8.12 % to 1.63 % (c4); but MLS integrated by tet rules is not
+    /// integration-consistent and the softer volumetric response lets that error grow: the
+    /// coarse TetGen cube read from an STL (513 nodes) misses the exact corner stretch by
+    /// 3.7 % with 8 where each point its own J is within 0.5 %, and on the structured
+    /// hexahedral cylinder the reactions move away from ABAQUS (compression 0.88 -> 2.77 %).
+    /// So it is not a default.
+    pub fn meshless_mean_dilatation_patch(&self) -> usize {
+        self.mean_dilatation_patch_given.unwrap_or(1)
     }
 
     /// Points per background tet: `tet_rule` as given, else 4 (meshless) or 1 (coupled).

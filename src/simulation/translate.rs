@@ -900,6 +900,7 @@ pub fn meshless_settings(scene: &Scene) -> Result<MeshlessSettings> {
         // EBCIEM integrates over the boundary triangles, surface loads act on them.
         boundary_tets: d.bc_method.resolve(d.support) == BcMethod::Ebciem
             || scene.loads.values().any(|l| l.on_faces()),
+        mean_dilatation_patch: d.meshless_mean_dilatation_patch(),
     })
 }
 
