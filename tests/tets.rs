@@ -261,11 +261,16 @@ fn locking_discretizations_warn_and_name_the_fix() {
         );
         assert!(p.warnings.iter().all(|w| !w.contains("locking")), "{extra}");
     }
-    // Hexahedra with the default (shear) hourglass scaling, tet4-anp and MMLS with one point
-    // per tet do not lock there.
+    // Hexahedra with the default (shear) hourglass scaling, tet4-anp, MMLS with one point
+    // per tet and MLS whose points share J over patches (a patch one constraint) do not lock
+    // there.
     for extra in [
         &["discretization.element=hex8"][..],
         &["discretization.element=tet4-anp"],
+        &[
+            "discretization.method=meshless",
+            "discretization.mean_dilatation_patch=8",
+        ],
         &[
             "discretization.method=meshless",
             "discretization.basis=quadratic",

@@ -252,23 +252,15 @@ pub fn cluster_tets(
         return None;
     }
     let patch = tet_patches(mesh, size.min(usize::MAX as f64) as usize);
-    let mut slot = vec![usize::MAX; patch.iter().max().map_or(0, |&g| g + 1)];
-    let (mut cpos, mut cw, mut cown): (Vec<Vector3<f64>>, Vec<f64>, Vec<usize>) =
-        (Vec::new(), Vec::new(), Vec::new());
-    for ((p, &wi), &t) in pos.iter().zip(w).zip(owner) {
-        let g = &mut slot[patch[t]];
-        if *g == usize::MAX {
-            *g = cw.len();
-            cpos.push(Vector3::zeros());
-            cw.push(0.0);
-            cown.push(t);
-        }
-        cpos[*g] += p * wi;
-        cw[*g] += wi;
+    let groups = patch_point_groups(Some(&patch), owner);
+    let mut cpos = Vec::with_capacity(groups.len());
+    let mut cw = Vec::with_capacity(groups.len());
+    for g in &groups {
+        let v: f64 = g.iter().map(|&i| w[i]).sum();
+        cpos.push(g.iter().fold(Vector3::zeros(), |m, &i| m + pos[i] * w[i]) / v);
+        cw.push(v);
     }
-    for (p, &v) in cpos.iter_mut().zip(&cw) {
-        *p /= v;
-    }
+    let cown = groups.iter().map(|g| owner[g[0]]).collect();
     Some((cpos, cw, cown))
 }
 

@@ -462,9 +462,13 @@ fn locking_warning(scene: &Scene, p: &Prepared) -> Option<String> {
              set discretization.hourglass_modulus = 'shear'"
         ));
     }
+    // The coupled table holds its FE and transition points first, the interior's last.
     let (mls_points, free) = match (&p.meshless, &p.coupled) {
-        (Some(_), _) => (volumetric_constraints(&p.model.points), free_dofs(p)),
-        (_, Some(c)) => (c.meshless_points, 3 * c.mls_nodes.len()),
+        (Some(_), _) => (volumetric_constraints(&p.model.points, 0), free_dofs(p)),
+        (_, Some(c)) => (
+            volumetric_constraints(&p.model.points, c.fe_points + c.transition_points),
+            3 * c.mls_nodes.len(),
+        ),
         _ => return None,
     };
     let per_dof = mls_points as f64 / free.max(1) as f64;
@@ -480,11 +484,12 @@ fn locking_warning(scene: &Scene, p: &Prepared) -> Option<String> {
     None
 }
 
-/// Volumetric constraints of a point table: one per point, and one per mean-dilatation group
-/// for the points that share its J.
-fn volumetric_constraints(q: &crate::quadrature::QuadraturePoints) -> usize {
-    let grouped: usize = q.groups.iter().map(|g| (g[1] - g[0]) as usize).sum();
-    q.len() - grouped + q.groups.len()
+/// Volumetric constraints of the points `first..` of a point table: one per point, and one per
+/// mean-dilatation group for the points that share its J.
+fn volumetric_constraints(q: &crate::quadrature::QuadraturePoints, first: usize) -> usize {
+    let tail = q.groups.iter().filter(|g| g[0] as usize >= first);
+    let (groups, grouped) = tail.fold((0, 0), |(n, k), g| (n + 1, k + (g[1] - g[0]) as usize));
+    q.len().saturating_sub(first) - grouped + groups
 }
 
 /// Displacement components not prescribed directly.

@@ -224,7 +224,7 @@ impl<M: Material> Model<M> {
                 "node {i} at {:?} m belongs to no element and lies in no integration point's support, so it \
                  has no mass: remove unused nodes from the mesh, or, for a meshless node, give the \
                  points larger supports (discretization.dilatation, support_nodes) or more points \
-                 (tets_per_point, point_ratio)",
+                 (a smaller tets_per_point, a larger point_ratio)",
                 nodes[i].as_slice()
             )));
         }
