@@ -62,8 +62,8 @@ enum Mode {
     /// Anything else (other sizes): F point by point, the stresses of four consecutive ones
     /// as one lane block.
     Other,
-    /// Mean-dilatation points: their stress (w P) comes from the group pass
-    /// ([`Forces::group_stresses`]), the kernel only adds their slot forces.
+    /// Mean-dilatation points: at a group's first point the chunk evaluates the whole group's
+    /// stresses ([`Forces::group_stress`]), then adds each point's slot forces.
     Group,
 }
 
@@ -86,6 +86,16 @@ struct Item {
 struct Chunk {
     items: [u32; 2],
     buf: [u32; 2],
+}
+
+/// Where the group pass writes (see [`Forces::group_stress`]): per mean-dilatation point w P,
+/// its own F and (J, alpha, tau); per group its mean J.
+#[derive(Clone, Copy)]
+struct GroupScratch {
+    pk: SharedMut<Matrix3<f64>>,
+    fs: SharedMut<Matrix3<f64>>,
+    ss: SharedMut<[f64; 3]>,
+    gj: SharedMut<f64>,
 }
 
 /// Deformation gradient F = I + sum_a u_a (x) dphi_a at one point.
@@ -160,7 +170,7 @@ pub struct Forces<M: Material> {
     /// entry per mean-dilatation point, in point order).
     group_first: Vec<u32>,
     /// w P of each mean-dilatation point from the last force evaluation, N m
-    /// ([`Self::group_stresses`]).
+    /// ([`Self::group_stress`]).
     group_pk: Vec<Matrix3<f64>>,
     /// Scratch of the group pass per mean-dilatation point: its own F.
     group_f: Vec<Matrix3<f64>>,
@@ -218,9 +228,16 @@ fn plan(qp: &QuadraturePoints, point_material: &[u16], num_nodes: usize, blocks:
     let modes: Vec<Mode> = (0..n).map(|p| point_mode(qp, p)).collect();
     let target = (qp.nodes.len() / CHUNKS).clamp(MIN_CHUNK_SLOTS, MAX_CHUNK_SLOTS);
     let mut ranges: Vec<[u32; 2]> = Vec::new();
+    // A chunk never cuts a mean-dilatation group: the chunk that holds it evaluates the
+    // group's stresses just before its slot forces (`Forces::group_stress`), while its
+    // supports' dphi are still in cache.
+    let inside_group = |p: usize| match qp.kinds[p] {
+        PointKind::MeanDilatation(g) => p + 1 < qp.groups[g as usize][1] as usize,
+        _ => false,
+    };
     let mut first = 0;
     for p in 0..n {
-        if qp.offsets[p + 1] - qp.offsets[first] >= target || p + 1 == n {
+        if (qp.offsets[p + 1] - qp.offsets[first] >= target && !inside_group(p)) || p + 1 == n {
             ranges.push([first as u32, p as u32 + 1]);
             first = p + 1;
         }
@@ -548,81 +565,141 @@ impl<M: Material> Forces<M> {
         if qp.groups.is_empty() {
             return;
         }
-        let pk = SharedMut(self.group_pk.as_mut_ptr());
-        let fs = SharedMut(self.group_f.as_mut_ptr());
-        let ss = SharedMut(self.group_s.as_mut_ptr());
-        let (materials, point_material) = (&self.materials, &self.point_material);
-        let first = &self.group_first;
-        // Unchecked reads of u below: every node id is below num_nodes (Self::new).
+        let gs = self.group_scratch();
+        // Unchecked reads of u in group_stress: every node id is below num_nodes (Self::new).
         let simd = self.simd && u.len() >= self.num_nodes;
-        self.group_j
-            .par_iter_mut()
+        let this = &*self;
+        (0..qp.groups.len())
+            .into_par_iter()
             .with_min_len(CHUNK / 8)
-            .zip(&qp.groups)
-            .zip(first)
-            .for_each(|((gj, &[a, b]), &i0)| {
-                let (a, b, i0) = (a as usize, b as usize, i0 as usize);
-                // SAFETY: group g owns the entries i0 .. i0 + (b - a) (prefix sums of the
-                // group sizes, built in `with_materials`).
-                let (pk, fs, ss) = unsafe {
-                    (
-                        std::slice::from_raw_parts_mut(pk.get().add(i0), b - a),
-                        std::slice::from_raw_parts_mut(fs.get().add(i0), b - a),
-                        std::slice::from_raw_parts_mut(ss.get().add(i0), b - a),
-                    )
-                };
-                let (mut wj, mut w) = (0.0, 0.0);
-                for (k, p) in (a..b).enumerate() {
-                    // The AVX2 gradient makes the portable loop's products and sums in its
-                    // order (bitwise the same F); MLS points have 20-60 supports.
+            .for_each(|g| {
+                // SAFETY: each group writes only its own scratch entries; `simd` is set only
+                // where the CPU has AVX2 and u holds every node.
+                unsafe {
                     #[cfg(target_arch = "x86_64")]
-                    let f = if simd {
-                        let r = qp.slots(p);
-                        // SAFETY: `simd` is set only where the CPU has AVX2 and u holds every
-                        // node; node ids are below num_nodes (Self::new).
-                        unsafe {
-                            super::lanes_avx2::any_gradient(
-                                &qp.nodes[r.clone()],
-                                &qp.dphi[r],
-                                u.as_ptr(),
-                            )
-                        }
-                    } else {
-                        deformation_gradient(qp, p, u)
-                    };
-                    #[cfg(not(target_arch = "x86_64"))]
-                    let f = {
-                        let _ = simd;
-                        deformation_gradient(qp, p, u)
-                    };
-                    let j = f.determinant();
-                    fs[k] = f;
-                    ss[k][0] = j;
-                    wj += qp.weights[p] * j;
-                    w += qp.weights[p];
-                }
-                let j_mean = wj / w;
-                *gj = j_mean;
-                let mut wt = 0.0;
-                for (k, p) in (a..b).enumerate() {
-                    let j = ss[k][0];
-                    let alpha = cbrt(j_mean / j);
-                    let fb = fs[k] * alpha;
-                    let m = point_material.get(p).copied().unwrap_or(0) as usize;
-                    let pb = materials[m].first_pk_stress(&fb, j_mean);
-                    let tau = pb.dot(&fb) / 3.0;
-                    pk[k] = pb;
-                    ss[k] = [j, alpha, tau];
-                    wt += qp.weights[p] * tau;
-                }
-                let t_mean = wt / w;
-                for (k, p) in (a..b).enumerate() {
-                    let [j, alpha, tau] = ss[k];
-                    // J F^-T, the cofactor matrix.
-                    let cof = crate::geometry::cofactor(&fs[k]);
-                    pk[k] = (pk[k] * alpha + cof * (t_mean / j_mean - tau / j)) * qp.weights[p];
+                    if simd {
+                        return this.group_stress_avx2(qp, g, u, gs);
+                    }
+                    this.group_stress::<false>(qp, g, u, gs);
                 }
             });
+    }
+
+    /// Pointers to the group scratch, for passes that write each group's entries from one
+    /// task.
+    fn group_scratch(&mut self) -> GroupScratch {
+        GroupScratch {
+            pk: SharedMut(self.group_pk.as_mut_ptr()),
+            fs: SharedMut(self.group_f.as_mut_ptr()),
+            ss: SharedMut(self.group_s.as_mut_ptr()),
+            gj: SharedMut(self.group_j.as_mut_ptr()),
+        }
+    }
+
+    /// [`Self::group_stress`] compiled for AVX2.
+    ///
+    /// # Safety
+    /// As [`Self::group_stress`], and the CPU must support AVX2.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    unsafe fn group_stress_avx2(
+        &self,
+        qp: &QuadraturePoints,
+        g: usize,
+        u: &[Vector3<f64>],
+        gs: GroupScratch,
+    ) {
+        self.group_stress::<true>(qp, g, u, gs)
+    }
+
+    /// Group `g` of [`Self::group_stresses`]: its points' F, J and w P into the scratch, its
+    /// mean J into `group_j`. Each sum runs in point order.
+    ///
+    /// # Safety
+    /// The group's scratch entries belong to the caller alone; every node id is below
+    /// `u.len()`; AVX only where the CPU has AVX2.
+    #[inline(always)]
+    unsafe fn group_stress<const AVX: bool>(
+        &self,
+        qp: &QuadraturePoints,
+        g: usize,
+        u: &[Vector3<f64>],
+        gs: GroupScratch,
+    ) {
+        let [a, b] = qp.groups[g];
+        let (a, b) = (a as usize, b as usize);
+        let i0 = self.group_first[g] as usize;
+        // SAFETY: group g owns the entries i0 .. i0 + (b - a) (prefix sums of the group
+        // sizes, built in `with_materials`).
+        let (pk, fs, ss) = (
+            std::slice::from_raw_parts_mut(gs.pk.get().add(i0), b - a),
+            std::slice::from_raw_parts_mut(gs.fs.get().add(i0), b - a),
+            std::slice::from_raw_parts_mut(gs.ss.get().add(i0), b - a),
+        );
+        // The AVX2 gradient makes the portable loop's products and sums in its order (bitwise
+        // the same F); MLS points have 20-60 supports.
+        for (k, p) in (a..b).enumerate() {
+            let r = qp.slots(p);
+            fs[k] = Self::gradient_any::<AVX>(qp, r.start, r.end, u);
+        }
+        let (mut wj, mut w) = (0.0, 0.0);
+        for (k, p) in (a..b).enumerate() {
+            let j = fs[k].determinant();
+            ss[k][0] = j;
+            wj += qp.weights[p] * j;
+            w += qp.weights[p];
+        }
+        let j_mean = wj / w;
+        *gs.gj.get().add(g) = j_mean;
+        // P(F_bar) of LANES points of one material at once (`first_pk_stress_lanes`, bitwise
+        // each point's `first_pk_stress`); the sums stay in point order.
+        let mat = |p: usize| self.point_material.get(p).copied().unwrap_or(0) as usize;
+        let mut wt = 0.0;
+        let mut k = 0;
+        while k < b - a {
+            let (p, m) = (a + k, mat(a + k));
+            let lanes = if k + LANES <= b - a && (p..p + LANES).all(|q| mat(q) == m) {
+                LANES
+            } else {
+                1
+            };
+            let mut fl = [[0.0; LANES]; 9];
+            let mut alpha = [0.0; LANES];
+            for l in 0..lanes {
+                alpha[l] = cbrt(j_mean / ss[k + l][0]);
+                let fb = fs[k + l] * alpha[l];
+                for (i, e) in fl.iter_mut().enumerate() {
+                    e[l] = fb[(i / 3, i % 3)];
+                }
+            }
+            let pbl = if lanes == LANES {
+                self.materials[m].first_pk_stress_lanes(&fl, &[j_mean; LANES])
+            } else {
+                let fb = Matrix3::from_fn(|r, c| fl[3 * r + c][0]);
+                let pb = self.materials[m].first_pk_stress(&fb, j_mean);
+                std::array::from_fn(|i| {
+                    let mut o = [0.0; LANES];
+                    o[0] = pb[(i / 3, i % 3)];
+                    o
+                })
+            };
+            for l in 0..lanes {
+                let fb = Matrix3::from_fn(|r, c| fl[3 * r + c][l]);
+                let pb = Matrix3::from_fn(|r, c| pbl[3 * r + c][l]);
+                let tau = pb.dot(&fb) / 3.0;
+                pk[k + l] = pb;
+                ss[k + l] = [ss[k + l][0], alpha[l], tau];
+                wt += qp.weights[p + l] * tau;
+            }
+            k += lanes;
+        }
+        let t_mean = wt / w;
+        for (k, p) in (a..b).enumerate() {
+            let [j, alpha, tau] = ss[k];
+            // J F^-T, the cofactor matrix.
+            let cof = crate::geometry::cofactor(&fs[k]);
+            pk[k] = (pk[k] * alpha + cof * (t_mean / j_mean - tau / j)) * qp.weights[p];
+        }
     }
 
     /// Nodal J and pressure for ANP points (Bonet & Burton 1998): per pressure node J_n, the
@@ -782,7 +859,11 @@ impl<M: Material> Forces<M> {
             self.num_nodes,
             self.buffers.slot_entry.len()
         );
-        self.averages(qp, u);
+        // The groups' stresses come inside the chunks (`group_point`).
+        if self.has_anp {
+            self.nodal_pressures(qp, u);
+        }
+        let gs = self.group_scratch();
         let cf = SharedMut(self.chunk_forces.as_mut_ptr());
         let pj = SharedMut(self.point_j.as_mut_ptr());
         let this = &*self;
@@ -797,9 +878,9 @@ impl<M: Material> Forces<M> {
                 unsafe {
                     #[cfg(target_arch = "x86_64")]
                     if this.simd {
-                        return this.chunk_avx2(qp, ch, u, cf, pj);
+                        return this.chunk_avx2(qp, ch, u, cf, pj, gs);
                     }
-                    this.chunk::<false>(qp, ch, u, cf, pj)
+                    this.chunk::<false>(qp, ch, u, cf, pj, gs)
                 }
             },
             min_by_j,
@@ -820,6 +901,7 @@ impl<M: Material> Forces<M> {
         u: &[Vector3<f64>],
         cf: SharedMut<Vector3<f64>>,
         pj: SharedMut<f64>,
+        gs: GroupScratch,
     ) -> (f64, usize) {
         for e in ch.buf[0] as usize..ch.buf[1] as usize {
             *cf.get().add(e) = Vector3::zeros();
@@ -829,7 +911,7 @@ impl<M: Material> Forces<M> {
             .items
             .get_unchecked(ch.items[0] as usize..ch.items[1] as usize)
         {
-            best = min_by_j(best, self.item::<AVX>(qp, it, u, cf, pj));
+            best = min_by_j(best, self.item::<AVX>(qp, it, u, cf, pj, gs));
         }
         best
     }
@@ -849,8 +931,9 @@ impl<M: Material> Forces<M> {
         u: &[Vector3<f64>],
         cf: SharedMut<Vector3<f64>>,
         pj: SharedMut<f64>,
+        gs: GroupScratch,
     ) -> (f64, usize) {
-        self.chunk::<true>(qp, ch, u, cf, pj)
+        self.chunk::<true>(qp, ch, u, cf, pj, gs)
     }
 
     /// One work item: adds its points' forces into the chunk buffer and writes their J's;
@@ -866,7 +949,11 @@ impl<M: Material> Forces<M> {
         u: &[Vector3<f64>],
         cf: SharedMut<Vector3<f64>>,
         pj: SharedMut<f64>,
+        gs: GroupScratch,
     ) -> (f64, usize) {
+        if it.mode == Mode::Group {
+            return self.group_point::<AVX>(qp, it.first as usize, u, cf, pj, gs);
+        }
         // Each concrete material gets its own copy of the kernels (see Material::concrete).
         match self
             .materials
@@ -930,7 +1017,7 @@ impl<M: Material> Forces<M> {
             (Mode::Hourglass8, _) => {
                 self.lanes::<8, 1, true, false, AVX, K>(qp, mat, p, 0, u, cf, pj)
             }
-            (Mode::Group, _) => self.group_point::<AVX>(qp, p, cf, pj),
+            (Mode::Group, _) => unreachable!("group points are evaluated by `item`"),
             (Mode::Other, LANES) => self.stress_batch::<AVX, K>(qp, mat, p, u, cf, pj),
             (Mode::Other, _) | (Mode::Anp4, _) => {
                 let (f, a) = self.gradient::<AVX>(qp, p, u);
@@ -981,8 +1068,10 @@ impl<M: Material> Forces<M> {
         Self::block_j(p0, &jl, pj)
     }
 
-    /// The slot forces of mean-dilatation point `p` from its stress of the group pass; its J is
-    /// its own det F (not the group's mean, so that a Gauss point inverting inside a cell that
+    /// The slot forces of mean-dilatation point `p`; at the group's first point, first the
+    /// group's stresses ([`Self::group_stress`]), so each group's dphi is read from memory once
+    /// per step and its second read, for the forces, finds it in cache. The point's J is its
+    /// own det F (not the group's mean, so that a Gauss point inverting inside a cell that
     /// keeps its volume still stops the run).
     ///
     /// # Safety
@@ -992,17 +1081,32 @@ impl<M: Material> Forces<M> {
         &self,
         qp: &QuadraturePoints,
         p: usize,
+        u: &[Vector3<f64>],
         cf: SharedMut<Vector3<f64>>,
         pj: SharedMut<f64>,
+        gs: GroupScratch,
     ) -> (f64, usize) {
         let PointKind::MeanDilatation(g) = qp.kinds[p] else {
             unreachable!("group mode of a point outside the groups");
         };
         let g = g as usize;
-        let i = self.group_first[g] as usize + (p - qp.groups[g][0] as usize);
+        let first = qp.groups[g][0] as usize;
+        if p == first {
+            // The chunk holds the whole group (`plan`).
+            #[cfg(target_arch = "x86_64")]
+            if AVX {
+                self.group_stress_avx2(qp, g, u, gs);
+            } else {
+                self.group_stress::<false>(qp, g, u, gs);
+            }
+            #[cfg(not(target_arch = "x86_64"))]
+            self.group_stress::<false>(qp, g, u, gs);
+        }
+        let i = self.group_first[g] as usize + (p - first);
         let a = qp.offsets[p];
-        self.forces_to_chunk::<AVX>(a, &self.group_pk[i], &qp.dphi[a..qp.offsets[p + 1]], cf);
-        let j = self.group_s[i][0];
+        let pk = *gs.pk.get().add(i);
+        self.forces_to_chunk::<AVX>(a, &pk, &qp.dphi[a..qp.offsets[p + 1]], cf);
+        let j = (*gs.ss.get().add(i))[0];
         *pj.get().add(p) = j;
         (j, p)
     }
@@ -1708,8 +1812,13 @@ mod tests {
     /// 40 points with 3 to 31 support nodes on the nodes of `mesh` (4 and 8 among them, so
     /// runs of single-evaluated points are cut by lane-mode points).
     fn any_size_points(n: usize) -> QuadraturePoints {
-        let mut qp = QuadraturePoints::with_capacity(40, 800);
-        for p in 0..40usize {
+        any_size_points_of(n, 40)
+    }
+
+    /// `count` points made as [`any_size_points`] makes its 40.
+    fn any_size_points_of(n: usize, count: usize) -> QuadraturePoints {
+        let mut qp = QuadraturePoints::with_capacity(count, 20 * count);
+        for p in 0..count {
             let size = 3 + (p * 11) % 29;
             let ids: Vec<usize> = (0..size).map(|k| (p * 17 + k * 5) % n).collect();
             let d: Vec<Vector3<f64>> = (0..size)
@@ -1776,7 +1885,12 @@ mod tests {
 
     /// The any-size points in consecutive mean-dilatation groups of 2 to 6 points.
     fn grouped_points(n: usize) -> QuadraturePoints {
-        let qp = any_size_points(n);
+        grouped_points_of(n, 40)
+    }
+
+    /// `count` any-size points in groups as [`grouped_points`] makes them.
+    fn grouped_points_of(n: usize, count: usize) -> QuadraturePoints {
+        let qp = any_size_points_of(n, count);
         let mut out = QuadraturePoints::with_capacity(qp.len(), qp.nodes.len());
         let (mut p, mut size) = (0, 2);
         while p < qp.len() {
@@ -1808,11 +1922,27 @@ mod tests {
         for (k, r) in runs.iter().enumerate().skip(1) {
             assert!(r == &runs[0], "run {k} differs from the AVX2 run");
         }
+        let (want, scale, spread) = nagtegaal_forces(&mat, &qp, &u, &runs[0].1);
+        // The field must make the points of a group differ, or any J_mean scaling would pass.
+        assert!(spread > 0.05, "J within a group varies by {spread:e} only");
+        let worst = worst_relative(&runs[0].0, &want, scale);
+        assert!(worst < 1e-12, "relative force difference {worst:e}");
+    }
+
+    /// Nodal forces of mean-dilatation groups by Nagtegaal's closed form (see the test above),
+    /// the largest slot force and the largest |J / J_mean - 1| in a group; asserts the
+    /// kernel's J's.
+    fn nagtegaal_forces(
+        mat: &NeoHookean,
+        qp: &QuadraturePoints,
+        u: &[Vector3<f64>],
+        j_kernel: &[f64],
+    ) -> (Vec<Vector3<f64>>, f64, f64) {
         let mut want = vec![Vector3::zeros(); u.len()];
         let (mut scale, mut spread) = (0.0f64, 0.0f64);
         for &[a, b] in &qp.groups {
             let (a, b) = (a as usize, b as usize);
-            let fs: Vec<Matrix3<f64>> = (a..b).map(|p| deformation_gradient(&qp, p, &u)).collect();
+            let fs: Vec<Matrix3<f64>> = (a..b).map(|p| deformation_gradient(qp, p, u)).collect();
             let w: f64 = qp.weights[a..b].iter().sum();
             let j_mean = (a..b)
                 .map(|p| qp.weights[p] * fs[p - a].determinant())
@@ -1821,7 +1951,7 @@ mod tests {
             for p in a..b {
                 let f = fs[p - a];
                 let j = f.determinant();
-                assert_eq!(runs[0].1[p], j, "the kernel's J of point {p}");
+                assert_eq!(j_kernel[p], j, "the kernel's J of point {p}");
                 spread = spread.max((j / j_mean - 1.0).abs());
                 let f_inv_t = f.try_inverse().unwrap().transpose();
                 let iso = (f - f_inv_t * ((f.transpose() * f).trace() / 3.0))
@@ -1834,9 +1964,84 @@ mod tests {
                 }
             }
         }
-        // The field must make the points of a group differ, or any J_mean scaling would pass.
-        assert!(spread > 0.05, "J within a group varies by {spread:e} only");
-        let worst = worst_relative(&runs[0].0, &want, scale);
+        (want, scale, spread)
+    }
+
+    /// Groups over many chunks (600 points, 10,183 slots: 10 chunks): no chunk cuts a group, as
+    /// the chunk holding a group evaluates its stresses just before its forces
+    /// (`group_point`); the stresses are bitwise those of the separate pass
+    /// (`group_stresses`, which the energies and output fields use) and, evaluated four points
+    /// at a time, bitwise those of one point at a time; the forces are the same for any
+    /// thread count, and Nagtegaal's to 1e-12 (as in the test above).
+    #[test]
+    fn no_chunk_cuts_a_mean_dilatation_group() {
+        let mesh = box_hex(Vector3::zeros(), Vector3::new(0.1, 0.07, 0.05), [5, 3, 3]).unwrap();
+        let qp = grouped_points_of(mesh.nodes.len(), 600);
+        let u: Vec<Vector3<f64>> = field(&mesh.nodes).iter().map(|v| v * 0.05).collect();
+        let slots = NodeSlots::new(&qp, mesh.nodes.len());
+        let mat = NeoHookean::from_young_poisson(3000.0, 0.49, 1000.0);
+        let mut f = Forces::new(mat.clone(), &qp, &slots, mesh.nodes.len());
+        assert!(f.chunks.len() > 4, "{} chunks", f.chunks.len());
+        let mut cut_somewhere = false;
+        for ch in &f.chunks {
+            let items = &f.items[ch.items[0] as usize..ch.items[1] as usize];
+            let (a, b) = (
+                items[0].first,
+                items.last().map(|i| i.first + i.count as u32),
+            );
+            let b = b.unwrap();
+            for &[g0, g1] in &qp.groups {
+                assert!(
+                    g1 <= a || g0 >= b || (g0 >= a && g1 <= b),
+                    "group {g0}..{g1} cut"
+                );
+            }
+            cut_somewhere |= b < qp.len() as u32;
+        }
+        assert!(cut_somewhere);
+        let run = |threads: usize, f: &mut Forces<NeoHookean>| {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap();
+            let mut nodal = vec![Vector3::zeros(); u.len()];
+            pool.install(|| f.compute(&qp, &slots, &u, &mut nodal));
+            nodal
+        };
+        let one = run(1, &mut f);
+        let (pk, j) = (f.group_pk.clone(), f.group_j.clone());
+        assert_eq!(run(3, &mut f), one);
+        f.group_stresses(&qp, &u);
+        assert!(f.group_pk == pk && f.group_j == j);
+        // The stresses, evaluated four points at a time, bitwise those of one point at a
+        // time (as the GPU kernel takes them).
+        for (g, &[a, b]) in qp.groups.iter().enumerate() {
+            let (a, b, i0) = (a as usize, b as usize, f.group_first[g] as usize);
+            let fs: Vec<_> = (a..b).map(|p| deformation_gradient(&qp, p, &u)).collect();
+            let w: f64 = (a..b).map(|p| qp.weights[p]).sum();
+            let jm = (a..b)
+                .map(|p| qp.weights[p] * fs[p - a].determinant())
+                .sum::<f64>()
+                / w;
+            let bar: Vec<_> = fs.iter().map(|f| f * cbrt(jm / f.determinant())).collect();
+            let pb: Vec<_> = bar.iter().map(|fb| mat.first_pk_stress(fb, jm)).collect();
+            let tau: Vec<f64> = (0..b - a).map(|k| pb[k].dot(&bar[k]) / 3.0).collect();
+            let t = (a..b).map(|p| qp.weights[p] * tau[p - a]).sum::<f64>() / w;
+            for (k, p) in (a..b).enumerate() {
+                let (jp, alpha) = (fs[k].determinant(), cbrt(jm / fs[k].determinant()));
+                let cof = crate::geometry::cofactor(&fs[k]);
+                let want = (pb[k] * alpha + cof * (t / jm - tau[k] / jp)) * qp.weights[p];
+                assert_eq!(f.group_pk[i0 + k], want, "point {p}");
+            }
+        }
+        let runs = three_ways(&qp, &mesh.nodes, &u);
+        assert_eq!(runs[0].0, one);
+        for (k, r) in runs.iter().enumerate().skip(1) {
+            assert!(r == &runs[0], "run {k} differs from the AVX2 run");
+        }
+        let (want, scale, spread) = nagtegaal_forces(&mat, &qp, &u, &runs[0].1);
+        assert!(spread > 0.05, "{spread:e}");
+        let worst = worst_relative(&one, &want, scale);
         assert!(worst < 1e-12, "relative force difference {worst:e}");
     }
 
