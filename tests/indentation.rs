@@ -5,6 +5,7 @@
 
 mod common;
 use common::*;
+use hytled::report::Summary;
 
 const CASE: &str = "cases/brain-indentation-benchmark.toml";
 const C1: &str = "geometry.mesh=../meshes/brain-indentation-c1.msh";
@@ -143,6 +144,39 @@ fn coupled_tet10_passes_the_patch_test() {
         assert_eq!(c.regions.node[i], NodeRole::Fe);
         assert!(c.lumped_volume[i] > 0.0);
     }
+}
+
+/// The coupled method with a quadratic layer is warned of as unverified, because it is not
+/// exact on the cube (docs/methods.md): measured, the lateral stretch 6.1 % long at nu = 0.49
+/// with the top driven. The test keeps the warning honest: once the layout meets the cube
+/// within 3 % it fails, and the warning (or this test) must change. The tet4-anp layer (the
+/// coupled default on tets) is not warned of and meets the cube within 1 %.
+#[test]
+fn the_quadratic_coupled_layer_is_warned_of_while_it_misses_the_cube() {
+    let warned = |s: &Summary| {
+        s.warnings
+            .iter()
+            .any(|w| w.contains("'tet10' in the coupled method is not verified"))
+    };
+    let cube = "cases/cube-compression.toml";
+    let s = run_case(
+        cube,
+        &[
+            "discretization.method=coupled",
+            "discretization.element=tet10",
+        ],
+    );
+    assert!(s.converged && warned(&s), "{:?}", s.warnings);
+    assert!(rel_err(&s, "lateral") > 0.03, "{}", rel_err(&s, "lateral"));
+    let s = run_case(
+        cube,
+        &[
+            "discretization.method=coupled",
+            "discretization.element=tet4-anp",
+        ],
+    );
+    assert!(s.converged && !warned(&s), "{:?}", s.warnings);
+    assert!(rel_err(&s, "lateral") < 0.01, "{}", rel_err(&s, "lateral"));
 }
 
 /// The coupled defaults (a tet4-anp layer around the essential boundaries, a linear MLS

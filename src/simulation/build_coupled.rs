@@ -241,6 +241,18 @@ pub(super) fn prepare_coupled(scene: &Scene) -> Result<Prepared> {
     };
     let build = built.map_err(|e| name_file_element(e, input.as_ref()))?;
     warnings.extend(build.warnings.iter().cloned());
+    if kind == ElementKind::Tet10 {
+        // Measured on the exact cube (cases/cube-compression.toml, 12.5 mm cubes split into tets):
+        // an open defect of this layout, docs/methods.md.
+        warnings.push(
+            "discretization.element = 'tet10' in the coupled method is not verified: on the \
+             exact cube (12.5 mm cubes split into tets) it misses the lateral stretch by 6.1 % \
+             at nu = 0.49 and 15.9 % at nu = 0.3 (the quadratic transition cells' one mean J \
+             per cell); use the coupled default element = 'tet4-anp' (0.74 % there) or \
+             method = 'fe' with tet10 (exact)"
+                .into(),
+        );
+    }
     let mut bnd = boundaries(scene, &build.nodes, input.as_ref(), &|| {
         Discretized::Coupled(&build).surface_nodes()
     })?;

@@ -580,6 +580,8 @@ impl<M: Material> Forces<M> {
                     if simd {
                         return this.group_stress_avx2(qp, g, u, gs);
                     }
+                    #[cfg(not(target_arch = "x86_64"))]
+                    let _ = simd;
                     this.group_stress::<false>(qp, g, u, gs);
                 }
             });
