@@ -211,6 +211,20 @@ unsafe impl std::alloc::GlobalAlloc for ExitOnOom {
     }
 }
 
+/// Called with the message after an allocation failed, before the process exits (see
+/// [`on_out_of_memory`]).
+static OOM_HOOK: std::sync::atomic::AtomicPtr<()> =
+    std::sync::atomic::AtomicPtr::new(std::ptr::null_mut());
+/// Set once an allocation has failed: a failure inside the hook exits at once.
+static OOM_SEEN: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+
+/// Registers `hook`, run with the message when [`ExitOnOom`] ends the process: the output
+/// folder marks its summary failed there ([`crate::io::out_dir`]). The failed allocation is
+/// usually a large one, so the hook may allocate; if it cannot, the process exits all the same.
+pub fn on_out_of_memory(hook: fn(&str)) {
+    OOM_HOOK.store(hook as *mut (), std::sync::atomic::Ordering::SeqCst);
+}
+
 /// Writes the out-of-memory error and exits with code 2. Nothing here may allocate: the
 /// message is formatted into a buffer on the stack (float formatting does not allocate).
 #[cold]
@@ -242,6 +256,14 @@ fn out_of_memory(bytes: usize) -> ! {
         let _ = out.write_all(msg);
         let _ = out.write_all(b"\"\n}\n");
         let _ = out.flush();
+    }
+    let hook = OOM_HOOK.load(std::sync::atomic::Ordering::SeqCst);
+    if !hook.is_null() && !OOM_SEEN.swap(true, std::sync::atomic::Ordering::SeqCst) {
+        // SAFETY: only `on_out_of_memory` stores here, always a `fn(&str)`.
+        let hook: fn(&str) = unsafe { std::mem::transmute::<*mut (), fn(&str)>(hook) };
+        if let Ok(text) = std::str::from_utf8(msg) {
+            hook(text);
+        }
     }
     std::process::exit(crate::error::exit::INPUT as i32)
 }

@@ -120,7 +120,10 @@ fn a_voxel_aligned_labelled_box_reproduces_the_exact_cube() {
     let e = cube_run(&file, &["geometry.labels=[7]"])
         .unwrap_err()
         .to_string();
-    assert!(e.contains("cube.nii.gz") && e.contains("no block"), "{e}");
+    assert!(
+        e.contains("cube.nii.gz") && e.contains("label(s) [7]"),
+        "{e}"
+    );
 }
 
 /// The same voxels under an oblique (rotated, anisotropic-free) map: the body, the tied

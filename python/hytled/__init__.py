@@ -35,6 +35,7 @@ from ._hytled import (
 
 __version__ = _hytled.__version__
 __all__ = [
+    "read_image",
     "Scene",
     "Model",
     "Result",
@@ -45,6 +46,18 @@ __all__ = [
     "FileError",
     "InterruptedRun",
 ]
+
+def read_image(path: Union[str, "os.PathLike[str]"]):
+    """The 3-D image at ``path`` (NIfTI-1 ``.nii``/``.nii.gz``, NRRD ``.nrrd``/``.nhdr``) as
+    hytled reads it for ``geometry.image``, contact surfaces and ``output.image``.
+
+    Returns ``(values, affine)``: the voxel values scaled as the file says (``scl_slope``,
+    ``scl_inter``), a float64 array indexed ``[i, j, k]``, and the 4x4 map from voxel index
+    to world position in RAS **metres** (nibabel's ``img.affine`` is in millimetres). Raises
+    :class:`InputError` for a file hytled refuses (4-D, truncated, unknown datatype).
+    """
+    return _hytled.read_image(os.fspath(path))
+
 
 Overrides = Union[None, Sequence[str], Mapping[str, Any]]
 

@@ -1,6 +1,6 @@
 """Type stubs of the compiled part of hytled (python/src/lib.rs). Units are SI."""
 
-from typing import Any, Dict, List, Optional, Sequence
+from typing import Any, Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 import numpy.typing as npt
@@ -55,3 +55,5 @@ class Model:
     def tool_motion(self, name: str) -> List[float]: ...
     def set_load_factor(self, name: str, factor: float) -> None: ...
     def load_factor(self, name: str) -> float: ...
+
+def read_image(path: str) -> Tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]: ...

@@ -339,11 +339,31 @@ impl Model {
 }
 
 /// The compiled part of the hytled package.
+/// The 3-D image at `path` (NIfTI-1 `.nii`/`.nii.gz`, NRRD `.nrrd`/`.nhdr`) as hytled reads
+/// it: the voxel values (scaled as the file says) indexed [i, j, k], and the 4x4 map from voxel
+/// index to world position (RAS, m).
+#[pyfunction]
+fn read_image<'py>(
+    py: Python<'py>,
+    path: PathBuf,
+) -> PyResult<(
+    Bound<'py, numpy::PyArray3<f64>>,
+    Bound<'py, numpy::PyArray2<f64>>,
+)> {
+    let image = hytled::io::image::read_image(&path).map_err(to_py)?;
+    let [ni, nj, nk] = image.dims;
+    let values =
+        Array3::from_shape_fn((ni, nj, nk), |(i, j, k)| image.values[image.index(i, j, k)]);
+    let affine = Array2::from_shape_fn((4, 4), |(r, c)| image.to_world[(r, c)]);
+    Ok((values.into_pyarray(py), affine.into_pyarray(py)))
+}
+
 #[pymodule]
 fn _hytled(m: &Bound<'_, PyModule>) -> PyResult<()> {
     let py = m.py();
     m.add_class::<Scene>()?;
     m.add_class::<Model>()?;
+    m.add_function(wrap_pyfunction!(read_image, m)?)?;
     m.add("HytledError", py.get_type::<HytledError>())?;
     m.add("SceneError", py.get_type::<SceneError>())?;
     m.add("InputError", py.get_type::<InputError>())?;

@@ -109,6 +109,22 @@ pub fn check_closed_surface(
             )));
         }
     }
+    if let Some(v) = pinched_vertex(&triangles, &directed) {
+        return Err(bad(format!(
+            "vertex {v} (at {}) joins sheets that meet only there: two bodies (or two parts of one) \
+             touch at a single vertex; give one body per file and keep bodies apart (or join them \
+             by a face)",
+            at(&points[v])
+        )));
+    }
+    if let Some((i, j)) = coincident_vertices(&points, &triangles, 1e-9 * diag) {
+        return Err(bad(format!(
+            "vertices {i} and {j} lie at the same place (at {}) without being one vertex: the \
+             surface touches or crosses itself there (two pieces that meet, e.g. two bodies \
+             overlapping); separate them, or merge the vertices if they are meant to be one",
+            at(&points[i])
+        )));
+    }
     // Connected pieces: one outer piece, and pieces nested in it as cavities (even-odd).
     let piece = pieces_of(points.len(), &triangles);
     let pieces = piece.iter().max().map_or(0, |&p| p + 1);
@@ -299,6 +315,80 @@ fn cavity_point(
                 return Some(x);
             }
         }
+    }
+    None
+}
+
+/// A vertex whose triangles form more than one fan (sheets that meet at that vertex alone),
+/// given each directed edge's triangle of a closed, consistently oriented surface.
+fn pinched_vertex(
+    triangles: &[[usize; 3]],
+    directed: &HashMap<(usize, usize), usize>,
+) -> Option<usize> {
+    let mut around: HashMap<usize, usize> = HashMap::new();
+    for t in triangles {
+        for &v in t {
+            *around.entry(v).or_default() += 1;
+        }
+    }
+    let mut first: HashMap<usize, usize> = HashMap::new();
+    for (k, t) in triangles.iter().enumerate() {
+        for &v in t {
+            first.entry(v).or_insert(k);
+        }
+    }
+    let mut vertices: Vec<usize> = first.keys().copied().collect();
+    vertices.sort_unstable();
+    for v in vertices {
+        let start = first[&v];
+        let (mut k, mut steps) = (start, 0usize);
+        loop {
+            let t = triangles[k];
+            let e = t.iter().position(|&x| x == v)?;
+            // The triangle across the edge from the vertex before v to v holds v -> that vertex.
+            let before = t[(e + 2) % 3];
+            k = *directed.get(&(v, before))?;
+            steps += 1;
+            if k == start || steps > around[&v] {
+                break;
+            }
+        }
+        if steps < around[&v] {
+            return Some(v);
+        }
+    }
+    None
+}
+
+/// Two distinct vertices the triangles use within `eps` (m) of each other.
+fn coincident_vertices(
+    points: &[Vector3<f64>],
+    triangles: &[[usize; 3]],
+    eps: f64,
+) -> Option<(usize, usize)> {
+    let mut used: Vec<usize> = triangles.iter().flatten().copied().collect();
+    used.sort_unstable();
+    used.dedup();
+    let eps = eps.max(f64::MIN_POSITIVE);
+    let key = |p: &Vector3<f64>| p.map(|x| (x / eps).floor() as i64);
+    let mut grid: HashMap<Vector3<i64>, Vec<usize>> = HashMap::with_capacity(used.len());
+    for &i in &used {
+        let k = key(&points[i]);
+        for dx in -1..=1 {
+            for dy in -1..=1 {
+                for dz in -1..=1 {
+                    if let Some(near) = grid.get(&(k + Vector3::new(dx, dy, dz))) {
+                        if let Some(&j) = near
+                            .iter()
+                            .find(|&&j| (points[j] - points[i]).norm() <= eps)
+                        {
+                            return Some((j.min(i), j.max(i)));
+                        }
+                    }
+                }
+            }
+        }
+        grid.entry(k).or_default().push(i);
     }
     None
 }

@@ -32,6 +32,44 @@ pub fn tissue_mask(image: &Image, labels: &[i64]) -> Vec<bool> {
         .collect()
 }
 
+/// [`tissue_mask`] of a labelmap meant to hold a body, refused where it cannot: an image one
+/// voxel thin along an axis (2-D), a chosen label that no voxel holds (the message lists those
+/// it does hold), or no tissue at all. `what` names the image.
+pub fn body_mask(image: &Image, labels: &[i64], what: &str) -> Result<Vec<bool>> {
+    if image.dims.contains(&1) {
+        return Err(Error::Input(format!(
+            "{what}: the image is {:?} voxels, one voxel thin: a 2-D image holds no body; use a 3-D labelmap",
+            image.dims
+        )));
+    }
+    let mut present: Vec<i64> = image.values.iter().map(|v| v.round() as i64).collect();
+    present.sort_unstable();
+    present.dedup();
+    let missing: Vec<i64> = labels
+        .iter()
+        .copied()
+        .filter(|l| present.binary_search(l).is_err())
+        .collect();
+    let nonzero: Vec<i64> = present.iter().copied().filter(|&l| l != 0).collect();
+    let listed = || {
+        let shown: Vec<String> = nonzero.iter().take(20).map(|l| l.to_string()).collect();
+        let more = if nonzero.len() > 20 { ", ..." } else { "" };
+        format!("[{}{more}]", shown.join(", "))
+    };
+    if !missing.is_empty() {
+        return Err(Error::Input(format!(
+            "{what}: no voxel holds label(s) {missing:?}; the image's nonzero labels are {}: check the labels",
+            listed()
+        )));
+    }
+    if nonzero.is_empty() {
+        return Err(Error::Input(format!(
+            "{what}: every voxel is 0: the image holds no labelled tissue"
+        )));
+    }
+    Ok(tissue_mask(image, labels))
+}
+
 /// Blocks along each axis for `block` voxels a block.
 fn blocks(image: &Image, block: usize) -> [usize; 3] {
     image.dims.map(|n| n.div_ceil(block))

@@ -6,6 +6,7 @@ pub mod domain;
 pub mod dome;
 pub mod image;
 pub mod image_body;
+pub mod isolated;
 pub mod mesh;
 pub mod quality;
 pub mod select;

@@ -444,16 +444,35 @@ fn snap_to_half_ellipsoid(
 /// Tetrahedral mesh by TetGen of the body a checked closed surface encloses (its triangles the
 /// PLC's facets; TetGen may add points on them). See the module documentation for
 /// `max_volume` (m^3) and `radius_edge_ratio`.
+///
+/// `what` names the surface in messages (its file). TetGen keeps every triangle, so a surface
+/// finer than `max_volume` asks sets the mesh's size: that is warned of, and the memory plan
+/// counts [`TETS_PER_FACET`] tetrahedra a triangle.
 pub fn tetgen_surface(
     surface: &super::closed_surface::ClosedSurface,
     internal: &[Vec<usize>],
     max_volume: Option<f64>,
     radius_edge_ratio: Option<f64>,
+    what: &str,
 ) -> Result<Mesh> {
     let mut facets: Vec<Vec<usize>> = surface.triangles.iter().map(|t| t.to_vec()).collect();
     facets.extend(internal.iter().cloned());
+    if let Some(v) = max_volume.filter(|v| *v > 0.0) {
+        let by_size = surface.volume() / v;
+        let by_surface = TETS_PER_FACET * facets.len() as f64;
+        if by_surface > 4.0 * by_size.max(1.0) {
+            log::warn!(
+                "{what}: its {} triangles are much finer than discretization.size: TetGen keeps every \
+                 triangle, so the mesh will have about {by_surface:.3e} tetrahedra rather than the {by_size:.3e} \
+                 the size asks for (more memory and a shorter stable step); decimate or remesh the surface to \
+                 about {:.0} triangles, or lower discretization.size to match it",
+                facets.len(),
+                (by_size / TETS_PER_FACET).max(4.0)
+            );
+        }
+    }
     run_tetgen(
-        "surface",
+        what,
         Plc {
             points: &surface.points,
             facets: &facets,
@@ -463,11 +482,22 @@ pub fn tetgen_surface(
         surface.volume(),
         max_volume,
         radius_edge_ratio,
-        // TetGen snaps vertices closer than its tolerance together (a smoothed image surface
-        // has such): 1.9e-7 on a labelled ball. A cavity filled or a piece lost is far more.
-        1e-6,
+        // TetGen snaps vertices closer than its tolerance together and puts the points it adds
+        // on a facet within its tolerance of it: 1.9e-7 of the volume on a labelled ball,
+        // 2.4-3.7e-6 on labelled balls, an 11-voxel cube and a hollow shell (issue 56: 1e-6
+        // refused them). A cavity filled or a piece of the body lost is far more.
+        SURFACE_VOLUME_TOLERANCE,
     )
 }
+
+/// Tetrahedra TetGen makes per facet of a surface finer than the volume bound (it keeps every
+/// facet and grades the inside from them): 7.5 measured on a 19,200-triangle ball of radius
+/// 50 mm at a size of 10 and 20 mm (144,000-148,000 tets); the plan takes 6.
+pub const TETS_PER_FACET: f64 = 6.0;
+
+/// Largest relative difference between the volume TetGen's tets fill and the volume the
+/// surface encloses, for a mesh of a closed surface (see [`tetgen_surface`]).
+pub const SURFACE_VOLUME_TOLERANCE: f64 = 1e-4;
 
 /// The smallest radius-edge ratio bound accepted: TetGen's refinement need not terminate below
 /// about this (measured on the brain half-ellipsoid at h = 4 mm: 1.1 meshed 31,657 nodes in
@@ -541,7 +571,7 @@ fn run_tetgen(
             }
             // Each tet is at most the bound, so the volume over it is the fewest tets TetGen
             // makes; a tet has at least about a sixth of a vertex of its own.
-            let tets = volume / v;
+            let tets = (volume / v).max(TETS_PER_FACET * facets.len() as f64);
             super::mesh::check_mesh_memory(tets / 6.0, tets, ElementShape::Tet4)?;
             // Larger than the domain: no constraint (also keeps tritet's "a%.15f" short).
             if sv >= scaled_volume {
@@ -553,64 +583,59 @@ fn run_tetgen(
     };
 
     let fail = |msg: &str| Error::Input(format!("TetGen failed to mesh the {what}: {msg}"));
-    let facet_npoints: Vec<usize> = facets.iter().map(|f| f.len()).collect();
     let _guard = TETGEN_LOCK.lock().unwrap_or_else(|e| e.into_inner());
-    let nregion = (!regions.is_empty()).then_some(regions.len());
-    let nhole = (!holes.is_empty()).then_some(holes.len());
-    let mut tg = Tetgen::new(points.len(), Some(facet_npoints), nregion, nhole).map_err(fail)?;
-    for (k, x) in holes.iter().enumerate() {
-        let x = x * scale;
-        tg.set_hole(k, x.x, x.y, x.z).map_err(fail)?;
-    }
-    for (i, p) in points.iter().enumerate() {
-        let p = p * scale;
-        tg.set_point(i, 0, p.x, p.y, p.z).map_err(fail)?;
-    }
-    // Each region its own volume bound (TetGen's `-a` without a number: then the global
-    // bound does not apply, so the caller gives the rest of the body a region too).
-    for (k, (x, v)) in regions.iter().enumerate() {
-        let x = x * scale;
-        tg.set_region(k, k as i32 + 1, x.x, x.y, x.z, Some(v * scale.powi(3)))
-            .map_err(fail)?;
-    }
     let scaled_max_volume = if regions.is_empty() {
         scaled_max_volume
     } else {
         None
     };
-    for (f, facet) in facets.iter().enumerate() {
-        for (m, &p) in facet.iter().enumerate() {
-            tg.set_facet_point(f, m, p).map_err(fail)?;
+    // In a child process: TetGen's failed asserts abort (issue 56: SIGABRT on a UV sphere's
+    // thin pole triangles), it prints on stdout, and it cannot be stopped from inside.
+    let (out, printed) = super::isolated::run(&format!("TetGen meshing the {what}"), || {
+        let facet_npoints: Vec<usize> = facets.iter().map(|f| f.len()).collect();
+        let nregion = (!regions.is_empty()).then_some(regions.len());
+        let nhole = (!holes.is_empty()).then_some(holes.len());
+        let mut tg = Tetgen::new(points.len(), Some(facet_npoints), nregion, nhole)?;
+        for (k, x) in holes.iter().enumerate() {
+            let x = x * scale;
+            tg.set_hole(k, x.x, x.y, x.z)?;
         }
-    }
-    tg.generate_mesh(false, false, scaled_max_volume, radius_edge_ratio)
-        .map_err(fail)?;
-
-    let npoint = tg.out_npoint();
-    let ncell = tg.out_ncell();
+        for (i, p) in points.iter().enumerate() {
+            let p = p * scale;
+            tg.set_point(i, 0, p.x, p.y, p.z)?;
+        }
+        // Each region its own volume bound (TetGen's `-a` without a number: then the global
+        // bound does not apply, so the caller gives the rest of the body a region too).
+        for (k, (x, v)) in regions.iter().enumerate() {
+            let x = x * scale;
+            tg.set_region(k, k as i32 + 1, x.x, x.y, x.z, Some(v * scale.powi(3)))?;
+        }
+        for (f, facet) in facets.iter().enumerate() {
+            for (m, &p) in facet.iter().enumerate() {
+                tg.set_facet_point(f, m, p)?;
+            }
+        }
+        tg.generate_mesh(false, false, scaled_max_volume, radius_edge_ratio)?;
+        Ok(tetgen_output(&tg))
+    })?;
+    let (nodes, cell_list, cell_npoint) = from_output(&out, scale);
+    let npoint = nodes.len();
+    let ncell = cell_list.len() / cell_npoint.max(1);
     if npoint < 4 || ncell == 0 {
-        // TetGen stops with its error 1 (it prints "status = 1") and returns nothing when it
-        // runs out of memory: a cube at h = 1.2 mm under `ulimit -v 1000000`, after 20 s.
         return Err(fail(&format!(
-            "it returned {npoint} points and {ncell} tetrahedra; TetGen returns nothing when it runs out of \
-             memory (\"status = 1\" above): raise discretization.size or run where more memory is free"
+            "it returned {npoint} points and {ncell} tetrahedra: {}",
+            tetgen_status(&printed)
         )));
     }
-    if tg.out_cell_npoint() < 4 {
-        return Err(fail(&format!(
-            "it returned {}-node cells",
-            tg.out_cell_npoint()
-        )));
+    if cell_npoint < 4 {
+        return Err(fail(&format!("it returned {cell_npoint}-node cells")));
     }
-    let nodes: Vec<Vector3<f64>> = (0..npoint)
-        .map(|i| Vector3::new(tg.out_point(i, 0), tg.out_point(i, 1), tg.out_point(i, 2)) / scale)
-        .collect();
     let mut cells = Vec::with_capacity(4 * ncell);
     let mut total = 0.0;
     for e in 0..ncell {
         let mut c = [0usize; 4];
         for (m, cm) in c.iter_mut().enumerate() {
-            *cm = tg.out_cell_point(e, m);
+            *cm = cell_list[e * cell_npoint + m];
         }
         if c.iter().any(|&i| i >= npoint) {
             return Err(fail(&format!(
@@ -630,7 +655,10 @@ fn run_tetgen(
     }
     if ((total - volume) / volume).abs() > volume_tolerance {
         return Err(fail(&format!(
-            "its tetrahedra fill {total:e} m^3 instead of {volume:e} m^3"
+            "its tetrahedra fill {total:e} m^3 instead of {volume:e} m^3 (relative difference {:.2e}, more than \
+             {volume_tolerance:e}): a cavity was filled or a part of the body lost; check the surface for \
+             pieces that touch or nearly touch",
+            (total - volume) / volume
         )));
     }
     Ok(Mesh {
@@ -638,6 +666,67 @@ fn run_tetgen(
         shape: ElementShape::Tet4,
         cells,
     })
+}
+
+/// TetGen's output as an [`super::isolated::Output`]: the points (as TetGen gives them,
+/// scaled) and `[nodes per cell, cell nodes...]`.
+fn tetgen_output(tg: &Tetgen) -> super::isolated::Output {
+    let (npoint, ncell, k) = (tg.out_npoint(), tg.out_ncell(), tg.out_cell_npoint());
+    let mut reals = Vec::with_capacity(3 * npoint);
+    for i in 0..npoint {
+        reals.extend([tg.out_point(i, 0), tg.out_point(i, 1), tg.out_point(i, 2)]);
+    }
+    let mut ints = Vec::with_capacity(1 + k * ncell);
+    ints.push(k as u64);
+    for e in 0..ncell {
+        ints.extend((0..k.min(4)).map(|m| tg.out_cell_point(e, m) as u64));
+    }
+    ints[0] = k.min(4) as u64;
+    super::isolated::Output { reals, ints }
+}
+
+/// Points (divided by `scale`), cell node indices and nodes per cell of [`tetgen_output`].
+fn from_output(
+    out: &super::isolated::Output,
+    scale: f64,
+) -> (Vec<Vector3<f64>>, Vec<usize>, usize) {
+    let nodes = out
+        .reals
+        .chunks_exact(3)
+        .map(|p| Vector3::new(p[0], p[1], p[2]) / scale)
+        .collect();
+    let k = out.ints.first().map_or(0, |&k| k as usize);
+    let cells = out.ints.iter().skip(1).map(|&i| i as usize).collect();
+    (nodes, cells, k)
+}
+
+/// What TetGen's "status = N" line (tritet prints it when TetGen stops) means, and the fix.
+fn tetgen_status(printed: &str) -> String {
+    let code = printed.lines().rev().find_map(|l| {
+        l.trim()
+            .strip_prefix("status = ")?
+            .trim()
+            .parse::<i32>()
+            .ok()
+    });
+    let meaning = match code {
+        Some(1) => "TetGen ran out of memory (its status 1): raise discretization.size or run where more memory is free".to_string(),
+        Some(2) => "TetGen met an internal error (its status 2): the surface is probably nearly degenerate somewhere; remesh it".to_string(),
+        Some(3) => "TetGen found facets that cross each other (its status 3): the surface intersects itself, or two \
+                    surfaces (the body's and a region's, or two regions') cross or coincide; separate them"
+            .to_string(),
+        Some(4) => "TetGen found an input feature smaller than its tolerance (its status 4): vertices or facets \
+                    nearly on top of each other; clean the surface"
+            .to_string(),
+        Some(5) => "TetGen found two facets very close to each other (its status 5): surfaces that nearly touch; \
+                    move them apart"
+            .to_string(),
+        Some(10) => "TetGen found an input error (its status 10)".to_string(),
+        Some(n) => format!("TetGen stopped with status {n}"),
+        None if printed.is_empty() => "TetGen said nothing".to_string(),
+        None => format!("TetGen printed: \"{}\"", printed.replace('\n', " / ")),
+    };
+    meaning
 }
 
 /// Delaunay tetrahedralization of a point cloud (TetGen, no added points): the convex hull
@@ -658,24 +747,29 @@ pub fn delaunay(points: &[Vector3<f64>]) -> Result<Vec<[usize; 4]>> {
         )));
     }
     let _guard = TETGEN_LOCK.lock().unwrap_or_else(|e| e.into_inner());
-    let mut tg = Tetgen::new(points.len(), None, None, None).map_err(fail)?;
-    for (i, p) in points.iter().enumerate() {
-        tg.set_point(i, 0, p.x, p.y, p.z).map_err(fail)?;
-    }
-    tg.generate_delaunay(false).map_err(fail)?;
-    if tg.out_npoint() != points.len() || tg.out_cell_npoint() < 4 {
+    let (out, _) = super::isolated::run("TetGen tetrahedralizing the node cloud", || {
+        let mut tg = Tetgen::new(points.len(), None, None, None)?;
+        for (i, p) in points.iter().enumerate() {
+            tg.set_point(i, 0, p.x, p.y, p.z)?;
+        }
+        tg.generate_delaunay(false)?;
+        Ok(tetgen_output(&tg))
+    })?;
+    let (returned, cell_list, k) = from_output(&out, 1.0);
+    if returned.len() != points.len() || k < 4 {
         return Err(fail(&format!(
             "it returned {} points for {} (duplicate nodes?)",
-            tg.out_npoint(),
+            returned.len(),
             points.len()
         )));
     }
-    let mut tets = Vec::with_capacity(tg.out_ncell());
-    let mut vols = Vec::with_capacity(tg.out_ncell());
-    for e in 0..tg.out_ncell() {
+    let ncell = cell_list.len() / k;
+    let mut tets = Vec::with_capacity(ncell);
+    let mut vols = Vec::with_capacity(ncell);
+    for e in 0..ncell {
         let mut c = [0usize; 4];
         for (m, cm) in c.iter_mut().enumerate() {
-            *cm = tg.out_cell_point(e, m);
+            *cm = cell_list[e * k + m];
         }
         if c.iter().any(|&i| i >= points.len()) {
             return Err(fail(&format!(

@@ -105,72 +105,181 @@ fn nifti_unit(xyzt_units: u8) -> f64 {
     }
 }
 
+/// Bytes per voxel and the decoder of one voxel (little- or big-endian) for a NIfTI-1
+/// `datatype`, with the type's name for messages; `None` for the types hytled does not read
+/// (complex, RGB, 128-bit).
+fn nifti_type(datatype: i16) -> Option<(usize, &'static str, fn(&[u8], bool) -> f64)> {
+    fn word<const N: usize>(b: &[u8], big: bool) -> [u8; N] {
+        let mut a: [u8; N] = std::array::from_fn(|i| b[i]);
+        if big {
+            a.reverse();
+        }
+        a
+    }
+    Some(match datatype {
+        2 => (1, "uint8", |b, _| b[0] as f64),
+        256 => (1, "int8", |b, _| b[0] as i8 as f64),
+        4 => (2, "int16", |b, e| i16::from_le_bytes(word(b, e)) as f64),
+        512 => (2, "uint16", |b, e| u16::from_le_bytes(word(b, e)) as f64),
+        8 => (4, "int32", |b, e| i32::from_le_bytes(word(b, e)) as f64),
+        768 => (4, "uint32", |b, e| u32::from_le_bytes(word(b, e)) as f64),
+        1024 => (8, "int64", |b, e| i64::from_le_bytes(word(b, e)) as f64),
+        1280 => (8, "uint64", |b, e| u64::from_le_bytes(word(b, e)) as f64),
+        16 => (4, "float32", |b, e| f32::from_le_bytes(word(b, e)) as f64),
+        64 => (8, "float64", |b, e| f64::from_le_bytes(word(b, e))),
+        _ => return None,
+    })
+}
+
+/// The NIfTI-1 header's size field (`sizeof_hdr`), which also gives the byte order.
+const NIFTI1_HEADER: i32 = 348;
+
+/// Reads a single-file NIfTI-1 image (`.nii`, `.nii.gz`) as nibabel does: the header in
+/// either byte order, the voxels from `vox_offset` (after any header extensions), scaled by
+/// `scl_slope` and `scl_inter` where the slope is set (non-zero and finite), the sform where
+/// its code is set, else the qform, else the voxel sizes.
 fn read_nifti(path: &Path) -> Result<Image> {
-    use nifti::{IntoNdArray, NiftiObject};
     if !path.is_file() {
         return Err(file_error(path, "no such image file"));
     }
-    let object = super::catch_quietly(|| nifti::ReaderOptions::new().read_file(path))
-        .map_err(|_| file_error(path, "not a readable NIfTI-1 file (its reader failed)"))?
-        .map_err(|e| {
-            let why = match &e {
-                nifti::NiftiError::Io(io) if io.kind() == std::io::ErrorKind::UnexpectedEof => {
-                    "the file ends before its header and voxels do (truncated?)".to_string()
-                }
-                other => other.to_string(),
-            };
-            file_error(path, format!("not a readable NIfTI-1 file: {why}"))
-        })?;
-    let h = object.header().clone();
+    let mut bytes = std::fs::read(path).map_err(|e| file_error(path, e))?;
+    if bytes.starts_with(&[0x1f, 0x8b]) {
+        let mut out = Vec::new();
+        flate2::read::MultiGzDecoder::new(&bytes[..])
+            .read_to_end(&mut out)
+            .map_err(|e| file_error(path, format!("its gzip data could not be inflated: {e}")))?;
+        bytes = out;
+    }
+    if bytes.len() < NIFTI1_HEADER as usize {
+        return Err(file_error(
+            path,
+            format!(
+                "the file holds {} bytes, less than NIfTI-1's {NIFTI1_HEADER}-byte header (truncated?)",
+                bytes.len()
+            ),
+        ));
+    }
+    let size = [bytes[0], bytes[1], bytes[2], bytes[3]];
+    if ![i32::from_le_bytes(size), i32::from_be_bytes(size)].contains(&NIFTI1_HEADER) {
+        let why = if [i32::from_le_bytes(size), i32::from_be_bytes(size)].contains(&540) {
+            "a NIfTI-2 file; hytled reads NIfTI-1 (save it as NIfTI-1, e.g. with nibabel's Nifti1Image or 3D Slicer)"
+        } else {
+            "not a NIfTI-1 file (its first 4 bytes are not the header size 348)"
+        };
+        return Err(file_error(path, why));
+    }
+    match &bytes[344..348] {
+        b"n+1\0" => {}
+        b"ni1\0" => {
+            return Err(file_error(
+                path,
+                "a header-only NIfTI-1 (.hdr/.img pair); save the image as a single .nii or .nii.gz",
+            ))
+        }
+        m => {
+            return Err(file_error(
+                path,
+                format!(
+                    "its magic is {:?}, not NIfTI-1's \"n+1\" (an ANALYZE 7.5 file?); save it as NIfTI-1",
+                    String::from_utf8_lossy(m).trim_end_matches('\0')
+                ),
+            ))
+        }
+    }
+    let h = super::catch_quietly(|| nifti::NiftiHeader::from_reader(&bytes[..348]))
+        .map_err(|_| file_error(path, "its NIfTI-1 header could not be read"))?
+        .map_err(|e| file_error(path, format!("its NIfTI-1 header could not be read: {e}")))?;
+    let big = h.endianness == nifti::Endianness::Big;
     let ndim = h.dim[0] as usize;
     if !(1..=7).contains(&ndim) {
         return Err(file_error(
             path,
-            format!("dim[0] = {ndim}; NIfTI allows 1 to 7"),
+            format!("dim[0] = {}; NIfTI allows 1 to 7", h.dim[0]),
         ));
     }
-    let size = |a: usize| {
-        if a <= ndim {
-            h.dim[a].max(1) as usize
-        } else {
-            1
-        }
-    };
-    let dims = [size(1), size(2), size(3)];
-    let extra: usize = (4..=ndim).map(size).product();
-    let unit = nifti_unit(h.xyzt_units);
-    let to_world = nifti_affine(&h).map_err(|m| file_error(path, m))? * unit;
-    let mut to_world = to_world;
-    to_world[(3, 3)] = 1.0;
-    let mut image = check_map(path, dims, to_world)?;
-    let array = super::catch_quietly(|| object.into_volume().into_ndarray::<f64>())
-        .map_err(|_| file_error(path, "its voxel data could not be read"))?
-        .map_err(|e| file_error(path, format!("its voxel data could not be read: {e}")))?;
-    if array.len() != image.len() * extra {
+    if let Some(a) = (1..=ndim).find(|&a| h.dim[a] < 1) {
         return Err(file_error(
             path,
-            format!("it holds {} values for {dims:?} voxels", array.len()),
+            format!(
+                "dim[{a}] = {}: every axis needs at least one voxel",
+                h.dim[a]
+            ),
         ));
     }
-    if extra > 1 {
-        log::warn!(
-            "{}: the image has {extra} volumes (4-D or more); the first is read",
-            path.display()
-        );
+    let size = |a: usize| if a <= ndim { h.dim[a] as usize } else { 1 };
+    let dims = [size(1), size(2), size(3)];
+    let volumes: usize = (4..=ndim).map(size).product();
+    if volumes > 1 {
+        return Err(file_error(
+            path,
+            format!(
+                "the image holds {volumes} volumes (dim = {:?}); hytled reads one 3-D volume: \
+                 save the one you mean on its own (e.g. fslroi, or nibabel's img.slicer[..., 0])",
+                &h.dim[..=ndim]
+            ),
+        ));
     }
-    let shape = array.shape().to_vec();
-    for k in 0..dims[2] {
-        for j in 0..dims[1] {
-            for i in 0..dims[0] {
-                let mut at = vec![0usize; shape.len()];
-                for (a, v) in [i, j, k].into_iter().enumerate().take(shape.len()) {
-                    at[a] = v;
-                }
-                let v = array[at.as_slice()];
-                let n = image.index(i, j, k);
-                image.values[n] = v;
-            }
-        }
+    let Some((width, type_name, decode)) = nifti_type(h.datatype) else {
+        return Err(file_error(
+            path,
+            format!(
+                "datatype {} is not read (use uint8, int8, int16, uint16, int32, uint32, int64, uint64, float32 or float64)",
+                h.datatype
+            ),
+        ));
+    };
+    let offset = h.vox_offset as f64;
+    if !(offset >= 352.0) || !offset.is_finite() {
+        return Err(file_error(
+            path,
+            format!(
+                "vox_offset = {offset}: a single-file NIfTI-1's voxels start at byte 352 or later, after the header and its extension flag"
+            ),
+        ));
+    }
+    let offset = offset as usize;
+    let voxels = dims[0]
+        .checked_mul(dims[1])
+        .and_then(|v| v.checked_mul(dims[2]))
+        .filter(|&n| n <= MAX_VOXELS)
+        .ok_or_else(|| {
+            file_error(
+                path,
+                format!("the image has {dims:?} voxels, more than the {MAX_VOXELS} hytled reads; crop or resample it"),
+            )
+        })?;
+    let need = voxels * width;
+    if offset.saturating_add(need) > bytes.len() {
+        return Err(file_error(
+            path,
+            format!(
+                "the file is too short: its header says {dims:?} voxels of {type_name} ({need} bytes) from byte {offset} (vox_offset), \
+                 but it holds {} bytes{}; the file is truncated or its header is wrong",
+                bytes.len(),
+                if path.to_string_lossy().ends_with(".gz") { " once inflated" } else { "" }
+            ),
+        ));
+    }
+    let unit = nifti_unit(h.xyzt_units);
+    let mut to_world = nifti_affine(&h).map_err(|m| file_error(path, m))? * unit;
+    to_world[(3, 3)] = 1.0;
+    let mut image = check_map(path, dims, to_world)?;
+    // nibabel's rule: a slope of 0 or one not finite means unscaled data; a finite slope needs
+    // a finite intercept.
+    let (slope, inter) = (h.scl_slope as f64, h.scl_inter as f64);
+    let (slope, inter) = if slope == 0.0 || !slope.is_finite() {
+        (1.0, 0.0)
+    } else if !inter.is_finite() {
+        return Err(file_error(
+            path,
+            format!("scl_slope = {slope} is set but scl_inter = {inter} is not a finite number"),
+        ));
+    } else {
+        (slope, inter)
+    };
+    let data = &bytes[offset..offset + need];
+    for (v, b) in image.values.iter_mut().zip(data.chunks_exact(width)) {
+        *v = decode(b, big) * slope + inter;
     }
     if let Some(n) = image.values.iter().position(|v| !v.is_finite()) {
         return Err(file_error(
@@ -347,6 +456,14 @@ fn read_nrrd(path: &Path) -> Result<Image> {
     }
     let lead = dimension - 3;
     let components = if lead == 1 { sizes[0] } else { 1 };
+    if components > 1 {
+        return Err(file_error(
+            path,
+            format!(
+                "the image holds {components} values per voxel (sizes {sizes:?}, kinds {kinds:?}); hytled reads one scalar 3-D volume: save the one you mean on its own"
+            ),
+        ));
+    }
     let dims = [sizes[lead], sizes[lead + 1], sizes[lead + 2]];
     // Orientation: space directions (one per axis, 'none' for non-spatial) or spacings.
     let space = h.get("space").map(|s| s.to_ascii_lowercase());
@@ -530,6 +647,31 @@ fn read_nrrd(path: &Path) -> Result<Image> {
     let mut raw = Vec::new();
     match h.get("data file").or_else(|| h.get("datafile")) {
         Some(f) => {
+            // Only a file beside the header (or below it) is read: a header must not be able
+            // to name any file on the machine (`data file: /etc/passwd`).
+            let rel = Path::new(f);
+            if rel.is_absolute()
+                || rel.components().any(|c| {
+                    !matches!(
+                        c,
+                        std::path::Component::Normal(_) | std::path::Component::CurDir
+                    )
+                })
+            {
+                return Err(file_error(
+                    path,
+                    format!(
+                        "data file '{}' is not a path below the header's folder; hytled reads detached data from a relative path beside the .nhdr (move the data file there and name it relatively)",
+                        super::clip(f)
+                    ),
+                ));
+            }
+            if f.eq_ignore_ascii_case("LIST") || f.contains('%') {
+                return Err(file_error(
+                    path,
+                    format!("data file '{}': lists of data files are not read; join the slices into one data file", super::clip(f)),
+                ));
+            }
             let data_path = path.parent().unwrap_or(Path::new(".")).join(f);
             std::fs::File::open(&data_path)
                 .and_then(|mut d| d.read_to_end(&mut raw))
@@ -566,11 +708,21 @@ fn read_nrrd(path: &Path) -> Result<Image> {
             format!("it holds {} bytes of data; {dims:?} voxels of {components} {kind} need {need_bytes}", raw.len()),
         ));
     }
-    // A detached or attached raw file may carry a header before the data: the data are last.
-    let start = if encoding == "raw" {
-        raw.len() - need_bytes
-    } else {
-        0
+    // `byte skip` as pynrrd and Teem read it: bytes before the data (after decompression for
+    // gzip), -1 for "the data are the file's last bytes"; none, the data start at once.
+    let start = match h.get("byte skip").or_else(|| h.get("byteskip")) {
+        None => 0,
+        Some(v) => match v.trim().parse::<i64>() {
+            Ok(-1) => raw.len() - need_bytes,
+            Ok(k) if k >= 0 && (k as usize).saturating_add(need_bytes) <= raw.len() => k as usize,
+            _ => return Err(file_error(
+                path,
+                format!(
+                    "byte skip '{}' is not -1 or a whole number of bytes the data leave room for",
+                    super::clip(v)
+                ),
+            )),
+        },
     };
     for (n, v) in image.values.iter_mut().enumerate() {
         let at = start + n * components * bytes;

@@ -37,6 +37,29 @@ pub struct OutDir {
     _lock: File,
 }
 
+/// The folders claimed and not yet committed or failed: an out-of-memory exit marks them
+/// failed ([`crate::memory::on_out_of_memory`]), so none is left saying "running".
+static OPEN: std::sync::Mutex<Vec<PathBuf>> = std::sync::Mutex::new(Vec::new());
+
+fn out_of_memory(message: &str) {
+    let dirs = match OPEN.try_lock() {
+        Ok(d) => d.clone(),
+        Err(_) => return,
+    };
+    let e = Error::Input(message.to_string());
+    for d in dirs {
+        fail_at(&d, &e);
+    }
+}
+
+impl Drop for OutDir {
+    fn drop(&mut self) {
+        if let Ok(mut open) = OPEN.lock() {
+            open.retain(|d| d != &self.dir);
+        }
+    }
+}
+
 fn io(path: &Path, e: std::io::Error) -> Error {
     Error::io(path, e)
 }
@@ -213,6 +236,10 @@ impl OutDir {
             }
         }
         write_manifest(dir, &[SUMMARY.to_string()])?;
+        crate::memory::on_out_of_memory(out_of_memory);
+        if let Ok(mut open) = OPEN.lock() {
+            open.push(dir.to_path_buf());
+        }
         Ok(OutDir {
             dir: dir.to_path_buf(),
             _lock: lock,
@@ -258,7 +285,14 @@ impl OutDir {
     /// in and summary.json carries `"status": "failed"` with the error. Best effort (the run's
     /// own error is what matters).
     pub fn fail(&self, e: &Error) {
-        let s = self.dir.join(STAGING);
+        fail_at(&self.dir, e);
+    }
+}
+
+/// [`OutDir::fail`] on the folder `dir`.
+fn fail_at(dir: &Path, e: &Error) {
+    {
+        let s = dir.join(STAGING);
         // What the run wrote before it failed (the frames up to a divergence and their .pvd)
         // is kept for debugging; a staged summary would claim a result, so it is dropped.
         let mut kept: Vec<String> = std::fs::read_dir(&s)
@@ -272,13 +306,13 @@ impl OutDir {
         kept.sort();
         let mut all = kept.clone();
         all.push(SUMMARY.into());
-        if write_manifest(&self.dir, &all).is_ok() {
+        if write_manifest(dir, &all).is_ok() {
             for n in &kept {
-                let _ = std::fs::rename(s.join(n), self.dir.join(n));
+                let _ = std::fs::rename(s.join(n), dir.join(n));
             }
         }
         let _ = std::fs::remove_dir_all(&s);
-        let _ = write_status(&self.dir, "failed", Some(e));
+        let _ = write_status(dir, "failed", Some(e));
     }
 }
 

@@ -29,6 +29,8 @@ pub(super) fn boundary(
     let text = std::fs::read_to_string(&path)
         .map_err(|e| Error::io(format!("{} (measured.{name}.file)", path.display()), e))?;
     let points = parse_measured(&text, &path)?;
+    let where_ = |line: usize| format!("measured '{name}' ({} line {line})", path.display());
+    let points = without_repeats(points, input, &where_)?;
     let (lo, hi) = crate::geometry::select::bounds(nodes);
     let tolerance = spec
         .tolerance
@@ -49,7 +51,6 @@ pub(super) fn boundary(
             ))
         })?
     };
-    let where_ = |line: usize| format!("measured '{name}' ({} line {line})", path.display());
     if spec.interpolate {
         let mut xs = Vec::with_capacity(points.len());
         for m in &points {
@@ -135,6 +136,54 @@ pub(super) fn boundary(
             values,
         })),
     })
+}
+
+/// The measured points with each position given once: a point repeated with the same
+/// displacement is kept once (and said); one repeated with another displacement is an error
+/// naming both lines (which value holds there is the user's to say, not a blend of the two).
+fn without_repeats(
+    points: Vec<crate::io::measured::Measured>,
+    input: Option<&MeshInput>,
+    where_: &dyn Fn(usize) -> String,
+) -> Result<Vec<crate::io::measured::Measured>> {
+    let key = |x: Vector3<f64>| x.map(|v| if v == 0.0 { 0u64 } else { v.to_bits() });
+    let mut first: std::collections::HashMap<Vector3<u64>, usize> = Default::default();
+    let mut kept: Vec<crate::io::measured::Measured> = Vec::with_capacity(points.len());
+    let mut repeats = Vec::new();
+    for m in points {
+        let x = position(&m, input, where_)?;
+        match first.get(&key(x)) {
+            None => {
+                first.insert(key(x), kept.len());
+                kept.push(m);
+            }
+            Some(&k) if kept[k].u == m.u => repeats.push((m.line, kept[k].line)),
+            Some(&k) => {
+                return Err(Error::Input(format!(
+                    "{}: the point ({:.6e}, {:.6e}, {:.6e}) m is given again with another displacement                      ({:.6e}, {:.6e}, {:.6e}) m; line {} gives ({:.6e}, {:.6e}, {:.6e}) m there: keep one of them",
+                    where_(m.line),
+                    x.x,
+                    x.y,
+                    x.z,
+                    m.u.x,
+                    m.u.y,
+                    m.u.z,
+                    kept[k].line,
+                    kept[k].u.x,
+                    kept[k].u.y,
+                    kept[k].u.z
+                )))
+            }
+        }
+    }
+    if let Some((line, of)) = repeats.first() {
+        log::warn!(
+            "{}: {} point(s) repeat an earlier line with the same displacement (line {line} repeats line {of}); each is used once",
+            where_(*line),
+            repeats.len()
+        );
+    }
+    Ok(kept)
 }
 
 /// A measured point's position: as written, or the mesh file's node it names.

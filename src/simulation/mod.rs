@@ -510,6 +510,11 @@ pub fn run_scene(scene: &Scene, opts: &RunOptions) -> Result<Summary> {
         .map(crate::io::out_dir::OutDir::open)
         .transpose()?;
     let result = (|| {
+        // Read before anything is computed, so a file that cannot be used costs no solve.
+        let out_image = match &dir {
+            Some(_) => output::output_image(scene)?,
+            None => None,
+        };
         let mut prep = prepare(scene)?;
         let mut settings = settings(scene, opts.progress);
         settings.progress_lines = opts.progress_lines;
@@ -542,7 +547,9 @@ pub fn run_scene(scene: &Scene, opts: &RunOptions) -> Result<Summary> {
         let run = solver::run_streaming(model, &settings, &mut |m, t, u| frames.write(m, t, u));
         frames.write_series()?;
         let image_written = match &run {
-            Ok(out) => output::write_image_outputs(&staging, &name, scene, &frames, &out.u),
+            Ok(out) => {
+                output::write_image_outputs(&staging, &name, out_image.as_ref(), &frames, &out.u)
+            }
             Err(_) => Ok(()),
         };
         let out = run.map_err(|e| with_setup_warnings(e, &prep.warnings))?;

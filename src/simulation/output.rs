@@ -678,8 +678,21 @@ pub fn write_outputs(
         frames.write(&mut prep.model, *t, u)?;
     }
     frames.write_series()?;
-    write_image_outputs(dir, &name, scene, &frames, &out.u)?;
+    let image = output_image(scene)?;
+    write_image_outputs(dir, &name, image.as_ref(), &frames, &out.u)?;
     write_results(dir, &name, prep, out, summary, format)
+}
+
+/// `output.image`, read (None without it): read before the solve, so that a file that
+/// cannot be used stops the run before its time is spent.
+pub fn output_image(
+    scene: &Scene,
+) -> Result<Option<(crate::io::image::Image, std::path::PathBuf)>> {
+    let Some(file) = &scene.output.image else {
+        return Ok(None);
+    };
+    let path = super::translate::scene_path(scene, file);
+    Ok(Some((crate::io::image::read_image(&path)?, path)))
 }
 
 /// `output.image`: on that image's grid, the displacement field that warps it into the
@@ -689,25 +702,56 @@ pub fn write_outputs(
 pub fn write_image_outputs(
     dir: &Path,
     name: &str,
-    scene: &Scene,
+    image: Option<&(crate::io::image::Image, std::path::PathBuf)>,
     frames: &FrameWriter,
     u: &[Vector3<f64>],
 ) -> Result<()> {
-    let Some(file) = &scene.output.image else {
+    let Some((image, path)) = image else {
         return Ok(());
     };
-    let path = super::translate::scene_path(scene, file);
-    let image = crate::io::image::read_image(&path)?;
     let (mesh, disp) = frames.deformation(u)?;
-    let (d, covered) = crate::geometry::warp::pull_back(&image, &mesh, &disp)?;
-    let warped = crate::geometry::warp::warp(&image, &d);
-    let ext = match crate::io::image::ImageFormat::from_path(&path) {
+    let (d, covered) = crate::geometry::warp::pull_back(image, &mesh, &disp)?;
+    if covered == 0 {
+        let (lo, hi) = crate::geometry::select::bounds(&mesh.nodes);
+        let corners: Vec<Vector3<f64>> = (0..8)
+            .map(|c| {
+                image.world(&Vector3::new(
+                    if c & 1 == 0 {
+                        -0.5
+                    } else {
+                        image.dims[0] as f64 - 0.5
+                    },
+                    if c & 2 == 0 {
+                        -0.5
+                    } else {
+                        image.dims[1] as f64 - 0.5
+                    },
+                    if c & 4 == 0 {
+                        -0.5
+                    } else {
+                        image.dims[2] as f64 - 0.5
+                    },
+                ))
+            })
+            .collect();
+        let (ilo, ihi) = crate::geometry::select::bounds(&corners);
+        return Err(Error::Input(format!(
+            "output.image {}: none of its {} voxels lies in the deformed body: the image spans \
+             [{:.4e}, {:.4e}, {:.4e}] to [{:.4e}, {:.4e}, {:.4e}] m, the body [{:.4e}, {:.4e}, {:.4e}] to \
+             [{:.4e}, {:.4e}, {:.4e}] m (RAS); give an image of the same scene (check its origin, units and orientation)",
+            path.display(),
+            image.len(),
+            ilo.x, ilo.y, ilo.z, ihi.x, ihi.y, ihi.z, lo.x, lo.y, lo.z, hi.x, hi.y, hi.z
+        )));
+    }
+    let warped = crate::geometry::warp::warp(image, &d);
+    let ext = match crate::io::image::ImageFormat::from_path(path) {
         Some(crate::io::image::ImageFormat::Nrrd) => "nrrd",
         _ => "nii.gz",
     };
     crate::io::image::write_displacement_field(
         &dir.join(format!("{name}_displacement.{ext}")),
-        &image,
+        image,
         &d,
     )?;
     crate::io::image::write_image(&dir.join(format!("{name}_warped.{ext}")), &warped)?;

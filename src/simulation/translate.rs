@@ -89,7 +89,7 @@ pub fn rigid_surface(
     let mut surface = if crate::io::image::ImageFormat::from_path(path).is_some() {
         let image = crate::io::image::read_image(path)?;
         let labels = c.labels.clone().unwrap_or_default();
-        let mask = crate::geometry::image_body::tissue_mask(&image, &labels);
+        let mask = crate::geometry::image_body::body_mask(&image, &labels, &what)?;
         let block = image_block(scene, &image);
         crate::geometry::image_body::label_surface(
             &image,
@@ -158,9 +158,9 @@ fn image_voxel_mesh(scene: &Scene, shape: ElementShape) -> Result<Mesh> {
     let Geometry::Image { labels, .. } = &scene.geometry else {
         unreachable!("called for image geometries")
     };
-    let mask = crate::geometry::image_body::tissue_mask(&image, labels);
-    let block = image_block(scene, &image);
     let what = path.display().to_string();
+    let mask = crate::geometry::image_body::body_mask(&image, labels, &what)?;
+    let block = image_block(scene, &image);
     let (mesh, dropped) = crate::geometry::image_body::voxel_mesh(&image, &mask, block, &what)?;
     if dropped > 0 {
         log::warn!("{what}: {dropped} block(s) of tissue apart from the body were dropped (they would float free)");
@@ -188,9 +188,9 @@ fn image_surface(scene: &Scene) -> Result<crate::geometry::closed_surface::Close
     else {
         unreachable!("called for image geometries")
     };
-    let mask = crate::geometry::image_body::tissue_mask(&image, labels);
-    let block = image_block(scene, &image);
     let what = path.display().to_string();
+    let mask = crate::geometry::image_body::body_mask(&image, labels, &what)?;
+    let block = image_block(scene, &image);
     let (surface, report) =
         crate::geometry::image_body::label_surface(&image, &mask, block, *smoothing, true, &what)?;
     if report.islands > 0 {
@@ -397,15 +397,39 @@ fn tetgen_mesh(scene: &Scene) -> Result<Mesh> {
                 surface.volume()
             );
             let (surface, extra) = with_region_surfaces(scene, surface)?;
-            tetgen::tetgen_surface(&surface, &extra, max_volume, d.radius_edge_ratio)
+            let what = surface_what(scene, &format!("surface {}", path.display()));
+            tetgen::tetgen_surface(&surface, &extra, max_volume, d.radius_edge_ratio, &what)
         }
-        Geometry::Image { .. } => {
+        Geometry::Image { file, .. } => {
             let (surface, extra) = with_region_surfaces(scene, image_surface(scene)?)?;
-            tetgen::tetgen_surface(&surface, &extra, max_volume, d.radius_edge_ratio)
+            let what = surface_what(
+                scene,
+                &format!("surface of the labels of {}", scene_path(scene, file).display()),
+            );
+            tetgen::tetgen_surface(&surface, &extra, max_volume, d.radius_edge_ratio, &what)
         }
         Geometry::Mesh { .. } => Err(Error::Input(
             "discretization.mesher = 'tetgen' meshes built-in shapes; a mesh file is used as it is (remove mesher)".into(),
         )),
+    }
+}
+
+/// `body` and, where regions give surfaces, those surfaces' files: what TetGen meshes, for
+/// its messages.
+fn surface_what(scene: &Scene, body: &str) -> String {
+    let regions: Vec<String> = scene
+        .regions
+        .iter()
+        .filter_map(|(name, r)| {
+            r.surface
+                .as_ref()
+                .map(|f| format!("region '{name}' ({})", scene_path(scene, f).display()))
+        })
+        .collect();
+    if regions.is_empty() {
+        body.to_string()
+    } else {
+        format!("{body} with {}", regions.join(", "))
     }
 }
 
