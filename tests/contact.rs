@@ -506,13 +506,27 @@ fn contact_on_prescribed_nodes_is_an_error_naming_both() {
 }
 
 /// A rigid body that starts inside the tissue without touching its surface is refused (no
-/// surface point would ever feel it).
+/// surface point would ever feel it); issue 56: a closed surface tool too (it ran "converged"
+/// with every displacement 0), and a skull-like tool around the body is not.
 #[test]
 fn a_rigid_body_inside_the_tissue_is_refused() {
     let cube = path("cases/cube-compression.toml");
+    let dir = std::env::temp_dir().join(format!("hytled-inside-tool-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let file = dir.join("inner.stl");
+    let stl = common::ascii_stl(
+        &common::box_corners([0.03; 3], [0.07; 3]),
+        &common::box_triangles(),
+    );
+    std::fs::write(&file, stl).unwrap();
+    let surface_tool = format!(
+        "contact.block={{ shape = \"surface\", file = \"{}\", motion = [0.0, 0.0, -0.004] }}",
+        file.display()
+    );
     for tool in [
         "contact.ball={ shape = \"sphere\", center = [0.05, 0.05, 0.05], radius = 0.01, motion = [0.0, 0.0, 0.01] }",
         "contact.rod={ shape = \"cylinder\", center = [0.05, 0.05, 0.05], axis = [1.0, 0.0, 0.0], radius = 0.005, min = -0.02, max = 0.02 }",
+        surface_tool.as_str(),
     ] {
         for method in [&["discretization.method=fe"][..], &["discretization.method=meshless"]] {
             let mut o: Vec<String> = method.iter().map(|s| s.to_string()).collect();

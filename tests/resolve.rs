@@ -353,3 +353,66 @@ fn a_ten_percent_change_of_the_brain_shift_measurements_resolves_warm() {
         cold.output.steps
     );
 }
+
+/// Issue 56: a warm re-solve after a tool moved further than it may jump is solved from the
+/// unloaded state (a warm start put the ball at its final place at once: it passed through the
+/// cube's top, "converged" with reaction 0); a small move stays warm.
+#[test]
+fn a_tool_moved_far_is_not_warm_started_through_the_surface() {
+    let file = cube_without_top("ball", "");
+    let o: Vec<String> = vec![
+        "references={}".into(),
+        "discretization.size=0.025".into(),
+        "contact.ball={ shape = \"sphere\", center = [0.05, 0.05, 0.12], radius = 0.02, motion = [0.0, 0.0, -0.024] }".into(),
+    ];
+    let mut session = Session::new(hytled::scene::load(&file, &o).unwrap()).unwrap();
+    let first = session.solve().unwrap();
+    let f0 = first.summary.reactions["ball"][2];
+    assert!(f0 > 0.0, "the ball pushes: {f0}");
+    session.set_tool_motion("ball", [0.0, 0.0, -0.027]).unwrap();
+    let small = session.solve().unwrap();
+    assert!(small.warm, "a 3 mm move of a 20 mm ball stays warm");
+    let cold = session.solve_cold().unwrap();
+    let (fw, fc) = (
+        small.summary.reactions["ball"][2],
+        cold.summary.reactions["ball"][2],
+    );
+    println!(
+        "ball: {f0} N at 24 mm; at 27 mm warm {fw} N ({} steps), cold {fc} N ({} steps)",
+        small.output.steps, cold.output.steps
+    );
+    assert!(((fw - fc) / fc).abs() < 0.01, "warm {fw} N, cold {fc} N");
+    session.set_tool_motion("ball", [0.0, 0.0, -0.1]).unwrap();
+    match session.solve() {
+        Ok(s) => {
+            let f = s.summary.reactions["ball"][2];
+            assert!(!s.warm, "{:?}", s.summary.warnings);
+            assert!(
+                s.summary.warnings.iter().any(|w| w.contains("ball' moved")),
+                "{:?}",
+                s.summary.warnings
+            );
+            // Cold, the 20 mm ball between the 25 mm mesh's top nodes slips past them (contact
+            // acts on nodes): that is the coarse mesh's answer, the same as a scene written
+            // with the move, and not a warm jump.
+            let mut written = Session::new(
+                hytled::scene::load(
+                    &file,
+                    &[
+                        "references={}".to_string(),
+                        "discretization.size=0.025".into(),
+                        "contact.ball={ shape = \"sphere\", center = [0.05, 0.05, 0.12], radius = 0.02, motion = [0.0, 0.0, -0.1] }".into(),
+                    ],
+                )
+                .unwrap(),
+            )
+            .unwrap();
+            let w = written.solve().unwrap().summary.reactions["ball"][2];
+            assert_eq!(f, w);
+        }
+        Err(e) => assert!(
+            matches!(e, hytled::Error::Unstable(_)),
+            "the cold solve's answer: {e}"
+        ),
+    }
+}

@@ -75,8 +75,13 @@ impl RigidShape {
                 .map(|t| center + axis * *t)
                 .collect(),
             RigidShape::Cylinder { .. } => Vec::new(),
-            // Any point inside would do; the check that uses these is for the analytic tools.
-            RigidShape::Surface(_) => Vec::new(),
+            // Its vertices (up to 64, spread over the list): a tool wholly inside the tissue has
+            // them all inside.
+            RigidShape::Surface(tool) => {
+                let p = &tool.surface().points;
+                let step = p.len().div_ceil(64).max(1);
+                p.iter().step_by(step).copied().collect()
+            }
         }
     }
 
@@ -372,6 +377,27 @@ impl Contact {
     /// [`RigidShape::core_points`] of body `b` in its reference position.
     pub fn core_points(&self, b: usize) -> Vec<Vector3<f64>> {
         self.bodies[b].shape.core_points()
+    }
+
+    /// How far rigid body `b` may jump in one go (m) without carrying a surface point past its
+    /// middle, where the correction would push it out on the far side: a plane, any distance;
+    /// a ball or a cylinder, half its radius; a closed surface, a quarter of the smallest side
+    /// of its bounding box.
+    pub fn jump_limit(&self, b: usize) -> f64 {
+        match &self.bodies[b].shape {
+            RigidShape::Plane { .. } => f64::INFINITY,
+            RigidShape::Sphere { radius, .. } | RigidShape::Cylinder { radius, .. } => 0.5 * radius,
+            RigidShape::Surface(tool) => {
+                let (lo, hi) = crate::geometry::select::bounds(&tool.surface().points);
+                0.25 * (hi - lo).min()
+            }
+        }
+    }
+
+    /// Whether rigid body `b` is a closed surface (its core points are its vertices: inside the
+    /// tissue means all of them inside, where an analytic tool's one core point suffices).
+    pub fn is_surface(&self, b: usize) -> bool {
+        matches!(self.bodies[b].shape, RigidShape::Surface(_))
     }
 
     /// The final displacement (m, at curve factor 1) of rigid body `name`.

@@ -715,13 +715,15 @@ fn read_nrrd(path: &Path) -> Result<Image> {
         Some(v) => match v.trim().parse::<i64>() {
             Ok(-1) => raw.len() - need_bytes,
             Ok(k) if k >= 0 && (k as usize).saturating_add(need_bytes) <= raw.len() => k as usize,
-            _ => return Err(file_error(
-                path,
-                format!(
+            _ => {
+                return Err(file_error(
+                    path,
+                    format!(
                     "byte skip '{}' is not -1 or a whole number of bytes the data leave room for",
                     super::clip(v)
                 ),
-            )),
+                ))
+            }
         },
     };
     for (n, v) in image.values.iter_mut().enumerate() {

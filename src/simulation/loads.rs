@@ -173,17 +173,29 @@ pub(super) fn scene_contact(
         warnings.push(TET10_CONTACT_WARNING.to_string());
     }
     for (b, name) in contact.names().enumerate() {
-        if contact.deepest_at_rest(b, 0.0).is_some() {
+        // Touching means deeper than the contact tolerance: a surface tool inside the tissue
+        // "touched" it at 8.6e-10 m by rounding, and was never felt (issue 56).
+        if contact
+            .deepest_at_rest(b, 0.0)
+            .is_some_and(|x| x.0 > tolerance)
+        {
             continue;
         }
-        let inside = contact.core_points(b).into_iter().find(|q| {
+        let in_body = |q: &Vector3<f64>| {
             let w = crate::geometry::winding::winding_number(
                 q,
                 &s.vertices,
                 s.faces.iter().map(|f| f.0.as_slice()),
             );
             w.abs() > 0.5
-        });
+        };
+        let cores = contact.core_points(b);
+        let inside = if contact.is_surface(b) {
+            // A closed tool: wholly inside, every sampled vertex inside the body.
+            (!cores.is_empty() && cores.iter().all(in_body)).then(|| cores[0])
+        } else {
+            cores.into_iter().find(in_body)
+        };
         if let Some(q) = inside {
             return Err(crate::Error::Input(format!(
                 "contact '{name}' starts inside the body without touching its surface (its point \

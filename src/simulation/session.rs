@@ -49,6 +49,8 @@ pub struct Session {
     warm_masses: Option<Vec<f64>>,
     /// The state in `warm` came from a run with `warm_masses`.
     warm_from_swapped: bool,
+    /// The rigid bodies' final displacements (m) the state in `warm` was relaxed with.
+    warm_tools: Vec<Vector3<f64>>,
 }
 
 /// What one solve produced.
@@ -75,6 +77,7 @@ impl Session {
             prepare_seconds: t0.elapsed().as_secs_f64(),
             warm_masses: None,
             warm_from_swapped: false,
+            warm_tools: Vec::new(),
         })
     }
 
@@ -244,6 +247,15 @@ impl Session {
         let Some(w) = warm else {
             return self.run(None);
         };
+        // A warm start puts every rigid body at its final place from the first step: moved
+        // further than the contact tolerance since the last equilibrium, a tool would jump past
+        // the surface it should push (issue 56: reaction 0, "converged"). Such a change is
+        // solved from the unloaded state, where the tool comes along its curve in small steps.
+        if let Some(moved) = self.tool_jump() {
+            let mut cold = self.run(None)?;
+            cold.summary.warnings.push(moved);
+            return Ok(cold);
+        }
         match self.run(Some(w)) {
             Err(Error::Unstable(msg)) => {
                 let mut cold = self.run(None)?;
@@ -255,6 +267,38 @@ impl Session {
             }
             r => r,
         }
+    }
+
+    /// The rigid bodies' final displacements now, m.
+    fn tool_motions(&self) -> Vec<Vector3<f64>> {
+        let Some(c) = &self.prep.model.contact else {
+            return Vec::new();
+        };
+        c.names()
+            .map(|n| c.motion(n).unwrap_or_else(|_| Vector3::zeros()))
+            .collect()
+    }
+
+    /// A message where a rigid body moved further than it may jump
+    /// ([`crate::bc::contact::Contact::jump_limit`]) since the warm state was relaxed.
+    fn tool_jump(&self) -> Option<String> {
+        let c = self.prep.model.contact.as_ref()?;
+        let now = self.tool_motions();
+        c.names()
+            .enumerate()
+            .zip(now.iter().zip(&self.warm_tools))
+            .find_map(|((k, name), (a, b))| {
+                let d = (a - b).norm();
+                let limit = c.jump_limit(k);
+                (d > limit).then(|| {
+                    format!(
+                        "contact '{name}' moved {d:.3e} m since the last equilibrium, more than the {limit:.3e} m \
+                         it may jump at once (a warm start puts it at its new place from the first step, \
+                         where it could pass through the surface it should push): solved from the unloaded \
+                         state, the tool coming along its curve"
+                    )
+                })
+            })
     }
 
     /// Solves from the unloaded state, whatever came before.
@@ -323,6 +367,7 @@ impl Session {
         // Only a converged relaxation is an equilibrium to start from.
         self.warm =
             (self.settings.mode == Mode::Relaxation && summary.converged).then(|| out.warm_start());
+        self.warm_tools = self.tool_motions();
         Ok(Solution {
             summary,
             output: out,
