@@ -80,6 +80,13 @@ pub struct MeshInfo {
     pub critical: crate::solver::integrate::Critical,
     /// Sum of the integration weights, m^3.
     pub volume: f64,
+    /// The volume the geometry gives, m^3: a labelled image's chosen voxels, or what a surface
+    /// file encloses (a difference over 2 % from `volume` is warned of).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub geometry_volume: Option<f64>,
+    /// What gives `geometry_volume`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub geometry_volume_of: Option<String>,
 }
 
 /// Support sizes of the meshless integration points: nodes per point.

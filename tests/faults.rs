@@ -214,12 +214,71 @@ fn a_stop_request_ends_a_library_run_and_clear_lifts_it() {
         "{e}"
     );
     assert_eq!(e.exit_code(), 143);
+    // Issue 56: preparation stops too, so the request is honoured before the first step.
     assert!(
-        e.to_string().contains("interrupted by SIGTERM at step 0"),
+        e.to_string()
+            .contains("interrupted by SIGTERM before meshing"),
         "{e}"
     );
     assert_eq!(
         run_scene(&sc, &RunOptions::default()).unwrap().status,
         "converged"
     );
+}
+
+/// Issue 56: a signal during the preparation (here TetGen meshing a 2 mm cube, several
+/// seconds) stops the run within a second, with the time loop's exit code and a "failed"
+/// summary; TetGen's process is killed (it kept meshing for 708 s after SIGTERM).
+#[test]
+fn a_signal_while_meshing_stops_the_run_within_a_second() {
+    let d = fresh("sig-meshing");
+    let mut child = Command::new(env!("CARGO_BIN_EXE_hytled"))
+        .args(["run", "--json", "--out"])
+        .arg(&d)
+        .arg(common::path("cases/cube-compression.toml"))
+        .args([
+            "--set",
+            "discretization.mesher=tetgen",
+            "--set",
+            "discretization.element=tet4-anp",
+            "--set",
+            "discretization.size=0.0025",
+            "--set",
+            "references={}",
+        ])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    // Claimed (summary says running), then meshing: no staging folder before the solve.
+    let t0 = Instant::now();
+    while !summary(&d).is_some_and(|v| v["status"] == "running") {
+        assert!(t0.elapsed() < Duration::from_secs(30), "never seen running");
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    std::thread::sleep(Duration::from_millis(1500));
+    assert!(
+        child.try_wait().unwrap().is_none(),
+        "still meshing 1.5 s in"
+    );
+    let killed = Command::new("sh")
+        .args(["-c", &format!("kill -TERM {}", child.id())])
+        .status()
+        .unwrap();
+    assert!(killed.success());
+    let t0 = Instant::now();
+    let out = child.wait_with_output().unwrap();
+    let stopped = t0.elapsed().as_secs_f64();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(143), "{err}");
+    assert!(stopped < 1.0, "{stopped} s after SIGTERM");
+    assert!(
+        err.contains("interrupted by SIGTERM during TetGen"),
+        "{err}"
+    );
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(v["error"], "interrupted");
+    let s = summary(&d).unwrap();
+    assert_eq!(s["status"], "failed", "{s}");
+    let _ = std::fs::remove_dir_all(&d);
 }

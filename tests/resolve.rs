@@ -383,36 +383,35 @@ fn a_tool_moved_far_is_not_warm_started_through_the_surface() {
     );
     assert!(((fw - fc) / fc).abs() < 0.01, "warm {fw} N, cold {fc} N");
     session.set_tool_motion("ball", [0.0, 0.0, -0.1]).unwrap();
-    match session.solve() {
-        Ok(s) => {
-            let f = s.summary.reactions["ball"][2];
-            assert!(!s.warm, "{:?}", s.summary.warnings);
-            assert!(
-                s.summary.warnings.iter().any(|w| w.contains("ball' moved")),
-                "{:?}",
-                s.summary.warnings
-            );
-            // Cold, the 20 mm ball between the 25 mm mesh's top nodes slips past them (contact
-            // acts on nodes): that is the coarse mesh's answer, the same as a scene written
-            // with the move, and not a warm jump.
-            let mut written = Session::new(
-                hytled::scene::load(
-                    &file,
-                    &[
-                        "references={}".to_string(),
-                        "discretization.size=0.025".into(),
-                        "contact.ball={ shape = \"sphere\", center = [0.05, 0.05, 0.12], radius = 0.02, motion = [0.0, 0.0, -0.1] }".into(),
-                    ],
-                )
-                .unwrap(),
-            )
-            .unwrap();
-            let w = written.solve().unwrap().summary.reactions["ball"][2];
-            assert_eq!(f, w);
-        }
-        Err(e) => assert!(
-            matches!(e, hytled::Error::Unstable(_)),
-            "the cold solve's answer: {e}"
-        ),
-    }
+    // Solved cold, the 20 mm ball slips between the 25 mm mesh's top nodes (contact acts on
+    // nodes) and ends inside the cube having pressed nothing: an error naming it, as for the
+    // scene written with that motion, not a "converged" answer with no force.
+    let e = session
+        .solve()
+        .map(|s| format!("ran: warm {}", s.warm))
+        .unwrap_or_else(|e| e.to_string());
+    assert!(
+        e.contains("contact 'ball' ends inside the body") && e.contains("passed through"),
+        "{e}"
+    );
+    let mut written = Session::new(
+        hytled::scene::load(
+            &file,
+            &[
+                "references={}".to_string(),
+                "discretization.size=0.025".into(),
+                "contact.ball={ shape = \"sphere\", center = [0.05, 0.05, 0.12], radius = 0.02, motion = [0.0, 0.0, -0.1] }".into(),
+            ],
+        )
+        .unwrap(),
+    )
+    .unwrap();
+    let cold = written
+        .solve()
+        .map(|_| String::new())
+        .unwrap_or_else(|e| e.to_string());
+    assert!(
+        cold.contains("contact 'ball' ends inside the body"),
+        "{cold}"
+    );
 }

@@ -484,3 +484,135 @@ fn an_output_image_that_misses_the_body_is_an_error() {
     assert!(e.contains("short.nii") && e.contains("too short"), "{e}");
     assert!(t0.elapsed().as_secs_f64() < 1.0, "read before the solve");
 }
+
+/// 11. A labelled ball's surface body loses volume at coarse sizes (15 % at 6 mm, 37 % at
+/// 8 mm, silently): the summary carries the labelled volume beside the model's, and a
+/// difference over 2 % is warned of with a size that fixes it, which does.
+#[test]
+fn a_body_that_loses_volume_is_warned_of_with_the_size_that_fixes_it() {
+    let dir = folder("volume");
+    let file = dir.join("ball.nii.gz");
+    write_image(
+        &file,
+        &labelled(28, 0.001, |i, j, k| {
+            (i - 13.5).powi(2) + (j - 13.5).powi(2) + (k - 13.5).powi(2) < 100.0
+        }),
+    )
+    .unwrap();
+    let prepare = |size: f64| {
+        let sc = cube_scene(
+            format!(
+                "geometry={{ image = \"{}\", body = \"surface\" }}",
+                file.display()
+            ),
+            &[
+                "boundaries={}",
+                "discretization.element=tet4-anp",
+                &format!("discretization.size={size}"),
+            ],
+        )
+        .unwrap();
+        hytled::simulation::prepare(&sc).unwrap()
+    };
+    let coarse = prepare(0.006);
+    let (labelled, of) = coarse.source_volume.clone().unwrap();
+    let volume = coarse.model.points.total_weight();
+    let lost = (labelled - volume) / labelled;
+    println!(
+        "size 6 mm: {volume:.4e} of {labelled:.4e} m^3 ({of}), {:.1} % lost",
+        100.0 * lost
+    );
+    assert!(
+        of.contains("labelled voxels of") && of.contains("ball.nii.gz"),
+        "{of}"
+    );
+    let w = coarse
+        .warnings
+        .iter()
+        .find(|w| w.contains("model's volume"))
+        .unwrap_or_else(|| {
+            panic!(
+                "no volume warning at {:.1} % lost: {:?}",
+                100.0 * lost,
+                coarse.warnings
+            )
+        });
+    assert!(
+        lost > 0.02 && w.contains("less than") && w.contains("discretization.size of about"),
+        "{w}"
+    );
+    // The size the warning gives brings the volume within 2 %.
+    let at = w.split("discretization.size of about ").nth(1).unwrap();
+    let size: f64 = at.split(' ').next().unwrap().parse().unwrap();
+    let fine = prepare(size);
+    let v = fine.model.points.total_weight();
+    println!(
+        "size {size:.3e} m: {v:.4e} m^3, {:.2} % lost",
+        100.0 * (labelled - v) / labelled
+    );
+    assert!(((labelled - v) / labelled).abs() <= 0.02);
+    assert!(
+        !fine.warnings.iter().any(|w| w.contains("model's volume")),
+        "{:?}",
+        fine.warnings
+    );
+}
+
+/// A measured point on a node a boundary prescribes otherwise names the measured set (it was
+/// called a boundary).
+#[test]
+fn a_measured_point_clashing_with_a_boundary_names_the_measured_set() {
+    let dir = folder("clash");
+    std::fs::write(dir.join("scan.csv"), "0.1,0.1,0.1,0,0,-0.01\n").unwrap();
+    let case = std::fs::read_to_string(path("cases/cube-compression.toml")).unwrap();
+    let scene = dir.join("cube.toml");
+    std::fs::write(
+        &scene,
+        format!("{case}\n[measured.scan]\nfile = \"scan.csv\"\n"),
+    )
+    .unwrap();
+    let o = vec![
+        "discretization.size=0.05".to_string(),
+        "references={}".into(),
+    ];
+    let sc = hytled::scene::load(&scene, &o).unwrap();
+    let e = hytled::simulation::prepare(&sc)
+        .map(|_| ())
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("measured set 'scan'") && e.contains("boundary 'top'"),
+        "{e}"
+    );
+}
+
+/// Surface files' bad numbers are named with their line: an infinite STL vertex (was "got
+/// NaN which is Nan"), an OBJ face index past its vertices (no line was named).
+#[test]
+fn bad_numbers_in_surface_files_name_their_line() {
+    let dir = folder("lines");
+    let (p, t) = (
+        common::box_corners([0.0; 3], [0.1; 3]),
+        common::box_triangles(),
+    );
+    let stl = common::ascii_stl(&p, &t).replacen("vertex 0.000000000e0", "vertex inf", 1);
+    std::fs::write(dir.join("inf.stl"), &stl).unwrap();
+    let bad_line = stl.lines().position(|l| l.contains("inf")).unwrap() + 1;
+    let mut text = obj(&p, &t);
+    text.push_str("f 1 2 99\n");
+    std::fs::write(dir.join("index.obj"), &text).unwrap();
+    let obj_line = text.lines().count();
+    for (name, says) in [
+        (
+            "inf.stl",
+            format!("line {bad_line}: vertex coordinate 'inf'"),
+        ),
+        ("index.obj", format!("line {obj_line}: face index '99'")),
+    ] {
+        let e = hytled::io::surface_file::read_surface(&dir.join(name), 1.0)
+            .map(|_| ())
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains(name) && e.contains(&says), "{e}");
+    }
+}

@@ -69,12 +69,30 @@ def _toml_value(v: Any) -> str:
     if isinstance(v, (int, float, np.integer, np.floating)):
         return repr(float(v)) if isinstance(v, (float, np.floating)) else str(int(v))
     if isinstance(v, str):
+        # The CLI's `--set KEY=VALUE` takes TOML values: a string that is one ("1e-6",
+        # "[0, 0, -0.01]", "{ gravity = [0, 0, -9.81] }") is taken as it is, as there.
+        if _is_toml_value(v):
+            return v
         return json.dumps(v)
     if isinstance(v, (list, tuple, np.ndarray)):
         return "[" + ", ".join(_toml_value(x) for x in v) + "]"
     if isinstance(v, Mapping):
         return "{ " + ", ".join(f"{k} = {_toml_value(x)}" for k, x in v.items()) + " }"
     raise TypeError(f"override value {v!r}: give a number, string, bool, list or dict")
+
+
+def _is_toml_value(text: str) -> bool:
+    """Whether `text` is a TOML value other than a bare word (a number, array, inline table,
+    bool or quoted string)."""
+    try:
+        import tomllib
+    except ImportError:  # Python < 3.11: strings stay strings
+        return False
+    try:
+        tomllib.loads("v = " + text)
+    except tomllib.TOMLDecodeError:
+        return False
+    return True
 
 
 def _overrides(o: Overrides) -> list:
@@ -87,18 +105,23 @@ def _overrides(o: Overrides) -> list:
     return [str(x) for x in o]
 
 
-def _plain(v: Any) -> Any:
-    """numpy values in a scene dict as plain Python (JSON) values."""
+def _plain(v: Any, at: str = "") -> Any:
+    """numpy values in a scene dict as plain Python (JSON) values; a number that is not finite
+    is a SceneError naming its key (JSON has no NaN)."""
     if isinstance(v, np.ndarray):
-        return v.tolist()
+        return _plain(v.tolist(), at)
     if isinstance(v, (np.integer,)):
         return int(v)
+    if isinstance(v, (float, np.floating)) and not np.isfinite(v):
+        e = SceneError(f"scene dict: {at or 'a value'} = {float(v)} is not a finite number; give a finite value")
+        e.kind, e.exit_code = "scene", 2
+        raise e
     if isinstance(v, (np.floating,)):
         return float(v)
     if isinstance(v, Mapping):
-        return {str(k): _plain(x) for k, x in v.items()}
+        return {str(k): _plain(x, f"{at}.{k}" if at else str(k)) for k, x in v.items()}
     if isinstance(v, (list, tuple)):
-        return [_plain(x) for x in v]
+        return [_plain(x, f"{at}[{i}]") for i, x in enumerate(v)]
     return v
 
 

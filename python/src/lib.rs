@@ -44,12 +44,35 @@ create_exception!(
     HytledError,
     "A file that cannot be read or written (exit code 5)."
 );
-create_exception!(
-    _hytled,
-    InterruptedRun,
-    HytledError,
-    "A run stopped by SIGINT or SIGTERM (exit codes 130, 143)."
-);
+/// `InterruptedRun(HytledError, KeyboardInterrupt)`: a run stopped by SIGINT or SIGTERM (exit
+/// codes 130, 143); a KeyboardInterrupt, so code that stops on Ctrl-C stops on it. Made at
+/// import (two bases, which `create_exception!` cannot give).
+static INTERRUPTED_RUN: pyo3::sync::PyOnceLock<Py<pyo3::types::PyType>> =
+    pyo3::sync::PyOnceLock::new();
+
+fn interrupted_run(py: Python<'_>) -> PyResult<&Bound<'_, pyo3::types::PyType>> {
+    INTERRUPTED_RUN
+        .get_or_try_init(py, || -> PyResult<_> {
+            let bases = (
+                py.get_type::<HytledError>(),
+                py.get_type::<pyo3::exceptions::PyKeyboardInterrupt>(),
+            );
+            let namespace = PyDict::new(py);
+            namespace.set_item(
+                "__doc__",
+                "A run stopped by SIGINT (Ctrl-C) or SIGTERM (exit codes 130, 143); also a \
+                 KeyboardInterrupt. The model is left as it was before the solve.",
+            )?;
+            namespace.set_item("__module__", "hytled._hytled")?;
+            let ty = py.import("builtins")?.getattr("type")?.call1((
+                "InterruptedRun",
+                bases,
+                namespace,
+            ))?;
+            Ok(ty.cast_into::<pyo3::types::PyType>()?.unbind())
+        })
+        .map(|t| t.bind(py))
+}
 
 /// The library's error as the Python exception of its kind, with `kind` and `exit_code`.
 fn to_py(e: hytled::Error) -> PyErr {
@@ -59,7 +82,10 @@ fn to_py(e: hytled::Error) -> PyErr {
         hytled::Error::Input(_) | hytled::Error::InvalidElement { .. } => InputError::new_err(msg),
         hytled::Error::Unstable(_) => UnstableError::new_err(msg),
         hytled::Error::Io { .. } => FileError::new_err(msg),
-        hytled::Error::Interrupted { .. } => InterruptedRun::new_err(msg),
+        hytled::Error::Interrupted { .. } => Python::attach(|py| match interrupted_run(py) {
+            Ok(ty) => PyErr::from_type(ty.clone(), msg),
+            Err(e) => e,
+        }),
     };
     Python::attach(|py| {
         let v = err.value(py);
@@ -128,12 +154,79 @@ fn rows_array(v: &[[f64; 3]]) -> Array2<f64> {
 }
 
 impl Model {
+    /// Solves on a worker thread while this one checks Python's signal handlers every 50 ms: a
+    /// KeyboardInterrupt asks the solve to stop ([`hytled::interrupt::request`]), and the
+    /// session goes back to its state before the solve.
+    fn solve_watching_signals(
+        &self,
+        cold: bool,
+    ) -> PyResult<(
+        hytled::simulation::Solution,
+        hytled::simulation::PointFields,
+    )> {
+        let mut session = self.lock();
+        let before = session.checkpoint();
+        let session = &mut *session;
+        std::thread::scope(|scope| {
+            let worker = scope.spawn(|| -> hytled::Result<_> {
+                let sol = if cold {
+                    session.solve_cold()
+                } else {
+                    session.solve()
+                }?;
+                let fields = session.point_fields(&sol.output.u)?;
+                Ok((sol, fields))
+            });
+            let mut stop: Option<PyErr> = None;
+            while !worker.is_finished() {
+                std::thread::sleep(std::time::Duration::from_millis(50));
+                if stop.is_none() {
+                    if let Err(e) = Python::attach(|py| py.check_signals()) {
+                        hytled::interrupt::request(hytled::interrupt::SIGINT);
+                        stop = Some(e);
+                    }
+                }
+            }
+            let result = worker
+                .join()
+                .unwrap_or_else(|_| Err(hytled::Error::Input("the solve panicked".into())));
+            let Some(signal) = stop else {
+                return result.map_err(to_py);
+            };
+            hytled::interrupt::clear();
+            session.restore(before);
+            // The handler's own error where it was not a KeyboardInterrupt (a handler of the
+            // user's that raised something else).
+            let keyboard = Python::attach(|py| {
+                signal.is_instance_of::<pyo3::exceptions::PyKeyboardInterrupt>(py)
+            });
+            if !keyboard {
+                return Err(signal);
+            }
+            Err(to_py(match result {
+                Err(e @ hytled::Error::Interrupted { .. }) => e,
+                _ => hytled::Error::Interrupted {
+                    signal: hytled::interrupt::SIGINT,
+                    at: "as the solve ended; its result was dropped".into(),
+                },
+            }))
+        })
+    }
+
     fn lock(&self) -> std::sync::MutexGuard<'_, Session> {
-        // A panic while solving poisons the lock; the session is still whole (errors are
-        // values), so it is used as it is.
-        self.session
-            .lock()
-            .unwrap_or_else(std::sync::PoisonError::into_inner)
+        loop {
+            match self.session.try_lock() {
+                Ok(g) => return g,
+                // A panic while solving poisons the lock; the session is still whole (errors
+                // are values), so it is used as it is.
+                Err(std::sync::TryLockError::Poisoned(p)) => return p.into_inner(),
+                // Another thread's solve: wait for it without holding the interpreter, which
+                // that solve's signal watch needs.
+                Err(std::sync::TryLockError::WouldBlock) => Python::attach(|py| {
+                    py.detach(|| std::thread::sleep(std::time::Duration::from_millis(2)))
+                }),
+            }
+        }
     }
 }
 
@@ -165,20 +258,13 @@ impl Model {
     /// Solves with the inputs as they are: from the last equilibrium where there is one
     /// (relaxation), else from the unloaded state; `cold=True` always from the unloaded state.
     /// Returns a dict of numpy arrays and values (see hytled.Result).
+    ///
+    /// Ctrl-C (SIGINT) stops the solve within a step and raises InterruptedRun (a
+    /// KeyboardInterrupt) with the model as it was before the solve. Another thread's solve
+    /// of the same model waits for this one.
     #[pyo3(signature = (cold = false))]
-    fn solve<'py>(&mut self, py: Python<'py>, cold: bool) -> PyResult<Bound<'py, PyDict>> {
-        let session = &mut *self.lock();
-        let (sol, fields) = py
-            .detach(|| {
-                let sol = if cold {
-                    session.solve_cold()
-                } else {
-                    session.solve()
-                }?;
-                let fields = session.point_fields(&sol.output.u)?;
-                Ok((sol, fields))
-            })
-            .map_err(to_py)?;
+    fn solve<'py>(&self, py: Python<'py>, cold: bool) -> PyResult<Bound<'py, PyDict>> {
+        let (sol, fields) = py.detach(|| self.solve_watching_signals(cold))?;
         let d = PyDict::new(py);
         let p = fields.points.len();
         d.set_item("points", vec3_array(&fields.points).into_pyarray(py))?;
@@ -223,7 +309,7 @@ impl Model {
     }
 
     /// Forgets the last equilibrium: the next solve starts from the unloaded state.
-    fn forget(&mut self) {
+    fn forget(&self) {
         self.lock().forget();
     }
 
@@ -275,18 +361,18 @@ impl Model {
     }
 
     /// New final displacement (m) of boundary `name`'s prescribed components; None leaves one.
-    fn set_displacement(&mut self, name: &str, value: [Option<f64>; 3]) -> PyResult<()> {
+    fn set_displacement(&self, name: &str, value: [Option<f64>; 3]) -> PyResult<()> {
         self.lock().set_displacement(name, value).map_err(to_py)
     }
 
     /// The final displacement (m) of each component of boundary `name` (None: free).
-    fn displacement(&mut self, name: &str) -> PyResult<[Option<f64>; 3]> {
+    fn displacement(&self, name: &str) -> PyResult<[Option<f64>; 3]> {
         self.lock().displacement(name).map_err(to_py)
     }
 
     /// Positions (m) of the measured points of `[measured.NAME]`, in its file's order (M, 3).
     fn measured_points<'py>(
-        &mut self,
+        &self,
         py: Python<'py>,
         name: &str,
     ) -> PyResult<Bound<'py, numpy::PyArray2<f64>>> {
@@ -296,7 +382,7 @@ impl Model {
 
     /// Displacements (m) in force at the measured points of `[measured.NAME]` (M, 3).
     fn measured_displacements<'py>(
-        &mut self,
+        &self,
         py: Python<'py>,
         name: &str,
     ) -> PyResult<Bound<'py, numpy::PyArray2<f64>>> {
@@ -305,7 +391,7 @@ impl Model {
     }
 
     /// New displacements (m) measured at the points of `[measured.NAME]` (M, 3).
-    fn set_measured(&mut self, name: &str, u: PyReadonlyArray2<'_, f64>) -> PyResult<()> {
+    fn set_measured(&self, name: &str, u: PyReadonlyArray2<'_, f64>) -> PyResult<()> {
         let a = u.as_array();
         if a.ncols() != 3 {
             return Err(InputError::new_err(format!(
@@ -318,17 +404,17 @@ impl Model {
     }
 
     /// New final displacement (m) of rigid body `[contact.NAME]` from its reference position.
-    fn set_tool_motion(&mut self, name: &str, motion: [f64; 3]) -> PyResult<()> {
+    fn set_tool_motion(&self, name: &str, motion: [f64; 3]) -> PyResult<()> {
         self.lock().set_tool_motion(name, motion).map_err(to_py)
     }
 
     /// The final displacement (m) of rigid body `[contact.NAME]`.
-    fn tool_motion(&mut self, name: &str) -> PyResult<[f64; 3]> {
+    fn tool_motion(&self, name: &str) -> PyResult<[f64; 3]> {
         self.lock().tool_motion(name).map_err(to_py)
     }
 
     /// Scales load `[loads.NAME]` by `factor` (1: as in the scene).
-    fn set_load_factor(&mut self, name: &str, factor: f64) -> PyResult<()> {
+    fn set_load_factor(&self, name: &str, factor: f64) -> PyResult<()> {
         self.lock().set_load_factor(name, factor).map_err(to_py)
     }
 
@@ -369,7 +455,24 @@ fn _hytled(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("InputError", py.get_type::<InputError>())?;
     m.add("UnstableError", py.get_type::<UnstableError>())?;
     m.add("FileError", py.get_type::<FileError>())?;
-    m.add("InterruptedRun", py.get_type::<InterruptedRun>())?;
+    m.add("InterruptedRun", interrupted_run(py)?)?;
+    // Each class carries its CLI kind and exit code, so an error raised without them (an
+    // argument checked here) still has both.
+    for (ty, kind, code) in [
+        (py.get_type::<HytledError>(), "error", 1),
+        (py.get_type::<SceneError>(), "scene", 2),
+        (py.get_type::<InputError>(), "input", 2),
+        (py.get_type::<UnstableError>(), "unstable", 3),
+        (py.get_type::<FileError>(), "io", 5),
+    ] {
+        ty.setattr("kind", kind)?;
+        ty.setattr("exit_code", code)?;
+    }
+    interrupted_run(py)?.setattr("kind", "interrupted")?;
+    interrupted_run(py)?.setattr("exit_code", 130)?;
+    // numpy's C API is imported now: imported first inside a solve's result, a pending
+    // Ctrl-C made the import fail and the numpy crate panic (issue 56).
+    let _ = numpy::PyArray1::<f64>::zeros(py, 0, false);
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     Ok(())
 }

@@ -133,3 +133,73 @@ def test_the_resolve_example_runs_warm_in_a_third_of_the_steps(monkeypatch):
     first, again = example["main"]()
     assert again.warm and again.converged
     assert 3 * again.steps <= first.steps
+
+
+def test_ctrl_c_stops_a_solve_and_leaves_the_model_as_it_was():
+    """Issue 56: SIGINT during Model.solve() stops it within a step and raises InterruptedRun
+    (a KeyboardInterrupt, exit code 130); the model is as it was (not warm), and solves
+    again. It was honoured only when the solve ended, and the result was lost."""
+    import signal
+    import threading
+    import time
+
+    m = cube(**{"discretization.size": 0.005, "solver.tolerance": 1e-10})
+    assert not m.warm
+    timer = threading.Timer(0.3, os.kill, (os.getpid(), signal.SIGINT))
+    t0 = time.monotonic()
+    timer.start()
+    with pytest.raises(hytled.InterruptedRun) as e:
+        m.solve()
+    stopped = time.monotonic() - t0
+    timer.join()
+    assert isinstance(e.value, KeyboardInterrupt) and isinstance(e.value, hytled.HytledError)
+    assert e.value.exit_code == 130 and e.value.kind == "interrupted"
+    assert stopped < 1.3, stopped
+    assert not m.warm
+    r = m.solve()
+    assert r.converged and not r.warm
+
+
+def test_two_threads_may_solve_one_model():
+    """Issue 56: the second thread waits for the first (it got pyo3's "Already borrowed")."""
+    import threading
+
+    m = cube()
+    results, errors = [], []
+
+    def solve():
+        try:
+            results.append(m.solve(cold=True))
+        except Exception as exc:  # noqa: BLE001 - any error fails the test below
+            errors.append(exc)
+
+    threads = [threading.Thread(target=solve) for _ in range(2)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert not errors, errors
+    assert len(results) == 2
+    for r in results:
+        assert abs(r.reactions["top"][2] - F_EXACT) < 1e-5 * abs(F_EXACT)
+
+
+def test_confusing_python_inputs_say_what_is_wrong():
+    """Issue 56: a dict scene with NaN names the key (was a raw JSON parse error); dict
+    overrides take the CLI's TOML value strings; errors raised before the library have their
+    kind and exit code (were None)."""
+    tomllib = pytest.importorskip("tomllib")
+
+    with open(CUBE, "rb") as f:
+        d = tomllib.load(f)
+    d["material"]["youngs_modulus"] = float("nan")
+    d["discretization"]["size"] = np.float64(0.025)
+    with pytest.raises(hytled.SceneError) as e:
+        hytled.Scene(d, base_dir=CUBE.parent)
+    assert "material.youngs_modulus" in str(e.value) and e.value.exit_code == 2
+    s = hytled.Scene(CUBE, overrides={"solver.tolerance": "1e-9", "discretization.size": "0.05"})
+    assert s.to_dict()["solver"]["tolerance"] == 1e-9
+    assert hytled.Scene(CUBE, overrides={"name": "plain words"}).name == "plain words"
+    with pytest.raises(hytled.InputError) as e:
+        hytled.Model(hytled.Scene(CUBE), device="tpu")
+    assert e.value.kind == "input" and e.value.exit_code == 2

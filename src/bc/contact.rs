@@ -189,6 +189,17 @@ pub struct Conflict {
 /// than this share of the push (0 for a finite-element node prescribed along the normal).
 const HELD_SHARE: f64 = 1e-6;
 
+/// The deformable body's closed surface, as [`Contact::check_tunnelled`] deforms it.
+#[derive(Debug)]
+pub struct BodySurface {
+    /// Reference positions of the vertices, m.
+    pub vertices: Vec<Vector3<f64>>,
+    /// Each vertex's displacement as a combination of nodal parameters.
+    pub rows: Vec<Row>,
+    /// Faces (vertex indices).
+    pub faces: Vec<Vec<usize>>,
+}
+
 /// Contact of the candidate points with the rigid bodies.
 #[derive(Debug, Clone)]
 pub struct Contact {
@@ -208,6 +219,9 @@ pub struct Contact {
     /// body.
     worst: f64,
     in_contact: Vec<usize>,
+    /// The body's closed surface: each vertex's reference position (m) and its row over the
+    /// nodal parameters, and the faces, for [`Contact::check_tunnelled`].
+    body: Option<std::sync::Arc<BodySurface>>,
     /// Scratch of the sweeps: each point's multiplier (N), the points in contact and whether
     /// each point is among them.
     lambda: Vec<f64>,
@@ -306,6 +320,7 @@ impl Contact {
             nodal: vec![Vector3::zeros(); num_nodes],
             worst: 0.0,
             in_contact: vec![0; n],
+            body: None,
             lambda: Vec::new(),
             active: Vec::new(),
             is_active: Vec::new(),
@@ -352,6 +367,64 @@ impl Contact {
     /// Deepest penetration any correction left, m.
     pub fn worst_penetration(&self) -> f64 {
         self.worst
+    }
+
+    /// The body's closed surface, which [`Contact::check_tunnelled`] tests the rigid bodies'
+    /// end positions against.
+    pub fn set_body_surface(&mut self, surface: BodySurface) {
+        self.body = Some(std::sync::Arc::new(surface));
+    }
+
+    /// An error naming the first rigid body that ends the run inside the deformed body (its
+    /// core point, or for a closed surface tool all of its sampled vertices, inside the surface
+    /// moved by `u`, the nodal parameters, m) while pressing no surface point: it passed through
+    /// the surface between its nodes (issue 56), and its answer (no force) is wrong.
+    pub fn check_tunnelled(&self, u: &[Vector3<f64>]) -> Result<()> {
+        let Some(surface) = &self.body else {
+            return Ok(());
+        };
+        let moved: Vec<Vector3<f64>> = surface
+            .vertices
+            .iter()
+            .zip(&surface.rows)
+            .map(|(x, row)| {
+                x + row
+                    .iter()
+                    .map(|&(j, w)| u.get(j as usize).map_or(Vector3::zeros(), |v| v * w))
+                    .sum::<Vector3<f64>>()
+            })
+            .collect();
+        let inside = |q: &Vector3<f64>| {
+            crate::geometry::winding::winding_number(
+                q,
+                &moved,
+                surface.faces.iter().map(|f| f.as_slice()),
+            )
+            .abs()
+                > 0.5
+        };
+        for (b, body) in self.bodies.iter().enumerate() {
+            if self.in_contact[b] > 0 {
+                continue;
+            }
+            let d = self.body_displacement(b, 1.0);
+            let cores: Vec<Vector3<f64>> = body.shape.core_points().iter().map(|c| c + d).collect();
+            let end = if self.is_surface(b) {
+                (!cores.is_empty() && cores.iter().all(inside)).then(|| cores[0])
+            } else {
+                cores.into_iter().find(inside)
+            };
+            if let Some(q) = end {
+                return Err(Error::Input(format!(
+                    "contact '{}' ends inside the body (its point ({:.4e}, {:.4e}, {:.4e}) m) pressing no \
+                     surface point: it passed through the surface between the surface's nodes \
+                     (contact acts on them), so its answer (no force) is wrong. Refine the surface where the \
+                     tool acts (discretization.size, refine), use a larger tool, or a smaller motion",
+                    body.name, q.x, q.y, q.z
+                )));
+            }
+        }
+        Ok(())
     }
 
     /// Forgets what earlier corrections left (deepest penetration, forces, points in

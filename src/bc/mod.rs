@@ -111,6 +111,15 @@ impl Boundary {
         Ok(())
     }
 
+    /// How messages name it: "boundary 'NAME'", or "measured set 'NAME'" for `[measured]`.
+    pub fn label(&self) -> String {
+        if self.measured.is_some() {
+            format!("measured set '{}' ([measured.{}])", self.name, self.name)
+        } else {
+            format!("boundary '{}'", self.name)
+        }
+    }
+
     /// Final prescribed value (m) of component `c` at the boundary's `k`-th node; None where
     /// the component is free.
     #[inline]
@@ -164,9 +173,11 @@ impl Constraints {
                             let same_curve = boundaries[other].curve == b.curve || zero;
                             if (v - v0).abs() > SAME_VALUE || !same_curve {
                                 return Err(Error::Input(format!(
-                                    "node {n} component {} is prescribed by boundary '{}' ({v0} m) and by boundary '{}' ({v} m); \
+                                    "node {n} component {} is prescribed by {} ({v0} m) and by {} ({v} m); \
                                      make the selections disjoint or give both the same value and curve",
-                                    ["x", "y", "z"][k], boundaries[other].name, b.name
+                                    ["x", "y", "z"][k],
+                                    boundaries[other].label(),
+                                    b.label()
                                 )));
                             }
                         }

@@ -673,6 +673,9 @@ fn assemble(
         .par_iter()
         .zip(&full)
         .map(|(&e, &f)| {
+            crate::interrupt::check(|| {
+                "while building the transition layer's shape functions".into()
+            })?;
             let q = quad.as_ref().map(|q| (q, &nodes[..]));
             transition_cell(&fe_mesh, e, &regions.node, &support, &mls_nodes, s, f, q)
         })

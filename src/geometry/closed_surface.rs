@@ -128,7 +128,9 @@ pub fn check_closed_surface(
     // Connected pieces: one outer piece, and pieces nested in it as cavities (even-odd).
     let piece = pieces_of(points.len(), &triangles);
     let pieces = piece.iter().max().map_or(0, |&p| p + 1);
-    if let Some((k, m)) = self_intersection(&points, &triangles, diag) {
+    let crossing = self_intersection(&points, &triangles, diag);
+    crate::interrupt::check(|| format!("while checking the surface {what}"))?;
+    if let Some((k, m)) = crossing {
         return Err(bad(format!(
             "the surface crosses itself: triangles {k} and {m} intersect (near {}); repair it \
              (e.g. MeshLab's 'Select Self Intersecting Faces')",
@@ -475,7 +477,11 @@ fn self_intersection(
         }
     }
     let eps = 1e-9;
-    for members in grid.values() {
+    for (visited, members) in grid.values().enumerate() {
+        // A stop request ends the search (the caller then stops); checked every 4,096 cells.
+        if visited % 4096 == 0 && crate::interrupt::requested().is_some() {
+            return None;
+        }
         for (i, &k) in members.iter().enumerate() {
             for &m in &members[i + 1..] {
                 let (tk, tm) = (triangles[k], triangles[m]);

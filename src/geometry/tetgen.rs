@@ -564,15 +564,31 @@ fn run_tetgen(
         Some(v) => {
             let sv = v * scale.powi(3);
             if sv < 1e-9 * scaled_volume.max(1e-3) {
+                // A body of a cubic metre or more is rarely tissue: most often a file in mm.
+                let units = if volume >= 1.0 {
+                    "; a body of that volume is over a metre across: if its file is in millimetres, \
+                     set its units = 0.001"
+                } else {
+                    ""
+                };
                 return Err(Error::Input(format!(
                     "TetGen maximum element volume {v:e} m^3 is too small for the {what} of \
-                     volume {volume:e} m^3 (over a billion elements); use a larger value"
+                     volume {volume:e} m^3 (over a billion elements); use a larger value{units}"
                 )));
             }
             // Each tet is at most the bound, so the volume over it is the fewest tets TetGen
             // makes; a tet has at least about a sixth of a vertex of its own.
             let tets = (volume / v).max(TETS_PER_FACET * facets.len() as f64);
-            super::mesh::check_mesh_memory(tets / 6.0, tets, ElementShape::Tet4)?;
+            super::mesh::check_mesh_memory(tets / 6.0, tets, ElementShape::Tet4).map_err(|e| {
+                if volume >= 1.0 {
+                    Error::Input(format!(
+                        "{e}\n(the {what} encloses {volume:.3e} m^3, a body over a metre across: if its file \
+                         is in millimetres, set its units = 0.001)"
+                    ))
+                } else {
+                    e
+                }
+            })?;
             // Larger than the domain: no constraint (also keeps tritet's "a%.15f" short).
             if sv >= scaled_volume {
                 None

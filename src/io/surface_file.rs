@@ -59,7 +59,54 @@ pub fn read_surface(path: &Path, units: f64) -> Result<ClosedSurface> {
 /// Points (m, or the file's unit before scaling) and triangles over them, as read.
 pub(crate) type Soup = (Vec<Vector3<f64>>, Vec<[usize; 3]>);
 
+/// The first line of an ASCII STL or an OBJ whose numbers the parsers would refuse without
+/// saying where: a vertex coordinate that is not a finite number, or (OBJ) a face index that
+/// names no vertex. None for binary files and files without such a line.
+fn first_bad_line(path: &Path, obj: bool) -> Option<String> {
+    let text = std::fs::read(path).ok()?;
+    let text = std::str::from_utf8(&text).ok()?;
+    if !obj && !text.trim_start().starts_with("solid") {
+        return None;
+    }
+    let mut vertices = 0i64;
+    for (n, line) in text.lines().enumerate() {
+        let mut words = line.split_whitespace();
+        let key = words.next().unwrap_or("");
+        let coordinates = (obj && key == "v") || (!obj && key == "vertex");
+        if coordinates {
+            vertices += 1;
+            for w in words.clone().take(3) {
+                if !w.parse::<f64>().is_ok_and(f64::is_finite) {
+                    return Some(format!(
+                        "line {}: vertex coordinate '{}' is not a finite number",
+                        n + 1,
+                        super::clip(w)
+                    ));
+                }
+            }
+        } else if obj && key == "f" {
+            for w in words {
+                let index = w.split('/').next().unwrap_or("");
+                let ok = index
+                    .parse::<i64>()
+                    .is_ok_and(|i| (1..=vertices).contains(&i) || (-vertices..=-1).contains(&i));
+                if !ok {
+                    return Some(format!(
+                        "line {}: face index '{}' names no vertex (the {vertices} vertices before it are numbered from 1, or from -1 backwards)",
+                        n + 1,
+                        super::clip(w)
+                    ));
+                }
+            }
+        }
+    }
+    None
+}
+
 fn read_stl(path: &Path) -> Result<Soup> {
+    if let Some(m) = first_bad_line(path, false) {
+        return Err(file_error(path, m));
+    }
     let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
     let mut reader = std::io::BufReader::new(file);
     let mesh = super::catch_quietly(|| stl_io::read_stl(&mut reader))
@@ -75,6 +122,9 @@ fn read_stl(path: &Path) -> Result<Soup> {
 }
 
 fn read_obj(path: &Path) -> Result<Soup> {
+    if let Some(m) = first_bad_line(path, true) {
+        return Err(file_error(path, m));
+    }
     let options = tobj::LoadOptions {
         triangulate: true,
         ..Default::default()

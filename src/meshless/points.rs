@@ -147,6 +147,8 @@ pub fn build_points(
         .par_chunks(CHUNK)
         .enumerate()
         .map(|(c, xs)| {
+            // A stop request (Ctrl-C, SIGTERM) ends the build within a chunk (512 points).
+            crate::interrupt::check(|| "while building the meshless shape functions".into())?;
             let mut sc = Scratch::default();
             let mut sh = ShapeAt::default();
             let mut counts = Vec::with_capacity(xs.len());

@@ -451,5 +451,6 @@ pub(super) fn prepare_coupled(scene: &Scene) -> Result<Prepared> {
         kind,
         min_dihedral,
         preprocess_seconds: t0.elapsed().as_secs_f64(),
+        source_volume: None,
     })
 }

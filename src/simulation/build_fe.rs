@@ -146,5 +146,6 @@ pub(super) fn prepare_fe(scene: &Scene) -> Result<Prepared> {
         kind,
         min_dihedral,
         preprocess_seconds: t0.elapsed().as_secs_f64(),
+        source_volume: None,
     })
 }

@@ -175,5 +175,6 @@ pub(super) fn prepare_meshless(scene: &Scene) -> Result<Prepared> {
         kind: ElementKind::Tet4,
         min_dihedral: None,
         preprocess_seconds: t0.elapsed().as_secs_f64(),
+        source_volume: None,
     })
 }

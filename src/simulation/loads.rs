@@ -165,7 +165,14 @@ pub(super) fn scene_contact(
         bodies.push(body);
         points.push(pts);
     }
-    let contact = Contact::new(bodies, points, d.nodes().len(), tolerance)?;
+    let mut contact = Contact::new(bodies, points, d.nodes().len(), tolerance)?;
+    contact.set_body_surface(crate::bc::contact::BodySurface {
+        vertices: s.vertices.clone(),
+        rows: (0..s.vertices.len())
+            .map(|i| d.vertex_row(&s, i))
+            .collect::<Result<_>>()?,
+        faces: s.faces.iter().map(|f| f.0.clone()).collect(),
+    });
     // fe tet10 and a coupled tet10 layer alike take contact on their quadratic faces' nodes.
     let quadratic =
         crate::fe::ElementKind::from(scene.discretization.element) == crate::fe::ElementKind::Tet10;

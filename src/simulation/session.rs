@@ -53,6 +53,17 @@ pub struct Session {
     warm_tools: Vec<Vector3<f64>>,
 }
 
+/// What a solve changes in a [`Session`] (where the next solve starts), kept by
+/// [`Session::checkpoint`] and put back by [`Session::restore`]: an interrupted solve leaves the
+/// model as it was.
+#[derive(Clone)]
+pub struct Checkpoint {
+    warm: Option<WarmStart>,
+    warm_masses: Option<Vec<f64>>,
+    warm_from_swapped: bool,
+    warm_tools: Vec<Vector3<f64>>,
+}
+
 /// What one solve produced.
 pub struct Solution {
     /// The run's summary (reactions, probes, steps, times, warnings), as `hytled run` prints.
@@ -267,6 +278,25 @@ impl Session {
             }
             r => r,
         }
+    }
+
+    /// Where the next solve would start, to [`Session::restore`] after a solve that should
+    /// not count (stopped by Ctrl-C).
+    pub fn checkpoint(&self) -> Checkpoint {
+        Checkpoint {
+            warm: self.warm.clone(),
+            warm_masses: self.warm_masses.clone(),
+            warm_from_swapped: self.warm_from_swapped,
+            warm_tools: self.warm_tools.clone(),
+        }
+    }
+
+    /// Puts back the state of a [`Session::checkpoint`].
+    pub fn restore(&mut self, c: Checkpoint) {
+        self.warm = c.warm;
+        self.warm_masses = c.warm_masses;
+        self.warm_from_swapped = c.warm_from_swapped;
+        self.warm_tools = c.warm_tools;
     }
 
     /// The rigid bodies' final displacements now, m.

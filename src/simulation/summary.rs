@@ -322,6 +322,8 @@ pub fn summarize(scene: &Scene, prep: &Prepared, out: &RunOutput, total_seconds:
             min_dihedral_element: prep.min_dihedral.map(|m| m.1),
             critical: out.critical,
             volume: model.points.total_weight(),
+            geometry_volume: prep.source_volume.as_ref().map(|v| v.0),
+            geometry_volume_of: prep.source_volume.as_ref().map(|v| v.1.clone()),
         },
         support_nodes: prep
             .meshless

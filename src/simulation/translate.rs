@@ -68,6 +68,35 @@ pub fn geometry_image(scene: &Scene) -> Result<Option<(crate::io::image::Image, 
     }
 }
 
+/// The volume (m^3) the scene's geometry gives, and what gives it: a labelled image's chosen
+/// voxels, or what a surface file encloses; None for built-in shapes and mesh files (their mesh
+/// is the geometry).
+pub fn geometry_volume(scene: &Scene) -> Result<Option<(f64, String)>> {
+    match &scene.geometry {
+        Geometry::Image { labels, .. } => {
+            let Some((image, path)) = geometry_image(scene)? else {
+                return Ok(None);
+            };
+            let mask = crate::geometry::image_body::tissue_mask(&image, labels);
+            let voxel = image.axes().determinant().abs();
+            let n = mask.iter().filter(|&&m| m).count();
+            Ok(Some((
+                n as f64 * voxel,
+                format!("the {n} labelled voxels of {}", path.display()),
+            )))
+        }
+        Geometry::Surface { file, units } => {
+            let path = scene_path(scene, file);
+            let surface = crate::io::surface_file::read_surface(&path, *units)?;
+            Ok(Some((
+                surface.volume(),
+                format!("what {} encloses", path.display()),
+            )))
+        }
+        _ => Ok(None),
+    }
+}
+
 /// Voxels per block edge for an image body: the discretization's size over the smallest
 /// voxel spacing, at least 1.
 fn image_block(scene: &Scene, image: &crate::io::image::Image) -> usize {
@@ -211,6 +240,7 @@ fn image_surface(scene: &Scene) -> Result<crate::geometry::closed_surface::Close
 
 /// Builds the scene's mesh (structured hex/tet or TetGen tets).
 pub fn build_mesh(scene: &Scene) -> Result<Mesh> {
+    crate::interrupt::check(|| "before meshing".into())?;
     let d = &scene.discretization;
     let kind: ElementKind = d.element.into();
     let shape = kind.shape();

@@ -634,6 +634,9 @@ fn run_on_worker<M: Material>(
         );
         match attempt {
             Ok(mut out) => {
+                if let Some(c) = model.contact.as_ref() {
+                    c.check_tunnelled(&out.u)?;
+                }
                 out.device = device;
                 out.device_setup_seconds = device_setup_seconds;
                 out.restarts = restarts;
