@@ -164,10 +164,10 @@ impl Model {
         hytled::simulation::Solution,
         hytled::simulation::PointFields,
     )> {
-        let mut session = self.lock();
-        let before = session.checkpoint();
-        let session = &mut *session;
-        std::thread::scope(|scope| {
+        let mut guard = self.lock();
+        let before = guard.checkpoint();
+        let session = &mut *guard;
+        let (result, stop) = std::thread::scope(|scope| {
             let worker = scope.spawn(|| -> hytled::Result<_> {
                 let sol = if cold {
                     session.solve_cold()
@@ -190,27 +190,27 @@ impl Model {
             let result = worker
                 .join()
                 .unwrap_or_else(|_| Err(hytled::Error::Input("the solve panicked".into())));
-            let Some(signal) = stop else {
-                return result.map_err(to_py);
-            };
-            hytled::interrupt::clear();
-            session.restore(before);
-            // The handler's own error where it was not a KeyboardInterrupt (a handler of the
-            // user's that raised something else).
-            let keyboard = Python::attach(|py| {
-                signal.is_instance_of::<pyo3::exceptions::PyKeyboardInterrupt>(py)
-            });
-            if !keyboard {
-                return Err(signal);
-            }
-            Err(to_py(match result {
-                Err(e @ hytled::Error::Interrupted { .. }) => e,
-                _ => hytled::Error::Interrupted {
-                    signal: hytled::interrupt::SIGINT,
-                    at: "as the solve ended; its result was dropped".into(),
-                },
-            }))
-        })
+            (result, stop)
+        });
+        let Some(signal) = stop else {
+            return result.map_err(to_py);
+        };
+        hytled::interrupt::clear();
+        guard.restore(before);
+        // The handler's own error where it was not a KeyboardInterrupt (a handler of the
+        // user's that raised something else).
+        let keyboard =
+            Python::attach(|py| signal.is_instance_of::<pyo3::exceptions::PyKeyboardInterrupt>(py));
+        if !keyboard {
+            return Err(signal);
+        }
+        Err(to_py(match result {
+            Err(e @ hytled::Error::Interrupted { .. }) => e,
+            _ => hytled::Error::Interrupted {
+                signal: hytled::interrupt::SIGINT,
+                at: "as the solve ended; its result was dropped".into(),
+            },
+        }))
     }
 
     fn lock(&self) -> std::sync::MutexGuard<'_, Session> {
