@@ -616,3 +616,41 @@ fn bad_numbers_in_surface_files_name_their_line() {
         assert!(e.contains(name) && e.contains(&says), "{e}");
     }
 }
+
+/// 11. A labelled body touching the image's border stops at the image's outer voxel faces (it
+/// grew past the image where the blocks did not divide it).
+#[test]
+fn a_body_at_the_image_border_stays_inside_the_image() {
+    let dir = folder("border");
+    let file = dir.join("edge.nii.gz");
+    // 13 voxels of 2 mm: the body fills i, j, k >= 3 up to the far faces at 26 mm; blocks of 3.
+    write_image(
+        &file,
+        &labelled(13, 0.002, |i, j, k| i.min(j).min(k) >= 3.0),
+    )
+    .unwrap();
+    let sc = cube_scene(
+        format!(
+            "geometry={{ image = \"{}\", body = \"surface\", smoothing = 0 }}",
+            file.display()
+        ),
+        &[
+            "boundaries={}",
+            "discretization.element=tet4-anp",
+            "discretization.size=0.006",
+        ],
+    )
+    .unwrap();
+    let prep = hytled::simulation::prepare(&sc).unwrap();
+    let far = prep
+        .model
+        .nodes
+        .iter()
+        .flat_map(|x| [x.x, x.y, x.z])
+        .fold(f64::NEG_INFINITY, f64::max);
+    // Voxel 12 is centred at 24 mm: the image ends at 25 mm.
+    assert!(
+        far <= 0.025 + 1e-12,
+        "the body reaches {far} m, past the image's 0.025 m"
+    );
+}

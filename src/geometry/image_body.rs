@@ -290,6 +290,15 @@ pub fn label_surface(
         .collect();
     let report = keep_main_body(&points, &mut triangles, cavities);
     taubin(&mut points, &triangles, smoothing);
+    // Tissue at the image's border: the padding puts the surface half a block past the last
+    // block's centre, which lies past the image where the block does not divide it; the body
+    // stops at the image's outer voxel faces (issue 56: it grew past the image).
+    let last = image.dims.map(|n| n as f64 - 0.5);
+    for v in points.iter_mut() {
+        for a in 0..3 {
+            v[a] = v[a].clamp(-0.5, last[a]);
+        }
+    }
     let points: Vec<Vector3<f64>> = points.into_iter().map(|v| world(image, v)).collect();
     let surface = check_closed_surface(what, points, triangles).map_err(|e| {
         Error::Input(format!(
