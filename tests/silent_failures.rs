@@ -62,7 +62,7 @@ fn vox_offset(bytes: &[u8]) -> usize {
     f32::from_le_bytes(bytes[108..112].try_into().unwrap()) as usize
 }
 
-/// 1. The voxels start at `vox_offset` (1024 here, after a gap no extension accounts for, as
+/// Defect 1: The voxels start at `vox_offset` (1024 here, after a gap no extension accounts for, as
 /// converters write), not at byte 352; a `vox_offset` past the end is a short file.
 #[test]
 fn nifti_voxels_are_read_from_vox_offset() {
@@ -102,7 +102,7 @@ fn nifti_voxels_are_read_from_vox_offset() {
     );
 }
 
-/// 14. A 4-D label image is refused (it was read as its first volume), and so is a 2-D one
+/// Defect 14: A 4-D label image is refused (it was read as its first volume), and so is a 2-D one
 /// as a body (it was "no tissue at this resolution"); a label no voxel holds is named with the
 /// labels there are.
 #[test]
@@ -114,7 +114,7 @@ fn four_d_two_d_and_absent_labels_are_refused() {
     let mut four = bytes.clone();
     four[40..42].copy_from_slice(&4i16.to_le_bytes()); // dim[0]
     four[48..50].copy_from_slice(&2i16.to_le_bytes()); // dim[4]
-    four.extend_from_slice(&bytes[start..].to_vec());
+    four.extend_from_slice(&bytes[start..]);
     let file = dir.join("four.nii");
     std::fs::write(&file, &four).unwrap();
     let e = read_image(&file).unwrap_err().to_string();
@@ -162,7 +162,7 @@ fn four_d_two_d_and_absent_labels_are_refused() {
     );
 }
 
-/// 5. Labelmaps whose TetGen mesh fills the surface's volume to a few parts per million (a
+/// Defect 5: Labelmaps whose TetGen mesh fills the surface's volume to a few parts per million (a
 /// labelled ball at smoothing 0, 2 and 20, an 11-voxel cube at 4 mm, a hollow shell: refused
 /// at the old 1e-6) are meshed.
 #[test]
@@ -280,7 +280,7 @@ fn surface_scene(dir: &Path, name: &str, soup: &Soup, extra: &[&str]) -> hytled:
     .unwrap()
 }
 
-/// 4, 9, 10. TetGen's abort on a valid UV sphere with thin pole triangles is an error naming
+/// Defect 4, 9, 10: TetGen's abort on a valid UV sphere with thin pole triangles is an error naming
 /// the surface (the process lived: it ran in a child); two bodies sharing one vertex and two
 /// spheres whose vertices coincide are refused by the surface check; two regions given one
 /// surface are TetGen's crossing facets (its status 3), not "memory", and nothing it prints
@@ -390,7 +390,7 @@ fn surfaces_that_touch_or_crash_the_mesher_are_errors_naming_them() {
     );
 }
 
-/// 12. Measured points given twice: the same value is used once (the default interpolation
+/// Defect 12: Measured points given twice: the same value is used once (the default interpolation
 /// reach was 0: "no surface node lies within 0.000 m"); another value at the same point is an
 /// error naming both lines (it was blended).
 #[test]
@@ -442,7 +442,7 @@ fn measured_points_given_twice() {
     );
 }
 
-/// 13. An `output.image` whose grid misses the body is an error (it wrote an all-zero
+/// Defect 13: An `output.image` whose grid misses the body is an error (it wrote an all-zero
 /// field), read before the solve (a short file is refused before any step).
 #[test]
 fn an_output_image_that_misses_the_body_is_an_error() {
@@ -485,7 +485,7 @@ fn an_output_image_that_misses_the_body_is_an_error() {
     assert!(t0.elapsed().as_secs_f64() < 1.0, "read before the solve");
 }
 
-/// 11. A labelled ball's surface body loses volume at coarse sizes (15 % at 6 mm, 37 % at
+/// Defect 11: A labelled ball's surface body loses volume at coarse sizes (15 % at 6 mm, 37 % at
 /// 8 mm, silently): the summary carries the labelled volume beside the model's, and a
 /// difference over 2 % is warned of with a size that fixes it, which does.
 #[test]
@@ -617,7 +617,7 @@ fn bad_numbers_in_surface_files_name_their_line() {
     }
 }
 
-/// 11. A labelled body touching the image's border stops at the image's outer voxel faces (it
+/// Defect 11: A labelled body touching the image's border stops at the image's outer voxel faces (it
 /// grew past the image where the blocks did not divide it).
 #[test]
 fn a_body_at_the_image_border_stays_inside_the_image() {

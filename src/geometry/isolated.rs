@@ -158,13 +158,27 @@ fn child(
     log_w: i32,
 ) -> ! {
     // SAFETY: plain descriptor calls on this process's own descriptors.
-    unsafe {
+    let data_w = unsafe {
         libc::close(data_r);
         libc::close(log_r);
         libc::dup2(log_w, 1);
         libc::dup2(log_w, 2);
         libc::close(log_w);
-    }
+        // The result pipe as descriptor 3, and every other descriptor closed: the child must
+        // not hold what the parent opens (an output folder's lock, another child's pipe) for
+        // as long as it runs.
+        if data_w != 3 {
+            libc::dup2(data_w, 3);
+            libc::close(data_w);
+        }
+        if libc::syscall(libc::SYS_close_range, 4u32, u32::MAX, 0u32) != 0 {
+            let max = libc::sysconf(libc::_SC_OPEN_MAX).clamp(4, 1 << 16) as i32;
+            for fd in 4..max {
+                libc::close(fd);
+            }
+        }
+        3
+    };
     let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(job))
         .unwrap_or_else(|_| Err("it panicked".to_string()));
     let bytes = encode(&result);
@@ -320,6 +334,31 @@ fn decode(b: &[u8]) -> std::result::Result<Output, String> {
 #[cfg(all(test, unix))]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_child_holds_none_of_the_parents_files() {
+        // A lock the parent holds is free again as soon as the parent lets it go, while the
+        // child still runs (an output folder's lock was held by TetGen's child).
+        let path = std::env::temp_dir().join(format!("hytled-isolated-{}", std::process::id()));
+        let f = std::fs::File::create(&path).unwrap();
+        f.try_lock().unwrap();
+        let (tx, rx) = std::sync::mpsc::channel();
+        let waiter = std::thread::spawn(move || {
+            run("a test job", || {
+                std::thread::sleep(std::time::Duration::from_millis(500));
+                Ok(Output::default())
+            })
+            .map(|_| ())
+            .map_err(|e| e.to_string())
+            .and_then(|_| rx.recv().map_err(|e| e.to_string()))
+        });
+        std::thread::sleep(std::time::Duration::from_millis(100));
+        drop(f);
+        let again = std::fs::File::open(&path).unwrap();
+        assert!(again.try_lock().is_ok(), "the child kept the parent's lock");
+        tx.send(()).unwrap();
+        waiter.join().unwrap().unwrap();
+    }
 
     #[test]
     fn a_result_comes_back_whole() {

@@ -105,10 +105,13 @@ fn nifti_unit(xyzt_units: u8) -> f64 {
     }
 }
 
+/// Decodes one voxel's bytes (big-endian when the flag says so).
+type Decode = fn(&[u8], bool) -> f64;
+
 /// Bytes per voxel and the decoder of one voxel (little- or big-endian) for a NIfTI-1
 /// `datatype`, with the type's name for messages; `None` for the types hytled does not read
 /// (complex, RGB, 128-bit).
-fn nifti_type(datatype: i16) -> Option<(usize, &'static str, fn(&[u8], bool) -> f64)> {
+fn nifti_type(datatype: i16) -> Option<(usize, &'static str, Decode)> {
     fn word<const N: usize>(b: &[u8], big: bool) -> [u8; N] {
         let mut a: [u8; N] = std::array::from_fn(|i| b[i]);
         if big {
@@ -578,7 +581,7 @@ fn read_nrrd(path: &Path) -> Result<Image> {
     let mut image = check_map(path, dims, to_world)?;
     // The data.
     let kind = need("type")?.to_ascii_lowercase();
-    let (bytes, read): (usize, fn(&[u8], bool) -> f64) = match kind.as_str() {
+    let (bytes, read): (usize, Decode) = match kind.as_str() {
         "signed char" | "int8" | "int8_t" => (1, |b, _| b[0] as i8 as f64),
         "uchar" | "unsigned char" | "uint8" | "uint8_t" => (1, |b, _| b[0] as f64),
         "short" | "short int" | "signed short" | "signed short int" | "int16" | "int16_t" => {
