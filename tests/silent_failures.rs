@@ -654,3 +654,49 @@ fn a_body_at_the_image_border_stays_inside_the_image() {
         "the body reaches {far} m, past the image's 0.025 m"
     );
 }
+
+/// A sliver (a vertex 1e-9 m off the opposite edge of a 0.1 m triangle: its area passes the
+/// zero-area check) is refused by the surface check, naming the triangle.
+#[test]
+fn a_sliver_triangle_is_refused_by_the_surface_check() {
+    let dir = folder("sliver");
+    // The cube's top face as three triangles, one of them a sliver along the edge y = 0.
+    let (mut p, t) = (
+        common::box_corners([0.0; 3], [0.1; 3]),
+        common::box_triangles(),
+    );
+    let top: Vec<usize> = (0..8).filter(|&i| p[i][2] == 0.1).collect();
+    let (a, b) = (top[0], top[1]); // (0, 0, 0.1) and (0.1, 0, 0.1)
+    p.push([0.05, 1e-9, 0.1]);
+    let m = p.len() - 1;
+    let mut tris: Vec<[usize; 3]> = vec![];
+    for tri in t {
+        let on_top = tri.iter().all(|i| top.contains(i));
+        if on_top && tri.contains(&a) && tri.contains(&b) {
+            let c = *tri.iter().find(|&&i| i != a && i != b).unwrap();
+            // Split along the vertex almost on edge a-b, keeping the orientation.
+            let at = |i: usize| tri.iter().position(|&x| x == i).unwrap();
+            let (first, second) = if (at(a) + 1) % 3 == at(b) {
+                (a, b)
+            } else {
+                (b, a)
+            };
+            tris.push([first, m, c]);
+            tris.push([m, second, c]);
+            tris.push([first, second, m]);
+        } else {
+            tris.push(tri);
+        }
+    }
+    let sc = surface_scene(
+        &dir,
+        "sliver.obj",
+        &(p, tris),
+        &["discretization.size=0.05"],
+    );
+    let e = hytled::simulation::prepare(&sc)
+        .map(|_| ())
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("sliver.obj") && e.contains("is a sliver"), "{e}");
+}

@@ -83,6 +83,25 @@ pub fn check_closed_surface(
             )));
         }
     }
+    // Slivers: a triangle whose height is a millionth of its longest edge has an area above
+    // the check above but no usable shape (a vertex almost on the opposite edge: a T-junction
+    // left by a mesh tool); meshers and shape functions fail on it later, far from the cause.
+    for (k, t) in triangles.iter().enumerate() {
+        let [a, b, c] = t.map(|i| points[i]);
+        let longest = (b - a).norm().max((c - b).norm()).max((a - c).norm());
+        let height = (b - a).cross(&(c - a)).norm() / longest;
+        if !(height > 1e-6 * longest) {
+            return Err(bad(format!(
+                "triangle {k} (vertices {}, {}, {} at {}) is a sliver: {height:.3e} m high against an edge of \
+                 {longest:.3e} m (a vertex almost on the opposite edge); remove it or repair the surface \
+                 (e.g. MeshLab's 'Remove T-Vertices' or 'Remove Zero Area Faces', or remesh it)",
+                t[0],
+                t[1],
+                t[2],
+                at(&a)
+            )));
+        }
+    }
     // Each directed edge once, and its reverse once.
     let mut directed: HashMap<(usize, usize), usize> = HashMap::with_capacity(3 * triangles.len());
     for (k, t) in triangles.iter().enumerate() {
