@@ -99,6 +99,7 @@ pub fn summarize(scene: &Scene, prep: &Prepared, out: &RunOutput, total_seconds:
         .collect();
     let mut warnings = prep.warnings.clone();
     warnings.extend(out.restarts.iter().cloned());
+    warnings.extend(out.notes.iter().cloned());
     let equilibrium_residual = out
         .load_steps
         .is_some()

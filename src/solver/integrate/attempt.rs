@@ -223,6 +223,9 @@ struct Pass<'a, M: Material> {
     stage_frame: bool,
     /// The largest nodal force component at any recorded row so far, N.
     peak_force: f64,
+    /// Relaxation with contact: whether the points in contact keep changing once the load is
+    /// full ([`SettleWatch`]).
+    settle: SettleWatch,
     /// Device runs: the host does what follows the update (corrections, loads, damping) on
     /// copies of the state.
     assisted: bool,
@@ -466,6 +469,7 @@ impl<'a, M: Material> Pass<'a, M> {
             next_stage: 0,
             stage_frame: false,
             peak_force: 0.0,
+            settle: SettleWatch::default(),
         })
     }
 
@@ -768,6 +772,16 @@ impl<'a, M: Material> Pass<'a, M> {
         if let Some(ct) = model.contact.as_mut() {
             ct.correct(&mut self.u_next, next_load, a, &model.mass, &self.cons.mask);
             self.ledger.external_work += ct.work(&self.u_next, &self.u_prev);
+            if !self.dynamic && next_load >= 1.0 {
+                let step = self.step;
+                let (err, tol) = (self.relax.err_est, self.s.tolerance);
+                if let Some(note) = self.settle.observe(step, ct.points_in_contact(), err, tol) {
+                    if self.s.progress || self.s.progress_lines.is_some() {
+                        eprintln!("warning: {note}");
+                    }
+                    self.settle.notes.push(note);
+                }
+            }
         }
         if let Some(c) = model.contact.as_ref().and_then(|ct| ct.conflict()) {
             return Err(contact_conflict(model, c, self.step + 1, next_load));
@@ -1020,6 +1034,7 @@ impl<'a, M: Material> Pass<'a, M> {
             kinetic_energy,
             solve_seconds,
             restarts: Vec::new(),
+            notes: std::mem::take(&mut self.settle.notes),
             failed_steps: 0,
             step_updates: self.updates,
             stages: self.stages,
@@ -1080,4 +1095,95 @@ fn deformation_change(
         change = nan_max(change, d.amax());
     }
     (change, (hi - lo).norm())
+}
+
+/// Steps at the full load after which a relaxation with contact that has not converged, and
+/// whose points in contact kept changing, is said not to settle.
+const SETTLE_WINDOW: usize = 10_000;
+
+/// Watches a relaxation with contact at its full load: where the points in contact change in
+/// more than 1 % of the steps of a [`SETTLE_WINDOW`] and the run has not converged, the contact
+/// chatters (points leaving and re-entering contact) and the relaxation may settle only very
+/// slowly or not at all below such a tolerance (issue 56: skull contact at 1e-6 m ran 135,000
+/// steps, 90 s, without a word). Said once, as it happens and in the summary.
+#[derive(Default)]
+struct SettleWatch {
+    /// Points in contact with each body after the previous step.
+    last: Vec<usize>,
+    /// Steps of the current window whose points in contact changed, and where it began.
+    changes: usize,
+    start: Option<usize>,
+    /// The step the full load was first seen at.
+    first: Option<usize>,
+    said: bool,
+    notes: Vec<String>,
+}
+
+impl SettleWatch {
+    /// Takes step `step`'s points in contact with each body; the note, once, where the
+    /// contact chatters and the relaxation has not settled.
+    fn observe(
+        &mut self,
+        step: usize,
+        now: &[usize],
+        err_est: f64,
+        tolerance: f64,
+    ) -> Option<String> {
+        if self.first.is_none() {
+            self.last = now.to_vec();
+        }
+        if self.last.as_slice() != now {
+            self.changes += 1;
+            self.last = now.to_vec();
+        }
+        let first = *self.first.get_or_insert(step);
+        let start = *self.start.get_or_insert(step);
+        if self.said || step - start < SETTLE_WINDOW {
+            return None;
+        }
+        let changes = std::mem::take(&mut self.changes);
+        self.start = Some(step);
+        if changes * 100 <= SETTLE_WINDOW {
+            return None;
+        }
+        self.said = true;
+        Some(format!(
+            "the relaxation has not settled {} steps after the full load (error estimate {err_est:.3e} m, \
+             solver.tolerance {tolerance:.3e} m): the points in contact changed in {changes} of the last \
+             {SETTLE_WINDOW} steps (points leaving and re-entering contact), which can keep it from \
+             converging below the chatter; if it runs long, loosen solver.tolerance (e.g. to \
+             {:.1e} m) or set solver.max_steps",
+            step - first,
+            (10.0 * tolerance).max(err_est)
+        ))
+    }
+}
+
+#[cfg(test)]
+mod settle_tests {
+    use super::*;
+
+    #[test]
+    fn a_chattering_contact_that_does_not_settle_is_said_once() {
+        // MNI skull contact at 1e-6 m: 246 changes in 10,000 steps (2.5 %) after the full load.
+        let mut w = SettleWatch::default();
+        let mut said = Vec::new();
+        for step in 500..40_000 {
+            let now = [4430 + usize::from(step % 40 == 0)];
+            said.extend(w.observe(step, &now, 3.2e-5, 1e-6).map(|n| (step, n)));
+        }
+        assert_eq!(said.len(), 1, "{said:?}");
+        assert_eq!(said[0].0, 500 + SETTLE_WINDOW);
+        assert!(
+            said[0].1.contains("changed in 500 of the last 10000 steps"),
+            "{}",
+            said[0].1
+        );
+        // A contact that holds still, or changes rarely, is not said to chatter.
+        let mut w = SettleWatch::default();
+        for step in 0..40_000 {
+            let now = [7 + usize::from(step % 500 == 0)];
+            assert_eq!(w.observe(step, &now, 3.2e-5, 1e-6), None);
+        }
+    }
 }

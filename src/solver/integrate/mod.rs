@@ -249,6 +249,9 @@ pub struct RunOutput {
     pub solve_seconds: f64,
     /// Relaxation: one note per restart after an instability (see [`Settings::retries`]).
     pub restarts: Vec<String>,
+    /// What the time loop noticed that does not stop it (a contact that keeps changing while
+    /// the relaxation does not settle); the summary's warnings carry them.
+    pub notes: Vec<String>,
     /// Relaxation: steps taken by the attempts that a restart abandoned (their time is in
     /// `solve_seconds`).
     pub failed_steps: usize,
