@@ -700,3 +700,20 @@ fn a_sliver_triangle_is_refused_by_the_surface_check() {
         .to_string();
     assert!(e.contains("sliver.obj") && e.contains("is a sliver"), "{e}");
 }
+
+/// An STL in millimetres read as metres with a size in metres: the TetGen size error says to
+/// set the units (it named only the element count).
+#[test]
+fn a_surface_in_millimetres_is_hinted_at() {
+    let dir = folder("mm");
+    let soup = (
+        common::box_corners([0.0; 3], [100.0; 3]),
+        common::box_triangles(),
+    );
+    let sc = surface_scene(&dir, "mm.stl", &soup, &["discretization.size=0.005"]);
+    let e = hytled::simulation::prepare(&sc)
+        .map(|_| ())
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("units = 0.001"), "{e}");
+}
