@@ -51,6 +51,21 @@ fn cube_scene(geometry: String, extra: &[&str]) -> hytled::Result<hytled::scene:
     hytled::scene::load(&path("cases/cube-compression.toml"), &o)
 }
 
+/// The error preparing `sc` gives (it must give one).
+fn prepare_error(sc: &hytled::scene::Scene) -> String {
+    hytled::simulation::prepare(sc)
+        .map(|_| ())
+        .unwrap_err()
+        .to_string()
+}
+
+/// The error running `sc` gives (it must give one).
+fn run_error(sc: &hytled::scene::Scene) -> String {
+    run_scene(sc, &RunOptions::default())
+        .unwrap_err()
+        .to_string()
+}
+
 /// A `.nii` (uncompressed) of `im` as hytled writes it, and its bytes.
 fn nii_bytes(dir: &Path, im: &Image) -> Vec<u8> {
     let file = dir.join("plain.nii");
@@ -129,9 +144,7 @@ fn four_d_two_d_and_absent_labels_are_refused() {
         &["discretization.element=tet4-anp"],
     )
     .unwrap();
-    let e = run_scene(&sc, &RunOptions::default())
-        .unwrap_err()
-        .to_string();
+    let e = run_error(&sc);
     assert!(
         e.contains("flat.nii.gz") && e.contains("one voxel thin"),
         "{e}"
@@ -153,9 +166,7 @@ fn four_d_two_d_and_absent_labels_are_refused() {
         &["discretization.element=tet4-anp"],
     )
     .unwrap();
-    let e = run_scene(&sc, &RunOptions::default())
-        .unwrap_err()
-        .to_string();
+    let e = run_error(&sc);
     assert!(
         e.contains("label(s) [7]") && e.contains("nonzero labels are [1]"),
         "{e}"
@@ -291,10 +302,7 @@ fn surfaces_that_touch_or_crash_the_mesher_are_errors_naming_them() {
     let sphere = uv_sphere(400, 101, 0.05, [0.05; 3]);
     assert_eq!(sphere.1.len(), 80_000);
     let sc = surface_scene(&dir, "uv.stl", &sphere, &["discretization.size=0.02"]);
-    let e = hytled::simulation::prepare(&sc)
-        .map(|_| ())
-        .unwrap_err()
-        .to_string();
+    let e = prepare_error(&sc);
     assert!(
         e.contains("uv.stl") && e.contains("SIGABRT") && e.contains("remesh"),
         "{e}"
@@ -316,10 +324,7 @@ fn surfaces_that_touch_or_crash_the_mesher_are_errors_naming_them() {
         .for_each(|i| *i = 6);
     p[8] = [9.0; 3]; // unused
     let sc = surface_scene(&dir, "pinched.stl", &(p, t), &["discretization.size=0.02"]);
-    let e = hytled::simulation::prepare(&sc)
-        .map(|_| ())
-        .unwrap_err()
-        .to_string();
+    let e = prepare_error(&sc);
     assert!(
         e.contains("pinched.stl") && e.contains("meet only there"),
         "{e}"
@@ -336,10 +341,7 @@ fn surfaces_that_touch_or_crash_the_mesher_are_errors_naming_them() {
         &join(&[lower, upper]),
         &["discretization.size=0.005"],
     );
-    let e = hytled::simulation::prepare(&sc)
-        .map(|_| ())
-        .unwrap_err()
-        .to_string();
+    let e = prepare_error(&sc);
     assert!(
         e.contains("overlap.obj") && e.contains("lie at the same place"),
         "{e}"
@@ -576,10 +578,7 @@ fn a_measured_point_clashing_with_a_boundary_names_the_measured_set() {
         "references={}".into(),
     ];
     let sc = hytled::scene::load(&scene, &o).unwrap();
-    let e = hytled::simulation::prepare(&sc)
-        .map(|_| ())
-        .unwrap_err()
-        .to_string();
+    let e = prepare_error(&sc);
     assert!(
         e.contains("measured set 'scan'") && e.contains("boundary 'top'"),
         "{e}"
@@ -694,10 +693,7 @@ fn a_sliver_triangle_is_refused_by_the_surface_check() {
         &(p, tris),
         &["discretization.size=0.05"],
     );
-    let e = hytled::simulation::prepare(&sc)
-        .map(|_| ())
-        .unwrap_err()
-        .to_string();
+    let e = prepare_error(&sc);
     assert!(e.contains("sliver.obj") && e.contains("is a sliver"), "{e}");
 }
 
@@ -711,9 +707,6 @@ fn a_surface_in_millimetres_is_hinted_at() {
         common::box_triangles(),
     );
     let sc = surface_scene(&dir, "mm.stl", &soup, &["discretization.size=0.005"]);
-    let e = hytled::simulation::prepare(&sc)
-        .map(|_| ())
-        .unwrap_err()
-        .to_string();
+    let e = prepare_error(&sc);
     assert!(e.contains("units = 0.001"), "{e}");
 }

@@ -49,14 +49,9 @@ impl ImageFormat {
 /// Largest image read (voxels): 1 GiB of f64 values.
 const MAX_VOXELS: usize = 1 << 27;
 
-fn check_map(path: &Path, dims: [usize; 3], to_world: Matrix4<f64>) -> Result<Image> {
-    if dims.contains(&0) {
-        return Err(file_error(
-            path,
-            format!("the image has {dims:?} voxels; every axis needs at least one"),
-        ));
-    }
-    let n = dims[0]
+/// Voxels of `dims`, refused past [`MAX_VOXELS`].
+fn voxel_count(path: &Path, dims: [usize; 3]) -> Result<usize> {
+    dims[0]
         .checked_mul(dims[1])
         .and_then(|v| v.checked_mul(dims[2]))
         .filter(|&n| n <= MAX_VOXELS)
@@ -65,7 +60,17 @@ fn check_map(path: &Path, dims: [usize; 3], to_world: Matrix4<f64>) -> Result<Im
                 path,
                 format!("the image has {dims:?} voxels, more than the {MAX_VOXELS} hytled reads; crop or resample it"),
             )
-        })?;
+        })
+}
+
+fn check_map(path: &Path, dims: [usize; 3], to_world: Matrix4<f64>) -> Result<Image> {
+    if dims.contains(&0) {
+        return Err(file_error(
+            path,
+            format!("the image has {dims:?} voxels; every axis needs at least one"),
+        ));
+    }
+    let n = voxel_count(path, dims)?;
     let axes = to_world.fixed_view::<3, 3>(0, 0).into_owned();
     let det = axes.determinant();
     let scale = axes.column(0).norm() * axes.column(1).norm() * axes.column(2).norm();
@@ -241,16 +246,7 @@ fn read_nifti(path: &Path) -> Result<Image> {
         ));
     }
     let offset = offset as usize;
-    let voxels = dims[0]
-        .checked_mul(dims[1])
-        .and_then(|v| v.checked_mul(dims[2]))
-        .filter(|&n| n <= MAX_VOXELS)
-        .ok_or_else(|| {
-            file_error(
-                path,
-                format!("the image has {dims:?} voxels, more than the {MAX_VOXELS} hytled reads; crop or resample it"),
-            )
-        })?;
+    let voxels = voxel_count(path, dims)?;
     let need = voxels * width;
     if offset.saturating_add(need) > bytes.len() {
         return Err(file_error(
