@@ -1129,12 +1129,13 @@ impl SettleWatch {
         err_est: f64,
         tolerance: f64,
     ) -> Option<String> {
-        if self.first.is_none() {
-            self.last = now.to_vec();
-        }
-        if self.last.as_slice() != now {
-            self.changes += 1;
-            self.last = now.to_vec();
+        // Copied into the kept buffer: no allocation in the time loop after the first step.
+        if self.first.is_none() || self.last.as_slice() != now {
+            if self.first.is_some() {
+                self.changes += 1;
+            }
+            self.last.clear();
+            self.last.extend_from_slice(now);
         }
         let first = *self.first.get_or_insert(step);
         let start = *self.start.get_or_insert(step);
