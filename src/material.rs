@@ -43,6 +43,42 @@ pub trait Material: Send + Sync + Clone {
     /// p = dU/dJ, Pa). The average-nodal-pressure tetrahedron swaps the element's own pressure
     /// for the mean of nodal ones through it.
     fn volumetric(&self, j: f64) -> (f64, f64);
+    /// U''(J), Pa: the bulk stiffness of the volumetric part at J (the static solve's tangent,
+    /// [`crate::solver::statics`]). The default differentiates [`Self::volumetric`] by central
+    /// differences.
+    fn volumetric_stiffness(&self, j: f64) -> f64 {
+        let h = 1e-6 * j.abs().max(1.0);
+        (self.volumetric(j + h).1 - self.volumetric(j - h).1) / (2.0 * h)
+    }
+    /// The tangent of the isochoric stress, A = dP_iso/dF (Pa), with
+    /// P_iso = P - U'(J) cof(F) the first Piola-Kirchhoff stress of W_iso: row 3 i + J,
+    /// column 3 k + L holds dP_iJ / dF_kL. The static solve assembles its stiffness from it
+    /// (the volumetric part apart, [`Self::volumetric_stiffness`]). The default differentiates
+    /// the stress by central differences (relative error about 1e-9); models override it with
+    /// the exact form.
+    fn isochoric_tangent(&self, f: &Matrix3<f64>) -> nalgebra::SMatrix<f64, 9, 9> {
+        let p_iso = |g: &Matrix3<f64>| {
+            let j = g.determinant();
+            self.first_pk_stress(g, j) - crate::geometry::cofactor(g) * self.volumetric(j).1
+        };
+        let h = 1e-6 * f.amax().max(1.0);
+        let mut a = nalgebra::SMatrix::<f64, 9, 9>::zeros();
+        for k in 0..3 {
+            for l in 0..3 {
+                let mut fp = *f;
+                fp[(k, l)] += h;
+                let mut fm = *f;
+                fm[(k, l)] -= h;
+                let d = (p_iso(&fp) - p_iso(&fm)) / (2.0 * h);
+                for i in 0..3 {
+                    for jj in 0..3 {
+                        a[(3 * i + jj, 3 * k + l)] = d[(i, jj)];
+                    }
+                }
+            }
+        }
+        a
+    }
     /// Dilatational (P-) wave speed in the reference configuration, m/s. Sets the stable step.
     fn wave_speed(&self) -> f64;
     /// Mass density, kg/m^3.
@@ -282,6 +318,36 @@ impl Material for NeoHookean {
             0.5 * self.kappa * (j - 1.0) * (j - 1.0),
             self.kappa * (j - 1.0),
         )
+    }
+
+    fn volumetric_stiffness(&self, _j: f64) -> f64 {
+        self.kappa
+    }
+
+    /// P_iso = a (F - I_1/3 F^-T) with a = mu J^(-2/3), I_1 = F : F, differentiated exactly:
+    /// dP_iJ/dF_kL = -2/3 a F^-1_Lk (F_iJ - I_1/3 F^-1_Ji)
+    ///               + a (d_ik d_JL - 2/3 F_kL F^-1_Ji + I_1/3 F^-1_Jk F^-1_Li).
+    fn isochoric_tangent(&self, f: &Matrix3<f64>) -> nalgebra::SMatrix<f64, 9, 9> {
+        let j = f.determinant();
+        let finv = crate::geometry::cofactor(f).transpose() / j;
+        let r = inv_cbrt(j);
+        let a = self.mu * r * r;
+        let i1 = f.norm_squared();
+        let mut t = nalgebra::SMatrix::<f64, 9, 9>::zeros();
+        for i in 0..3 {
+            for jj in 0..3 {
+                let dev = f[(i, jj)] - i1 / 3.0 * finv[(jj, i)];
+                for k in 0..3 {
+                    for l in 0..3 {
+                        let d = if i == k && jj == l { 1.0 } else { 0.0 };
+                        t[(3 * i + jj, 3 * k + l)] = -2.0 / 3.0 * a * finv[(l, k)] * dev
+                            + a * (d - 2.0 / 3.0 * f[(k, l)] * finv[(jj, i)]
+                                + i1 / 3.0 * finv[(jj, k)] * finv[(l, i)]);
+                    }
+                }
+            }
+        }
+        t
     }
 
     fn wave_speed(&self) -> f64 {
@@ -578,6 +644,10 @@ impl Material for Ogden {
         )
     }
 
+    fn volumetric_stiffness(&self, _j: f64) -> f64 {
+        self.kappa
+    }
+
     fn wave_speed(&self) -> f64 {
         p_wave_speed(self.mu, self.kappa, self.density)
     }
@@ -660,6 +730,20 @@ impl Material for Solid {
         }
     }
 
+    fn volumetric_stiffness(&self, j: f64) -> f64 {
+        match self {
+            Solid::NeoHookean(m) => m.volumetric_stiffness(j),
+            Solid::Ogden(m) => m.volumetric_stiffness(j),
+        }
+    }
+
+    fn isochoric_tangent(&self, f: &Matrix3<f64>) -> nalgebra::SMatrix<f64, 9, 9> {
+        match self {
+            Solid::NeoHookean(m) => m.isochoric_tangent(f),
+            Solid::Ogden(m) => m.isochoric_tangent(f),
+        }
+    }
+
     fn wave_speed(&self) -> f64 {
         match self {
             Solid::NeoHookean(m) => m.wave_speed(),
@@ -712,6 +796,62 @@ mod tests {
             if f.determinant() > 0.2 {
                 return f;
             }
+        }
+    }
+
+    /// The exact neo-Hookean isochoric tangent equals central differences of its stress (the
+    /// trait's default), and the one-term Ogden solid at alpha = 2, which is the same solid,
+    /// gives the same tangent through its own (eigenvalue) stress.
+    #[test]
+    fn isochoric_tangent_is_the_derivative_of_the_isochoric_stress() {
+        struct ByDifferences(NeoHookean);
+        impl Clone for ByDifferences {
+            fn clone(&self) -> Self {
+                ByDifferences(self.0)
+            }
+        }
+        impl Material for ByDifferences {
+            fn strain_energy(&self, f: &Matrix3<f64>) -> f64 {
+                self.0.strain_energy(f)
+            }
+            fn pk2_stress(&self, f: &Matrix3<f64>, j: f64) -> Matrix3<f64> {
+                self.0.pk2_stress(f, j)
+            }
+            fn volumetric(&self, j: f64) -> (f64, f64) {
+                self.0.volumetric(j)
+            }
+            fn wave_speed(&self) -> f64 {
+                self.0.wave_speed()
+            }
+            fn density(&self) -> f64 {
+                1000.0
+            }
+            fn lame(&self) -> (f64, f64) {
+                self.0.lame()
+            }
+        }
+        let m = mat();
+        let og = Ogden {
+            mu: m.mu,
+            alpha: 2.0,
+            kappa: m.kappa,
+            density: 1000.0,
+        };
+        let mut state = 7u64;
+        for _ in 0..20 {
+            let f = random_f(&mut state);
+            let exact = m.isochoric_tangent(&f);
+            let fd = ByDifferences(m).isochoric_tangent(&f);
+            let scale = exact.amax();
+            assert!((exact - fd).amax() < 1e-7 * scale, "{exact} {fd}");
+            assert!((og.isochoric_tangent(&f) - exact).amax() < 1e-6 * scale);
+            // A hyperelastic tangent has the major symmetry dP_iJ/dF_kL = dP_kL/dF_iJ.
+            assert!((exact - exact.transpose()).amax() < 1e-12 * scale);
+            let h = 1e-6;
+            let u = |j: f64| ByDifferences(m).volumetric_stiffness(j);
+            assert!(
+                (u(f.determinant()) - m.volumetric_stiffness(f.determinant())).abs() < h * m.kappa
+            );
         }
     }
 

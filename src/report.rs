@@ -226,6 +226,14 @@ pub struct Summary {
     pub dt_critical: f64,
     pub dt_factor: f64,
     pub steps: usize,
+    /// Every evaluation of the internal forces the run made: steps, Lanczos iterations, and in
+    /// a static solve its force evaluations, tangent assemblies and products with the tangent
+    /// (one each): the cost measure that compares the modes.
+    pub force_evaluations: usize,
+    /// Static solve: load steps, Newton and linear iterations, factorizations, factor memory
+    /// and the residual history (None in the other modes).
+    #[serde(rename = "static", skip_serializing_if = "Option::is_none")]
+    pub statics: Option<crate::solver::statics::StaticReport>,
     /// Relaxation: steps of the attempts abandoned after an instability (`solver.retries`;
     /// their time is in `wall_seconds.solve`).
     #[serde(skip_serializing_if = "is_zero")]
@@ -406,11 +414,30 @@ impl Summary {
                 self.mesh.min_dihedral_element.unwrap_or(0)
             );
         }
-        let _ = writeln!(
-            s,
-            "time step        {:.4e} s = {:.3} x critical {:.4e} s (set by {})",
-            self.dt, self.dt_factor, self.dt_critical, self.mesh.critical
-        );
+        if let Some(st) = &self.statics {
+            let _ = writeln!(
+                s,
+                "static solve     {}: {} load steps ({} cuts), {} Newton iterations, {} CG iterations, \
+                 {} assemblies, {} factorizations of {} DOFs ({:.1} MB factor, {:.2} s), {} force evaluations",
+                st.variant,
+                st.load_steps,
+                st.cuts,
+                st.newton_iterations,
+                st.linear_iterations,
+                st.assemblies,
+                st.factorizations,
+                st.dofs,
+                st.factor_bytes as f64 / 1e6,
+                st.factor_seconds,
+                self.force_evaluations
+            );
+        } else {
+            let _ = writeln!(
+                s,
+                "time step        {:.4e} s = {:.3} x critical {:.4e} s (set by {})",
+                self.dt, self.dt_factor, self.dt_critical, self.mesh.critical
+            );
+        }
         if let Some(u) = self.step_updates.filter(|u| u.estimates > 0) {
             let what = if u.reductions > 0 {
                 format!(
@@ -441,32 +468,36 @@ impl Summary {
                 m[0], m[1], m[2], d
             );
         }
-        let _ = writeln!(
-            s,
-            "steps            {} ({} = {:.4} s){}{}",
-            self.steps,
-            if self.load_steps.is_some() {
-                "pseudo-time t"
-            } else {
-                "t"
-            },
-            self.simulated_time,
-            self.load_steps
-                .map_or(String::new(), |n| format!(", load over the first {n}"))
-                + &if self.failed_steps > 0 {
-                    format!(
-                        "; {} more in attempts abandoned after an instability",
-                        self.failed_steps
-                    )
+        if self.statics.is_none() {
+            let _ = writeln!(
+                s,
+                "steps            {} ({} = {:.4} s){}{}",
+                self.steps,
+                if self.load_steps.is_some() {
+                    "pseudo-time t"
                 } else {
-                    String::new()
+                    "t"
                 },
-            if self.converged {
-                ""
-            } else {
-                "  NOT CONVERGED"
-            }
-        );
+                self.simulated_time,
+                self.load_steps
+                    .map_or(String::new(), |n| format!(", load over the first {n}"))
+                    + &if self.failed_steps > 0 {
+                        format!(
+                            "; {} more in attempts abandoned after an instability",
+                            self.failed_steps
+                        )
+                    } else {
+                        String::new()
+                    },
+                if self.converged {
+                    ""
+                } else {
+                    "  NOT CONVERGED"
+                }
+            );
+        } else if !self.converged {
+            let _ = writeln!(s, "steps            NOT CONVERGED (see the warnings)");
+        }
         let residual = self.equilibrium_residual.map_or(String::new(), |r| {
             format!(" (largest free-node residual {r:.2e} of the largest nodal force in the run)")
         });
@@ -537,6 +568,9 @@ impl Summary {
         let e = &self.energy;
         let balance = match (e.balance_error, self.load_steps.is_some()) {
             (Some(b), _) => format!(", balance error {:.4} %", 100.0 * b),
+            (None, true) if self.statics.is_some() => {
+                ", the work by trapezoids over the load steps".into()
+            }
             // Relaxation's damping takes the rest of the external work: no balance to check.
             (None, true) => ", the difference is what relaxation's damping absorbed".into(),
             (None, false) => String::new(),

@@ -152,14 +152,16 @@ fn only_the_pipeline_knows_both_the_scene_and_the_solver() {
         if m == "simulation" || !TOP.contains(&m.as_str()) {
             continue;
         }
-        // The schema names the solver's mode, step-estimate and device enums as scene values.
+        // The schema names the solver's mode, step-estimate, device and static-variant enums as
+        // scene values.
         let calls: Vec<&str> = text
             .split("crate::solver")
             .skip(1)
             .filter(|rest| {
                 !(rest.starts_with("::Mode")
                     || rest.starts_with("::StepEstimate")
-                    || rest.starts_with("::Device"))
+                    || rest.starts_with("::Device")
+                    || rest.starts_with("::StaticVariant"))
             })
             .collect();
         assert!(

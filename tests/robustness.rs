@@ -177,7 +177,7 @@ fn override_errors_name_the_key_path() {
             "",
             &[
                 "line",
-                "solver.mode: expected a name in quotes, `dynamic` or `relaxation`",
+                "solver.mode: expected a name in quotes, one of `dynamic`, `relaxation`, `static`",
             ],
         ),
         (

@@ -410,6 +410,12 @@ pub struct SolverSpec {
     /// bitwise; see README "GPU"). `--device` overrides it.
     #[serde(default)]
     pub device: crate::solver::Device,
+    /// Static: how each Newton iteration solves its linear system: `"newton-krylov"`
+    /// (default: the current tangent by conjugate gradients preconditioned by a kept
+    /// factorization), `"newton"` (a factorization per iteration) or `"modified"` (the kept
+    /// factorization alone). See docs/methods.md.
+    #[serde(default)]
+    pub static_variant: crate::solver::StaticVariant,
 }
 
 pub(super) fn default_true() -> bool {
@@ -449,6 +455,7 @@ impl Default for SolverSpec {
             step_update: true,
             mass_scaling: None,
             device: Default::default(),
+            static_variant: Default::default(),
         }
     }
 }

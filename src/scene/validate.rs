@@ -828,11 +828,11 @@ fn check_outputs(s: &Scene) -> std::result::Result<(), String> {
                      (1: the end of the run)"
                 ));
             }
-            if at < 1.0 && s.solver.mode != Mode::Relaxation {
+            if at < 1.0 && !s.solver.mode.is_steady() {
                 return Err(format!(
                     "references.{name}.at = {at}: comparing at a load fraction below 1 needs \
-                     solver.mode = \"relaxation\" (the run converges at each such load stage); a \
-                     dynamic run's path is in history.csv"
+                     solver.mode = \"static\" or \"relaxation\" (the run converges at each such \
+                     load stage); a dynamic run's path is in history.csv"
                 ));
             }
             if at < 1.0 && r.exact.is_some() {

@@ -437,7 +437,7 @@ pub fn prepare(scene: &Scene) -> Result<Prepared> {
     if let Some(w) = volume_warning(scene, &p) {
         p.warnings.push(w);
     }
-    if let (Mode::Relaxation, Some(n)) = (scene.solver.mode, scene.output.frames) {
+    if let (true, Some(n)) = (scene.solver.mode.is_steady(), scene.output.frames) {
         p.warnings.push(format!(
             "output.frames = {n} applies to dynamic runs: relaxation writes the unloaded state, \
              each load stage (a reference's `at`) and the converged state (its path in \

@@ -252,7 +252,7 @@ impl Session {
     /// the initial state.
     pub fn solve(&mut self) -> Result<Solution> {
         let warm = match (&self.warm, self.settings.mode) {
-            (Some(w), Mode::Relaxation) => Some(w.clone()),
+            (Some(w), Mode::Relaxation | Mode::Static) => Some(w.clone()),
             _ => None,
         };
         let Some(w) = warm else {
@@ -352,7 +352,7 @@ impl Session {
         // The steady state does not depend on the masses; scaled ones make every node's
         // step bound alike, so the change relaxes in a fraction of the steps (brain-shift:
         // 305 against 1,804 with the physical masses).
-        let swap = is_warm && self.scales_warm_masses();
+        let swap = is_warm && self.settings.mode == Mode::Relaxation && self.scales_warm_masses();
         // The lowest frequency carried over holds for the masses it was estimated with.
         let warm = warm.map(|mut w| {
             if swap && !self.warm_from_swapped {
@@ -395,8 +395,7 @@ impl Session {
         }
         self.warm_from_swapped = swap;
         // Only a converged relaxation is an equilibrium to start from.
-        self.warm =
-            (self.settings.mode == Mode::Relaxation && summary.converged).then(|| out.warm_start());
+        self.warm = (self.settings.mode.is_steady() && summary.converged).then(|| out.warm_start());
         self.warm_tools = self.tool_motions();
         Ok(Solution {
             summary,

@@ -252,14 +252,21 @@ pub fn summarize(scene: &Scene, prep: &Prepared, out: &RunOutput, total_seconds:
         mode: match scene.solver.mode {
             Mode::Dynamic => "dynamic".into(),
             Mode::Relaxation => "relaxation".into(),
+            Mode::Static => "static".into(),
         },
         nodes: model.nodes.len(),
         integration_points: model.points.len(),
         // The step the run started with (step_updates has the shortest one).
         dt: out.step_updates.dt_initial,
         dt_critical: out.dt_critical,
-        dt_factor: out.step_updates.dt_initial / out.dt_critical,
+        dt_factor: if out.dt_critical > 0.0 {
+            out.step_updates.dt_initial / out.dt_critical
+        } else {
+            0.0
+        },
         steps: out.steps,
+        force_evaluations: out.force_evaluations,
+        statics: out.statics.clone(),
         failed_steps: out.failed_steps,
         restarts: out.restarts.len(),
         step_updates: (out.step_updates.estimates > 0).then_some(out.step_updates),

@@ -697,6 +697,7 @@ pub fn settings(scene: &Scene, progress: bool) -> Settings {
         device: s.device,
         stages: stages(scene),
         warm_start: None,
+        static_variant: s.static_variant,
         initial_velocity: None,
         initial_motion: scene.initial.as_ref().map(|i| {
             [

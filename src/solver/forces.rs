@@ -1446,6 +1446,19 @@ impl<M: Material> Forces<M> {
         }
     }
 
+    /// The average-nodal-pressure tables (empty without ANP points): per pressure node `n`,
+    /// its (ANP point, weight in m^3) entries `points[offsets[n]..offsets[n + 1]]`, one per
+    /// slot keyed to it, and 1 / their weight sum (1/m^3; 0 where a node has none). J_n is the
+    /// weighted mean of the points' J over the entries; the static solve's tangent
+    /// differentiates it ([`crate::solver::statics`]).
+    pub(crate) fn anp_tables(&self) -> (&[u32], &[(u32, f64)], &[f64]) {
+        (
+            &self.anp_offsets,
+            &self.anp_points,
+            &self.node_anp_inv_weight,
+        )
+    }
+
     /// Smallest det F over the points of the last evaluation, and the point that has it
     /// (the lowest index among equals).
     pub fn min_j(&self) -> (f64, usize) {

@@ -9,6 +9,7 @@ pub mod integrate;
 mod lanes_avx2;
 pub mod order;
 pub mod spectrum;
+pub mod statics;
 pub mod timestep;
 mod two_ended;
 
@@ -25,6 +26,7 @@ pub use integrate::{
     keep_warm, run, run_streaming, Device, FrameSink, Mode, RunOutput, Settings, StepEstimate,
     WarmStart,
 };
+pub use statics::Variant as StaticVariant;
 
 /// A raw pointer that may cross threads: each parallel task writes a disjoint index range.
 #[derive(Clone, Copy)]
@@ -102,6 +104,9 @@ pub struct Model<M: Material> {
     pub masses_uneven: bool,
     /// `mass` holds the fictitious masses of [`Self::scale_masses`] (relaxation only).
     pub mass_scaled: bool,
+    /// The static solve's tangent pattern, numbering and factorization, kept between solves
+    /// ([`statics::solve`]).
+    pub(crate) static_cache: Option<statics::Cache>,
     /// What the constraints and the corrector were built on: per boundary, its name, nodes
     /// and prescribed components ([`Self::apply_boundary_changes`]).
     layout: Vec<BoundaryLayout>,
@@ -251,6 +256,7 @@ impl<M: Material> Model<M> {
             contact: None,
             masses_uneven: false,
             mass_scaled: false,
+            static_cache: None,
             layout,
         })
     }

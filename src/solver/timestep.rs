@@ -2,6 +2,8 @@
 //! (thesis eq. 4.1-4.2) and a nodal block-Gershgorin bound; the run takes the larger step,
 //! since both bound the largest eigenvalue of the reference stiffness.
 
+use nalgebra::Vector3;
+
 use crate::quadrature::QuadraturePoints;
 
 /// Per point p: [P-wave modulus lambda + 2 mu, shear modulus mu, bulk modulus kappa (Pa),
@@ -223,6 +225,34 @@ pub fn anp_time_step(
 
 #[cfg(test)]
 mod tests {
+    /// The points named for a collapsing step are those a deformation squeezed: a node pushed
+    /// into its neighbours makes the elements around it the first, each with its J, and an
+    /// undeformed body has every bound at its reference value.
+    #[test]
+    fn stiffened_points_are_the_squeezed_ones() {
+        use crate::fe::{element_points, ElementKind};
+        use crate::geometry::shapes::box_tet;
+        let mesh = box_tet(Vector3::zeros(), Vector3::repeat(0.04), [2, 2, 2]).unwrap();
+        let qp = element_points(&mesh, ElementKind::Tet4, 0.0, 1.0).unwrap();
+        let mat = crate::material::NeoHookean::from_young_poisson(3000.0, 0.45, 1000.0);
+        let model = crate::solver::Model::new(mesh.nodes.clone(), qp, mat, Vec::new()).unwrap();
+        let centre = mesh
+            .nodes
+            .iter()
+            .position(|x| (x - Vector3::repeat(0.02)).norm() < 1e-12)
+            .unwrap();
+        let mut u = vec![Vector3::zeros(); mesh.nodes.len()];
+        let rest = stiffened_points(&model, &u, 1);
+        assert!((rest[0].ratio - 1.0).abs() < 1e-12 && (rest[0].j - 1.0).abs() < 1e-12);
+        u[centre] = Vector3::new(0.009, 0.0, 0.0);
+        let worst = stiffened_points(&model, &u, 3);
+        for w in &worst {
+            assert!(mesh.cell(w.id as usize).contains(&centre), "{w:?}");
+            assert!(w.ratio < 1.0);
+        }
+        assert!(worst[0].ratio <= worst[1].ratio && worst[1].ratio <= worst[2].ratio);
+    }
+
     use super::*;
     use crate::quadrature::{NodeSlots, PointKind, QuadraturePoints};
     use nalgebra::Vector3;
@@ -345,4 +375,50 @@ mod tests {
             );
         }
     }
+}
+
+/// A point whose step bound has fallen most under deformation ([`stiffened_points`]).
+#[derive(Debug, Clone, Copy)]
+pub struct Stiffened {
+    /// The point's id in the discretization (its element for FE meshes).
+    pub id: u32,
+    /// det F at the point.
+    pub j: f64,
+    /// Its step bound at the deformed state over its reference one:
+    /// sqrt(sum_a |dphi_a|^2 / sum_a |F^-T dphi_a|^2).
+    pub ratio: f64,
+}
+
+/// The `k` points of `model` whose per-point step bound has fallen most at displacements `u`
+/// (m): the ratio of sqrt(sum_a |dphi_a|^2) in the reference to the same sum over the deformed
+/// gradients F^-T dphi_a, smallest first; an inverted point first of all (ratio 0).
+pub fn stiffened_points<M: crate::material::Material>(
+    model: &super::Model<M>,
+    u: &[Vector3<f64>],
+    k: usize,
+) -> Vec<Stiffened> {
+    let q = &model.points;
+    let mut all: Vec<Stiffened> = (0..q.len())
+        .map(|p| {
+            let f = super::forces::deformation_gradient(q, p, u);
+            let j = f.determinant();
+            let reference: f64 = q.slots(p).map(|s| q.dphi[s].norm_squared()).sum();
+            let ratio = match f.try_inverse() {
+                Some(fi) if j > 0.0 => {
+                    let fit = fi.transpose();
+                    let deformed: f64 = q.slots(p).map(|s| (fit * q.dphi[s]).norm_squared()).sum();
+                    (reference / deformed).sqrt()
+                }
+                _ => 0.0,
+            };
+            Stiffened {
+                id: model.point_ids[p],
+                j,
+                ratio,
+            }
+        })
+        .collect();
+    all.sort_by(|a, b| a.ratio.total_cmp(&b.ratio).then(a.id.cmp(&b.id)));
+    all.truncate(k);
+    all
 }

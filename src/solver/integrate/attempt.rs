@@ -58,7 +58,7 @@ pub(super) fn attempt<M: Material>(
     )?;
     loop {
         crate::interrupt::check(|| match s.mode {
-            Mode::Relaxation => format!(
+            Mode::Relaxation | Mode::Static => format!(
                 "at step {} of the relaxation, {:.1} % of the load",
                 pass.step,
                 100.0 * pass.time.load(pass.step).min(1.0)
@@ -226,6 +226,8 @@ struct Pass<'a, M: Material> {
     /// Relaxation with contact: whether the points in contact keep changing once the load is
     /// full ([`SettleWatch`]).
     settle: SettleWatch,
+    /// The collapsing step has been warned of ([`collapse_note`]).
+    collapse_said: bool,
     /// Device runs: the host does what follows the update (corrections, loads, damping) on
     /// copies of the state.
     assisted: bool,
@@ -470,6 +472,7 @@ impl<'a, M: Material> Pass<'a, M> {
             stage_frame: false,
             peak_force: 0.0,
             settle: SettleWatch::default(),
+            collapse_said: false,
         })
     }
 
@@ -543,6 +546,14 @@ impl<'a, M: Material> Pass<'a, M> {
         self.updates.reductions += 1;
         self.updates.last_reduction_time = t_now;
         self.updates.dt_min = self.updates.dt_min.min(self.time.dt);
+        if !self.dynamic && !self.collapse_said && collapsing(&self.updates) {
+            self.collapse_said = true;
+            let note = collapse_note(self.model, &self.u, &self.updates, step);
+            if self.s.progress || self.s.progress_lines.is_some() {
+                eprintln!("warning: {note}");
+            }
+            self.settle.notes.push(note);
+        }
         Ok(())
     }
 
@@ -1039,6 +1050,8 @@ impl<'a, M: Material> Pass<'a, M> {
             step_updates: self.updates,
             stages: self.stages,
             peak_nodal_force: self.peak_force,
+            force_evaluations: 0,
+            statics: None,
         })
     }
 }
@@ -1164,6 +1177,21 @@ impl SettleWatch {
 mod settle_tests {
     use super::*;
 
+    /// A step is said to collapse below a tenth of its first value or after 30 reductions;
+    /// the stiffening of the cube compressed by 80 % (18 reductions to 0.23x) is not.
+    #[test]
+    fn a_collapse_is_a_tenth_or_many_reductions() {
+        let u = |reductions, ratio: f64| StepUpdates {
+            reductions,
+            dt_initial: 1.0,
+            dt_min: ratio,
+            ..Default::default()
+        };
+        assert!(!collapsing(&u(18, 0.23)));
+        assert!(collapsing(&u(3, 0.09)));
+        assert!(collapsing(&u(30, 0.5)));
+    }
+
     #[test]
     fn a_chattering_contact_that_does_not_settle_is_said_once() {
         // MNI skull contact at 1e-6 m: 246 changes in 10,000 steps (2.5 %) after the full load.
@@ -1187,4 +1215,43 @@ mod settle_tests {
             assert_eq!(w.observe(step, &now, 3.2e-5, 1e-6), None);
         }
     }
+}
+
+/// Reductions of the relaxation's step after which it is said to collapse (the cube
+/// compressed by 60 / 70 % takes 12 / 16 reductions to 0.45 / 0.34x, a stiffening, not a
+/// collapse).
+const COLLAPSE_REDUCTIONS: usize = 30;
+/// A relaxation step below this fraction of its first value is said to collapse.
+const COLLAPSE_RATIO: f64 = 0.1;
+
+/// The step has been shortened many times or far below its first value: a relaxation that
+/// will take many times the steps it was planned for (issue 57: a graded rim, 55 reductions to
+/// 0.088x, five minutes without a word).
+fn collapsing(u: &StepUpdates) -> bool {
+    u.reductions >= COLLAPSE_REDUCTIONS || u.dt_min < COLLAPSE_RATIO * u.dt_initial
+}
+
+/// The warning for a collapsing relaxation step, naming the elements (points) that set it:
+/// those whose deformed shape-function gradients have grown most (the step bound of a point
+/// falls as 1 / sqrt(sum_a |F^-T dphi_a|^2)).
+fn collapse_note<M: Material>(
+    model: &Model<M>,
+    u: &[Vector3<f64>],
+    updates: &StepUpdates,
+    step: usize,
+) -> String {
+    let worst = super::super::timestep::stiffened_points(model, u, 3);
+    let list: Vec<String> = worst
+        .iter()
+        .map(|w| format!("{} (J {:.3}, its bound {:.2}x)", w.id, w.j, w.ratio))
+        .collect();
+    format!(
+        "relaxation: the step collapsed to {:.3}x its first value ({} reductions by step {step}): \
+         the steps from here take that much longer to settle the body. The points (elements) that set it: {}. Refine or \
+         smooth the mesh there (a sharply driven rim, a sliver), load more slowly, or use \
+         solver.mode = \"static\"",
+        updates.dt_min / updates.dt_initial,
+        updates.reductions,
+        list.join(", ")
+    )
 }

@@ -33,6 +33,16 @@ pub enum Mode {
     Dynamic,
     /// Steady state by adaptive dynamic relaxation.
     Relaxation,
+    /// Steady state by Newton's method with load steps ([`crate::solver::statics`]).
+    Static,
+}
+
+impl Mode {
+    /// A steady-state mode (relaxation or static): no physical time, loads reach their final
+    /// values and the body settles.
+    pub fn is_steady(self) -> bool {
+        matches!(self, Mode::Relaxation | Mode::Static)
+    }
 }
 
 /// How the critical step is estimated (see [`critical_step`]).
@@ -108,6 +118,8 @@ pub struct Settings {
     /// then has only the change to relax. None (the default): from the unloaded state, the
     /// load coming on over `load_steps`.
     pub warm_start: Option<WarmStart>,
+    /// Static: how each Newton iteration solves its linear system.
+    pub static_variant: crate::solver::statics::Variant,
 }
 
 /// Where a warm-started relaxation begins ([`Settings::warm_start`]).
@@ -158,6 +170,7 @@ impl Default for Settings {
             device: Device::Cpu,
             stages: Vec::new(),
             warm_start: None,
+            static_variant: Default::default(),
         }
     }
 }
@@ -262,6 +275,12 @@ pub struct RunOutput {
     /// The largest nodal force component (internal forces) at any recorded row, N: the
     /// scale of the equilibrium residual of a run whose load ends at zero.
     pub peak_nodal_force: f64,
+    /// Every evaluation of the internal forces, a tangent assembly and a product with the
+    /// tangent counting one each (relaxation: its steps, restarts' steps and the Lanczos
+    /// iterations of the step estimates).
+    pub force_evaluations: usize,
+    /// Static: what the Newton solve did (None in the other modes).
+    pub statics: Option<crate::solver::statics::StaticReport>,
 }
 
 impl RunOutput {
@@ -566,6 +585,23 @@ fn run_on_pool<M: Material>(
     sink: Option<&mut FrameSink<'_, M>>,
 ) -> Result<RunOutput> {
     model.apply_boundary_changes()?;
+    if s.mode == Mode::Static {
+        if s.device != Device::Cpu {
+            return Err(Error::Input(
+                "solver.mode = \"static\" runs on the CPU; the GPU runs relaxation and dynamics \
+                 (set solver.mode = \"relaxation\" for the GPU, or solver.device = \"cpu\")"
+                    .into(),
+            ));
+        }
+        let mut cache = model.static_cache.take();
+        let out = if rayon::current_thread_index().is_some() {
+            super::statics::solve(model, s, sink, &mut cache)
+        } else {
+            rayon::scope(|_| super::statics::solve(model, s, sink, &mut cache))
+        };
+        model.static_cache = cache;
+        return out;
+    }
     if rayon::current_thread_index().is_some() {
         run_on_worker(model, s, sink)
     } else {
@@ -644,6 +680,13 @@ fn run_on_worker<M: Material>(
                 out.device_setup_seconds = device_setup_seconds;
                 out.restarts = restarts;
                 out.failed_steps = failed_steps;
+                out.force_evaluations = out.steps
+                    + failed_steps
+                    + out.step_updates.iterations
+                    + match critical {
+                        Critical::Global(k) => k,
+                        _ => 0,
+                    };
                 return Ok(out);
             }
             Err(Error::Unstable(msg)) => {

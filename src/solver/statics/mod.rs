@@ -1,0 +1,960 @@
+//! Static equilibrium, F_int(u) = F_ext(u), by Newton's method with load stepping, a line
+//! search and automatic step cuts: the steady state without a pseudo-dynamic path.
+//!
+//! The tangent comes from the same quadrature points as the forces ([`tangent`]); the reduced
+//! stiffness K_ff is factored by faer's supernodal Cholesky on a pattern and symbolic
+//! factorization built once ([`factor`]). Three variants ([`Variant`]): full Newton (a
+//! factorization per iteration), modified Newton (one kept factor, no reassembly) and the
+//! default Newton-Krylov (the current tangent each iteration, solved by conjugate gradients
+//! preconditioned by a kept factor, refactored only when the iterations slow down): a
+//! factorization costs tens to hundreds of force evaluations on quadratic meshes, an
+//! assembly about ten, a CG iteration one sparse product.
+//!
+//! Prescribed displacements are imposed exactly (their DOFs eliminated); each load step starts
+//! from the linear predictor u_f += K_ff^-1 (r_f - K_fp du_p), so the nodes beside a moved
+//! boundary follow it instead of being torn from it in the first evaluation. Follower pressure
+//! enters the residual but not the tangent (its load stiffness is left out: convergence is
+//! then linear where pressure dominates).
+
+pub mod factor;
+pub mod tangent;
+
+use std::time::Instant;
+
+use nalgebra::Vector3;
+use serde::{Deserialize, Serialize};
+
+use super::integrate::{FrameSink, HistoryRow, Momentum, RunOutput, Settings, Stage, StepUpdates};
+use super::Model;
+use crate::material::Material;
+use crate::{Error, Result};
+use factor::{Dofs, Factor, Kind};
+pub use tangent::Tangent;
+
+/// How each Newton iteration solves K du = r ([`crate::solver::Settings::static_variant`];
+/// scene `solver.static_variant`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "kebab-case")]
+pub enum Variant {
+    /// The current tangent, solved by conjugate gradients preconditioned by a kept
+    /// factorization, refactored when CG takes more than [`CG_LIMIT`] iterations.
+    #[default]
+    NewtonKrylov,
+    /// A factorization of the current tangent at every iteration.
+    Newton,
+    /// The kept factorization alone (no assembly between factorizations), refactored when an
+    /// iteration reduces the residual by less than half.
+    Modified,
+}
+
+impl Variant {
+    /// The scene's name of the variant.
+    pub fn name(self) -> &'static str {
+        match self {
+            Variant::NewtonKrylov => "newton-krylov",
+            Variant::Newton => "newton",
+            Variant::Modified => "modified",
+        }
+    }
+}
+
+/// CG iterations after which the kept factor is replaced by one of the current tangent.
+pub const CG_LIMIT: usize = 40;
+/// CG stops when the residual of the linear system is this fraction of its right-hand side.
+const CG_TOLERANCE: f64 = 1e-4;
+/// Newton iterations per load step before the step is cut.
+const MAX_ITERATIONS: usize = 25;
+/// Cuts in a row (each halving the load step) before the solve gives up.
+const MAX_CUTS: usize = 12;
+/// The residual (largest out-of-balance force at a free DOF) must also fall below this
+/// fraction of the largest nodal force.
+const RESIDUAL_TOLERANCE: f64 = 1e-6;
+/// A load step that ends short of a stage or the full load (a cut's sub-step) converges
+/// when its residual is below this fraction of the largest nodal force: its error is carried
+/// into the next step, which converges fully.
+const SUBSTEP_TOLERANCE: f64 = 1e-3;
+
+/// One Newton iteration of the residual history.
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct ResidualRow {
+    /// Load fraction of the step.
+    pub load: f64,
+    /// Iteration within the load step (0: after the predictor).
+    pub iteration: usize,
+    /// Largest out-of-balance force at a free DOF over the largest nodal force.
+    pub residual: f64,
+    /// Largest displacement change of the iteration, m.
+    pub update: f64,
+}
+
+/// What a static solve did ([`RunOutput::statics`]; summary.json `static`).
+#[derive(Debug, Clone, Default, Serialize)]
+pub struct StaticReport {
+    pub variant: String,
+    /// Load steps converged, and cuts (halvings) of steps that did not.
+    pub load_steps: usize,
+    pub cuts: usize,
+    pub newton_iterations: usize,
+    /// Conjugate-gradient iterations (Newton-Krylov).
+    pub linear_iterations: usize,
+    pub assemblies: usize,
+    pub factorizations: usize,
+    /// Free DOFs, nonzeros of the upper triangle of K_ff and of its Cholesky factor, and the
+    /// fill-reducing order.
+    pub dofs: usize,
+    pub ordering: String,
+    pub matrix_nonzeros: usize,
+    pub factor_nonzeros: usize,
+    /// Bytes of the tangent, the matrix and the factor.
+    pub factor_bytes: usize,
+    /// Wall seconds: symbolic analysis, numeric factorizations, assemblies, linear solves.
+    pub symbolic_seconds: f64,
+    pub factor_seconds: f64,
+    pub assembly_seconds: f64,
+    pub solve_seconds: f64,
+    /// The last load fraction reached at equilibrium.
+    pub load_reached: f64,
+    pub residual_history: Vec<ResidualRow>,
+}
+
+/// The kept tangent, factorization and numbering of a model: built by the first static solve
+/// and reused by later ones while the prescribed DOFs stay the same.
+pub struct Cache {
+    tangent: Tangent,
+    factor: Factor,
+    dofs: Dofs,
+}
+
+impl Cache {
+    /// Bytes held.
+    pub fn bytes(&self, points: usize) -> usize {
+        self.tangent.bytes(points) + self.factor.bytes()
+    }
+}
+
+/// Refuses what the static solve does not handle yet, saying what to use instead.
+fn check_supported<M: Material>(model: &Model<M>) -> Result<()> {
+    let what = if model.corrector.is_some() {
+        Some("essential boundaries imposed on meshless nodes (EBCIEM / SEBCIEM)")
+    } else if model.contact.is_some() {
+        Some("rigid contact")
+    } else {
+        None
+    };
+    match what {
+        Some(w) => Err(Error::Input(format!(
+            "solver.mode = \"static\" does not handle {w} yet; set solver.mode = \"relaxation\""
+        ))),
+        None => Ok(()),
+    }
+}
+
+/// The rigid motions (translations, rotations about the body's centroid) that no prescribed
+/// component holds, named; empty when the boundaries hold the body. A rigid motion is held
+/// when some prescribed DOF moves under it: the null space of the 6 x 6 Gram matrix of the
+/// motions restricted to the prescribed DOFs.
+pub fn free_rigid_motions<M: Material>(model: &Model<M>) -> Vec<String> {
+    let n = model.nodes.len();
+    if n == 0 {
+        return Vec::new();
+    }
+    let c: Vector3<f64> = model.nodes.iter().sum::<Vector3<f64>>() / n as f64;
+    let size = model
+        .nodes
+        .iter()
+        .map(|x| (x - c).norm())
+        .fold(0.0, f64::max)
+        .max(f64::MIN_POSITIVE);
+    let mode = |m: usize, x: &Vector3<f64>| -> Vector3<f64> {
+        if m < 3 {
+            Vector3::ith(m, 1.0)
+        } else {
+            Vector3::ith(m - 3, 1.0).cross(&((x - c) / size))
+        }
+    };
+    let mut g = nalgebra::SMatrix::<f64, 6, 6>::zeros();
+    for (i, mask) in model.constraints.mask.iter().enumerate() {
+        for k in 0..3 {
+            if mask[k] {
+                let r: [f64; 6] = std::array::from_fn(|m| mode(m, &model.nodes[i])[k]);
+                for a in 0..6 {
+                    for b in 0..6 {
+                        g[(a, b)] += r[a] * r[b];
+                    }
+                }
+            }
+        }
+    }
+    let eig = g.symmetric_eigen();
+    let top = eig.eigenvalues.amax().max(1.0);
+    let names = ["x", "y", "z"];
+    let mut out = Vec::new();
+    for m in 0..6 {
+        if eig.eigenvalues[m] > 1e-10 * top {
+            continue;
+        }
+        let v = eig.eigenvectors.column(m);
+        let t = Vector3::new(v[0], v[1], v[2]);
+        let r = Vector3::new(v[3], v[4], v[5]);
+        let describe = |w: Vector3<f64>| {
+            let k = w.iamax();
+            let others = (0..3)
+                .filter(|&j| j != k && w[j].abs() > 0.05 * w[k].abs())
+                .count();
+            if others == 0 {
+                names[k].to_string()
+            } else {
+                format!(
+                    "({:.2}, {:.2}, {:.2})",
+                    w[0] / w[k],
+                    w[1] / w[k],
+                    w[2] / w[k]
+                )
+            }
+        };
+        if r.norm() < 1e-6 {
+            out.push(format!("translation along {}", describe(t)));
+        } else if t.norm() < 1e-6 {
+            out.push(format!(
+                "rotation about {} through ({:.4e}, {:.4e}, {:.4e}) m",
+                describe(r),
+                c.x,
+                c.y,
+                c.z
+            ));
+        } else {
+            out.push(format!(
+                "a combined translation and rotation (axis {})",
+                describe(r)
+            ));
+        }
+    }
+    out
+}
+
+/// Solves the model's steady state statically; the output has the fields a relaxation's
+/// has (no pseudo-time: `steps` counts Newton iterations, `dt` is 0).
+pub fn solve<M: Material>(
+    model: &mut Model<M>,
+    s: &Settings,
+    mut sink: Option<&mut FrameSink<'_, M>>,
+    cache: &mut Option<Cache>,
+) -> Result<RunOutput> {
+    let start = Instant::now();
+    check_supported(model)?;
+    let free = free_rigid_motions(model);
+    if !free.is_empty() {
+        return Err(Error::Input(format!(
+            "the boundaries leave the body free to move as a rigid body ({}): a static solve has no \
+             unique answer; prescribe components that hold these motions (e.g. fix one face, or a \
+             node in each direction)",
+            free.join("; ")
+        )));
+    }
+    let dofs = Dofs::new(&model.constraints.mask);
+    if dofs.len == 0 {
+        return Err(Error::Input(format!(
+            "every degree of freedom of the {} nodes is prescribed by the boundaries: nothing to \
+             solve; constrain fewer components",
+            model.nodes.len()
+        )));
+    }
+    let reuse = cache.as_ref().is_some_and(|c| {
+        c.dofs.index == dofs.index && c.tangent.offsets.len() == model.nodes.len() + 1
+    });
+    let mut c = match cache.take() {
+        Some(c) if reuse => c,
+        _ => {
+            let tangent = Tangent::new(model);
+            let est = Factor::estimate_bytes(&tangent, &dofs, 25.0);
+            crate::memory::check(
+                (est + tangent.bytes(model.points.len())) as f64,
+                "the static solve's tangent and factor",
+                "use solver.mode = \"relaxation\", which needs no factor, or a coarser discretization",
+            )?;
+            let factor = Factor::new(&tangent, &dofs, &model.nodes)?;
+            Cache {
+                tangent,
+                factor,
+                dofs,
+            }
+        }
+    };
+    c.factor.factorizations = 0;
+    c.factor.factor_seconds = 0.0;
+    let mut st = Newton::new(model, s, &mut c, start);
+    let result = st.run(&mut sink);
+    let out = result.map(|()| st.finish());
+    *cache = Some(c);
+    out
+}
+
+/// The state of one static solve.
+struct Newton<'a, M: Material> {
+    model: &'a mut Model<M>,
+    s: &'a Settings,
+    c: &'a mut Cache,
+    start: Instant,
+    u: Vec<Vector3<f64>>,
+    f: Vec<Vector3<f64>>,
+    fe: Vec<Vector3<f64>>,
+    /// Scratch nodal vectors.
+    t0: Vec<Vector3<f64>>,
+    t1: Vec<Vector3<f64>>,
+    report: StaticReport,
+    force_evaluations: usize,
+    history: Vec<HistoryRow>,
+    stages: Vec<Stage>,
+    frames: Vec<(f64, Vec<Vector3<f64>>)>,
+    external_work: f64,
+    peak_force: f64,
+    converged: bool,
+    notes: Vec<String>,
+    min_j: (f64, usize),
+    /// The kept factor is of a tangent this many assemblies old (Modified: refactor policy).
+    fresh: bool,
+    /// Newton iterations of the last load step.
+    last_iterations: usize,
+    /// The load step under way ends short of a stage or the full load.
+    loose: bool,
+    /// Seconds of the CG iterations so far (the refactoring rule compares them with a
+    /// factorization's).
+    cg_seconds: f64,
+    /// The last converged load step's displacement increment and load span.
+    previous: Option<(Vec<Vector3<f64>>, f64)>,
+    /// (u, F_int) at the last history row, for the work's trapezoids.
+    work_state: Option<(Vec<Vector3<f64>>, Vec<Vector3<f64>>)>,
+    peak_work: f64,
+    sink_seconds: f64,
+    last_progress: Instant,
+}
+
+impl<'a, M: Material> Newton<'a, M> {
+    fn new(model: &'a mut Model<M>, s: &'a Settings, c: &'a mut Cache, start: Instant) -> Self {
+        let n = model.nodes.len();
+        let u = match &s.warm_start {
+            Some(w) if w.u.len() == n => w.u.clone(),
+            _ => vec![Vector3::zeros(); n],
+        };
+        let report = StaticReport {
+            variant: s.static_variant.name().into(),
+            dofs: c.dofs.len,
+            ordering: c.factor.ordering.into(),
+            matrix_nonzeros: c.factor.matrix_nonzeros(),
+            factor_nonzeros: c.factor.factor_nonzeros(),
+            factor_bytes: c.bytes(model.points.len()),
+            symbolic_seconds: c.factor.symbolic_seconds,
+            ..Default::default()
+        };
+        Newton {
+            model,
+            s,
+            c,
+            start,
+            u,
+            f: vec![Vector3::zeros(); n],
+            fe: vec![Vector3::zeros(); n],
+            t0: vec![Vector3::zeros(); n],
+            t1: vec![Vector3::zeros(); n],
+            report,
+            force_evaluations: 0,
+            history: Vec::new(),
+            stages: Vec::new(),
+            frames: Vec::new(),
+            external_work: 0.0,
+            peak_force: 0.0,
+            converged: false,
+            notes: Vec::new(),
+            min_j: (1.0, 0),
+            fresh: false,
+            last_iterations: 0,
+            loose: false,
+            cg_seconds: 0.0,
+            previous: None,
+            work_state: None,
+            peak_work: 0.0,
+            sink_seconds: 0.0,
+            last_progress: Instant::now(),
+        }
+    }
+
+    /// Internal and external forces at `u` and load fraction `tau` into `f`, `fe`; returns
+    /// the smallest J over the points.
+    fn forces(&mut self, tau: f64) -> f64 {
+        let m = &mut *self.model;
+        m.forces.compute(&m.points, &m.slots, &self.u, &mut self.f);
+        self.force_evaluations += 1;
+        self.fe.iter_mut().for_each(|x| *x = Vector3::zeros());
+        m.loads.apply(&self.u, tau, &mut self.fe);
+        self.min_j = m.forces.min_j();
+        self.min_j.0
+    }
+
+    /// Largest |F_ext - F_int| at a free DOF, and the largest nodal force (the scale).
+    fn residual_norm(&self) -> (f64, f64) {
+        let (mut r, mut scale) = (0.0f64, 0.0f64);
+        for (i, ix) in self.c.dofs.index.iter().enumerate() {
+            for k in 0..3 {
+                scale = scale.max(self.f[i][k].abs()).max(self.fe[i][k].abs());
+                if ix[k] != u32::MAX {
+                    r = r.max((self.fe[i][k] - self.f[i][k]).abs());
+                }
+            }
+        }
+        (r, scale.max(self.peak_force))
+    }
+
+    fn assemble(&mut self) {
+        let t0 = Instant::now();
+        self.c.tangent.assemble(self.model, &self.u);
+        self.report.assemblies += 1;
+        self.force_evaluations += 1;
+        self.report.assembly_seconds += t0.elapsed().as_secs_f64();
+    }
+
+    fn refactor(&mut self) -> Result<Kind> {
+        let k = self.c.factor.factor(&self.c.tangent)?;
+        self.fresh = true;
+        Ok(k)
+    }
+
+    /// K_ff x = b for the free DOFs (b in, x out), by the variant's rule; the tangent is
+    /// assembled at the current u by the caller where the variant needs it.
+    fn linear_solve(&mut self, b: &mut [f64]) -> Result<()> {
+        let t0 = Instant::now();
+        let variant = self.s.static_variant;
+        let have = self.c.factor.kind().is_some();
+        let direct = match variant {
+            Variant::Newton => true,
+            Variant::Modified => !have,
+            Variant::NewtonKrylov => !have || self.c.factor.kind() == Some(Kind::Ldlt),
+        };
+        if direct {
+            self.refactor()?;
+            self.c.factor.solve(b);
+        } else if variant == Variant::Modified {
+            self.c.factor.solve(b);
+        } else if !self.pcg(b) {
+            self.refactor()?;
+            self.c.factor.solve(b);
+        }
+        self.report.solve_seconds += t0.elapsed().as_secs_f64();
+        Ok(())
+    }
+
+    /// Conjugate gradients on the current tangent, preconditioned by the kept factor; b is
+    /// replaced by the solution. False (b unchanged) when CG does not reach
+    /// [`CG_TOLERANCE`] within [`CG_LIMIT`] iterations or meets a direction of non-positive
+    /// curvature.
+    fn pcg(&mut self, b: &mut [f64]) -> bool {
+        let n = b.len();
+        let dot = |x: &[f64], y: &[f64]| x.iter().zip(y).map(|(a, b)| a * b).sum::<f64>();
+        let bnorm = dot(b, b).sqrt();
+        if bnorm == 0.0 {
+            return true;
+        }
+        let mut x = vec![0.0; n];
+        let mut r = b.to_vec();
+        let mut z = r.clone();
+        self.c.factor.solve(&mut z);
+        let mut p = z.clone();
+        let mut rz = dot(&r, &z);
+        let mut q = vec![0.0; n];
+        // A factorization pays once CG would take longer than it: the limit follows their
+        // measured costs (at least 4 iterations, at most CG_LIMIT).
+        let per_factor = self.c.factor.factor_seconds / self.c.factor.factorizations.max(1) as f64;
+        let per_cg = self.cg_seconds / self.report.linear_iterations.max(1) as f64;
+        let limit = if self.report.linear_iterations > 0 && per_cg > 0.0 {
+            ((per_factor / per_cg) as usize).clamp(4, CG_LIMIT)
+        } else {
+            CG_LIMIT
+        };
+        let t_cg = Instant::now();
+        let mut done = false;
+        for _ in 0..limit {
+            self.c.dofs.scatter(&p, &mut self.t0);
+            self.c.tangent.multiply(&self.t0, &mut self.t1);
+            self.c.dofs.gather(&self.t1, &mut q);
+            self.report.linear_iterations += 1;
+            self.force_evaluations += 1;
+            let pq = dot(&p, &q);
+            if !(pq > 0.0) {
+                break;
+            }
+            let alpha = rz / pq;
+            for i in 0..n {
+                x[i] += alpha * p[i];
+                r[i] -= alpha * q[i];
+            }
+            if dot(&r, &r).sqrt() <= CG_TOLERANCE * bnorm {
+                b.copy_from_slice(&x);
+                done = true;
+                break;
+            }
+            z.copy_from_slice(&r);
+            self.c.factor.solve(&mut z);
+            let rz_new = dot(&r, &z);
+            let beta = rz_new / rz;
+            rz = rz_new;
+            for i in 0..n {
+                p[i] = z[i] + beta * p[i];
+            }
+        }
+        self.cg_seconds += t_cg.elapsed().as_secs_f64();
+        done
+    }
+
+    /// The run: load steps to each stage and to the full load.
+    fn run(&mut self, sink: &mut Option<&mut FrameSink<'_, M>>) -> Result<()> {
+        let warm = self.s.warm_start.is_some();
+        let mut tau = if warm { 1.0 } else { 0.0 };
+        self.forces(tau);
+        self.peak_force = self.residual_norm().1;
+        self.record_row(tau);
+        if !warm {
+            self.frame(0.0, sink)?;
+        }
+        let mut targets: Vec<f64> = self
+            .s
+            .stages
+            .iter()
+            .copied()
+            .filter(|&l| l > 0.0 && l < 1.0 && !warm)
+            .collect();
+        targets.push(1.0);
+        let mut dtau = 1.0;
+        let mut failed_span = f64::INFINITY;
+        let mut cuts_in_row = 0;
+        for (ti, &target) in targets.iter().enumerate() {
+            let mut first = true;
+            while tau < target || (first && warm) {
+                first = false;
+                crate::interrupt::check(|| {
+                    format!("in the static solve at {:.1} % of the load", 100.0 * tau)
+                })?;
+                let next = (tau + dtau).min(target);
+                let next = if target - next < 1e-9 { target } else { next };
+                let saved = self.u.clone();
+                self.loose = next < target;
+                match self.load_step(tau, next)? {
+                    true => {
+                        if next > tau {
+                            let inc = self.u.iter().zip(&saved).map(|(a, b)| a - b).collect();
+                            self.previous = Some((inc, next - tau));
+                        }
+                        tau = next;
+                        cuts_in_row = 0;
+                        self.report.load_steps += 1;
+                        self.report.load_reached = tau;
+                        self.record_row(tau);
+                        self.progress(tau);
+                    }
+                    false => {
+                        self.u = saved;
+                        self.report.cuts += 1;
+                        cuts_in_row += 1;
+                        if cuts_in_row > MAX_CUTS {
+                            self.forces(tau);
+                            let (r, scale) = self.residual_norm();
+                            self.notes.push(format!(
+                                "static solve: a load step of {:.2e} of the load from {:.4} % did not converge \
+                                 after {MAX_CUTS} cuts; the last equilibrium is at {:.4} % of the load (residual \
+                                 {:.2e} of the largest nodal force), written as the result; the body may buckle, \
+                                 an element may invert, or the load may exceed what the material holds: try \
+                                 solver.mode = \"relaxation\"",
+                                next - tau,
+                                100.0 * tau,
+                                100.0 * tau,
+                                r / scale.max(f64::MIN_POSITIVE)
+                            ));
+                            self.converged = false;
+                            return Ok(());
+                        }
+                        if warm {
+                            return Err(Error::Unstable(
+                                "the warm-started static step did not converge".into(),
+                            ));
+                        }
+                        failed_span = failed_span.min(next - tau);
+                        dtau = (next - tau) * 0.5;
+                        continue;
+                    }
+                }
+                // Grow after an easy step, but not back to a span that failed.
+                if self.last_iterations <= 3 {
+                    dtau = (dtau * 2.0).min(failed_span * 0.75);
+                }
+            }
+            if target < 1.0 {
+                self.stage(target, ti)?;
+                self.frame(target, sink)?;
+            }
+        }
+        self.converged = true;
+        self.frame(1.0, sink)?;
+        Ok(())
+    }
+
+    /// One load step from `tau0` to `tau1` (equal for a warm start): the predictor, then
+    /// Newton iterations with a line search. Ok(false) when it does not converge (the caller
+    /// restores u and cuts the step).
+    fn load_step(&mut self, tau0: f64, tau1: f64) -> Result<bool> {
+        let n = self.u.len();
+        // The prescribed values' change over the step.
+        let mut target = self.u.clone();
+        self.model.constraints.prescribe(&mut target, tau1);
+        let mut delta = vec![Vector3::zeros(); n];
+        let mut moved = false;
+        for (i, m) in self.model.constraints.mask.iter().enumerate() {
+            for k in 0..3 {
+                if m[k] {
+                    delta[i][k] = target[i][k] - self.u[i][k];
+                    moved |= delta[i][k] != 0.0;
+                }
+            }
+        }
+        // The predictor: the last converged load step's increment scaled to this one (the
+        // path's shape, which a linear predictor misses where the body rotates: at a driven
+        // rim it inverted elements), or where there is none or it inverts an element, the
+        // linear one u_f += K_ff^-1 (r_f - K_fp du_p).
+        let u0 = self.u.clone();
+        let mut last_update = 0.0f64;
+        let mut predicted = false;
+        if let Some((inc, span)) = self.previous.as_ref().filter(|_| tau1 > tau0) {
+            let k = (tau1 - tau0) / span;
+            for i in 0..n {
+                for c in 0..3 {
+                    self.u[i][c] = if self.model.constraints.mask[i][c] {
+                        target[i][c]
+                    } else {
+                        u0[i][c] + inc[i][c] * k
+                    };
+                }
+                last_update = last_update.max((self.u[i] - u0[i]).amax());
+            }
+            if self.forces(tau1) > 0.0 {
+                predicted = true;
+            } else {
+                self.u.clone_from(&u0);
+            }
+        }
+        let mut rhs = vec![0.0; self.c.dofs.len];
+        if !predicted {
+            self.forces(tau1);
+            for i in 0..n {
+                self.t0[i] = self.fe[i] - self.f[i];
+            }
+            let need_tangent = moved
+                || self.s.static_variant != Variant::Modified
+                || self.c.factor.kind().is_none();
+            if need_tangent {
+                self.assemble();
+            }
+            if moved {
+                // r_f - K_fp du_p
+                self.c.tangent.multiply(&delta, &mut self.t1);
+                for i in 0..n {
+                    self.t0[i] -= self.t1[i];
+                }
+            }
+            self.c.dofs.gather(&self.t0, &mut rhs);
+            self.linear_solve(&mut rhs)?;
+            self.c.dofs.scatter(&rhs, &mut self.t0);
+            for i in 0..n {
+                self.u[i] += self.t0[i] + delta[i];
+            }
+            last_update = self
+                .t0
+                .iter()
+                .chain(&delta)
+                .map(|v| v.amax())
+                .fold(0.0, f64::max);
+            let j = self.forces(tau1);
+            if !(j > 0.0) {
+                return Ok(false);
+            }
+        }
+        let (r0, scale0) = self.residual_norm();
+        self.peak_force = self.peak_force.max(scale0);
+        self.push_residual(tau1, 0, r0, scale0, last_update);
+        let mut r_prev = r0;
+        let mut trail = vec![r0];
+        for it in 1..=MAX_ITERATIONS {
+            self.last_iterations = it;
+            let (r, scale) = self.residual_norm();
+            if !r.is_finite() {
+                return Ok(false);
+            }
+            // Not converging: no halving of the residual over three iterations.
+            if it >= 4 && r > 0.5 * trail[it - 4] && !self.is_converged(r, scale, last_update) {
+                self.report.newton_iterations += it;
+                return Ok(false);
+            }
+            trail.push(r);
+            if self.is_converged(r, scale, last_update) {
+                self.report.newton_iterations += it - 1;
+                self.last_iterations = it - 1;
+                return Ok(true);
+            }
+            if it == MAX_ITERATIONS {
+                self.report.newton_iterations += it;
+                return Ok(false);
+            }
+            // The direction.
+            match self.s.static_variant {
+                Variant::Modified => {
+                    if self.fresh && r > 0.5 * r_prev && it > 1 {
+                        self.fresh = false;
+                    }
+                    if !self.fresh {
+                        self.assemble();
+                        self.refactor()?;
+                    }
+                }
+                _ => self.assemble(),
+            }
+            for i in 0..n {
+                self.t0[i] = self.fe[i] - self.f[i];
+            }
+            self.c.dofs.gather(&self.t0, &mut rhs);
+            let r_free = rhs.clone();
+            self.linear_solve(&mut rhs)?;
+            let du = rhs.clone();
+            // Line search on g(a) = du . r(u + a du): zero at the minimum along du.
+            let g0: f64 = du.iter().zip(&r_free).map(|(a, b)| a * b).sum();
+            let base = self.u.clone();
+            let mut alpha = 1.0;
+            let mut tries = 0;
+            loop {
+                self.c.dofs.scatter(&du, &mut self.t0);
+                for i in 0..n {
+                    self.u[i] = base[i] + self.t0[i] * alpha;
+                }
+                let j = self.forces(tau1);
+                if j > 0.0 {
+                    break;
+                }
+                tries += 1;
+                if tries > 8 {
+                    self.report.newton_iterations += it;
+                    return Ok(false);
+                }
+                alpha *= 0.5;
+            }
+            if g0 > 0.0 {
+                for i in 0..n {
+                    self.t1[i] = self.fe[i] - self.f[i];
+                }
+                let g1 = self.directional(&self.t1.clone(), &du);
+                if g1 < -0.5 * g0 {
+                    // Overshot the minimum along du: the secant's root.
+                    let a = (alpha * g0 / (g0 - g1)).clamp(0.1 * alpha, alpha);
+                    for i in 0..n {
+                        self.u[i] = base[i] + self.t0[i] * a;
+                    }
+                    let j = self.forces(tau1);
+                    if !(j > 0.0) {
+                        self.report.newton_iterations += it;
+                        return Ok(false);
+                    }
+                    alpha = a;
+                }
+            }
+            last_update = alpha * du.iter().fold(0.0f64, |m, x| m.max(x.abs()));
+            {
+                log::debug!(
+                    "    alpha {alpha:.3e} g0 {g0:.3e} min J {:.4} at point {}",
+                    self.min_j.0,
+                    self.min_j.1
+                );
+            }
+            let (r_new, scale_new) = self.residual_norm();
+            self.push_residual(tau1, it, r_new, scale_new, last_update);
+            if !(r_new < 1e8 * r0.max(1e-300)) {
+                self.report.newton_iterations += it;
+                return Ok(false);
+            }
+            r_prev = r;
+        }
+        Ok(false)
+    }
+
+    /// du . r over the free DOFs (r a nodal vector, du in DOF order).
+    fn directional(&self, r: &[Vector3<f64>], du: &[f64]) -> f64 {
+        let mut g = 0.0;
+        for (i, ix) in self.c.dofs.index.iter().enumerate() {
+            for k in 0..3 {
+                if ix[k] != u32::MAX {
+                    g += r[i][k] * du[ix[k] as usize];
+                }
+            }
+        }
+        g
+    }
+
+    /// Converged: the last update below solver.tolerance and the residual below
+    /// [`RESIDUAL_TOLERANCE`] of the force scale, or the residual at rounding level.
+    fn is_converged(&self, r: f64, scale: f64, update: f64) -> bool {
+        let scale = scale.max(self.peak_force).max(f64::MIN_POSITIVE);
+        (update <= self.s.tolerance && r <= RESIDUAL_TOLERANCE * scale)
+            || r <= 1e-13 * scale
+            || (self.loose && r <= SUBSTEP_TOLERANCE * scale)
+    }
+
+    fn push_residual(&mut self, load: f64, iteration: usize, r: f64, scale: f64, update: f64) {
+        let scale = scale.max(self.peak_force).max(f64::MIN_POSITIVE);
+        {
+            log::debug!(
+                "  load {load:.4} it {iteration}: residual {:.3e} update {update:.3e} m, factorizations {} ({:.2} s, L nnz {}), cg {}, evals {}, assembly {:.2} s, solves {:.2} s, {:.2} s",
+                r / scale,
+                self.c.factor.factorizations,
+                self.c.factor.factor_seconds,
+                self.c.factor.factor_nonzeros(),
+                self.report.linear_iterations,
+                self.force_evaluations,
+                self.report.assembly_seconds,
+                self.report.solve_seconds,
+                self.start.elapsed().as_secs_f64()
+            );
+        }
+        self.report.residual_history.push(ResidualRow {
+            load,
+            iteration,
+            residual: r / scale,
+            update,
+        });
+    }
+
+    /// A history row at load fraction `tau` (after its forces were evaluated at u). The work
+    /// of every force on the body (loads and reactions) is the integral of F_int . du along
+    /// the equilibrium path, by trapezoids between load steps.
+    fn record_row(&mut self, tau: f64) {
+        let m = &mut *self.model;
+        let se = m.forces.strain_energy(&m.points, &m.slots, &self.u);
+        if let Some((u0, f0)) = &self.work_state {
+            let mut w = 0.0;
+            for i in 0..self.u.len() {
+                w += 0.5 * (f0[i] + self.f[i]).dot(&(self.u[i] - u0[i]));
+            }
+            self.external_work += w;
+        }
+        self.work_state = Some((self.u.clone(), self.f.clone()));
+        if !m.f_ext.is_empty() {
+            m.f_ext.clone_from(&self.fe);
+        }
+        let reactions = m
+            .reactions(&self.f)
+            .iter()
+            .map(|v| [v.x, v.y, v.z])
+            .collect();
+        self.peak_force = self
+            .peak_force
+            .max(self.f.iter().map(|v| v.amax()).fold(0.0, f64::max));
+        self.peak_work = self.peak_work.max(self.external_work.abs());
+        self.history.push(HistoryRow {
+            step: self.report.newton_iterations,
+            time: tau,
+            reactions,
+            external_work: self.external_work,
+            strain_energy: se,
+            kinetic_energy: 0.0,
+        });
+    }
+
+    /// Keeps the state at load stage `load`.
+    fn stage(&mut self, load: f64, _index: usize) -> Result<()> {
+        let reactions = self
+            .model
+            .reactions(&self.f)
+            .iter()
+            .map(|v| [v.x, v.y, v.z])
+            .collect();
+        self.stages.push(Stage {
+            load,
+            step: self.report.newton_iterations,
+            reactions,
+            u: self.u.clone(),
+        });
+        Ok(())
+    }
+
+    fn frame(&mut self, t: f64, sink: &mut Option<&mut FrameSink<'_, M>>) -> Result<()> {
+        if let Some(sink) = sink.as_mut() {
+            let t0 = Instant::now();
+            sink(self.model, t, &self.u)?;
+            self.sink_seconds += t0.elapsed().as_secs_f64();
+        } else {
+            self.frames.push((t, self.u.clone()));
+        }
+        Ok(())
+    }
+
+    fn progress(&mut self, tau: f64) {
+        let every = match (self.s.progress_lines, self.s.progress) {
+            (Some(e), _) => e,
+            (None, true) => 0.0,
+            _ => return,
+        };
+        if self.last_progress.elapsed().as_secs_f64() >= every || tau >= 1.0 {
+            self.last_progress = Instant::now();
+            let r = self
+                .report
+                .residual_history
+                .last()
+                .map_or(0.0, |h| h.residual);
+            eprintln!(
+                "static: {:.1} % of the load, {} load steps, {} Newton iterations, {} factorizations, \
+                 residual {r:.2e}, {:.1} s",
+                100.0 * tau,
+                self.report.load_steps,
+                self.report.newton_iterations,
+                self.c.factor.factorizations,
+                self.start.elapsed().as_secs_f64()
+            );
+        }
+    }
+
+    /// The run's output.
+    fn finish(&mut self) -> RunOutput {
+        let m = &mut *self.model;
+        if !m.f_ext.is_empty() {
+            m.f_ext.clone_from(&self.fe);
+        }
+        self.report.factorizations = self.c.factor.factorizations;
+        self.report.factor_seconds = self.c.factor.factor_seconds;
+        let strain_energy = self.history.last().map_or(0.0, |h| h.strain_energy);
+        RunOutput {
+            device: "cpu".into(),
+            device_setup_seconds: 0.0,
+            u: self.u.clone(),
+            u_prev: self.u.clone(),
+            f_int: self.f.clone(),
+            dt: 0.0,
+            dt_critical: 0.0,
+            critical: super::integrate::Critical::Node(0),
+            steps: self.report.newton_iterations,
+            load_steps: Some(self.report.load_steps),
+            simulated_time: self.report.load_reached,
+            converged: self.converged,
+            history: std::mem::take(&mut self.history),
+            relaxation: Vec::new(),
+            frames: std::mem::take(&mut self.frames),
+            external_work: self.external_work,
+            peak_external_work: self.peak_work,
+            initial_kinetic: 0.0,
+            damping_dissipation: 0.0,
+            momentum: Momentum::default(),
+            strain_energy,
+            kinetic_energy: 0.0,
+            solve_seconds: self.start.elapsed().as_secs_f64() - self.sink_seconds,
+            restarts: Vec::new(),
+            notes: std::mem::take(&mut self.notes),
+            failed_steps: 0,
+            step_updates: StepUpdates::default(),
+            stages: std::mem::take(&mut self.stages),
+            peak_nodal_force: self.peak_force,
+            force_evaluations: self.force_evaluations,
+            statics: Some(std::mem::take(&mut self.report)),
+        }
+    }
+}
