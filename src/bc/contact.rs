@@ -16,6 +16,7 @@
 //! is the sum of lambda n over its points; no penalty stiffness enters the stable step.
 
 use nalgebra::Vector3;
+use rayon::prelude::*;
 
 use super::loads::Row;
 use super::LoadCurve;
@@ -232,6 +233,13 @@ pub struct Contact {
     /// Surface tools (a distance query is a tree search): each point's position in the tool's
     /// frame at its last exact query and its depth there.
     clearance: Vec<Vec<(Vector3<f64>, f64)>>,
+    /// Per point of the body being corrected: its (depth, normal) measured in parallel before
+    /// a sweep that visits every point; a point whose nodes an earlier correction of the same
+    /// sweep moved is measured again.
+    measured: Vec<(f64, Vector3<f64>)>,
+    /// Per node: the sweep (count of `sweep_stamp`) in which a correction last moved it.
+    moved_in: Vec<u64>,
+    sweep_stamp: u64,
 }
 
 /// The depth of `x` (m) in `shape` displaced by `d` (m), or for a surface tool an upper bound
@@ -257,6 +265,19 @@ fn depth_with_clearance(
             (depth, n)
         }
         _ => shape.signed_depth(x, d),
+    }
+}
+
+/// A raw pointer that parallel tasks share, each writing its own entry.
+#[derive(Clone, Copy)]
+struct Shared<T>(*mut T);
+unsafe impl<T> Send for Shared<T> {}
+unsafe impl<T> Sync for Shared<T> {}
+
+impl<T> Shared<T> {
+    /// The pointer; a method so closures capture the whole (Send + Sync) wrapper.
+    fn get(self) -> *mut T {
+        self.0
     }
 }
 
@@ -326,6 +347,9 @@ impl Contact {
             is_active: Vec::new(),
             conflict: None,
             clearance,
+            measured: Vec::new(),
+            moved_in: vec![0; num_nodes],
+            sweep_stamp: 0,
         })
     }
 
@@ -342,6 +366,42 @@ impl Contact {
     /// Number of rigid bodies.
     pub fn len(&self) -> usize {
         self.bodies.len()
+    }
+
+    /// The candidate surface points of rigid body `b`.
+    pub fn points_of(&self, b: usize) -> &[ContactPoint] {
+        &self.points[b]
+    }
+
+    /// The depth (m, positive inside the rigid body) of point `p` (of body `b`) at nodal
+    /// displacements `u` (m) and load fraction `tau`, and the direction that pushes it out.
+    pub fn depth_of(
+        &self,
+        b: usize,
+        p: &ContactPoint,
+        u: &[Vector3<f64>],
+        tau: f64,
+    ) -> (f64, Vector3<f64>) {
+        let x = p
+            .row
+            .iter()
+            .fold(p.x, |acc, &(j, f)| acc + u[j as usize] * f);
+        self.bodies[b]
+            .shape
+            .signed_depth(&x, &self.body_displacement(b, tau))
+    }
+
+    /// Takes the state a static solve ended in: each body's force on the body (N), its points
+    /// in contact and the deepest penetration left (m), reported as a correction's are.
+    pub fn set_static_state(
+        &mut self,
+        forces: Vec<Vector3<f64>>,
+        in_contact: Vec<usize>,
+        worst: f64,
+    ) {
+        self.forces = forces;
+        self.in_contact = in_contact;
+        self.worst = worst;
     }
 
     /// No rigid body.
@@ -571,11 +631,45 @@ impl Contact {
                 } else {
                     self.active.len()
                 };
+                self.sweep_stamp += 1;
+                // The queries (a tree search for surface tools) of every point the sweep
+                // visits, at once: the sweep below takes each point's from here unless an
+                // earlier correction of this sweep moved one of its nodes (then it measures
+                // again, as a serial sweep would). Each goes through the clearance cache where
+                // the point's multiplier is zero, as the sweep's own query would.
+                self.measured.resize(count, (0.0, Vector3::zeros()));
+                {
+                    let uu = &*u;
+                    let (lambda, active) = (&self.lambda, &self.active);
+                    let clear = Shared(self.clearance[b].as_mut_ptr());
+                    let pts = &self.points[b];
+                    self.measured
+                        .par_iter_mut()
+                        .enumerate()
+                        .with_min_len(256)
+                        .for_each(|(k, m)| {
+                            let i = if sweep == 0 { k } else { active[k] };
+                            // SAFETY: the visited points are distinct (active holds each once),
+                            // so each task touches its own cache entry.
+                            let c = unsafe { &mut *clear.get().add(i) };
+                            let cache = (lambda[i] == 0.0).then_some(c);
+                            *m = depth_with_clearance(shape, &position(&pts[i], uu), &d, cache);
+                        });
+                }
                 for k in 0..count {
                     let i = if sweep == 0 { k } else { self.active[k] };
                     let p = &self.points[b][i];
-                    let cache = (self.lambda[i] == 0.0).then(|| &mut self.clearance[b][i]);
-                    let (depth, n) = depth_with_clearance(shape, &position(p, u), &d, cache);
+                    let stamp = self.sweep_stamp;
+                    let fresh = p
+                        .row
+                        .iter()
+                        .all(|&(j, _)| self.moved_in[j as usize] != stamp);
+                    let (depth, n) = if fresh {
+                        self.measured[k]
+                    } else {
+                        let cache = (self.lambda[i] == 0.0).then(|| &mut self.clearance[b][i]);
+                        depth_with_clearance(shape, &position(p, u), &d, cache)
+                    };
                     if depth <= 0.0 && self.lambda[i] == 0.0 {
                         continue;
                     }
@@ -628,6 +722,7 @@ impl Contact {
                             }
                         }
                         self.nodal[j] += n * (f * dl);
+                        self.moved_in[j] = stamp;
                     }
                     force += n * dl;
                 }
@@ -637,10 +732,24 @@ impl Contact {
                 // The sweep's own measure sees each point before the later corrections: check
                 // them all after it (a neighbour's push can also drive a point the sweeps did
                 // not visit into the body, which then joins them).
+                // In parallel (nothing moves during the check), then in point order.
+                let uu = &*u;
+                let lambda = &self.lambda;
+                self.measured
+                    .resize(self.points[b].len(), (0.0, Vector3::zeros()));
+                self.measured
+                    .par_iter_mut()
+                    .zip(self.clearance[b].par_iter_mut())
+                    .zip(self.points[b].par_iter())
+                    .enumerate()
+                    .with_min_len(256)
+                    .for_each(|(i, ((m, c), p))| {
+                        let cache = (lambda[i] == 0.0).then_some(c);
+                        *m = depth_with_clearance(shape, &position(p, uu), &d, cache);
+                    });
                 after = 0.0;
-                for (i, p) in self.points[b].iter().enumerate() {
-                    let cache = (self.lambda[i] == 0.0).then(|| &mut self.clearance[b][i]);
-                    let depth = depth_with_clearance(shape, &position(p, u), &d, cache).0;
+                for i in 0..self.points[b].len() {
+                    let depth = self.measured[i].0;
                     after = after.max(depth);
                     if depth > self.tolerance && !self.is_active[i] {
                         self.active.push(i);

@@ -428,6 +428,16 @@ impl ComponentCorrection {
         self.component
     }
 
+    /// Row `k` of Phi: (node, phi_j(x_k)) of constrained node `k`'s support.
+    pub fn phi_row(&self, k: usize) -> Vec<(u32, f64)> {
+        let r = self.phi.range(k);
+        self.phi.idx[r.clone()]
+            .iter()
+            .copied()
+            .zip(self.phi.val[r].iter().copied())
+            .collect()
+    }
+
     /// The constrained node ids, in the order of the rows of Phi and the columns of V.
     pub fn nodes(&self) -> &[usize] {
         &self.nodes

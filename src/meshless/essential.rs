@@ -96,6 +96,9 @@ pub struct MeshlessCorrector {
     /// The nodes any constraint force reaches, ascending: the only entries of `nodal` that are
     /// ever non-zero, so each step clears and sums these alone instead of all N.
     forced: Vec<u32>,
+    /// The static solve's constraint forces per boundary (N), reported until the next
+    /// correction.
+    static_reactions: Option<Vec<Vector3<f64>>>,
 }
 
 /// How the boundary force of a corrected boundary is distributed (thesis chapter 4).
@@ -311,6 +314,7 @@ impl MeshlessCorrector {
                 num_boundaries: boundaries.len(),
                 nodal: vec![Vector3::zeros(); n],
                 forced,
+                static_reactions: None,
             },
             CorrectorReport { lumped_nodes },
         ))
@@ -415,6 +419,7 @@ fn essential_triangles(
 impl Corrector for MeshlessCorrector {
     fn correct(&mut self, u: &mut [Vector3<f64>], tau: f64, alpha: f64) {
         self.alpha = alpha;
+        self.static_reactions = None;
         for &j in &self.forced {
             self.nodal[j as usize] = Vector3::zeros();
         }
@@ -458,6 +463,9 @@ impl Corrector for MeshlessCorrector {
     }
 
     fn reaction(&self, b: usize) -> Vector3<f64> {
+        if let Some(r) = &self.static_reactions {
+            return r.get(b).copied().unwrap_or_else(Vector3::zeros);
+        }
         let mut r = Vector3::zeros();
         if b >= self.num_boundaries {
             return r;
@@ -505,6 +513,25 @@ impl Corrector for MeshlessCorrector {
             }
         }
         Ok(())
+    }
+
+    fn linear_constraints(&self, tau: f64) -> Option<Vec<crate::solver::LinearConstraint>> {
+        let mut out = Vec::new();
+        for c in self.comps() {
+            for (k, &(b, _)) in c.sources.iter().enumerate() {
+                out.push(crate::solver::LinearConstraint {
+                    row: c.corr.phi_row(k),
+                    axis: c.corr.component(),
+                    target: c.amplitude[k] * c.curve[k].value(tau),
+                    boundary: b,
+                });
+            }
+        }
+        Some(out)
+    }
+
+    fn set_reactions(&mut self, per_boundary: &[Vector3<f64>]) {
+        self.static_reactions = Some(per_boundary.to_vec());
     }
 
     fn touched(&self) -> &[u32] {

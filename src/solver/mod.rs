@@ -70,6 +70,29 @@ pub trait Corrector: Send {
     fn window(&self) -> Option<Vec<u32>> {
         None
     }
+    /// The conditions the corrector imposes as linear constraints on the nodal parameters, for
+    /// the static solve ([`statics`]): one per constrained node and component,
+    /// sum_j w_j u_j[axis] = target (m) at load fraction `tau`. None where the corrector has
+    /// none to give (the static solve then refuses the model).
+    fn linear_constraints(&self, _tau: f64) -> Option<Vec<LinearConstraint>> {
+        None
+    }
+    /// Takes the force (N) each model boundary applied to the body as found by the static
+    /// solve, reported by [`Self::reaction`] until the next correction.
+    fn set_reactions(&mut self, _per_boundary: &[Vector3<f64>]) {}
+}
+
+/// One linear condition on the nodal parameters ([`Corrector::linear_constraints`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct LinearConstraint {
+    /// (node, weight) pairs: the shape functions at a constrained point.
+    pub row: Vec<(u32, f64)>,
+    /// The displacement component it prescribes (0 x, 1 y, 2 z).
+    pub axis: usize,
+    /// The prescribed value, m.
+    pub target: f64,
+    /// The model boundary it belongs to.
+    pub boundary: usize,
 }
 
 /// Everything the time loop needs: reference nodes, quadrature points, lumped masses,

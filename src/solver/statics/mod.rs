@@ -21,7 +21,7 @@ pub mod tangent;
 
 use std::time::Instant;
 
-use nalgebra::Vector3;
+use nalgebra::{Matrix3, Vector3};
 use serde::{Deserialize, Serialize};
 
 use super::integrate::{FrameSink, HistoryRow, Momentum, RunOutput, Settings, Stage, StepUpdates};
@@ -134,10 +134,12 @@ impl Cache {
 
 /// Refuses what the static solve does not handle yet, saying what to use instead.
 fn check_supported<M: Material>(model: &Model<M>) -> Result<()> {
-    let what = if model.corrector.is_some() {
-        Some("essential boundaries imposed on meshless nodes (EBCIEM / SEBCIEM)")
-    } else if model.contact.is_some() {
-        Some("rigid contact")
+    let what = if model
+        .corrector
+        .as_ref()
+        .is_some_and(|c| c.linear_constraints(1.0).is_none())
+    {
+        Some("this model's corrected essential boundaries")
     } else {
         None
     };
@@ -181,6 +183,25 @@ pub fn free_rigid_motions<M: Material>(model: &Model<M>) -> Vec<String> {
                     for b in 0..6 {
                         g[(a, b)] += r[a] * r[b];
                     }
+                }
+            }
+        }
+    }
+    if let Some(rows) = model
+        .corrector
+        .as_ref()
+        .and_then(|c| c.linear_constraints(1.0))
+    {
+        for lc in &rows {
+            let mut r = [0.0; 6];
+            for &(j, w) in &lc.row {
+                for (m, rm) in r.iter_mut().enumerate() {
+                    *rm += w * mode(m, &model.nodes[j as usize])[lc.axis];
+                }
+            }
+            for a in 0..6 {
+                for b in 0..6 {
+                    g[(a, b)] += r[a] * r[b];
                 }
             }
         }
@@ -259,13 +280,31 @@ pub fn solve<M: Material>(
             model.nodes.len()
         )));
     }
+    let rows: Vec<crate::solver::LinearConstraint> = model
+        .corrector
+        .as_ref()
+        .and_then(|c| c.linear_constraints(1.0))
+        .unwrap_or_default();
     let reuse = cache.as_ref().is_some_and(|c| {
         c.dofs.index == dofs.index && c.tangent.offsets.len() == model.nodes.len() + 1
     });
     let mut c = match cache.take() {
         Some(c) if reuse => c,
         _ => {
-            let tangent = Tangent::new(model);
+            let mut cliques: Vec<Vec<u32>> = rows
+                .iter()
+                .map(|r| r.row.iter().map(|&(j, _)| j).collect())
+                .collect();
+            if let Some(ct) = model.contact.as_ref() {
+                for b in 0..ct.len() {
+                    for p in ct.points_of(b) {
+                        if p.row.len() > 1 {
+                            cliques.push(p.row.iter().map(|&(j, _)| j).collect());
+                        }
+                    }
+                }
+            }
+            let tangent = Tangent::new(model, &cliques);
             let est = Factor::estimate_bytes(&tangent, &dofs, 25.0);
             crate::memory::check(
                 (est + tangent.bytes(model.points.len())) as f64,
@@ -283,6 +322,17 @@ pub fn solve<M: Material>(
     c.factor.factorizations = 0;
     c.factor.factor_seconds = 0.0;
     let mut st = Newton::new(model, s, &mut c, start);
+    st.rows = rows;
+    st.lambda = vec![0.0; st.rows.len()];
+    if let Some(ct) = st.model.contact.as_ref() {
+        for b in 0..ct.len() {
+            for i in 0..ct.points_of(b).len() {
+                st.touch.push((b as u32, i as u32));
+            }
+        }
+    }
+    st.t_lambda = vec![0.0; st.touch.len()];
+    st.t_state = vec![(0.0, Vector3::zeros(), 0.0); st.touch.len()];
     let result = st.run(&mut sink);
     let out = result.map(|()| st.finish());
     *cache = Some(c);
@@ -327,6 +377,19 @@ struct Newton<'a, M: Material> {
     peak_work: f64,
     sink_seconds: f64,
     last_progress: Instant,
+    /// Linear constraints (meshless essential boundaries) by an augmented Lagrangian: the
+    /// rows with their targets at the load step's end, multipliers (N) and penalties (N/m).
+    rows: Vec<crate::solver::LinearConstraint>,
+    lambda: Vec<f64>,
+    penalty: Vec<f64>,
+    /// Rigid contact by an augmented Lagrangian with an active set: per candidate point
+    /// (body, point), its multiplier (N), penalty (N/m), and at the last evaluation its depth
+    /// (m), push direction and force g = max(0, lambda + k depth) (N).
+    touch: Vec<(u32, u32)>,
+    t_lambda: Vec<f64>,
+    t_penalty: Vec<f64>,
+    t_state: Vec<(f64, Vector3<f64>, f64)>,
+    tau_now: f64,
 }
 
 impl<'a, M: Material> Newton<'a, M> {
@@ -375,6 +438,14 @@ impl<'a, M: Material> Newton<'a, M> {
             peak_work: 0.0,
             sink_seconds: 0.0,
             last_progress: Instant::now(),
+            rows: Vec::new(),
+            lambda: Vec::new(),
+            penalty: Vec::new(),
+            touch: Vec::new(),
+            t_lambda: Vec::new(),
+            t_penalty: Vec::new(),
+            t_state: Vec::new(),
+            tau_now: 0.0,
         }
     }
 
@@ -387,7 +458,191 @@ impl<'a, M: Material> Newton<'a, M> {
         self.fe.iter_mut().for_each(|x| *x = Vector3::zeros());
         m.loads.apply(&self.u, tau, &mut self.fe);
         self.min_j = m.forces.min_j();
+        for (i, lc) in self.rows.iter().enumerate() {
+            let f = self.lambda[i]
+                + self.penalty.get(i).copied().unwrap_or(0.0) * violation(lc, &self.u);
+            for &(j, w) in &lc.row {
+                self.f[j as usize][lc.axis] += w * f;
+            }
+        }
+        self.tau_now = tau;
+        if let Some(ct) = self.model.contact.as_ref() {
+            use rayon::prelude::*;
+            let (u, touch) = (&self.u, &self.touch);
+            let (lam, pen) = (&self.t_lambda, &self.t_penalty);
+            self.t_state
+                .par_iter_mut()
+                .enumerate()
+                .with_min_len(256)
+                .for_each(|(k, st)| {
+                    let (b, i) = (touch[k].0 as usize, touch[k].1 as usize);
+                    let (depth, n) = ct.depth_of(b, &ct.points_of(b)[i], u, tau);
+                    let g = (lam[k] + pen.get(k).copied().unwrap_or(0.0) * depth).max(0.0);
+                    *st = (depth, n, g);
+                });
+            // In point order: the sums do not depend on the thread count.
+            for (k, &(b, i)) in self.touch.iter().enumerate() {
+                let (_, n, g) = self.t_state[k];
+                if g > 0.0 {
+                    for &(j, w) in &ct.points_of(b as usize)[i as usize].row {
+                        self.f[j as usize] -= n * (w * g);
+                    }
+                }
+            }
+        }
         self.min_j.0
+    }
+
+    /// The contact penalties, once, from the first tangent: BETA x the mean diagonal
+    /// stiffness of the point's nodes.
+    fn set_contact_penalties(&mut self) {
+        const BETA: f64 = 1e3;
+        if self.t_penalty.len() == self.touch.len() {
+            return;
+        }
+        let Some(ct) = self.model.contact.as_ref() else {
+            return;
+        };
+        self.t_penalty = self
+            .touch
+            .iter()
+            .map(|&(b, i)| {
+                let row = &ct.points_of(b as usize)[i as usize].row;
+                let (mut k, mut w2) = (0.0, 0.0);
+                for &(j, w) in row {
+                    k += w * w * self.c.tangent.diagonal(j as usize).trace() / 3.0;
+                    w2 += w * w;
+                }
+                BETA * (k / w2.max(f64::MIN_POSITIVE)).abs()
+            })
+            .collect();
+    }
+
+    /// The active points' penalty stiffness k w_a w_b n n^T (the normal's turning left out).
+    fn add_contact_stiffness(&mut self) {
+        let Some(ct) = self.model.contact.as_ref() else {
+            return;
+        };
+        for (k, &(b, i)) in self.touch.iter().enumerate() {
+            let (_, n, g) = self.t_state[k];
+            if !(g > 0.0) {
+                continue;
+            }
+            let nn = n * n.transpose() * self.t_penalty[k];
+            let row = &ct.points_of(b as usize)[i as usize].row;
+            for &(a, wa) in row {
+                for &(c, wc) in row {
+                    self.c
+                        .tangent
+                        .add(a as usize, c as usize, &(nn * (wa * wc)));
+                }
+            }
+        }
+    }
+
+    /// Deepest penetration of a candidate point, m (0 without contact).
+    fn worst_penetration(&self) -> f64 {
+        self.t_state.iter().map(|&(d, _, _)| d).fold(0.0, f64::max)
+    }
+
+    /// Hands the contact's end state (forces per body, points in contact) to the model.
+    fn contact_state(&mut self) {
+        let worst = self.worst_penetration();
+        let Some(ct) = self.model.contact.as_mut() else {
+            return;
+        };
+        let mut forces = vec![Vector3::zeros(); ct.len()];
+        let mut count = vec![0usize; ct.len()];
+        for (k, &(b, _)) in self.touch.iter().enumerate() {
+            let (_, n, g) = self.t_state[k];
+            if g > 0.0 {
+                forces[b as usize] += n * g;
+                count[b as usize] += 1;
+            }
+        }
+        ct.set_static_state(forces, count, worst);
+    }
+
+    /// Sets the constraints' targets at load fraction `tau`.
+    fn set_targets(&mut self, tau: f64) {
+        if self.rows.is_empty() {
+            return;
+        }
+        if let Some(now) = self
+            .model
+            .corrector
+            .as_ref()
+            .and_then(|c| c.linear_constraints(tau))
+        {
+            for (r, n) in self.rows.iter_mut().zip(now) {
+                r.target = n.target;
+            }
+        }
+    }
+
+    /// Largest constraint violation, m.
+    fn worst_violation(&self) -> f64 {
+        self.rows
+            .iter()
+            .map(|lc| violation(lc, &self.u).abs())
+            .fold(0.0, f64::max)
+    }
+
+    /// The penalties, once, from the first tangent: BETA x the stiffness of the row's nodes
+    /// along its axis (weighted by the row), so one multiplier update leaves about 1 / BETA of
+    /// the violation.
+    fn set_penalties(&mut self) {
+        const BETA: f64 = 1e3;
+        if self.penalty.len() == self.rows.len() {
+            return;
+        }
+        self.penalty = self
+            .rows
+            .iter()
+            .map(|lc| {
+                let (mut k, mut w2) = (0.0, 0.0);
+                for &(j, w) in &lc.row {
+                    k += w * w * self.c.tangent.diagonal(j as usize)[(lc.axis, lc.axis)];
+                    w2 += w * w;
+                }
+                BETA * (k / w2.max(f64::MIN_POSITIVE)).abs()
+            })
+            .collect();
+    }
+
+    /// Adds the penalties' stiffness k w w^T to the assembled tangent.
+    fn add_constraint_stiffness(&mut self) {
+        for (i, lc) in self.rows.iter().enumerate() {
+            let k = self.penalty[i];
+            for &(a, wa) in &lc.row {
+                for &(b, wb) in &lc.row {
+                    let mut m = Matrix3::zeros();
+                    m[(lc.axis, lc.axis)] = k * wa * wb;
+                    self.c.tangent.add(a as usize, b as usize, &m);
+                }
+            }
+        }
+    }
+
+    /// The force each boundary's constraints apply to the body, N (negative of their share of
+    /// the residual's constraint forces), handed to the corrector as its reactions.
+    fn constraint_reactions(&mut self) {
+        if self.rows.is_empty() {
+            return;
+        }
+        let nb = self.model.boundaries.len();
+        let mut r = vec![Vector3::zeros(); nb];
+        for (i, lc) in self.rows.iter().enumerate() {
+            let f = self.lambda[i]
+                + self.penalty.get(i).copied().unwrap_or(0.0) * violation(lc, &self.u);
+            let sum: f64 = lc.row.iter().map(|&(_, w)| w).sum();
+            if let Some(rb) = r.get_mut(lc.boundary) {
+                rb[lc.axis] -= f * sum;
+            }
+        }
+        if let Some(c) = self.model.corrector.as_mut() {
+            c.set_reactions(&r);
+        }
     }
 
     /// Largest |F_ext - F_int| at a free DOF, and the largest nodal force (the scale).
@@ -407,6 +662,21 @@ impl<'a, M: Material> Newton<'a, M> {
     fn assemble(&mut self) {
         let t0 = Instant::now();
         self.c.tangent.assemble(self.model, &self.u);
+        if !self.rows.is_empty() {
+            self.set_penalties();
+            self.add_constraint_stiffness();
+        }
+        if !self.touch.is_empty() {
+            let fresh = self.t_penalty.is_empty();
+            self.set_contact_penalties();
+            if fresh {
+                // The forces of this state with the penalties now known.
+                let tau = self.tau_now;
+                self.forces(tau);
+                self.force_evaluations -= 1;
+            }
+            self.add_contact_stiffness();
+        }
         self.report.assemblies += 1;
         self.force_evaluations += 1;
         self.report.assembly_seconds += t0.elapsed().as_secs_f64();
@@ -600,6 +870,13 @@ impl<'a, M: Material> Newton<'a, M> {
     /// restores u and cuts the step).
     fn load_step(&mut self, tau0: f64, tau1: f64) -> Result<bool> {
         let n = self.u.len();
+        self.set_targets(tau1);
+        if (!self.rows.is_empty() && self.penalty.is_empty())
+            || (!self.touch.is_empty() && self.t_penalty.is_empty())
+        {
+            self.forces(tau1);
+            self.assemble();
+        }
         // The prescribed values' change over the step.
         let mut target = self.u.clone();
         self.model.constraints.prescribe(&mut target, tau1);
@@ -692,6 +969,27 @@ impl<'a, M: Material> Newton<'a, M> {
             }
             trail.push(r);
             if self.is_converged(r, scale, last_update) {
+                // The constraints met to the tolerance, or their multipliers updated
+                // (lambda += k c) and the iterations go on.
+                let contact_tol = self
+                    .model
+                    .contact
+                    .as_ref()
+                    .map_or(f64::INFINITY, |c| c.tolerance());
+                let pushing = self.worst_penetration() > contact_tol;
+                if (self.worst_violation() > self.s.tolerance || pushing) && !self.loose {
+                    for i in 0..self.rows.len() {
+                        self.lambda[i] += self.penalty[i] * violation(&self.rows[i], &self.u);
+                    }
+                    for k in 0..self.touch.len() {
+                        self.t_lambda[k] = self.t_state[k].2;
+                    }
+                    self.forces(tau1);
+                    trail.clear();
+                    trail.extend(std::iter::repeat_n(f64::INFINITY, it + 1));
+                    last_update = f64::INFINITY;
+                    continue;
+                }
                 self.report.newton_iterations += it - 1;
                 self.last_iterations = it - 1;
                 return Ok(true);
@@ -916,6 +1214,8 @@ impl<'a, M: Material> Newton<'a, M> {
 
     /// The run's output.
     fn finish(&mut self) -> RunOutput {
+        self.constraint_reactions();
+        self.contact_state();
         let m = &mut *self.model;
         if !m.f_ext.is_empty() {
             m.f_ext.clone_from(&self.fe);
@@ -957,4 +1257,13 @@ impl<'a, M: Material> Newton<'a, M> {
             statics: Some(std::mem::take(&mut self.report)),
         }
     }
+}
+
+/// row . u[axis] - target, m.
+fn violation(lc: &crate::solver::LinearConstraint, u: &[Vector3<f64>]) -> f64 {
+    lc.row
+        .iter()
+        .map(|&(j, w)| w * u[j as usize][lc.axis])
+        .sum::<f64>()
+        - lc.target
 }

@@ -181,12 +181,19 @@ pub struct Tangent {
 }
 
 impl Tangent {
-    /// The block pattern of `model`: node pairs joined by a point's support or a unit.
-    pub fn new<M: Material>(model: &Model<M>) -> Self {
+    /// The block pattern of `model`: node pairs joined by a point's support or a unit, and
+    /// those of each of `cliques` (node lists a constraint row joins).
+    pub fn new<M: Material>(model: &Model<M>, cliques: &[Vec<u32>]) -> Self {
         let units = Units::of(model);
         let q = &model.points;
         let slots = &model.slots;
         let n = model.nodes.len();
+        let mut in_clique: Vec<Vec<u32>> = vec![Vec::new(); n];
+        for (c, nodes) in cliques.iter().enumerate() {
+            for &j in nodes {
+                in_clique[j as usize].push(c as u32);
+            }
+        }
         let rows: Vec<Vec<u32>> = (0..n)
             .into_par_iter()
             .map(|a| {
@@ -198,6 +205,9 @@ impl Tangent {
                 let r = units.by_node_offsets[a] as usize..units.by_node_offsets[a + 1] as usize;
                 for &(k, _) in &units.by_node[r] {
                     cols.extend_from_slice(&units.nodes[units.node_range(k as usize)]);
+                }
+                for &c in &in_clique[a] {
+                    cols.extend_from_slice(&cliques[c as usize]);
                 }
                 cols.sort_unstable();
                 cols.dedup();
@@ -404,6 +414,21 @@ impl Tangent {
         self.states = states;
     }
 
+    /// Adds `m` to block (a, b), which must be in the pattern.
+    pub fn add(&mut self, a: usize, b: usize, m: &Matrix3<f64>) {
+        let row = &self.cols[self.offsets[a]..self.offsets[a + 1]];
+        if let Ok(k) = row.binary_search(&(b as u32)) {
+            self.values[self.offsets[a] + k] += m;
+        }
+    }
+
+    /// The diagonal block of node `a`.
+    pub fn diagonal(&self, a: usize) -> Matrix3<f64> {
+        let row = &self.cols[self.offsets[a]..self.offsets[a + 1]];
+        row.binary_search(&(a as u32))
+            .map_or_else(|_| Matrix3::zeros(), |k| self.values[self.offsets[a] + k])
+    }
+
     /// y = K x over all DOFs (x, y one vector per node). Parallel by rows; deterministic.
     pub fn multiply(&self, x: &[Vector3<f64>], y: &mut [Vector3<f64>]) {
         let offsets = &self.offsets;
@@ -451,7 +476,7 @@ mod tests {
         let v: Vec<Vector3<f64>> = (0..n)
             .map(|_| Vector3::new(lcg(&mut st), lcg(&mut st), lcg(&mut st)) - Vector3::repeat(0.5))
             .collect();
-        let mut k = Tangent::new(model);
+        let mut k = Tangent::new(model, &[]);
         k.assemble(model, &u);
         let mut kv = vec![Vector3::zeros(); n];
         k.multiply(&v, &mut kv);
