@@ -500,6 +500,7 @@ fn csv_columns(varies: &[Vary], rows: &[SweepRow]) -> (Vec<String>, Vec<Vec<Stri
             "dt critical (s)",
             "dt factor",
             "steps",
+            "force evaluations",
             "converged",
             "preprocess (s)",
             "solve (s)",
@@ -558,6 +559,7 @@ fn csv_columns(varies: &[Vary], rows: &[SweepRow]) -> (Vec<String>, Vec<Vec<Stri
                         f(s.dt_critical),
                         s.dt_factor.to_string(),
                         s.steps.to_string(),
+                        s.force_evaluations.to_string(),
                         s.converged.to_string(),
                         format!("{:.4}", s.wall_seconds.preprocess),
                         format!("{:.4}", s.wall_seconds.solve),
@@ -618,7 +620,7 @@ fn csv_columns(varies: &[Vary], rows: &[SweepRow]) -> (Vec<String>, Vec<Vec<Stri
                     );
                 }
                 None => {
-                    let n = 16 + 3 * reactions.len() + 3 * probes.len() + refs.len() + 11;
+                    let n = 17 + 3 * reactions.len() + 3 * probes.len() + refs.len() + 11;
                     c.extend(std::iter::repeat_n(String::new(), n));
                 }
             }
@@ -654,7 +656,18 @@ pub fn table(varies: &[Vary], rows: &[SweepRow]) -> String {
     let reactions = names(rows, |s| s.reactions.keys().collect());
     let mut head: Vec<String> = vec!["run".into()];
     head.extend(varies.iter().map(|v| v.key.clone()));
-    head.extend(["method", "nodes", "points", "dt (s)", "steps", "total (s)"].map(String::from));
+    head.extend(
+        [
+            "method",
+            "nodes",
+            "points",
+            "dt (s)",
+            "steps",
+            "force evaluations",
+            "total (s)",
+        ]
+        .map(String::from),
+    );
     let first = rows.iter().find_map(|r| r.summary.as_ref());
     let comps = crate::report::reaction_columns(first, &reactions);
     head.extend(comps.iter().map(|(_, h)| h.clone()));
@@ -694,6 +707,7 @@ pub fn table(varies: &[Vary], rows: &[SweepRow]) -> String {
                     x.integration_points.to_string(),
                     format!("{:.3e}", x.dt),
                     x.steps.to_string(),
+                    x.force_evaluations.to_string(),
                     format!("{:.2}", x.wall_seconds.total),
                 ]);
                 c.extend(reactions.iter().zip(&comps).map(|(n, &(k, _))| {
@@ -713,7 +727,7 @@ pub fn table(varies: &[Vary], rows: &[SweepRow]) -> String {
                     x.energy.balance_error.map_or("-".into(), percent),
                 ]);
             }
-            None => c.extend(std::iter::repeat_n("-".to_string(), 8 + reactions.len())),
+            None => c.extend(std::iter::repeat_n("-".to_string(), 9 + reactions.len())),
         }
         c.push(r.peak_memory_mib.map_or("-".into(), |m| format!("{m:.0}")));
         c.push(if r.pareto {

@@ -289,3 +289,34 @@ fn a_run_out_of_energy_balance_is_flagged_and_never_the_trade_off() {
     sweep::mark_pareto(&mut r);
     assert!(r[0].pareto && r[1].pareto);
 }
+
+/// Issue 57: the two steady-state modes side by side, as one sweep over `solver.mode`: the
+/// table and sweep.csv give each run's force evaluations, and the static row reaches the exact
+/// cube in at least ten times fewer.
+#[test]
+fn a_sweep_over_the_mode_shows_relaxation_and_static_side_by_side() {
+    let dir = std::env::temp_dir().join("hytled-sweep-modes");
+    let _ = std::fs::remove_dir_all(&dir);
+    let opts = SweepOptions {
+        out: Some(dir.clone()),
+        ..Default::default()
+    };
+    let varies = [vary("solver.mode=relaxation,static")];
+    let rows = sweep::run_sweep(Path::new(CUBE), &[], &varies, &opts).unwrap();
+    let evals: Vec<usize> = rows
+        .iter()
+        .map(|r| r.summary.as_ref().unwrap().force_evaluations)
+        .collect();
+    assert!(evals[1] > 0 && 10 * evals[1] <= evals[0], "{evals:?}");
+    let table = sweep::table(&varies, &rows);
+    assert!(table.contains("force evaluations"), "{table}");
+    let csv = std::fs::read_to_string(dir.join("sweep.csv")).unwrap();
+    let head: Vec<&str> = csv.lines().next().unwrap().split(',').collect();
+    let col = head.iter().position(|h| *h == "force evaluations").unwrap();
+    let cells: Vec<&str> = csv
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').nth(col).unwrap())
+        .collect();
+    assert_eq!(cells, [evals[0].to_string(), evals[1].to_string()]);
+}
