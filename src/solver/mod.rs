@@ -562,6 +562,14 @@ impl<M: Material> Model<M> {
         r
     }
 
+    /// [`Self::reactions`] as [x, y, z] rows, N: what history rows and load stages keep.
+    pub fn reaction_rows(&self, f_int: &[Vector3<f64>]) -> Vec<[f64; 3]> {
+        self.reactions(f_int)
+            .iter()
+            .map(|v| [v.x, v.y, v.z])
+            .collect()
+    }
+
     /// Names of the entries of [`Self::reactions`]: the boundaries, then the rigid bodies.
     pub fn reaction_names(&self) -> Vec<String> {
         let mut v: Vec<String> = self.boundaries.iter().map(|b| b.name.clone()).collect();

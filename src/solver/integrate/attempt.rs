@@ -671,11 +671,7 @@ impl<'a, M: Material> Pass<'a, M> {
             }
             let largest = self.f.iter().map(|v| v.amax()).fold(0.0, f64::max);
             self.peak_force = self.peak_force.max(largest);
-            let reactions = model
-                .reactions(&self.f)
-                .iter()
-                .map(|v| [v.x, v.y, v.z])
-                .collect();
+            let reactions = model.reaction_rows(&self.f);
             self.rec.history.push(HistoryRow {
                 step,
                 time: t,
@@ -846,12 +842,7 @@ impl<'a, M: Material> Pass<'a, M> {
             g.download_u(1, &mut self.u)?;
             g.download_f(&mut self.f)?;
         }
-        let reactions = self
-            .model
-            .reactions(&self.f)
-            .iter()
-            .map(|v| [v.x, v.y, v.z])
-            .collect();
+        let reactions = self.model.reaction_rows(&self.f);
         self.stages.push(Stage {
             load: self.time.cap,
             step,

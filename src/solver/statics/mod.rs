@@ -795,7 +795,7 @@ impl<'a, M: Material> Newton<'a, M> {
         let mut dtau = 1.0;
         let mut failed_span = f64::INFINITY;
         let mut cuts_in_row = 0;
-        for (ti, &target) in targets.iter().enumerate() {
+        for &target in &targets {
             let mut first = true;
             while tau < target || (first && warm) {
                 first = false;
@@ -856,7 +856,7 @@ impl<'a, M: Material> Newton<'a, M> {
                 }
             }
             if target < 1.0 {
-                self.stage(target, ti)?;
+                self.stage(target)?;
                 self.frame(target, sink)?;
             }
         }
@@ -1140,11 +1140,7 @@ impl<'a, M: Material> Newton<'a, M> {
         if !m.f_ext.is_empty() {
             m.f_ext.clone_from(&self.fe);
         }
-        let reactions = m
-            .reactions(&self.f)
-            .iter()
-            .map(|v| [v.x, v.y, v.z])
-            .collect();
+        let reactions = m.reaction_rows(&self.f);
         self.peak_force = self
             .peak_force
             .max(self.f.iter().map(|v| v.amax()).fold(0.0, f64::max));
@@ -1160,13 +1156,8 @@ impl<'a, M: Material> Newton<'a, M> {
     }
 
     /// Keeps the state at load stage `load`.
-    fn stage(&mut self, load: f64, _index: usize) -> Result<()> {
-        let reactions = self
-            .model
-            .reactions(&self.f)
-            .iter()
-            .map(|v| [v.x, v.y, v.z])
-            .collect();
+    fn stage(&mut self, load: f64) -> Result<()> {
+        let reactions = self.model.reaction_rows(&self.f);
         self.stages.push(Stage {
             load,
             step: self.report.newton_iterations,
