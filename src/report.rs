@@ -418,13 +418,15 @@ impl Summary {
             let _ = writeln!(
                 s,
                 "static solve     {}: {} load steps ({} cuts), {} Newton iterations, {} CG iterations, \
-                 {} assemblies, {} factorizations of {} DOFs ({:.1} MB factor, {:.2} s), {} force evaluations",
+                 {} assemblies, {} kept-factor steps, {} factorizations of {} DOFs ({:.1} MB factor, {:.2} s), \
+                 {} force evaluations",
                 st.variant,
                 st.load_steps,
                 st.cuts,
                 st.newton_iterations,
                 st.linear_iterations,
                 st.assemblies,
+                st.kept_solves,
                 st.factorizations,
                 st.dofs,
                 st.factor_bytes as f64 / 1e6,

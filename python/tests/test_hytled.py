@@ -130,9 +130,22 @@ def test_results_convert_to_meshio_and_pyvista():
 def test_the_resolve_example_runs_warm_in_a_third_of_the_steps(monkeypatch):
     monkeypatch.chdir(ROOT)
     example = runpy.run_path(str(ROOT / "python" / "examples" / "resolve.py"))
-    first, again = example["main"]()
+    first, again = example["main"](mode="relaxation")
     assert again.warm and again.converged
     assert 3 * again.steps <= first.steps
+
+
+def test_a_static_resolve_reuses_the_factor_kept_at_the_equilibrium(monkeypatch):
+    """Issue 57: the static re-solve after a 10 % change of brain-shift's measurements takes
+    modified-Newton steps with the factor the first solve left at its equilibrium: no
+    assembly, no factorization (tests/static_solve.rs checks its answer against a cold one)."""
+    monkeypatch.chdir(ROOT)
+    example = runpy.run_path(str(ROOT / "python" / "examples" / "resolve.py"))
+    first, again = example["main"]()
+    st = again.summary["static"]
+    assert again.warm and again.converged
+    assert st["kept_solves"] > 0 and st["assemblies"] == 0 and st["factorizations"] == 0
+    assert again.summary["force_evaluations"] * 3 <= first.summary["force_evaluations"]
 
 
 def test_ctrl_c_stops_a_solve_and_leaves_the_model_as_it_was():

@@ -79,7 +79,8 @@ impl Session {
     pub fn new(scene: Scene) -> Result<Self> {
         let t0 = Instant::now();
         let prep = prepare(&scene)?;
-        let settings = settings(&scene, false);
+        let mut settings = settings(&scene, false);
+        settings.refresh_factor = true;
         Ok(Session {
             scene,
             prep,

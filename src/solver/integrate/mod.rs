@@ -120,6 +120,11 @@ pub struct Settings {
     pub warm_start: Option<WarmStart>,
     /// Static: how each Newton iteration solves its linear system.
     pub static_variant: crate::solver::statics::Variant,
+    /// Static: the model will be solved again from this equilibrium (a
+    /// [`crate::simulation::Session`]): where the kept factor stopped contracting in the last
+    /// load step, it is made again at the equilibrium, so that the next warm solve's
+    /// modified-Newton steps start from the tangent there.
+    pub refresh_factor: bool,
 }
 
 /// Where a warm-started relaxation begins ([`Settings::warm_start`]).
@@ -171,6 +176,7 @@ impl Default for Settings {
             stages: Vec::new(),
             warm_start: None,
             static_variant: Default::default(),
+            refresh_factor: false,
         }
     }
 }

@@ -74,6 +74,10 @@ const RESIDUAL_TOLERANCE: f64 = 1e-6;
 /// into the next step, which converges fully.
 const SUBSTEP_TOLERANCE: f64 = 1e-3;
 
+/// A modified-Newton step with the kept factor is repeated while it cuts the residual at
+/// least this much (2x); otherwise the tangent is assembled for the rest of the load step.
+const CHEAP_CONTRACTION: f64 = 0.5;
+
 /// One Newton iteration of the residual history.
 #[derive(Debug, Clone, Copy, Serialize)]
 pub struct ResidualRow {
@@ -99,6 +103,8 @@ pub struct StaticReport {
     pub linear_iterations: usize,
     pub assemblies: usize,
     pub factorizations: usize,
+    /// Modified-Newton steps solved with a kept factor, no assembly (Newton-Krylov).
+    pub kept_solves: usize,
     /// Free DOFs, nonzeros of the upper triangle of K_ff and of its Cholesky factor, and the
     /// fill-reducing order.
     pub dofs: usize,
@@ -333,7 +339,11 @@ pub fn solve<M: Material>(
     }
     st.t_lambda = vec![0.0; st.touch.len()];
     st.t_state = vec![(0.0, Vector3::zeros(), 0.0); st.touch.len()];
-    let result = st.run(&mut sink);
+    let mut result = st.run(&mut sink);
+    if result.is_ok() && s.refresh_factor && st.converged && !st.kept_contracting {
+        st.assemble();
+        result = st.refactor().map(|_| ());
+    }
     let out = result.map(|()| st.finish());
     *cache = Some(c);
     out
@@ -390,6 +400,9 @@ struct Newton<'a, M: Material> {
     t_penalty: Vec<f64>,
     t_state: Vec<(f64, Vector3<f64>, f64)>,
     tau_now: f64,
+    /// The last load step ended on modified-Newton steps with the kept factor that still
+    /// contracted ([`CHEAP_CONTRACTION`]).
+    kept_contracting: bool,
 }
 
 impl<'a, M: Material> Newton<'a, M> {
@@ -446,6 +459,7 @@ impl<'a, M: Material> Newton<'a, M> {
             t_penalty: Vec::new(),
             t_state: Vec::new(),
             tau_now: 0.0,
+            kept_contracting: false,
         }
     }
 
@@ -712,6 +726,14 @@ impl<'a, M: Material> Newton<'a, M> {
         Ok(())
     }
 
+    /// b = K_old^-1 b with the kept factor as it is (a modified-Newton step).
+    fn kept_solve(&mut self, b: &mut [f64]) {
+        let t0 = Instant::now();
+        self.c.factor.solve(b);
+        self.report.kept_solves += 1;
+        self.report.solve_seconds += t0.elapsed().as_secs_f64();
+    }
+
     /// Conjugate gradients on the current tangent, preconditioned by the kept factor; b is
     /// replaced by the solution. False (b unchanged) when CG does not reach
     /// [`CG_TOLERANCE`] within [`CG_LIMIT`] iterations or meets a direction of non-positive
@@ -915,15 +937,23 @@ impl<'a, M: Material> Newton<'a, M> {
                 self.u.clone_from(&u0);
             }
         }
+        // A kept factor of an earlier state (a warm start's, the previous load step's) often
+        // still contracts: modified-Newton steps with it cost a force evaluation and two
+        // triangular solves, no assembly. The first that does not cut the residual by
+        // CHEAP_CONTRACTION ends them for this load step (brain-shift's warm re-solve: 0.61 s
+        // with a tangent per iteration).
+        let mut cheap = self.s.static_variant == Variant::NewtonKrylov
+            && self.c.factor.kind() == Some(Kind::Llt);
         let mut rhs = vec![0.0; self.c.dofs.len];
         if !predicted {
             self.forces(tau1);
             for i in 0..n {
                 self.t0[i] = self.fe[i] - self.f[i];
             }
-            let need_tangent = moved
-                || self.s.static_variant != Variant::Modified
-                || self.c.factor.kind().is_none();
+            let need_tangent = !cheap
+                && (moved
+                    || self.s.static_variant != Variant::Modified
+                    || self.c.factor.kind().is_none());
             if need_tangent {
                 self.assemble();
             }
@@ -935,7 +965,11 @@ impl<'a, M: Material> Newton<'a, M> {
                 }
             }
             self.c.dofs.gather(&self.t0, &mut rhs);
-            self.linear_solve(&mut rhs)?;
+            if cheap {
+                self.kept_solve(&mut rhs);
+            } else {
+                self.linear_solve(&mut rhs)?;
+            }
             self.c.dofs.scatter(&rhs, &mut self.t0);
             for i in 0..n {
                 self.u[i] += self.t0[i] + delta[i];
@@ -992,6 +1026,7 @@ impl<'a, M: Material> Newton<'a, M> {
                 }
                 self.report.newton_iterations += it - 1;
                 self.last_iterations = it - 1;
+                self.kept_contracting = cheap;
                 return Ok(true);
             }
             if it == MAX_ITERATIONS {
@@ -999,7 +1034,9 @@ impl<'a, M: Material> Newton<'a, M> {
                 return Ok(false);
             }
             // The direction.
+            let cheap_step = cheap;
             match self.s.static_variant {
+                _ if cheap_step => {}
                 Variant::Modified => {
                     if self.fresh && r > 0.5 * r_prev && it > 1 {
                         self.fresh = false;
@@ -1016,7 +1053,11 @@ impl<'a, M: Material> Newton<'a, M> {
             }
             self.c.dofs.gather(&self.t0, &mut rhs);
             let r_free = rhs.clone();
-            self.linear_solve(&mut rhs)?;
+            if cheap_step {
+                self.kept_solve(&mut rhs);
+            } else {
+                self.linear_solve(&mut rhs)?;
+            }
             let du = rhs.clone();
             // Line search on g(a) = du . r(u + a du): zero at the minimum along du.
             let g0: f64 = du.iter().zip(&r_free).map(|(a, b)| a * b).sum();
@@ -1068,6 +1109,9 @@ impl<'a, M: Material> Newton<'a, M> {
             }
             let (r_new, scale_new) = self.residual_norm();
             self.push_residual(tau1, it, r_new, scale_new, last_update);
+            if cheap_step && r_new > CHEAP_CONTRACTION * r {
+                cheap = false;
+            }
             if !(r_new < 1e8 * r0.max(1e-300)) {
                 self.report.newton_iterations += it;
                 return Ok(false);
