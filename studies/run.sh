@@ -9,7 +9,8 @@
 # Studies (a study name runs all its jobs): timestep incompressibility large-deformation
 # irregular spin speed-accuracy fe-layers adaptive tets brain-convergence brain-compressible
 # indentation brain-builtin pareto-tets (indentation-patches, patches-cylinders,
-# meshless-patches: the mean-dilatation patches).
+# meshless-patches: the mean-dilatation patches) static (issue 57: relaxation against the
+# static solve).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 H=${HYTLED:-target/release/hytled}
@@ -331,6 +332,29 @@ brain-builtin-contact() {
     --out studies/brain-builtin-contact
 }
 
+# Issue 57: relaxation and the static solve side by side (`--vary solver.mode`), wall time and
+# force evaluations: the benchmark at c1-c4 (fe tet10), and c5 apart (many minutes each way),
+# then the committed steady scenes. brain-contact and mni-brain-shift are left out: their
+# static solves do not yet finish in minutes (docs/verification.md).
+MODES='solver.mode=relaxation,static'
+static-indentation() {
+  sweep cases/brain-indentation-benchmark.toml --vary "$MODES" \
+    --vary "geometry.mesh=$BI-c1.msh,$BI-c2.msh,$BI-c3.msh,$BI-c4.msh" \
+    --out studies/static/indentation
+}
+static-benchmark-c5() {
+  sweep cases/brain-indentation-benchmark.toml --vary "$MODES" --vary "geometry.mesh=$BI-c5.msh" \
+    --out studies/static/indentation-c5
+}
+static_scene() { sweep "cases/$1.toml" --vary "$MODES" --out "studies/static/$1"; }
+static-brain-shift() { static_scene brain-shift; }
+static-cube() { static_scene cube-compression; }
+static-tet-cylinder-compression() { static_scene tet-cylinder-compression; }
+static-tet-cylinder-extension() { static_scene tet-cylinder-extension; }
+static-tet-cylinder-shear() { static_scene tet-cylinder-shear; }
+static-cylinder-mixed() { static_scene cylinder-mixed; }
+static-brain-indentation() { static_scene brain-indentation; }
+
 ALL=(speed-accuracy-compression speed-accuracy-extension speed-accuracy-shear speed-accuracy-dynamic
   speed-accuracy-cube timestep-cube timestep-cylinder incompressibility-cube
   incompressibility-cylinder large-deformation irregular-jitter irregular-halton
@@ -343,7 +367,10 @@ ALL=(speed-accuracy-compression speed-accuracy-extension speed-accuracy-shear sp
   tets-global-gmsh-compression tets-global-gmsh-extension tets-global-gmsh-shear
   brain-convergence brain-convergence-fine brain-compressible indentation indentation-fine
   indentation-patches patches-cylinders brain-builtin-indentation brain-builtin-contact
-  pareto-tets-compression pareto-tets-extension pareto-tets-shear meshless-patches)
+  pareto-tets-compression pareto-tets-extension pareto-tets-shear meshless-patches
+  static-indentation static-benchmark-c5 static-brain-shift static-cube static-tet-cylinder-compression
+  static-tet-cylinder-extension static-tet-cylinder-shear static-cylinder-mixed
+  static-brain-indentation)
 
 if [ "${1:-}" = --list ]; then printf '%s\n' "${ALL[@]}"; exit 0; fi
 # A study name stands for its jobs.

@@ -160,6 +160,8 @@ pub struct Forces<M: Material> {
     /// Per pressure node, its ANP points and their weights (compressed rows, slot order): the
     /// nodal averages read these instead of filtering every slot by kind.
     anp_offsets: Vec<u32>,
+    /// Per pressure node, its mesh node.
+    anp_key_node: Vec<u32>,
     anp_points: Vec<(u32, f64)>,
     /// The ANP points, ascending.
     anp_list: Vec<u32>,
@@ -370,6 +372,7 @@ impl<M: Material> Forces<M> {
         let mut anp_offsets = vec![0u32];
         let mut anp_points = Vec::new();
         let mut anp_slot_key = Vec::new();
+        let mut anp_key_node = Vec::new();
         if has_anp {
             let mut seen = Vec::new();
             let anp = |p: usize| qp.kinds[p] == PointKind::Anp;
@@ -405,6 +408,7 @@ impl<M: Material> Forces<M> {
                     let w: f64 = anp_points[first..].iter().map(|&(_, w)| w).sum();
                     inv_w.push(if w > 0.0 { 1.0 / w } else { 0.0 });
                     anp_offsets.push(anp_points.len() as u32);
+                    anp_key_node.push(n as u32);
                 }
             }
         }
@@ -420,6 +424,7 @@ impl<M: Material> Forces<M> {
         }
         let in_groups = in_groups as usize;
         Forces {
+            anp_key_node,
             anp_offsets,
             anp_points,
             anp_list,
@@ -466,6 +471,7 @@ impl<M: Material> Forces<M> {
             + size_of_val(self.anp_slot_key.as_slice())
             + size_of_val(self.node_anp_inv_weight.as_slice())
             + size_of_val(self.anp_offsets.as_slice())
+            + size_of_val(self.anp_key_node.as_slice())
             + size_of_val(self.anp_points.as_slice())
             + size_of_val(self.anp_list.as_slice())
             + size_of_val(self.group_j.as_slice())
@@ -1450,12 +1456,14 @@ impl<M: Material> Forces<M> {
     /// its (ANP point, weight in m^3) entries `points[offsets[n]..offsets[n + 1]]`, one per
     /// slot keyed to it, and 1 / their weight sum (1/m^3; 0 where a node has none). J_n is the
     /// weighted mean of the points' J over the entries; the static solve's tangent
-    /// differentiates it ([`crate::solver::statics`]).
-    pub(crate) fn anp_tables(&self) -> (&[u32], &[(u32, f64)], &[f64]) {
+    /// differentiates it ([`crate::solver::statics`]). Last, the mesh node of each pressure
+    /// node (several pressure nodes share one where materials meet).
+    pub(crate) fn anp_tables(&self) -> (&[u32], &[(u32, f64)], &[f64], &[u32]) {
         (
             &self.anp_offsets,
             &self.anp_points,
             &self.node_anp_inv_weight,
+            &self.anp_key_node,
         )
     }
 

@@ -62,6 +62,8 @@ impl Variant {
 pub const CG_LIMIT: usize = 40;
 /// CG stops when the residual of the linear system is this fraction of its right-hand side.
 const CG_TOLERANCE: f64 = 1e-4;
+/// How many times more multiply-adds per second a factorization does than a CG iteration.
+const FACTOR_EFFICIENCY: f64 = 9.0;
 /// Newton iterations per load step before the step is cut.
 const MAX_ITERATIONS: usize = 25;
 /// Cuts in a row (each halving the load step) before the solve gives up.
@@ -310,7 +312,7 @@ pub fn solve<M: Material>(
                     }
                 }
             }
-            let tangent = Tangent::new(model, &cliques);
+            let tangent = Tangent::new(model, &cliques, true);
             let est = Factor::estimate_bytes(&tangent, &dofs, 25.0);
             crate::memory::check(
                 (est + tangent.bytes(model.points.len())) as f64,
@@ -377,9 +379,6 @@ struct Newton<'a, M: Material> {
     last_iterations: usize,
     /// The load step under way ends short of a stage or the full load.
     loose: bool,
-    /// Seconds of the CG iterations so far (the refactoring rule compares them with a
-    /// factorization's).
-    cg_seconds: f64,
     /// The last converged load step's displacement increment and load span.
     previous: Option<(Vec<Vector3<f64>>, f64)>,
     /// (u, F_int) at the last history row, for the work's trapezoids.
@@ -445,7 +444,6 @@ impl<'a, M: Material> Newton<'a, M> {
             fresh: false,
             last_iterations: 0,
             loose: false,
-            cg_seconds: 0.0,
             previous: None,
             work_state: None,
             peak_work: 0.0,
@@ -752,16 +750,15 @@ impl<'a, M: Material> Newton<'a, M> {
         let mut p = z.clone();
         let mut rz = dot(&r, &z);
         let mut q = vec![0.0; n];
-        // A factorization pays once CG would take longer than it: the limit follows their
-        // measured costs (at least 4 iterations, at most CG_LIMIT).
-        let per_factor = self.c.factor.factor_seconds / self.c.factor.factorizations.max(1) as f64;
-        let per_cg = self.cg_seconds / self.report.linear_iterations.max(1) as f64;
-        let limit = if self.report.linear_iterations > 0 && per_cg > 0.0 {
-            ((per_factor / per_cg) as usize).clamp(4, CG_LIMIT)
-        } else {
-            CG_LIMIT
-        };
-        let t_cg = Instant::now();
+        // A factorization pays once CG would take longer than it. Their costs are counted,
+        // not timed, so that the path does not depend on the machine's load: a factorization's
+        // multiply-adds against a CG iteration's (two triangular solves and a product with
+        // the tangent), a factorization's dense kernels doing FACTOR_EFFICIENCY times more
+        // per second (measured 7.8-9.6 on tet4-anp, tet10 and Ogden cases, 2 threads).
+        let per_cg =
+            4.0 * self.c.factor.factor_nonzeros() as f64 + 18.0 * self.c.tangent.blocks() as f64;
+        let limit =
+            ((self.c.factor.flops / FACTOR_EFFICIENCY / per_cg) as usize).clamp(4, CG_LIMIT);
         let mut done = false;
         for _ in 0..limit {
             self.c.dofs.scatter(&p, &mut self.t0);
@@ -792,7 +789,6 @@ impl<'a, M: Material> Newton<'a, M> {
                 p[i] = z[i] + beta * p[i];
             }
         }
-        self.cg_seconds += t_cg.elapsed().as_secs_f64();
         done
     }
 
@@ -943,7 +939,7 @@ impl<'a, M: Material> Newton<'a, M> {
         // CHEAP_CONTRACTION ends them for this load step (brain-shift's warm re-solve: 0.61 s
         // with a tangent per iteration).
         let mut cheap = self.s.static_variant == Variant::NewtonKrylov
-            && self.c.factor.kind() == Some(Kind::Llt);
+            && self.c.factor.kind().is_some_and(|k| k != Kind::Ldlt);
         let mut rhs = vec![0.0; self.c.dofs.len];
         if !predicted {
             self.forces(tau1);
@@ -990,14 +986,17 @@ impl<'a, M: Material> Newton<'a, M> {
         self.push_residual(tau1, 0, r0, scale0, last_update);
         let mut r_prev = r0;
         let mut trail = vec![r0];
-        for it in 1..=MAX_ITERATIONS {
+        'newton: for it in 1..=MAX_ITERATIONS {
             self.last_iterations = it;
             let (r, scale) = self.residual_norm();
             if !r.is_finite() {
                 return Ok(false);
             }
             // Not converging: no halving of the residual over three iterations.
-            if it >= 4 && r > 0.5 * trail[it - 4] && !self.is_converged(r, scale, last_update) {
+            if trail.len() >= 4
+                && r > 0.5 * trail[trail.len() - 4]
+                && !self.is_converged(r, scale, last_update)
+            {
                 self.report.newton_iterations += it;
                 return Ok(false);
             }
@@ -1074,6 +1073,15 @@ impl<'a, M: Material> Newton<'a, M> {
                     break;
                 }
                 tries += 1;
+                if cheap_step && tries > 2 {
+                    // The kept factor's direction inverts elements: back to the start of the
+                    // iteration, with the tangent from here on.
+                    self.u.clone_from(&base);
+                    self.forces(tau1);
+                    cheap = false;
+                    trail.pop();
+                    continue 'newton;
+                }
                 if tries > 8 {
                     self.report.newton_iterations += it;
                     return Ok(false);
@@ -1111,6 +1119,14 @@ impl<'a, M: Material> Newton<'a, M> {
             self.push_residual(tau1, it, r_new, scale_new, last_update);
             if cheap_step && r_new > CHEAP_CONTRACTION * r {
                 cheap = false;
+                if r_new > r {
+                    // Worse than where it started (a factor of a state far from this one,
+                    // as the load step's start): undone, and the tangent from here on.
+                    self.u.clone_from(&base);
+                    self.forces(tau1);
+                    trail.pop();
+                    continue 'newton;
+                }
             }
             if !(r_new < 1e8 * r0.max(1e-300)) {
                 self.report.newton_iterations += it;

@@ -47,6 +47,10 @@ struct Units {
     /// Per point: (unit, c_p) of the units it belongs to (compressed rows).
     by_point_offsets: Vec<u32>,
     by_point: Vec<(u32, f64)>,
+    /// Units from this index on are average-nodal-pressure nodes, unit `first_nodal + i` that
+    /// of node `pressure_node[i]`.
+    first_nodal: usize,
+    pressure_node: Vec<u32>,
 }
 
 impl Units {
@@ -79,11 +83,13 @@ impl Units {
             let entries = (a..b).map(|p| (p, q.weights[p as usize] / w)).collect();
             push(&mut u, entries, w);
         }
-        let (offsets, entries, inv_w) = model.forces.anp_tables();
+        let (offsets, entries, inv_w, key_node) = model.forces.anp_tables();
+        u.first_nodal = u.len();
         for key in 0..inv_w.len() {
             if !(inv_w[key] > 0.0) {
                 continue;
             }
+            u.pressure_node.push(key_node[key]);
             let around = &entries[offsets[key] as usize..offsets[key + 1] as usize];
             // Each entry is one slot keyed to this pressure node: the point's energy holds the
             // slot's share w_p / n_p of U(J_n).
@@ -151,6 +157,7 @@ impl Units {
             + size_of_val(self.by_node.as_slice())
             + size_of_val(self.by_point_offsets.as_slice())
             + size_of_val(self.by_point.as_slice())
+            + size_of_val(self.pressure_node.as_slice())
     }
 }
 
@@ -178,13 +185,25 @@ pub struct Tangent {
     /// Per unit: (V U''(J_u), then g_ua for each of its nodes in `gradients`).
     unit_scale: Vec<f64>,
     gradients: Vec<Vector3<f64>>,
+    /// The average-nodal-pressure units are kept apart as the low-rank sum
+    /// sum_n D_n g_n g_n^T (D_n = V_n U''(J_n)) instead of in the blocks, whose pattern then
+    /// joins only the nodes of one element: their outer products join every two nodes of a
+    /// node's two rings, and the factor of such a matrix held 3-5 times the nonzeros. The
+    /// factorization takes them as extra unknowns q_n = D_n g_n . u ([`super::factor`]).
+    split: bool,
 }
 
 impl Tangent {
     /// The block pattern of `model`: node pairs joined by a point's support or a unit, and
-    /// those of each of `cliques` (node lists a constraint row joins).
-    pub fn new<M: Material>(model: &Model<M>, cliques: &[Vec<u32>]) -> Self {
+    /// those of each of `cliques` (node lists a constraint row joins). `split`: the
+    /// average-nodal-pressure units stay out of the blocks (see [`Tangent::pressure_units`]).
+    pub fn new<M: Material>(model: &Model<M>, cliques: &[Vec<u32>], split: bool) -> Self {
         let units = Units::of(model);
+        let kept = if split {
+            units.first_nodal
+        } else {
+            units.len()
+        };
         let q = &model.points;
         let slots = &model.slots;
         let n = model.nodes.len();
@@ -204,7 +223,9 @@ impl Tangent {
                 }
                 let r = units.by_node_offsets[a] as usize..units.by_node_offsets[a + 1] as usize;
                 for &(k, _) in &units.by_node[r] {
-                    cols.extend_from_slice(&units.nodes[units.node_range(k as usize)]);
+                    if (k as usize) < kept {
+                        cols.extend_from_slice(&units.nodes[units.node_range(k as usize)]);
+                    }
                 }
                 for &c in &in_clique[a] {
                     cols.extend_from_slice(&cliques[c as usize]);
@@ -230,7 +251,33 @@ impl Tangent {
             gradients,
             states: Vec::new(),
             units,
+            split,
         }
+    }
+
+    /// The units kept apart from the blocks (empty unless built with `split`).
+    pub fn pressure_units(&self) -> std::ops::Range<usize> {
+        if self.split {
+            self.units.first_nodal..self.units.len()
+        } else {
+            0..0
+        }
+    }
+
+    /// Unit `k`'s node (an average-nodal-pressure unit is that of one node).
+    pub fn unit_key(&self, k: usize) -> usize {
+        self.units.pressure_node[k - self.units.first_nodal] as usize
+    }
+
+    /// Unit `k`'s nodes (ascending), with g_ua = dJ_u/du_a for each (1), and D_u = V U''(J_u)
+    /// (N m), at the last assembly.
+    pub fn unit(&self, k: usize) -> (&[u32], &[Vector3<f64>], f64) {
+        let r = self.units.node_range(k);
+        (
+            &self.units.nodes[r.clone()],
+            &self.gradients[r],
+            self.unit_scale[k],
+        )
     }
 
     /// Block entries (node pairs) of the pattern.
@@ -336,6 +383,11 @@ impl Tangent {
         let offsets = &self.offsets;
         let cols = &self.cols;
         let (scale, grads) = (&self.unit_scale, &self.gradients);
+        let kept = if self.split {
+            units.first_nodal
+        } else {
+            units.len()
+        };
         let vals = crate::solver::SharedMut(self.values.as_mut_ptr());
         let states_ref = &states;
         (0..n).into_par_iter().with_min_len(64).for_each_init(
@@ -400,6 +452,9 @@ impl Tangent {
                 let r = units.by_node_offsets[a] as usize..units.by_node_offsets[a + 1] as usize;
                 for &(k, pos) in &units.by_node[r] {
                     let k = k as usize;
+                    if k >= kept {
+                        continue;
+                    }
                     let base = units.node_offsets[k] as usize;
                     let ga = grads[base + pos as usize] * scale[k];
                     for (i, &b) in units.nodes[units.node_range(k)].iter().enumerate() {
@@ -422,16 +477,45 @@ impl Tangent {
         }
     }
 
-    /// The diagonal block of node `a`.
+    /// The diagonal block of node `a` (with the split units' part).
     pub fn diagonal(&self, a: usize) -> Matrix3<f64> {
         let row = &self.cols[self.offsets[a]..self.offsets[a + 1]];
-        row.binary_search(&(a as u32))
-            .map_or_else(|_| Matrix3::zeros(), |k| self.values[self.offsets[a] + k])
+        let mut d = row
+            .binary_search(&(a as u32))
+            .map_or_else(|_| Matrix3::zeros(), |k| self.values[self.offsets[a] + k]);
+        let split = self.pressure_units();
+        let u = &self.units;
+        for &(k, pos) in
+            &u.by_node[u.by_node_offsets[a] as usize..u.by_node_offsets[a + 1] as usize]
+        {
+            if split.contains(&(k as usize)) {
+                let g = self.gradients[u.node_offsets[k as usize] as usize + pos as usize];
+                d += g * g.transpose() * self.unit_scale[k as usize];
+            }
+        }
+        d
     }
 
-    /// y = K x over all DOFs (x, y one vector per node). Parallel by rows; deterministic.
+    /// y = K x over all DOFs (x, y one vector per node), the split units' D_u g_u (g_u . x)
+    /// included. Parallel by rows and units; deterministic.
     pub fn multiply(&self, x: &[Vector3<f64>], y: &mut [Vector3<f64>]) {
         let offsets = &self.offsets;
+        let split = self.pressure_units();
+        let u = &self.units;
+        let q: Vec<f64> = split
+            .clone()
+            .into_par_iter()
+            .with_min_len(256)
+            .map(|k| {
+                let r = u.node_range(k);
+                let gx: f64 = u.nodes[r.clone()]
+                    .iter()
+                    .zip(&self.gradients[r])
+                    .map(|(&j, g)| g.dot(&x[j as usize]))
+                    .sum();
+                gx * self.unit_scale[k]
+            })
+            .collect();
         y.par_iter_mut()
             .enumerate()
             .with_min_len(256)
@@ -439,6 +523,16 @@ impl Tangent {
                 let mut acc = Vector3::zeros();
                 for k in offsets[a]..offsets[a + 1] {
                     acc += self.values[k] * x[self.cols[k] as usize];
+                }
+                if !split.is_empty() {
+                    let r = u.by_node_offsets[a] as usize..u.by_node_offsets[a + 1] as usize;
+                    for &(k, pos) in &u.by_node[r] {
+                        let k = k as usize;
+                        if k >= split.start {
+                            let g = self.gradients[u.node_offsets[k] as usize + pos as usize];
+                            acc += g * q[k - split.start];
+                        }
+                    }
                 }
                 *ya = acc;
             });
@@ -462,7 +556,7 @@ mod tests {
 
     /// K v against the central difference of the internal forces along v, at a deformed state
     /// (stretch, shear and a random part), for every point kind and both material models.
-    fn check(model: &mut Model<Solid>, what: &str) {
+    fn check(model: &mut Model<Solid>, what: &str, split: bool) {
         let n = model.nodes.len();
         let mut st = 11u64;
         let u: Vec<Vector3<f64>> = model
@@ -476,7 +570,7 @@ mod tests {
         let v: Vec<Vector3<f64>> = (0..n)
             .map(|_| Vector3::new(lcg(&mut st), lcg(&mut st), lcg(&mut st)) - Vector3::repeat(0.5))
             .collect();
-        let mut k = Tangent::new(model, &[]);
+        let mut k = Tangent::new(model, &[], split);
         k.assemble(model, &u);
         let mut kv = vec![Vector3::zeros(); n];
         k.multiply(&v, &mut kv);
@@ -557,7 +651,13 @@ mod tests {
                 };
                 let qp = element_points(&mesh, kind, 0.05, 1e4).unwrap();
                 let mut model = Model::new(nodes, qp, mat, Vec::new()).unwrap();
-                check(&mut model, &format!("{kind:?} {mat:?}"));
+                for split in [false, true] {
+                    check(
+                        &mut model,
+                        &format!("{kind:?} {mat:?} split {split}"),
+                        split,
+                    );
+                }
             }
         }
     }
