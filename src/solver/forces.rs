@@ -1458,13 +1458,13 @@ impl<M: Material> Forces<M> {
     /// weighted mean of the points' J over the entries; the static solve's tangent
     /// differentiates it ([`crate::solver::statics`]). Last, the mesh node of each pressure
     /// node (several pressure nodes share one where materials meet).
-    pub(crate) fn anp_tables(&self) -> (&[u32], &[(u32, f64)], &[f64], &[u32]) {
-        (
-            &self.anp_offsets,
-            &self.anp_points,
-            &self.node_anp_inv_weight,
-            &self.anp_key_node,
-        )
+    pub(crate) fn anp_tables(&self) -> AnpTables<'_> {
+        AnpTables {
+            offsets: &self.anp_offsets,
+            points: &self.anp_points,
+            inv_weight: &self.node_anp_inv_weight,
+            node: &self.anp_key_node,
+        }
     }
 
     /// Smallest det F over the points of the last evaluation, and the point that has it
@@ -1573,6 +1573,17 @@ impl<M: Material> Forces<M> {
         }
         out
     }
+}
+
+/// The average-nodal-pressure tables ([`Forces::anp_tables`]).
+pub(crate) struct AnpTables<'a> {
+    /// Per pressure node, its (point, weight in m^3) entries `points[offsets[n]..offsets[n + 1]]`.
+    pub offsets: &'a [u32],
+    pub points: &'a [(u32, f64)],
+    /// Per pressure node, 1 / the weight sum, 1/m^3 (0 where it has no entry).
+    pub inv_weight: &'a [f64],
+    /// Per pressure node, its mesh node.
+    pub node: &'a [u32],
 }
 
 /// [`Forces::tables`]: what the CPU evaluator built once for the ANP pressures, the

@@ -83,7 +83,8 @@ impl Units {
             let entries = (a..b).map(|p| (p, q.weights[p as usize] / w)).collect();
             push(&mut u, entries, w);
         }
-        let (offsets, entries, inv_w, key_node) = model.forces.anp_tables();
+        let t = model.forces.anp_tables();
+        let (offsets, entries, inv_w, key_node) = (t.offsets, t.points, t.inv_weight, t.node);
         u.first_nodal = u.len();
         for key in 0..inv_w.len() {
             if !(inv_w[key] > 0.0) {
