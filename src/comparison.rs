@@ -1,5 +1,6 @@
-//! `hytled compare`: the same scene run with each discretization (FE, coupled, meshless) and
-//! one table of what each costs and how close it comes to the scene's references.
+//! `hytled compare`: the same scene run with each discretization (FE, coupled, meshless), and
+//! with `--modes` each steady-state solver (relaxation, static), in one table of what each
+//! costs (wall time, force evaluations) and how close it comes to the scene's references.
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -16,10 +17,16 @@ use crate::{Error, Result};
 /// Methods `compare` knows, in the default order.
 pub const METHODS: [&str; 3] = ["fe", "coupled", "meshless"];
 
-/// One method's run: its summary, or the error that stopped it.
+/// Solver modes `compare --modes` knows (scene `solver.mode`).
+pub const MODES: [&str; 3] = ["relaxation", "static", "dynamic"];
+
+/// One method's run (in one solver mode): its summary, or the error that stopped it.
 #[derive(Debug, Clone, Serialize)]
 pub struct CompareRow {
     pub method: String,
+    /// The solver mode asked for (`--modes`); None: the scene's own.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub mode: Option<String>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub summary: Option<Summary>,
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -40,6 +47,18 @@ pub struct CompareOptions {
     pub vtu_format: VtuFormat,
     /// Print a line per method to stderr.
     pub progress: bool,
+    /// Run each method in each of these solver modes (`solver.mode`); empty: the scene's own.
+    pub modes: Vec<String>,
+}
+
+impl CompareRow {
+    /// The row's name: the method, with the mode when one was asked for ("fe static").
+    pub fn label(&self) -> String {
+        match &self.mode {
+            Some(m) => format!("{} {m}", self.method),
+            None => self.method.clone(),
+        }
+    }
 }
 
 /// Parses a comma-separated method list ("fe,coupled,meshless").
@@ -58,6 +77,29 @@ pub fn parse_methods(list: &str) -> Result<Vec<String>> {
         return Err(Error::Input(format!(
             "compare: no method given; use a comma-separated list of {}",
             METHODS.join(", ")
+        )));
+    }
+    Ok(out)
+}
+
+/// Parses a comma-separated solver-mode list ("relaxation,static").
+pub fn parse_modes(list: &str) -> Result<Vec<String>> {
+    let mut out: Vec<String> = Vec::new();
+    for m in list.split(',').map(str::trim).filter(|m| !m.is_empty()) {
+        if !MODES.contains(&m) {
+            return Err(Error::Input(format!(
+                "compare: unknown solver mode '{m}'; use a comma-separated list of {}",
+                MODES.join(", ")
+            )));
+        }
+        if !out.iter().any(|o| o == m) {
+            out.push(m.to_string());
+        }
+    }
+    if out.is_empty() {
+        return Err(Error::Input(format!(
+            "compare: --modes names no mode; use a comma-separated list of {}",
+            MODES.join(", ")
         )));
     }
     Ok(out)
@@ -154,56 +196,68 @@ pub fn run_case(
 }
 
 /// Runs `scene_path` once per method (the override `discretization.method=M` after
-/// `overrides`). A method that fails is a row with its error.
+/// `overrides`), and per solver mode when `opts.modes` names some (`solver.mode=MODE` after
+/// it). A run that fails is a row with its error.
 pub fn run_compare(
     scene_path: &Path,
     overrides: &[String],
     methods: &[String],
     opts: &CompareOptions,
 ) -> Result<Vec<CompareRow>> {
+    let modes: Vec<Option<&String>> = if opts.modes.is_empty() {
+        vec![None]
+    } else {
+        opts.modes.iter().map(Some).collect()
+    };
     let mut rows = Vec::new();
     for m in methods {
-        let t0 = Instant::now();
-        if opts.progress {
-            eprintln!("compare: {m} ...");
-        }
-        let mut o = overrides.to_vec();
-        o.push(format!("discretization.method={m}"));
-        let out_dir = opts.out.as_ref().map(|d| d.join(m));
-        // A method can take minutes: its time loop says how far it is every 10 s.
-        let (result, peak) = run_case(
-            scene_path,
-            &o,
-            out_dir.as_deref(),
-            opts.vtu_format,
-            opts.progress.then_some(10.0),
-        );
-        if opts.progress {
-            eprintln!(
-                "compare: {m} {} in {:.1} s",
-                if result.is_ok() { "done" } else { "FAILED" },
-                t0.elapsed().as_secs_f64()
+        for &mode in &modes {
+            let label = match mode {
+                Some(x) => format!("{m} {x}"),
+                None => m.clone(),
+            };
+            let t0 = Instant::now();
+            if opts.progress {
+                eprintln!("compare: {label} ...");
+            }
+            let mut o = overrides.to_vec();
+            o.push(format!("discretization.method={m}"));
+            o.extend(mode.map(|x| format!("solver.mode={x}")));
+            let out_dir = opts.out.as_ref().map(|d| match mode {
+                Some(x) => d.join(format!("{m}-{x}")),
+                None => d.join(m),
+            });
+            // A method can take minutes: its time loop says how far it is every 10 s.
+            let (result, peak) = run_case(
+                scene_path,
+                &o,
+                out_dir.as_deref(),
+                opts.vtu_format,
+                opts.progress.then_some(10.0),
             );
-        }
-        if let Err(e @ Error::Interrupted { .. }) = result {
-            return Err(e);
-        }
-        rows.push(match result {
-            Ok(run) => CompareRow {
+            if opts.progress {
+                eprintln!(
+                    "compare: {label} {} in {:.1} s",
+                    if result.is_ok() { "done" } else { "FAILED" },
+                    t0.elapsed().as_secs_f64()
+                );
+            }
+            if let Err(e @ Error::Interrupted { .. }) = result {
+                return Err(e);
+            }
+            let (summary, error, reaction_history) = match result {
+                Ok(run) => (Some(run.summary), None, run.reaction_history),
+                Err(e) => (None, Some(e.to_string()), Vec::new()),
+            };
+            rows.push(CompareRow {
                 method: m.clone(),
-                summary: Some(run.summary),
-                error: None,
+                mode: mode.cloned(),
+                summary,
+                error,
                 peak_memory_mib: peak,
-                reaction_history: run.reaction_history,
-            },
-            Err(e) => CompareRow {
-                method: m.clone(),
-                summary: None,
-                error: Some(e.to_string()),
-                peak_memory_mib: peak,
-                reaction_history: Vec::new(),
-            },
-        });
+                reaction_history,
+            });
+        }
     }
     if let Some(dir) = &opts.out {
         write_outputs(dir, scene_path, &rows)?;
@@ -215,10 +269,12 @@ pub fn run_compare(
 fn columns(rows: &[CompareRow]) -> (Vec<String>, Vec<Vec<String>>) {
     let mut head: Vec<String> = [
         "method",
+        "mode",
         "nodes",
         "points",
         "dt (s)",
         "steps",
+        "force evaluations",
         "preprocess (s)",
         "solve (s)",
     ]
@@ -244,12 +300,20 @@ fn columns(rows: &[CompareRow]) -> (Vec<String>, Vec<Vec<String>>) {
         rows.iter()
             .map(|r| {
                 let mut c = vec![r.method.clone()];
+                c.push(
+                    r.summary
+                        .as_ref()
+                        .map(|s| s.mode.clone())
+                        .or_else(|| r.mode.clone())
+                        .unwrap_or_else(|| "-".into()),
+                );
                 match &r.summary {
                     Some(s) => {
                         c.push(s.nodes.to_string());
                         c.push(s.integration_points.to_string());
                         c.push(format!("{:.4e}", s.dt));
                         c.push(s.steps.to_string());
+                        c.push(s.force_evaluations.to_string());
                         c.push(format!("{:.2}", s.wall_seconds.preprocess));
                         c.push(format!("{:.2}", s.wall_seconds.solve));
                         for (name, &(k, _)) in reactions.iter().zip(&comps) {
@@ -270,16 +334,16 @@ fn columns(rows: &[CompareRow]) -> (Vec<String>, Vec<Vec<String>>) {
                                 format!("{:.3}", 100.0 * x.relative_error)
                             }));
                         }
-                        // Relaxation has no energy balance; its equilibrium residual stands
-                        // in for it.
+                        // A steady state has no energy balance; its equilibrium residual
+                        // stands in for it.
                         c.push(match (s.energy.balance_error, s.equilibrium_residual) {
                             (Some(e), _) => format!("{:.3}", 100.0 * e),
-                            (None, Some(r)) => format!("n/a (relaxation; residual {r:.1e})"),
-                            (None, None) => "n/a (relaxation)".into(),
+                            (None, Some(r)) => format!("n/a ({}; residual {r:.1e})", s.mode),
+                            (None, None) => format!("n/a ({})", s.mode),
                         });
                     }
                     None => {
-                        let n = 6 + reactions.len() + probes.len() + refs.len() + 1;
+                        let n = 7 + reactions.len() + probes.len() + refs.len() + 1;
                         c.extend(std::iter::repeat_n("-".to_string(), n));
                     }
                 }
@@ -331,27 +395,46 @@ pub fn write_outputs(dir: &Path, scene_path: &Path, rows: &[CompareRow]) -> Resu
         table(rows)
     );
     std::fs::write(&p, md).map_err(|e| Error::io(&p, e))?;
-    let series: Vec<Series> = rows
-        .iter()
-        .filter(|r| !r.reaction_history.is_empty())
-        .map(|r| Series {
-            name: &r.method,
-            points: r.reaction_history.clone(),
-        })
-        .collect();
-    let relaxation = rows
+    let labels: Vec<String> = rows.iter().map(CompareRow::label).collect();
+    let modes: std::collections::BTreeSet<&str> = rows
         .iter()
         .filter_map(|r| r.summary.as_ref())
-        .any(|s| s.mode == "relaxation");
+        .map(|s| s.mode.as_str())
+        .collect();
+    // A static solve's history runs over the load fraction, a relaxation's over pseudo-time:
+    // with both in one plot each run's abscissa is scaled to end at 1.
+    let mixed = modes.len() > 1;
+    let series: Vec<Series> = rows
+        .iter()
+        .zip(&labels)
+        .filter(|(r, _)| !r.reaction_history.is_empty())
+        .map(|(r, name)| {
+            let end = r.reaction_history.last().map_or(1.0, |p| p.0);
+            let scale = if mixed && end > 0.0 { 1.0 / end } else { 1.0 };
+            Series {
+                name,
+                points: r
+                    .reaction_history
+                    .iter()
+                    .map(|&(t, f)| (t * scale, f))
+                    .collect(),
+            }
+        })
+        .collect();
     if !series.is_empty() {
+        let abscissa = if mixed {
+            "fraction of the run (static: load; relaxation: pseudo-time)"
+        } else if modes.contains("relaxation") {
+            "pseudo-time of the relaxation (s)"
+        } else if modes.contains("static") {
+            "load fraction"
+        } else {
+            "time (s)"
+        };
         line_plot(
             &dir.join("reactions.svg"),
             "Reaction force by method",
-            if relaxation {
-                "pseudo-time of the relaxation (s)"
-            } else {
-                "time (s)"
-            },
+            abscissa,
             "force (N)",
             &series,
         )?;
@@ -375,5 +458,19 @@ mod tests {
             "{e}"
         );
         assert!(parse_methods(" , ").is_err());
+    }
+
+    #[test]
+    fn mode_lists() {
+        assert_eq!(
+            parse_modes("relaxation, static,relaxation").unwrap(),
+            vec!["relaxation", "static"]
+        );
+        let e = parse_modes("implicit").unwrap_err().to_string();
+        assert!(
+            e.contains("unknown solver mode 'implicit'") && e.contains("relaxation, static"),
+            "{e}"
+        );
+        assert!(parse_modes(",").is_err());
     }
 }

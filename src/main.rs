@@ -133,12 +133,18 @@ struct CompareArgs {
     /// Comma-separated methods: fe, coupled, meshless.
     #[arg(long, default_value = "fe,coupled,meshless")]
     methods: String,
+    /// Comma-separated solver modes to run each method in (relaxation, static, dynamic), e.g.
+    /// --modes relaxation,static: wall time and force evaluations side by side (default: the
+    /// scene's solver.mode).
+    #[arg(long, value_name = "MODES")]
+    modes: Option<String>,
     #[arg(long = "set", value_name = "KEY.PATH=VALUE")]
     set: Vec<String>,
     /// Print a JSON array of the per-method results instead of the table.
     #[arg(long)]
     json: bool,
-    /// Write each run's outputs to DIR/METHOD, plus compare.csv, compare.md, reactions.svg.
+    /// Write each run's outputs to DIR/METHOD (DIR/METHOD-MODE with --modes), plus
+    /// compare.csv, compare.md, reactions.svg.
     #[arg(long)]
     out: Option<PathBuf>,
     /// Worker threads (default: all cores).
@@ -600,6 +606,7 @@ fn compare(
     CompareArgs {
         scene,
         methods,
+        modes,
         set,
         json,
         out,
@@ -612,12 +619,17 @@ fn compare(
     set.extend(device.map(DeviceArg::set));
     start_threads(threads)?;
     let methods = hytled::comparison::parse_methods(&methods)?;
+    let modes = match modes {
+        Some(m) => hytled::comparison::parse_modes(&m)?,
+        None => Vec::new(),
+    };
     // The preparation's stages (meshing, shape functions) as they happen.
     show_stages();
     let opts = hytled::comparison::CompareOptions {
         out,
         vtu_format: vtu_format.into(),
         progress: true,
+        modes,
     };
     let rows = hytled::comparison::run_compare(&scene, &set, &methods, &opts)?;
     if json {
@@ -635,14 +647,14 @@ fn compare(
             for w in &s.warnings {
                 eprintln!(
                     "warning ({}): {}",
-                    r.method,
+                    r.label(),
                     hytled::error::tidy_exponents(w)
                 );
             }
         }
     }
     if rows.iter().all(|r| r.error.is_some()) {
-        return Err(hytled::Error::Input("compare: every method failed".into()));
+        return Err(hytled::Error::Input("compare: every run failed".into()));
     }
     Ok(exit::SUCCESS)
 }

@@ -118,3 +118,58 @@ fn compare_table_shows_the_referenced_reaction_component() {
         "{md}"
     );
 }
+
+/// Issue 57: `compare --modes relaxation,static` runs each method in both steady-state solvers
+/// and shows their cost side by side; both meet the exact cube (F_z = -7.63269 N).
+#[test]
+fn compare_shows_relaxation_and_static_side_by_side() {
+    let dir = std::env::temp_dir().join("hytled-compare-modes");
+    let _ = std::fs::remove_dir_all(&dir);
+    let methods = comparison::parse_methods("fe").unwrap();
+    let opts = CompareOptions {
+        out: Some(dir.clone()),
+        modes: comparison::parse_modes("relaxation,static").unwrap(),
+        ..Default::default()
+    };
+    let rows = comparison::run_compare(
+        Path::new("cases/cube-compression.toml"),
+        &[],
+        &methods,
+        &opts,
+    )
+    .unwrap();
+    assert_eq!(rows.len(), 2);
+    let mut evaluations = Vec::new();
+    for (r, mode) in rows.iter().zip(["relaxation", "static"]) {
+        let s = r
+            .summary
+            .as_ref()
+            .unwrap_or_else(|| panic!("{}: {:?}", r.label(), r.error));
+        assert_eq!(s.mode, mode);
+        assert_eq!(r.label(), format!("fe {mode}"));
+        assert!(s.converged);
+        let f = s.reactions["top"][2];
+        assert!((f + 7.63269).abs() / 7.63269 < 0.01, "{mode}: F_z = {f}");
+        evaluations.push(s.force_evaluations);
+        assert!(dir.join(format!("fe-{mode}/summary.json")).exists());
+    }
+    // Newton needs far fewer force evaluations than the relaxation's steps.
+    assert!(
+        evaluations[1] * 10 < evaluations[0],
+        "force evaluations {evaluations:?}"
+    );
+    let t = comparison::table(&rows);
+    assert!(t.contains("| force evaluations |"), "{t}");
+    assert!(
+        t.contains("| fe | static |") && t.contains("| fe | relaxation |"),
+        "{t}"
+    );
+    assert!(t.contains("n/a (static; residual "), "{t}");
+    let svg = std::fs::read_to_string(dir.join("reactions.svg")).unwrap();
+    assert!(svg.contains("fe static") && svg.contains("fraction of the run"));
+    let e = comparison::parse_modes("newton").unwrap_err().to_string();
+    assert!(
+        e.contains("'newton'") && e.contains("relaxation, static"),
+        "{e}"
+    );
+}
