@@ -91,7 +91,7 @@ impl RigidShape {
     pub fn signed_depth(&self, x: &Vector3<f64>, d: &Vector3<f64>) -> (f64, Vector3<f64>) {
         match self {
             RigidShape::Plane { point, normal } => (-(x - point - d).dot(normal), *normal),
-            RigidShape::Surface(tool) => tool.signed_distance(&(x - d)),
+            RigidShape::Surface(tool) => tool.contact_depth(&(x - d)),
             RigidShape::Sphere { center, radius } => {
                 let r = x - center - d;
                 let dist = r.norm();
@@ -260,7 +260,7 @@ fn depth_with_clearance(
             if bound < 0.0 {
                 return (bound, Vector3::z());
             }
-            let (depth, n) = tool.signed_distance(&y);
+            let (depth, n) = tool.contact_depth(&y);
             *c = (y, depth);
             (depth, n)
         }
