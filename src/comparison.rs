@@ -63,33 +63,22 @@ impl CompareRow {
 
 /// Parses a comma-separated method list ("fe,coupled,meshless").
 pub fn parse_methods(list: &str) -> Result<Vec<String>> {
-    let mut out = Vec::new();
-    for m in list.split(',').map(str::trim).filter(|m| !m.is_empty()) {
-        if !METHODS.contains(&m) {
-            return Err(Error::Input(format!(
-                "compare: unknown method '{m}'; use a comma-separated list of {}",
-                METHODS.join(", ")
-            )));
-        }
-        out.push(m.to_string());
-    }
-    if out.is_empty() {
-        return Err(Error::Input(format!(
-            "compare: no method given; use a comma-separated list of {}",
-            METHODS.join(", ")
-        )));
-    }
-    Ok(out)
+    parse_list(list, &METHODS, "method", "no method given")
 }
 
 /// Parses a comma-separated solver-mode list ("relaxation,static").
 pub fn parse_modes(list: &str) -> Result<Vec<String>> {
+    parse_list(list, &MODES, "solver mode", "--modes names no mode")
+}
+
+/// The names in `list` (each of `known`, repeats dropped), or an error naming the known ones.
+fn parse_list(list: &str, known: &[&str], what: &str, empty: &str) -> Result<Vec<String>> {
     let mut out: Vec<String> = Vec::new();
     for m in list.split(',').map(str::trim).filter(|m| !m.is_empty()) {
-        if !MODES.contains(&m) {
+        if !known.contains(&m) {
             return Err(Error::Input(format!(
-                "compare: unknown solver mode '{m}'; use a comma-separated list of {}",
-                MODES.join(", ")
+                "compare: unknown {what} '{m}'; use a comma-separated list of {}",
+                known.join(", ")
             )));
         }
         if !out.iter().any(|o| o == m) {
@@ -98,8 +87,8 @@ pub fn parse_modes(list: &str) -> Result<Vec<String>> {
     }
     if out.is_empty() {
         return Err(Error::Input(format!(
-            "compare: --modes names no mode; use a comma-separated list of {}",
-            MODES.join(", ")
+            "compare: {empty}; use a comma-separated list of {}",
+            known.join(", ")
         )));
     }
     Ok(out)
