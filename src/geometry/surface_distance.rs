@@ -8,8 +8,8 @@
 //!
 //! The normal returned (the direction contact pushes along) is continuous where the surface is
 //! smooth: the corner normals of the closest triangle interpolated at the closest point
-//! (Phong), each corner averaging the faces round it within [`SMOOTH_ANGLE`] of the
-//! triangle's own. A faceted organ or skull then has no jump of the normal at its edges, where
+//! (Phong), each corner averaging the faces round its vertex that the triangle reaches without
+//! crossing a sharp edge (faces more than [`SMOOTH_ANGLE`] apart). A faceted organ or skull then has no jump of the normal at its edges, where
 //! a point pressed against it would otherwise slide to and fro across the edge from one step
 //! to the next and never settle (the MNI skull: error estimate stuck at 2-4e-5 m); flat faces
 //! and sharp edges (a cube, a flat-ended indenter) keep their face and pseudo-normals.
