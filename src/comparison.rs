@@ -54,10 +54,14 @@ pub struct CompareOptions {
 impl CompareRow {
     /// The row's name: the method, with the mode when one was asked for ("fe static").
     pub fn label(&self) -> String {
-        match &self.mode {
-            Some(m) => format!("{} {m}", self.method),
-            None => self.method.clone(),
-        }
+        label(&self.method, self.mode.as_deref())
+    }
+}
+
+fn label(method: &str, mode: Option<&str>) -> String {
+    match mode {
+        Some(m) => format!("{method} {m}"),
+        None => method.to_string(),
     }
 }
 
@@ -201,10 +205,7 @@ pub fn run_compare(
     let mut rows = Vec::new();
     for m in methods {
         for &mode in &modes {
-            let label = match mode {
-                Some(x) => format!("{m} {x}"),
-                None => m.clone(),
-            };
+            let label = label(m, mode.map(String::as_str));
             let t0 = Instant::now();
             if opts.progress {
                 eprintln!("compare: {label} ...");

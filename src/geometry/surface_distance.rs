@@ -186,7 +186,8 @@ impl SurfaceDistance {
         let (d, n, x) = self.closest(y);
         if d > 0.0 {
             let cos = ((x - y) / d).dot(&n).abs();
-            // Within 78 deg (interpolated normals stay within SMOOTH_ANGLE / 2 of the face's).
+            // Where the normal leans more than 78 deg from the way to the surface (which a
+            // smooth surface's interpolated normal does not), the distance itself.
             if cos > 0.2 {
                 return (d / cos, n);
             }

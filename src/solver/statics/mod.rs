@@ -1076,10 +1076,8 @@ impl<'a, M: Material> Newton<'a, M> {
                 if cheap_step && tries > 2 {
                     // The kept factor's direction inverts elements: back to the start of the
                     // iteration, with the tangent from here on.
-                    self.u.clone_from(&base);
-                    self.forces(tau1);
+                    self.undo(&base, tau1, &mut trail);
                     cheap = false;
-                    trail.pop();
                     continue 'newton;
                 }
                 if tries > 8 {
@@ -1122,9 +1120,7 @@ impl<'a, M: Material> Newton<'a, M> {
                 if r_new > r {
                     // Worse than where it started (a factor of a state far from this one,
                     // as the load step's start): undone, and the tangent from here on.
-                    self.u.clone_from(&base);
-                    self.forces(tau1);
-                    trail.pop();
+                    self.undo(&base, tau1, &mut trail);
                     continue 'newton;
                 }
             }
@@ -1135,6 +1131,14 @@ impl<'a, M: Material> Newton<'a, M> {
             r_prev = r;
         }
         Ok(false)
+    }
+
+    /// Back to `base` (the iteration's start) at load fraction `tau`, its residual taken off
+    /// `trail`: a kept-factor step that did not pay is undone.
+    fn undo(&mut self, base: &[Vector3<f64>], tau: f64, trail: &mut Vec<f64>) {
+        self.u.copy_from_slice(base);
+        self.forces(tau);
+        trail.pop();
     }
 
     /// du . r over the free DOFs (r a nodal vector, du in DOF order).

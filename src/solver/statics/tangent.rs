@@ -58,6 +58,15 @@ impl Units {
         self.volume.len()
     }
 
+    /// Units assembled into the blocks: all, or with `split` those before the nodal ones.
+    fn blocked(&self, split: bool) -> usize {
+        if split {
+            self.first_nodal
+        } else {
+            self.len()
+        }
+    }
+
     fn of<M: Material>(model: &Model<M>) -> Self {
         let q = &model.points;
         let mut u = Units {
@@ -200,11 +209,7 @@ impl Tangent {
     /// average-nodal-pressure units stay out of the blocks (see [`Tangent::pressure_units`]).
     pub fn new<M: Material>(model: &Model<M>, cliques: &[Vec<u32>], split: bool) -> Self {
         let units = Units::of(model);
-        let kept = if split {
-            units.first_nodal
-        } else {
-            units.len()
-        };
+        let kept = units.blocked(split);
         let q = &model.points;
         let slots = &model.slots;
         let n = model.nodes.len();
@@ -384,11 +389,7 @@ impl Tangent {
         let offsets = &self.offsets;
         let cols = &self.cols;
         let (scale, grads) = (&self.unit_scale, &self.gradients);
-        let kept = if self.split {
-            units.first_nodal
-        } else {
-            units.len()
-        };
+        let kept = units.blocked(self.split);
         let vals = crate::solver::SharedMut(self.values.as_mut_ptr());
         let states_ref = &states;
         (0..n).into_par_iter().with_min_len(64).for_each_init(
