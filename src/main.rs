@@ -311,11 +311,12 @@ fn main() -> ExitCode {
 /// loop's own progress begins.
 struct StageLines {
     start: std::time::Instant,
+    level: log::Level,
 }
 
 impl log::Log for StageLines {
     fn enabled(&self, m: &log::Metadata) -> bool {
-        m.level() <= log::Level::Info && m.target().starts_with("hytled")
+        m.level() <= self.level && m.target().starts_with("hytled")
     }
     fn log(&self, r: &log::Record) {
         if self.enabled(r.metadata()) {
@@ -330,12 +331,20 @@ impl log::Log for StageLines {
 }
 
 fn show_stages() {
+    // HYTLED_LOG=debug adds the solvers' diagnostic lines (each Newton iteration's residual,
+    // factorizations, timings) to the stage lines.
+    let level = match std::env::var("HYTLED_LOG").as_deref() {
+        Ok("debug") => log::Level::Debug,
+        Ok("trace") => log::Level::Trace,
+        _ => log::Level::Info,
+    };
     let logger = StageLines {
         start: std::time::Instant::now(),
+        level,
     };
     // Once per process: the leaked box lives as long as the program.
     if log::set_logger(Box::leak(Box::new(logger))).is_ok() {
-        log::set_max_level(log::LevelFilter::Info);
+        log::set_max_level(level.to_level_filter());
     }
 }
 
@@ -419,11 +428,20 @@ fn run(
         }
     }
     if summary.status == "not converged" {
-        eprintln!(
-            "error: relaxation did not converge in {} steps (solver.max_steps); the results are \
-             not in equilibrium: raise solver.max_steps or check the load and the constraints",
-            summary.steps
-        );
+        match &summary.statics {
+            Some(st) => eprintln!(
+                "error: the static solve reached equilibrium up to {:.4} % of the load only (the \
+                 warnings above say where it stopped); the results there are written: try \
+                 solver.mode = \"relaxation\" or check the load and the constraints",
+                100.0 * st.load_reached
+            ),
+            None => eprintln!(
+                "error: relaxation did not converge in {} steps (solver.max_steps); the results \
+                 are not in equilibrium: raise solver.max_steps or check the load and the \
+                 constraints",
+                summary.steps
+            ),
+        }
         return Ok(exit::NOT_CONVERGED);
     }
     Ok(exit::SUCCESS)

@@ -640,3 +640,37 @@ fn the_static_solve_settles_contact() {
     assert!((a - b).abs() < 1e-5 * b.abs(), "{a} {b}");
     assert!((ua - ub).abs() < 1e-8, "{ua} {ub}");
 }
+
+/// Issue 57: a sphere pressed into the cube's corner (a quarter by symmetry), where points come
+/// into contact over the whole load, in the static solve with hex8, tet4 and tet4-anp:
+/// relaxation's force, probe and contact set, in fewer force evaluations. Two parts of the
+/// static contact are checked: the line search follows the energy's slope along each Newton
+/// direction to its minimum, and the penalty is soft (3 x the nodes' stiffness) with the
+/// multipliers doing the rest; with 1e3 x all three stalled with the active set cycling.
+#[test]
+fn the_static_solve_follows_a_sphere_into_the_cube() {
+    let sphere = "contact.plate={ shape = \"sphere\", center = [0.0, 0.0, 0.18], radius = 0.08, motion = [0.0, 0.0, -0.02] }";
+    let fine = "discretization.size=0.0125";
+    for element in ["hex8", "tet4", "tet4-anp"] {
+        let el = format!("discretization.element={element}");
+        let st = plate(&[sphere, fine, &el, "solver.mode=static"]);
+        let rx = plate(&[sphere, fine, &el]);
+        let (a, b) = (st.reactions["plate"][2], rx.reactions["plate"][2]);
+        let (ua, ub) = (
+            st.probes["corner"].displacement[0],
+            rx.probes["corner"].displacement[0],
+        );
+        let (ca, cb) = (&st.contact["plate"], &rx.contact["plate"]);
+        println!(
+            "{element}: static {a} N, {} points, {} evaluations; relaxation {b} N, {} points, \
+             {} evaluations; corner x {ua} / {ub} m",
+            ca.points_in_contact, st.force_evaluations, cb.points_in_contact, rx.force_evaluations
+        );
+        assert!(st.converged && rx.converged, "{element}");
+        assert!(a < -1.0 && (a - b).abs() < 1e-5 * b.abs(), "{element}: {a} {b}");
+        assert!((ua - ub).abs() < 1e-8, "{element}: {ua} {ub}");
+        assert_eq!(ca.points_in_contact, cb.points_in_contact, "{element}");
+        assert!(ca.max_penetration <= ca.tolerance, "{element}");
+        assert!(2 * st.force_evaluations < rx.force_evaluations, "{element}");
+    }
+}
