@@ -667,7 +667,10 @@ fn the_static_solve_follows_a_sphere_into_the_cube() {
             ca.points_in_contact, st.force_evaluations, cb.points_in_contact, rx.force_evaluations
         );
         assert!(st.converged && rx.converged, "{element}");
-        assert!(a < -1.0 && (a - b).abs() < 1e-5 * b.abs(), "{element}: {a} {b}");
+        assert!(
+            a < -1.0 && (a - b).abs() < 1e-5 * b.abs(),
+            "{element}: {a} {b}"
+        );
         assert!((ua - ub).abs() < 1e-8, "{element}: {ua} {ub}");
         assert_eq!(ca.points_in_contact, cb.points_in_contact, "{element}");
         assert!(ca.max_penetration <= ca.tolerance, "{element}");

@@ -348,6 +348,15 @@ impl Session {
     }
 
     fn run(&mut self, warm: Option<WarmStart>) -> Result<Solution> {
+        self.run_with(warm, super::solve)
+    }
+
+    /// [`Self::run`] with the solver passed in (a test's stands in for it).
+    fn run_with(
+        &mut self,
+        warm: Option<WarmStart>,
+        solve: impl FnOnce(&mut Prepared, &Settings) -> Result<RunOutput>,
+    ) -> Result<Solution> {
         let t0 = Instant::now();
         let is_warm = warm.is_some();
         // The steady state does not depend on the masses; scaled ones make every node's
@@ -361,32 +370,14 @@ impl Session {
             }
             w
         });
-        let physical = swap.then(|| {
-            let model = &mut self.prep.model;
-            let physical = (model.mass.clone(), model.masses_uneven);
-            match &self.warm_masses {
-                Some(m) => {
-                    model.mass.copy_from_slice(m);
-                    model.masses_uneven = true;
-                    model.mass_scaled = true;
-                }
-                None => {
-                    if model.scale_masses().is_ok() && model.mass_scaled {
-                        self.warm_masses = Some(model.mass.clone());
-                    }
-                }
-            }
-            physical
-        });
         self.settings.warm_start = warm;
-        let out = super::solve(&mut self.prep, &self.settings);
+        let out = if swap {
+            let mut scaled = ScaledMasses::put_in(&mut self.prep, &mut self.warm_masses)?;
+            solve(&mut scaled, &self.settings)
+        } else {
+            solve(&mut self.prep, &self.settings)
+        };
         self.settings.warm_start = None;
-        if let Some((physical, uneven)) = physical {
-            let model = &mut self.prep.model;
-            model.mass = physical;
-            model.masses_uneven = uneven;
-            model.mass_scaled = false;
-        }
         let out = out?;
         let mut summary = summarize(&self.scene, &self.prep, &out, t0.elapsed().as_secs_f64());
         // The preparation happened once, before the first solve (`prepare_seconds`).
@@ -439,5 +430,113 @@ impl Session {
             crate::io::vtu::VtuFormat::default(),
         )?;
         Ok(writer.point_fields(model, u))
+    }
+}
+
+/// The prepared model with fictitious masses ([`Model::scale_masses`]) put in for one warm
+/// relaxation; the physical masses come back when it is dropped, so a solve that returns an
+/// error or panics (a Python caller goes on after a panic) leaves the model as it was.
+struct ScaledMasses<'a> {
+    prep: &'a mut Prepared,
+    physical: Vec<f64>,
+    uneven: bool,
+}
+
+impl<'a> ScaledMasses<'a> {
+    /// Puts in the masses `cached` (those of an earlier warm start), or scales them and keeps
+    /// a copy there.
+    fn put_in(prep: &'a mut Prepared, cached: &mut Option<Vec<f64>>) -> Result<Self> {
+        let model = &mut prep.model;
+        let (physical, uneven) = (model.mass.clone(), model.masses_uneven);
+        match cached {
+            Some(m) => {
+                model.mass.copy_from_slice(m);
+                model.masses_uneven = true;
+                model.mass_scaled = true;
+            }
+            None => {
+                model.scale_masses()?;
+                if model.mass_scaled {
+                    *cached = Some(model.mass.clone());
+                }
+            }
+        }
+        Ok(ScaledMasses {
+            prep,
+            physical,
+            uneven,
+        })
+    }
+}
+
+impl std::ops::Deref for ScaledMasses<'_> {
+    type Target = Prepared;
+    fn deref(&self) -> &Prepared {
+        self.prep
+    }
+}
+
+impl std::ops::DerefMut for ScaledMasses<'_> {
+    fn deref_mut(&mut self) -> &mut Prepared {
+        self.prep
+    }
+}
+
+impl Drop for ScaledMasses<'_> {
+    fn drop(&mut self) {
+        let model = &mut self.prep.model;
+        model.mass = std::mem::take(&mut self.physical);
+        model.masses_uneven = self.uneven;
+        model.mass_scaled = false;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn cube() -> Session {
+        let path =
+            std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("cases/cube-compression.toml");
+        let sets: Vec<String> = [
+            "discretization.element=tet4-anp",
+            "discretization.size=0.05",
+            "references={}",
+        ]
+        .iter()
+        .map(|s| s.to_string())
+        .collect();
+        Session::new(crate::scene::load(&path, &sets).expect("the cube scene"))
+            .expect("the cube session")
+    }
+
+    /// Issue 58: a warm relaxation swaps in scaled masses; a solve that panics with them in
+    /// leaves the physical masses behind, and the next solve's answer is bitwise the one of a
+    /// session that never panicked.
+    #[test]
+    fn a_panic_inside_a_solve_leaves_the_physical_masses() {
+        let mut a = cube();
+        let mut b = cube();
+        for s in [&mut a, &mut b] {
+            s.solve().expect("cold solve");
+            s.set_displacement("top", [None, None, Some(-0.021)])
+                .expect("the top boundary");
+        }
+        let physical = a.prep.model.mass.clone();
+        let warm = a.warm.clone();
+        assert!(warm.is_some() && a.scales_warm_masses());
+        let caught = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+            let _ = a.run_with(warm, |prep, _| {
+                assert!(prep.model.mass_scaled && prep.model.mass != physical);
+                panic!("a fault inside the solve");
+            });
+        }));
+        assert!(caught.is_err());
+        assert_eq!(a.prep.model.mass, physical);
+        assert!(!a.prep.model.mass_scaled);
+        let (ra, rb) = (a.solve().expect("warm a"), b.solve().expect("warm b"));
+        assert!(ra.warm && rb.warm);
+        assert_eq!(ra.output.u, rb.output.u);
+        assert_eq!(a.prep.model.mass, physical);
     }
 }
