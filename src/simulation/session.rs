@@ -130,14 +130,13 @@ impl Session {
         self.warm = None;
     }
 
-    fn boundary_mut(&mut self, name: &str) -> Result<&mut crate::bc::Boundary> {
-        let model = &mut self.prep.model;
-        let names: Vec<String> = model.boundaries.iter().map(|b| b.name.clone()).collect();
-        model
-            .boundaries
-            .iter_mut()
-            .find(|b| b.name == name)
+    fn boundary_index(&self, name: &str) -> Result<usize> {
+        let boundaries = &self.prep.model.boundaries;
+        boundaries
+            .iter()
+            .position(|b| b.name == name)
             .ok_or_else(|| {
+                let names: Vec<&str> = boundaries.iter().map(|b| b.name.as_str()).collect();
                 Error::Input(format!(
                     "no boundary named '{name}'; the model's boundaries: {}",
                     if names.is_empty() {
@@ -147,6 +146,16 @@ impl Session {
                     }
                 ))
             })
+    }
+
+    fn boundary(&self, name: &str) -> Result<&crate::bc::Boundary> {
+        let i = self.boundary_index(name)?;
+        Ok(&self.prep.model.boundaries[i])
+    }
+
+    fn boundary_mut(&mut self, name: &str) -> Result<&mut crate::bc::Boundary> {
+        let i = self.boundary_index(name)?;
+        Ok(&mut self.prep.model.boundaries[i])
     }
 
     /// New final displacement (m) of the components of boundary `name` given as Some; None
@@ -188,25 +197,25 @@ impl Session {
 
     /// The final displacement (m) of each component of boundary `name` (None: free); for a
     /// measured boundary, zeros on its prescribed components (its values are per node).
-    pub fn displacement(&mut self, name: &str) -> Result<[Option<f64>; 3]> {
-        Ok(self.boundary_mut(name)?.components)
+    pub fn displacement(&self, name: &str) -> Result<[Option<f64>; 3]> {
+        Ok(self.boundary(name)?.components)
     }
 
-    fn measured_map(&mut self, name: &str) -> Result<&crate::bc::MeasuredMap> {
-        self.boundary_mut(name)?
+    fn measured_map(&self, name: &str) -> Result<&crate::bc::MeasuredMap> {
+        self.boundary(name)?
             .measured
             .as_deref()
             .ok_or_else(|| Error::Input(format!("boundary '{name}' is not a [measured] boundary")))
     }
 
     /// The positions (m) of the measured points of `[measured.NAME]`, in its file's order.
-    pub fn measured_points(&mut self, name: &str) -> Result<Vec<[f64; 3]>> {
+    pub fn measured_points(&self, name: &str) -> Result<Vec<[f64; 3]>> {
         Ok(self.measured_map(name)?.points.clone())
     }
 
     /// The displacements (m) in force at the measured points of `[measured.NAME]`: those of
     /// its file, or of the last [`Self::set_measured`].
-    pub fn measured_displacements(&mut self, name: &str) -> Result<Vec<[f64; 3]>> {
+    pub fn measured_displacements(&self, name: &str) -> Result<Vec<[f64; 3]>> {
         Ok(self.measured_map(name)?.values.clone())
     }
 
@@ -223,17 +232,31 @@ impl Session {
     }
 
     /// The final displacement (m) of rigid body `[contact.NAME]`.
-    pub fn tool_motion(&mut self, name: &str) -> Result<[f64; 3]> {
-        let m = self.contact_mut(name)?.motion(name)?;
+    pub fn tool_motion(&self, name: &str) -> Result<[f64; 3]> {
+        let m = self.contact(name)?.motion(name)?;
         Ok([m.x, m.y, m.z])
     }
 
+    fn no_contact(name: &str) -> Error {
+        Error::Input(format!(
+            "no rigid body named '{name}': the scene has no [contact]"
+        ))
+    }
+
+    fn contact(&self, name: &str) -> Result<&crate::bc::contact::Contact> {
+        self.prep
+            .model
+            .contact
+            .as_ref()
+            .ok_or_else(|| Self::no_contact(name))
+    }
+
     fn contact_mut(&mut self, name: &str) -> Result<&mut crate::bc::contact::Contact> {
-        self.prep.model.contact.as_mut().ok_or_else(|| {
-            Error::Input(format!(
-                "no rigid body named '{name}': the scene has no [contact]"
-            ))
-        })
+        self.prep
+            .model
+            .contact
+            .as_mut()
+            .ok_or_else(|| Self::no_contact(name))
     }
 
     /// Scales load `[loads.NAME]` by `factor` (1: as in the scene).
