@@ -15,9 +15,7 @@ use hytled::solver;
 use nalgebra::Vector3;
 
 fn scene(case: &str, overrides: &[&str]) -> Scene {
-    let o: Vec<String> = overrides.iter().map(|s| s.to_string()).collect();
-    hytled::scene::load(&path(&format!("cases/{case}.toml")), &o)
-        .unwrap_or_else(|e| panic!("{case}: {e}"))
+    common::load_scene(&format!("cases/{case}.toml"), overrides)
 }
 
 /// One row of the tolerance study.

@@ -18,8 +18,7 @@ const COARSE: &[&str] = &[
 ];
 
 fn scene(overrides: &[&str]) -> Scene {
-    let o: Vec<String> = overrides.iter().map(|s| s.to_string()).collect();
-    hytled::scene::load(&path(CASE), &o).unwrap_or_else(|e| panic!("{CASE}: {e}"))
+    common::load_scene(CASE, overrides)
 }
 
 #[cfg(feature = "tetgen")]

@@ -11,8 +11,7 @@ use hytled::solver::{self, forces::deformation_gradient};
 use nalgebra::{Matrix3, Vector3};
 
 fn scene(case: &str, overrides: &[&str]) -> Scene {
-    let o: Vec<String> = overrides.iter().map(|s| s.to_string()).collect();
-    hytled::scene::load(&path(case), &o).unwrap_or_else(|e| panic!("{case}: {e}"))
+    common::load_scene(case, overrides)
 }
 
 fn prepared(case: &str, overrides: &[&str]) -> Prepared {

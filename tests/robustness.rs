@@ -9,8 +9,7 @@ use std::process::Command;
 use hytled::simulation::{prepare, run_scene, settings, RunOptions};
 
 fn scene(overrides: &[&str]) -> hytled::scene::Scene {
-    let o: Vec<String> = overrides.iter().map(|s| s.to_string()).collect();
-    hytled::scene::load(&path("cases/cube-compression.toml"), &o).unwrap()
+    common::load_scene("cases/cube-compression.toml", overrides)
 }
 
 /// The per-point bound is nearly tight for hex8 and tet4, so twice it diverges. For tet4-anp the

@@ -4,6 +4,7 @@
 use std::path::PathBuf;
 
 use hytled::report::Summary;
+use hytled::scene::Scene;
 use hytled::simulation::{run_scene, RunOptions};
 
 /// Path of a file in the crate.
@@ -11,10 +12,16 @@ pub fn path(rel: &str) -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join(rel)
 }
 
+/// Loads a scene file of the crate (`rel`, e.g. `cases/cube-compression.toml`) with `--set`
+/// style overrides; panics naming the file and the error.
+pub fn load_scene(rel: &str, overrides: &[&str]) -> Scene {
+    let o: Vec<String> = overrides.iter().map(|s| s.to_string()).collect();
+    hytled::scene::load(&path(rel), &o).unwrap_or_else(|e| panic!("{rel} {overrides:?}: {e}"))
+}
+
 /// Runs a committed case with `--set` style overrides.
 pub fn run_case(case: &str, overrides: &[&str]) -> Summary {
-    let o: Vec<String> = overrides.iter().map(|s| s.to_string()).collect();
-    let scene = hytled::scene::load(&path(case), &o).unwrap_or_else(|e| panic!("{case}: {e}"));
+    let scene = load_scene(case, overrides);
     run_scene(&scene, &RunOptions::default())
         .unwrap_or_else(|e| panic!("{case} {overrides:?}: {e}"))
 }
