@@ -461,8 +461,10 @@ impl Session {
 /// error or panics (a Python caller goes on after a panic) leaves the model as it was.
 struct ScaledMasses<'a> {
     prep: &'a mut Prepared,
+    /// The model's masses and their flags as they were.
     physical: Vec<f64>,
     uneven: bool,
+    scaled: bool,
 }
 
 impl<'a> ScaledMasses<'a> {
@@ -470,7 +472,8 @@ impl<'a> ScaledMasses<'a> {
     /// a copy there.
     fn put_in(prep: &'a mut Prepared, cached: &mut Option<Vec<f64>>) -> Result<Self> {
         let model = &mut prep.model;
-        let (physical, uneven) = (model.mass.clone(), model.masses_uneven);
+        let (physical, uneven, scaled) =
+            (model.mass.clone(), model.masses_uneven, model.mass_scaled);
         match cached {
             Some(m) => {
                 model.mass.copy_from_slice(m);
@@ -488,6 +491,7 @@ impl<'a> ScaledMasses<'a> {
             prep,
             physical,
             uneven,
+            scaled,
         })
     }
 }
@@ -510,7 +514,7 @@ impl Drop for ScaledMasses<'_> {
         let model = &mut self.prep.model;
         model.mass = std::mem::take(&mut self.physical);
         model.masses_uneven = self.uneven;
-        model.mass_scaled = false;
+        model.mass_scaled = self.scaled;
     }
 }
 
@@ -548,13 +552,14 @@ mod tests {
         let physical = a.prep.model.mass.clone();
         let warm = a.warm.clone();
         assert!(warm.is_some() && a.scales_warm_masses());
+        let mut scaled_inside = false;
         let caught = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
             let _ = a.run_with(warm, |prep, _| {
-                assert!(prep.model.mass_scaled && prep.model.mass != physical);
+                scaled_inside = prep.model.mass_scaled && prep.model.mass != physical;
                 panic!("a fault inside the solve");
             });
         }));
-        assert!(caught.is_err());
+        assert!(caught.is_err() && scaled_inside);
         assert_eq!(a.prep.model.mass, physical);
         assert!(!a.prep.model.mass_scaled);
         let (ra, rb) = (a.solve().expect("warm a"), b.solve().expect("warm b"));
