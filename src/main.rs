@@ -463,7 +463,7 @@ fn check(CheckArgs { scene, set }: CheckArgs) -> hytled::Result<u8> {
         prep.model.points.len(),
         prep.model.points.total_weight()
     );
-    if let Some(m) = &prep.meshless {
+    if let Some(m) = prep.meshless() {
         let (mean, min, max) = m.support_statistics();
         let exact = m
             .exact_volume
@@ -473,7 +473,7 @@ fn check(CheckArgs { scene, set }: CheckArgs) -> hytled::Result<u8> {
             m.cloud, m.integration, m.removed_nodes
         );
     }
-    if let Some(c) = &prep.coupled {
+    if let Some(c) = prep.coupled() {
         use hytled::coupling::regions::CellRole;
         let full = if c.full_rule_cells > 0 {
             format!(
@@ -511,14 +511,13 @@ fn check(CheckArgs { scene, set }: CheckArgs) -> hytled::Result<u8> {
         }
     }
     for pr in &prep.probes {
-        if pr.element == usize::MAX {
-            println!(
+        match pr.element {
+            Some(e) => println!("  probe {:<15} in element {e}", pr.name),
+            None => println!(
                 "  probe {:<15} interpolated from {} nodes",
                 pr.name,
                 pr.nodes.len()
-            );
-        } else {
-            println!("  probe {:<15} in element {}", pr.name, pr.element);
+            ),
         }
     }
     if let Some((a, e)) = prep.min_dihedral {

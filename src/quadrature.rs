@@ -4,6 +4,11 @@
 
 use nalgebra::{SMatrix, Vector3};
 
+/// One sparse row of interpolation factors, the one type every method and condition uses:
+/// (node index, value) pairs, e.g. the shape-function values of a point's supporting nodes, or
+/// one column of the EBCIEM system.
+pub type SparseRow = Vec<(u32, f64)>;
+
 /// What the force kernel adds to the plain total-Lagrangian point.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum PointKind {

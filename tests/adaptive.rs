@@ -50,7 +50,7 @@ fn cube_row(size: &str, tolerance: f64) -> Row {
         out.converged,
         "tolerance {tolerance}: relaxation did not converge"
     );
-    let m = prep.meshless.as_ref().unwrap();
+    let m = prep.meshless().unwrap();
     let info = m.adaptive.clone().expect("adaptive report");
     assert_eq!(info.points_after, prep.model.points.len());
     let w: f64 = prep.model.points.weights.iter().sum();
@@ -60,10 +60,8 @@ fn cube_row(size: &str, tolerance: f64) -> Row {
     for x in &m.nodes {
         let s = m.shape_values(x, &|| "node".into()).unwrap();
         let u = s
-            .ids
             .iter()
-            .zip(&s.phi)
-            .fold(Vector3::zeros(), |acc, (&i, &p)| acc + out.u[i] * p);
+            .fold(Vector3::zeros(), |acc, &(i, p)| acc + out.u[i as usize] * p);
         let e = (u - Vector3::new(a * x.x, a * x.y, -0.2 * x.z)).norm();
         sum += e;
         worst = worst.max(e);
@@ -142,7 +140,7 @@ fn summary_reports_the_refinement_and_vtu_holds_the_points() {
         ],
     );
     let mut prep = prepare(&sc).unwrap();
-    let info = prep.meshless.as_ref().unwrap().adaptive.clone().unwrap();
+    let info = prep.meshless().unwrap().adaptive.clone().unwrap();
     assert_eq!(info.subdivision, 8);
     assert_eq!(info.leaves_per_level.len(), 3);
     // A leaf at level l is 1/8^l of a background cell.
@@ -191,10 +189,7 @@ fn coupled_interior_refines_adaptively() {
     ]);
     let sc = scene("cube-compression", &o);
     let mut adaptive = prepare(&sc).unwrap();
-    let (cp, ca) = (
-        plain.coupled.as_ref().unwrap(),
-        adaptive.coupled.as_ref().unwrap(),
-    );
+    let (cp, ca) = (plain.coupled().unwrap(), adaptive.coupled().unwrap());
     let info = ca.adaptive.clone().expect("adaptive report");
     assert_eq!(info.points_before, cp.meshless_points);
     assert_eq!(info.points_after, ca.meshless_points);
@@ -249,7 +244,7 @@ fn adaptive_on_a_hexahedral_coupled_interior_is_a_warning() {
         ],
     ))
     .unwrap();
-    let c = p.coupled.unwrap();
+    let c = p.coupled().unwrap();
     assert!(c.adaptive.is_none());
     assert!(
         c.warnings.iter().any(|w| w.contains("hexahedral")),

@@ -174,7 +174,7 @@ fn transition_cells_next_to_a_concentrated_drive_take_the_full_rule() {
     let solve = |rule: &str| {
         let scene = scene(&[&coupled[..], &[rule]].concat());
         let mut prep = prepare(&scene).unwrap_or_else(|e| panic!("{e}"));
-        let full_cells = prep.coupled.as_ref().unwrap().full_rule_cells;
+        let full_cells = prep.coupled().unwrap().full_rule_cells;
         let out = solver::run(&mut prep.model, &settings(&scene, false))
             .unwrap_or_else(|e| panic!("{e}"));
         (summarize(&scene, &prep, &out, 0.0), full_cells)

@@ -284,7 +284,7 @@ fn the_brain_indented_by_a_rigid_cylinder() {
                 !inside,
                 "{method}: node at {x:?} ends at {p:?}, inside the indenter"
             );
-            if let Some(c) = &prep.coupled {
+            if let Some(c) = prep.coupled() {
                 if p.x.hypot(p.y) < 0.005 && (p.z - 0.0235).abs() <= tol {
                     on_end += 1;
                     assert_eq!(

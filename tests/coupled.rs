@@ -47,7 +47,7 @@ fn patch_test_uniform_gradient_everywhere() {
             worst < 1e-9,
             "{case} fe_layers {layers}: |F - (I + A)| = {worst:e}"
         );
-        let c = p.coupled.as_ref().unwrap();
+        let c = p.coupled().unwrap();
         assert!(c.transition_points > 0 && c.meshless_points > 0);
         // Total weight = mesh volume (FE cells exact, interior tets exact).
         let vol = qp.total_weight();
@@ -62,7 +62,7 @@ fn patch_test_uniform_gradient_everywhere() {
 #[test]
 fn blended_shape_functions_partition_of_unity_and_linear_reproduction() {
     let p = prepared("cube-compression", &["discretization.fe_layers=1"]);
-    let c = p.coupled.as_ref().unwrap();
+    let c = p.coupled().unwrap();
     let mut tested = 0;
     for e in 0..c.fe_mesh.num_cells() {
         if c.regions.cell[e] != CellRole::Transition {
@@ -72,11 +72,11 @@ fn blended_shape_functions_partition_of_unity_and_linear_reproduction() {
         // A point inside the cell, off its Gauss points.
         let x = ids.iter().fold(Vector3::zeros(), |a, &i| a + c.nodes[i]) / ids.len() as f64
             + Vector3::new(1e-4, -2e-4, 3e-4);
-        let w = c.shape_values("test", &x).unwrap();
+        let w = c.shape_values(&x, &|| "test".into()).unwrap();
         let sum: f64 = w.iter().map(|p| p.1).sum();
         let rep = w
             .iter()
-            .fold(Vector3::zeros(), |a, &(i, p)| a + c.nodes[i] * p);
+            .fold(Vector3::zeros(), |a, &(i, p)| a + c.nodes[i as usize] * p);
         assert!((sum - 1.0).abs() < 1e-12, "cell {e}: sum phi = {sum}");
         assert!(
             (rep - x).norm() < 1e-12,
@@ -88,8 +88,8 @@ fn blended_shape_functions_partition_of_unity_and_linear_reproduction() {
     // Kronecker delta at FE nodes.
     for (i, r) in c.regions.node.iter().enumerate() {
         if *r == NodeRole::Fe {
-            let w = c.shape_values("node", &c.nodes[i]).unwrap();
-            let own: f64 = w.iter().filter(|p| p.0 == i).map(|p| p.1).sum();
+            let w = c.shape_values(&c.nodes[i], &|| "node".into()).unwrap();
+            let own: f64 = w.iter().filter(|p| p.0 as usize == i).map(|p| p.1).sum();
             assert!((own - 1.0).abs() < 1e-12, "FE node {i}: phi_i(x_i) = {own}");
         }
     }
@@ -110,13 +110,13 @@ fn run(case: &str, overrides: &[&str]) -> (Prepared, Vec<Vector3<f64>>, hytled::
 /// Exact cube (docs/reference.md): lateral stretch a = 1.11574668, F_z = -7.63269 N; u = (a - 1) x,
 /// (a - 1) y, -0.2 z.
 fn cube_nodal_error(p: &Prepared, u: &[Vector3<f64>]) -> (f64, f64) {
-    let c = p.coupled.as_ref().unwrap();
+    let c = p.coupled().unwrap();
     let a = 1.11574668 - 1.0;
     let (mut worst, mut sum) = (0.0f64, 0.0);
     for (v, w) in c.vertex_weights().unwrap().iter().enumerate() {
         let d = w
             .iter()
-            .fold(Vector3::zeros(), |acc, &(i, p)| acc + u[i] * p);
+            .fold(Vector3::zeros(), |acc, &(i, p)| acc + u[i as usize] * p);
         let x = c.nodes[v];
         let exact = Vector3::new(a * x.x, a * x.y, -0.2 * x.z);
         worst = worst.max((d - exact).norm());
@@ -166,7 +166,7 @@ fn cube_coupled_with_generated_interior_clouds_matches_exact_solution() {
             ],
         );
         assert!(s.converged);
-        let c = p.coupled.as_ref().unwrap();
+        let c = p.coupled().unwrap();
         // The mesh's own vertices lie on the 12.5 mm grid; generated interior nodes do not.
         let off_grid = c
             .nodes
@@ -220,7 +220,7 @@ fn condition_on_meshless_nodes_is_imposed_by_correction() {
     let s = scene::load(&path, &["discretization.method=coupled".into()]).unwrap();
     let mut p = simulation::prepare(&s).unwrap();
     assert!(
-        p.bc_method.is_some(),
+        p.bc_method().is_some(),
         "the mid-plane condition needs the correction"
     );
     assert!(p.model.corrector.is_some());

@@ -124,7 +124,7 @@ fn coupled_tet10_passes_the_patch_test() {
     .collect();
     let s = hytled::scene::load(&path("cases/cube-compression.toml"), &o).unwrap();
     let p = hytled::simulation::prepare(&s).unwrap();
-    let c = p.coupled.as_ref().unwrap();
+    let c = p.coupled().unwrap();
     let q = c.quadratic.as_ref().expect("a quadratic layer");
     assert!(!q.edges.is_empty() && c.transition_points > 0 && c.meshless_points > 0);
     let a = Matrix3::new(0.01, -0.02, 0.03, 0.015, -0.01, 0.005, -0.02, 0.01, 0.02);
@@ -284,7 +284,7 @@ fn merged_points_follow_a_graded_mesh() {
                 .filter(|w| w.contains("fewer than two"))
                 .collect();
             assert!(few.is_empty(), "{level}, {k}, {method}: {few:?}");
-            if let Some(c) = &p.coupled {
+            if let Some(c) = p.coupled() {
                 let tets = c.interior.num_cells() as f64;
                 let ratio = tets / c.meshless_points as f64;
                 println!(
@@ -293,7 +293,7 @@ fn merged_points_follow_a_graded_mesh() {
                 );
                 assert!(ratio > 0.75 * k && ratio < 1.25 * k, "{ratio}");
             }
-            if let Some(ml) = &p.meshless {
+            if let Some(ml) = p.meshless() {
                 let tets = ml.background.num_cells() as f64;
                 let ratio = tets / ml.points.len() as f64;
                 println!("meshless {level}: {ratio:.2} tets (of four points each) per point");

@@ -36,7 +36,7 @@ fn coupled_tet_defaults_put_fe_at_the_essential_faces_only() {
             "solver.mass_scaling=false",
         ],
     );
-    let c = p.coupled.as_ref().unwrap();
+    let c = p.coupled().unwrap();
     let mut fe = 0;
     let mut lateral_mls = 0;
     for (i, r) in c.regions.node.iter().enumerate() {

@@ -18,8 +18,8 @@
 use nalgebra::Vector3;
 use rayon::prelude::*;
 
-use super::loads::Row;
 use super::LoadCurve;
+use crate::quadrature::SparseRow;
 use crate::{Error, Result};
 
 /// A rigid surface in its reference position; the body stays outside the solid it bounds.
@@ -163,7 +163,7 @@ pub struct RigidBody {
 #[derive(Debug, Clone)]
 pub struct ContactPoint {
     pub x: Vector3<f64>,
-    pub row: Row,
+    pub row: SparseRow,
     /// Components a boundary prescribes at the point itself (a meshless or blended boundary
     /// node there, whose correction the contact would undo); FE nodes' prescribed components
     /// are the `fixed` mask of [`Contact::correct`].
@@ -196,7 +196,7 @@ pub struct BodySurface {
     /// Reference positions of the vertices, m.
     pub vertices: Vec<Vector3<f64>>,
     /// Each vertex's displacement as a combination of nodal parameters.
-    pub rows: Vec<Row>,
+    pub rows: Vec<SparseRow>,
     /// Faces (vertex indices).
     pub faces: Vec<Vec<usize>>,
 }

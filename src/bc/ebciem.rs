@@ -27,8 +27,7 @@ use crate::{Error, Result};
 // `ComponentCorrection::correct_component` addresses node j's component c as f64 number 3 j + c.
 const _: () = assert!(std::mem::size_of::<Vector3<f64>>() == 3 * std::mem::size_of::<f64>());
 
-/// One sparse row or column: (node index, value) pairs.
-pub type SparseVec = Vec<(u32, f64)>;
+use crate::quadrature::SparseRow;
 
 /// Estimated 1-norm condition numbers of `A = Phi M^-1 V` above this are treated as singular:
 /// the correction would amplify the rounding of the residual `u_bar - Phi u_pred` by as much,
@@ -40,9 +39,9 @@ const AXIS: [&str; 3] = ["x", "y", "z"];
 /// Sorts by node id and sums duplicate entries, so equal inputs give bitwise equal outputs
 /// whatever order the entries came in (the stable sort keeps the summation order of duplicates
 /// the input order, which is itself deterministic).
-fn canonical(mut v: SparseVec) -> SparseVec {
+fn canonical(mut v: SparseRow) -> SparseRow {
     v.sort_by_key(|&(j, _)| j);
-    let mut out: SparseVec = Vec::with_capacity(v.len());
+    let mut out: SparseRow = Vec::with_capacity(v.len());
     for (j, x) in v {
         match out.last_mut() {
             Some(last) if last.0 == j => last.1 += x,
@@ -61,7 +60,7 @@ struct Compressed {
 }
 
 impl Compressed {
-    fn from_vecs(vecs: Vec<SparseVec>) -> Self {
+    fn from_vecs(vecs: Vec<SparseRow>) -> Self {
         let mut ptr = Vec::with_capacity(vecs.len() + 1);
         ptr.push(0);
         let nnz: usize = vecs.iter().map(Vec::len).sum();
@@ -148,8 +147,8 @@ impl ComponentCorrection {
     pub fn new(
         component: usize,
         nodes: Vec<usize>,
-        phi_rows: Vec<SparseVec>,
-        v_cols: Vec<SparseVec>,
+        phi_rows: Vec<SparseRow>,
+        v_cols: Vec<SparseRow>,
         mass: &[f64],
     ) -> Result<Self> {
         if component > 2 {
@@ -253,7 +252,7 @@ impl ComponentCorrection {
     pub fn sebciem(
         component: usize,
         nodes: Vec<usize>,
-        phi_rows: Vec<SparseVec>,
+        phi_rows: Vec<SparseRow>,
         mass: &[f64],
     ) -> Result<Self> {
         let v_cols = phi_rows.clone();
@@ -829,8 +828,8 @@ pub fn ebciem_columns(
     nodes: &[usize],
     positions: &[Vector3<f64>],
     tris: &[[usize; 3]],
-    shape_at: impl Fn(&Vector3<f64>) -> Result<SparseVec>,
-) -> Result<Vec<SparseVec>> {
+    shape_at: impl Fn(&Vector3<f64>) -> Result<SparseRow>,
+) -> Result<Vec<SparseRow>> {
     let n = positions.len();
     // Global id -> column; a dense map keeps the lookup deterministic and O(1).
     let mut column = vec![usize::MAX; n];
@@ -852,7 +851,7 @@ pub fn ebciem_columns(
         [1.0 / 6.0, 2.0 / 3.0, 1.0 / 6.0],
         [1.0 / 6.0, 1.0 / 6.0, 2.0 / 3.0],
     ];
-    let mut cols: Vec<SparseVec> = vec![Vec::new(); nodes.len()];
+    let mut cols: Vec<SparseRow> = vec![Vec::new(); nodes.len()];
     for (t, tri) in tris.iter().enumerate() {
         let mut ks = [0usize; 3];
         for (slot, &v) in ks.iter_mut().zip(tri) {
@@ -947,9 +946,9 @@ mod tests {
 
     /// Smooth, non-interpolating partition of unity: normalised quartic weights
     /// (1 - (r/R)^2)^2 over the nodes within R = 1.6 H.
-    fn shape(pos: &[Vector3<f64>], x: &Vector3<f64>) -> Result<SparseVec> {
+    fn shape(pos: &[Vector3<f64>], x: &Vector3<f64>) -> Result<SparseRow> {
         let r = 1.6 * H;
-        let mut out: SparseVec = pos
+        let mut out: SparseRow = pos
             .iter()
             .enumerate()
             .filter_map(|(j, p)| {
@@ -987,7 +986,7 @@ mod tests {
             / scale
     }
 
-    fn rows(pos: &[Vector3<f64>], nodes: &[usize]) -> Vec<SparseVec> {
+    fn rows(pos: &[Vector3<f64>], nodes: &[usize]) -> Vec<SparseRow> {
         nodes
             .iter()
             .map(|&k| shape(pos, &pos[k]).unwrap())

@@ -16,8 +16,7 @@ use nalgebra::Vector3;
 use super::LoadCurve;
 use crate::{Error, Result};
 
-/// A sparse row of interpolation factors: (node, factor).
-pub type Row = Vec<(u32, f64)>;
+use crate::quadrature::SparseRow;
 
 /// Gauss rule of a triangle on the parametric triangle (0,0), (1,0), (0,1): three points at
 /// (1/6, 1/6), (2/3, 1/6), (1/6, 2/3), weight 1/6 each (exact for quadratics; Strang and Fix).
@@ -91,9 +90,9 @@ pub struct Face {
     /// Reference corner positions, m (3 or 4).
     corners: Vec<Vector3<f64>>,
     /// Each corner's displacement from the nodal values.
-    corner_rows: Vec<Row>,
+    corner_rows: Vec<SparseRow>,
     /// Per Gauss point: parametric coordinates, weight, and the row spreading its force.
-    gauss: Vec<([f64; 2], f64, Row)>,
+    gauss: Vec<([f64; 2], f64, SparseRow)>,
 }
 
 impl Face {
@@ -125,7 +124,7 @@ impl Face {
     /// corners `x` and at the Gauss points.
     pub fn with_shape(
         x: &[Vector3<f64>],
-        shape: &dyn Fn(&Vector3<f64>) -> Result<Row>,
+        shape: &dyn Fn(&Vector3<f64>) -> Result<SparseRow>,
     ) -> Result<Self> {
         let n = x.len();
         let rule = gauss_rule(n)?;
@@ -182,7 +181,10 @@ pub enum LoadKind {
     Gravity(Vector3<f64>),
     /// The force (N) at each of these points, spread by its row (FE nodes: the node alone;
     /// meshless nodes: the shape functions at the node, which do not interpolate).
-    PointForce { rows: Vec<Row>, force: Vector3<f64> },
+    PointForce {
+        rows: Vec<SparseRow>,
+        force: Vector3<f64>,
+    },
     /// Dead traction (Pa, force per reference area, fixed direction) on these faces.
     Traction {
         faces: Vec<Face>,
@@ -419,7 +421,7 @@ impl Loads {
 /// they reach (ascending) and each one's force, N. Errs with the first node id out of range.
 fn spread<'a>(
     n: usize,
-    forces: impl Iterator<Item = (Vector3<f64>, &'a Row)>,
+    forces: impl Iterator<Item = (Vector3<f64>, &'a SparseRow)>,
 ) -> std::result::Result<(Vec<u32>, Vec<Vector3<f64>>), usize> {
     let mut acc = vec![Vector3::zeros(); n];
     let mut hit = vec![false; n];

@@ -24,8 +24,8 @@ use crate::meshless::discretize::hex_to_tets;
 use crate::meshless::mls::MlsSettings;
 use crate::meshless::points::{build_points, shape_at};
 use crate::meshless::support::{Support, SupportRule};
-use crate::probe::Probe;
-use crate::quadrature::{PointKind, QuadraturePoints};
+use crate::probe::locate_in_grid;
+use crate::quadrature::{PointKind, QuadraturePoints, SparseRow};
 use crate::{Error, Result};
 pub use regions::{CellRole, FeRegion, NodeRole, Regions};
 
@@ -113,9 +113,6 @@ pub struct CoupledBuild {
     interior_grid: CellGrid,
 }
 
-/// Shape-function values at a point: global node ids and phi.
-pub type Weights = Vec<(usize, f64)>;
-
 impl CoupledBuild {
     /// (mean, min, max) support nodes per meshless and transition point.
     pub fn support_statistics(&self) -> (f64, usize, usize) {
@@ -175,37 +172,32 @@ impl CoupledBuild {
     }
 
     /// MLS values at `x` (m) in global node ids.
-    fn mls_values(&self, x: &Vector3<f64>, what: &dyn Fn() -> String) -> Result<Weights> {
+    fn mls_values(&self, x: &Vector3<f64>, what: &dyn Fn() -> String) -> Result<SparseRow> {
         let s = shape_at(&self.support, &self.mls, x, false, what)?;
         Ok(s.ids
             .iter()
             .zip(&s.phi)
-            .map(|(&i, &p)| (self.mls_nodes[i], p))
+            .map(|(&i, &p)| (self.mls_nodes[i] as u32, p))
             .collect())
     }
 
     /// Shape-function values at `x` (m): FE inside pure FE cells, blended in transition
-    /// cells, MLS in the interior. `name` names the point in errors.
-    pub fn shape_values(&self, name: &str, x: &Vector3<f64>) -> Result<Weights> {
-        let what = || format!("probe '{name}'");
+    /// cells, MLS in the interior. `what` names the point in errors.
+    pub fn shape_values(&self, x: &Vector3<f64>, what: &dyn Fn() -> String) -> Result<SparseRow> {
         // Inside an interior cell (not just near one): MLS.
-        let inner = Probe::locate_in_grid(name, *x, &self.interior, &self.interior_grid).ok();
+        let inner = locate_in_grid(x, &self.interior, &self.interior_grid, what).ok();
         if inner
             .as_ref()
             .is_some_and(|p| p.weights.iter().all(|&w| w >= -1e-12))
         {
-            return self.mls_values(x, &what);
+            return self.mls_values(x, what);
         }
-        let pr = match (
-            Probe::locate_in_grid(name, *x, &self.fe_mesh, &self.fe_grid),
-            inner,
-        ) {
+        let at = match (locate_in_grid(x, &self.fe_mesh, &self.fe_grid, what), inner) {
             (Ok(p), _) => p,
-            (Err(_), Some(_)) => return self.mls_values(x, &what),
+            (Err(_), Some(_)) => return self.mls_values(x, what),
             (Err(e), None) => return Err(e),
         };
-        let l = &pr.weights;
-        self.layer_values(pr.element, &pr.nodes, l, x, &what)
+        self.layer_values(at.element, &at.nodes, &at.weights, x, what)
     }
 
     /// Shape-function values at `x` (m) on FE-layer cell `e` (`Some(e)`), or in the interior
@@ -216,7 +208,7 @@ impl CoupledBuild {
         cell: Option<usize>,
         x: &Vector3<f64>,
         what: &dyn Fn() -> String,
-    ) -> Result<Weights> {
+    ) -> Result<SparseRow> {
         let Some(e) = cell else {
             return self.mls_values(x, what);
         };
@@ -248,7 +240,7 @@ impl CoupledBuild {
         w: &[f64],
         x: &Vector3<f64>,
         what: &dyn Fn() -> String,
-    ) -> Result<Weights> {
+    ) -> Result<SparseRow> {
         // The ramp: the interface vertices' linear (barycentric or trilinear) values.
         let r: f64 = ids
             .iter()
@@ -257,7 +249,7 @@ impl CoupledBuild {
             .map(|(_, &w)| w)
             .sum();
         // A quadratic layer's own functions at the barycentric coordinates `w`.
-        let quad: Option<Weights> = self
+        let quad: Option<Vec<(usize, f64)>> = self
             .quadratic
             .as_ref()
             .map(|q| q.values(e, [w[0], w[1], w[2], w[3]]));
@@ -267,15 +259,19 @@ impl CoupledBuild {
         };
         let (ids, w) = (&ids[..], &w[..]);
         match self.regions.cell[e] {
-            CellRole::Fe => Ok(ids.iter().copied().zip(w.iter().copied()).collect()),
+            CellRole::Fe => Ok(ids
+                .iter()
+                .map(|&i| i as u32)
+                .zip(w.iter().copied())
+                .collect()),
             CellRole::Meshless => self.mls_values(x, what),
             CellRole::Transition => {
-                let mut acc: std::collections::BTreeMap<usize, f64> = Default::default();
+                let mut acc: std::collections::BTreeMap<u32, f64> = Default::default();
                 for (i, v) in self.mls_values(x, what)? {
                     *acc.entry(i).or_default() += r * v;
                 }
                 for (&i, &v) in ids.iter().zip(w) {
-                    *acc.entry(i).or_default() += (1.0 - r) * v;
+                    *acc.entry(i as u32).or_default() += (1.0 - r) * v;
                 }
                 Ok(acc.into_iter().collect())
             }
@@ -299,16 +295,16 @@ impl CoupledBuild {
 
     /// Weights that give the displacement at each mesh vertex: the node itself for FE nodes
     /// (interpolating), the MLS values at interface and meshless nodes.
-    pub fn vertex_weights(&self) -> Result<Vec<Weights>> {
+    pub fn vertex_weights(&self) -> Result<Vec<SparseRow>> {
         (0..self.nodes.len())
             .map(|v| self.vertex_weights_of(v, &|| format!("output vertex {v}")))
             .collect()
     }
 
     /// [`Self::vertex_weights`] of vertex `v` alone; `what` names it in errors.
-    pub fn vertex_weights_of(&self, v: usize, what: &dyn Fn() -> String) -> Result<Weights> {
+    pub fn vertex_weights_of(&self, v: usize, what: &dyn Fn() -> String) -> Result<SparseRow> {
         match self.regions.node[v] {
-            NodeRole::Fe => Ok(vec![(v, 1.0)]),
+            NodeRole::Fe => Ok(vec![(v as u32, 1.0)]),
             _ => self.mls_values(&self.nodes[v], what),
         }
     }

@@ -115,7 +115,6 @@ fn key(x: &Vector3<f64>, step: f64) -> [i64; 3] {
 mod tests {
     use super::*;
     use crate::geometry::shapes::box_tet;
-    use crate::probe::Probe;
 
     /// The grid finds the cell the full scan finds, for points inside, on faces and just
     /// outside a graded mesh, and nothing where the scan fails.
@@ -135,8 +134,9 @@ mod tests {
                     -0.001 + 0.062 * j as f64 / 8.0,
                     0.013 * (i % 4) as f64,
                 );
-                let full = Probe::locate("p", x, &mesh);
-                let fast = Probe::locate_in_grid("p", x, &mesh, &grid);
+                let what = || "p".to_string();
+                let full = crate::probe::locate_among(&x, &mesh, 0..mesh.num_cells(), &what);
+                let fast = crate::probe::locate_in_grid(&x, &mesh, &grid, &what);
                 match (full, fast) {
                     (Ok(a), Ok(b)) => {
                         assert_eq!(a.element, b.element, "{x:?}");

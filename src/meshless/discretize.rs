@@ -4,14 +4,14 @@
 use nalgebra::Vector3;
 
 use super::adaptive::{self, AdaptiveSettings};
+use super::cloud;
 use super::integration::{self, TetRule};
 use super::mls::MlsSettings;
 use super::points::{build_points, shape_at, support_counts, support_statistics};
 use super::support::{Support, SupportRule};
-use super::{cloud, points::ShapeAt};
 use crate::geometry::domain::Domain;
 use crate::geometry::{ElementShape, Mesh};
-use crate::quadrature::QuadraturePoints;
+use crate::quadrature::{QuadraturePoints, SparseRow};
 use crate::report::AdaptiveInfo;
 use crate::{Error, Result};
 
@@ -45,9 +45,10 @@ pub struct MeshlessBuild {
 }
 
 impl MeshlessBuild {
-    /// Shape functions (values only) at `x` (m).
-    pub fn shape_values(&self, x: &Vector3<f64>, what: &dyn Fn() -> String) -> Result<ShapeAt> {
-        shape_at(&self.support, &self.mls, x, false, what)
+    /// Shape-function values at `x` (m) in node ids; `what` names the point in errors.
+    pub fn shape_values(&self, x: &Vector3<f64>, what: &dyn Fn() -> String) -> Result<SparseRow> {
+        let s = shape_at(&self.support, &self.mls, x, false, what)?;
+        Ok(s.ids.iter().map(|&i| i as u32).zip(s.phi).collect())
     }
 
     /// (mean, min, max) support nodes per integration point.

@@ -5,9 +5,10 @@ use nalgebra::Vector3;
 use std::sync::atomic::{AtomicBool, Ordering};
 
 use super::discretize::MeshlessBuild;
-use crate::bc::ebciem::{ebciem_columns, ComponentCorrection, SparseVec};
+use crate::bc::ebciem::{ebciem_columns, ComponentCorrection};
 use crate::bc::{Boundary, LoadCurve};
 use crate::geometry::quality;
+use crate::quadrature::SparseRow;
 use crate::solver::{keep_warm, Corrector, SharedMut};
 use crate::Result;
 
@@ -26,7 +27,7 @@ struct Component {
 
 /// The inputs of a factored system (constrained nodes, rows of Phi, columns of V) and the
 /// index of the component that holds it.
-type BuiltSystem = (Vec<usize>, Vec<SparseVec>, Vec<SparseVec>, usize);
+type BuiltSystem = (Vec<usize>, Vec<SparseRow>, Vec<SparseRow>, usize);
 
 /// Corrections solved together: the components (x, y, z) of one group of constrained nodes
 /// that share one system (SEBCIEM with every component constrained on the same nodes; one
@@ -144,13 +145,8 @@ impl MeshlessCorrector {
             } else {
                 Vec::new()
             };
-        let shape = |x: &Vector3<f64>| -> Result<SparseVec> {
-            let s = build.shape_values(x, &|| "essential-boundary point".to_string())?;
-            Ok(s.ids
-                .iter()
-                .zip(&s.phi)
-                .map(|(&i, &p)| (i as u32, p))
-                .collect())
+        let shape = |x: &Vector3<f64>| -> Result<SparseRow> {
+            build.shape_values(x, &|| "essential-boundary point".to_string())
         };
         Self::from_parts(&build.nodes, &tris, &shape, boundaries, mass, method)
     }
@@ -161,7 +157,7 @@ impl MeshlessCorrector {
     pub fn from_parts(
         nodes_x: &[Vector3<f64>],
         tris: &[[usize; 3]],
-        shape: &dyn Fn(&Vector3<f64>) -> Result<SparseVec>,
+        shape: &dyn Fn(&Vector3<f64>) -> Result<SparseRow>,
         boundaries: &[Boundary],
         mass: &[f64],
         method: Imposition,
@@ -191,7 +187,7 @@ impl MeshlessCorrector {
                 continue;
             }
             nodes.sort_unstable();
-            let phi_rows: Vec<SparseVec> = nodes
+            let phi_rows: Vec<SparseRow> = nodes
                 .iter()
                 .map(|&i| shape(&nodes_x[i]))
                 .collect::<Result<_>>()?;
@@ -253,8 +249,8 @@ impl MeshlessCorrector {
                 }
                 let ne = members.len();
                 let g_nodes: Vec<usize> = members.iter().map(|&m| nodes[m]).collect();
-                let g_phi: Vec<SparseVec> = members.iter().map(|&m| phi_rows[m].clone()).collect();
-                let g_v: Vec<SparseVec> = members.iter().map(|&m| v_cols[m].clone()).collect();
+                let g_phi: Vec<SparseRow> = members.iter().map(|&m| phi_rows[m].clone()).collect();
+                let g_v: Vec<SparseRow> = members.iter().map(|&m| v_cols[m].clone()).collect();
                 // x, y and z of a boundary share one system (SEBCIEM and EBCIEM): factor it once.
                 let same = built
                     .iter()
@@ -344,7 +340,7 @@ impl MeshlessCorrector {
 /// shared nodes: k and l belong to one group when row k of Phi or column k of V reaches a node
 /// that row l or column l reaches. Groups are listed by their smallest member, members
 /// ascending.
-fn independent_groups(n: usize, phi_rows: &[SparseVec], v_cols: &[SparseVec]) -> Vec<Vec<usize>> {
+fn independent_groups(n: usize, phi_rows: &[SparseRow], v_cols: &[SparseRow]) -> Vec<Vec<usize>> {
     let ne = phi_rows.len();
     let mut parent: Vec<usize> = (0..ne).collect();
     fn root(parent: &mut [usize], mut k: usize) -> usize {
@@ -559,14 +555,14 @@ mod tests {
     /// bottom (z = 0) and top (z = 5) layers reach disjoint nodes.
     fn lattice() -> (
         Vec<Vector3<f64>>,
-        impl Fn(&Vector3<f64>) -> Result<SparseVec>,
+        impl Fn(&Vector3<f64>) -> Result<SparseRow>,
     ) {
         let nodes: Vec<Vector3<f64>> = (0..6)
             .flat_map(|z| (0..4).flat_map(move |y| (0..4).map(move |x| (x, y, z))))
             .map(|(x, y, z)| Vector3::new(x as f64, y as f64, z as f64))
             .collect();
         let pos = nodes.clone();
-        let shape = move |x: &Vector3<f64>| -> Result<SparseVec> {
+        let shape = move |x: &Vector3<f64>| -> Result<SparseRow> {
             let w: Vec<(u32, f64)> = pos
                 .iter()
                 .enumerate()
@@ -603,7 +599,7 @@ mod tests {
 
     #[test]
     fn groups_join_constrained_nodes_through_shared_nodes_only() {
-        let row = |ids: &[u32]| -> SparseVec { ids.iter().map(|&j| (j, 1.0)).collect() };
+        let row = |ids: &[u32]| -> SparseRow { ids.iter().map(|&j| (j, 1.0)).collect() };
         // 0 and 2 meet at node 5 through Phi; 1 and 3 at node 8 through V (only); 4 is alone.
         let phi = vec![row(&[0, 5]), row(&[1]), row(&[5, 6]), row(&[7]), row(&[9])];
         let v = vec![row(&[0]), row(&[1, 8]), row(&[6]), row(&[7, 8]), row(&[9])];
@@ -656,7 +652,7 @@ mod tests {
             if c != 1 {
                 ids.extend(on(5.0));
             }
-            let rows: Vec<SparseVec> = ids.iter().map(|&i| shape(&nodes[i]).unwrap()).collect();
+            let rows: Vec<SparseRow> = ids.iter().map(|&i| shape(&nodes[i]).unwrap()).collect();
             let target: Vec<f64> = ids
                 .iter()
                 .map(|&i| {

@@ -461,16 +461,73 @@ impl Default for SolverSpec {
 }
 
 /// `[probes.NAME]`: a material point whose displacement is reported, or (`select`) the mean
-/// displacement of a selection of nodes (e.g. `select = { set = "tip" }`).
+/// displacement of a selection of nodes (e.g. `select = { set = "tip" }`). Exactly one of the
+/// two keys is given; the file is refused otherwise, where it is read.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(try_from = "ProbeKeys", into = "ProbeKeys")]
+pub enum ProbeSpec {
+    /// `position = [x, y, z]`: the material point at this reference position, m.
+    Position([f64; 3]),
+    /// `select = { ... }`: the mean of the selected nodes' displacements.
+    Select(Selection),
+}
+
+impl ProbeSpec {
+    /// The reference position of a point probe, m.
+    pub fn position(&self) -> Option<[f64; 3]> {
+        match self {
+            ProbeSpec::Position(x) => Some(*x),
+            ProbeSpec::Select(_) => None,
+        }
+    }
+
+    /// The selection of a mean probe.
+    pub fn select(&self) -> Option<&Selection> {
+        match self {
+            ProbeSpec::Select(s) => Some(s),
+            ProbeSpec::Position(_) => None,
+        }
+    }
+}
+
+/// `[probes.NAME]` as written: its keys, of which exactly one is given.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
-pub struct ProbeSpec {
-    /// Reference position, m.
-    #[serde(default)]
-    pub position: Option<[f64; 3]>,
-    /// Nodes whose displacements are averaged.
-    #[serde(default)]
-    pub select: Option<Selection>,
+struct ProbeKeys {
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    position: Option<[f64; 3]>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    select: Option<Selection>,
+}
+
+impl TryFrom<ProbeKeys> for ProbeSpec {
+    type Error = String;
+    fn try_from(k: ProbeKeys) -> std::result::Result<Self, String> {
+        match (k.position, k.select) {
+            (Some(x), None) => Ok(ProbeSpec::Position(x)),
+            (None, Some(s)) => Ok(ProbeSpec::Select(s)),
+            _ => Err(
+                "a probe takes either `position = [x, y, z]` (m) or `select = { ... }`, \
+                      exactly one of them"
+                    .into(),
+            ),
+        }
+    }
+}
+
+impl From<ProbeSpec> for ProbeKeys {
+    fn from(p: ProbeSpec) -> Self {
+        match p {
+            ProbeSpec::Position(x) => ProbeKeys {
+                position: Some(x),
+                select: None,
+            },
+            ProbeSpec::Select(s) => ProbeKeys {
+                position: None,
+                select: Some(s),
+            },
+        }
+    }
 }
 
 /// `[references.NAME]`: a published or exact value to compare with.

@@ -126,7 +126,7 @@ pub(super) fn resolve_exact(s: &mut Scene) -> std::result::Result<(), String> {
                 ))
             }
             _ => {
-                let Some(pos) = s.probes.get(parts[1]).and_then(|p| p.position) else {
+                let Some(pos) = s.probes.get(parts[1]).and_then(|p| p.position()) else {
                     return Err(fail(format!("probe '{}' needs a `position`", parts[1])));
                 };
                 let st = if c == k { stretch } else { a };
@@ -592,7 +592,7 @@ fn check_conditions(s: &Scene) -> std::result::Result<(), String> {
         .chain(
             s.probes
                 .iter()
-                .map(|(n, p)| (format!("probes.{n}"), p.select.as_ref())),
+                .map(|(n, p)| (format!("probes.{n}"), p.select())),
         );
     for (key, sel) in selections {
         if let Some(sel) = sel {
@@ -796,13 +796,6 @@ fn check_solver(s: &Scene) -> std::result::Result<(), String> {
 
 /// Probes, initial motion and references.
 fn check_outputs(s: &Scene) -> std::result::Result<(), String> {
-    for (name, p) in &s.probes {
-        if p.position.is_some() == p.select.is_some() {
-            return Err(format!(
-                "probes.{name}: give either `position = [x, y, z]` (m) or `select = {{ ... }}`"
-            ));
-        }
-    }
     if s.initial.is_some() && s.solver.mode != Mode::Dynamic {
         return Err(
             "[initial] motion needs solver.mode = \"dynamic\" (relaxation seeks a steady state)"

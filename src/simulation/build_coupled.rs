@@ -6,22 +6,21 @@ use std::time::Instant;
 
 use nalgebra::Vector3;
 
-use crate::coupling::NodeRole;
+use crate::coupling::{CoupledBuild, NodeRole};
 use crate::fe::ElementKind;
 use crate::geometry::quality;
-use crate::material::Material;
+use crate::material::{Material, Solid};
 use crate::meshless::discretize;
 use crate::meshless::essential::MeshlessCorrector;
-use crate::probe::Probe;
 use crate::scene::{BcMethod, Scene};
 use crate::solver::Model;
 use crate::{coupling, Error, Result};
 
+use super::build::{assemble, Discretization, Parts};
 use super::surface::Discretized;
 use super::translate::{load_mesh_input, material, scene_path};
 use super::{
-    add_loads_and_contact, body_mesh, boundaries, centroid, hourglass_modulus, imposition,
-    mean_probe, name_file_element, regions, translate, Prepared,
+    body_mesh, boundaries, centroid, imposition, name_file_element, regions, translate, Prepared,
 };
 
 /// Warnings for the boundaries that drive a load concentrated on a few nodes
@@ -118,12 +117,12 @@ pub(super) fn prepare_coupled(scene: &Scene) -> Result<Prepared> {
         None
     } else {
         Some(boundaries(scene, &mesh.nodes, input.as_ref(), &|| {
-            Discretized::Fe(&mesh).surface_nodes()
+            Discretized::Fe(&mesh, None).surface_nodes()
         })?)
     };
     let full_rule_near: Vec<usize> = match (&mesh_boundaries, d.transition_rule()) {
         (Some(bnd), crate::scene::TransitionRuleKind::Interior) => {
-            let surface = Discretized::Fe(&mesh).surface_nodes()?.len().max(1) as f64;
+            let surface = Discretized::Fe(&mesh, None).surface_nodes()?.len().max(1) as f64;
             bnd.iter()
                 .filter(|b| is_concentrated_drive(b, b.nodes.len() as f64 / surface))
                 .flat_map(|b| b.nodes.iter().cloned())
@@ -276,16 +275,7 @@ pub(super) fn prepare_coupled(scene: &Scene) -> Result<Prepared> {
     }
     // Boundaries that reach interface or meshless nodes (no Kronecker delta there) are
     // imposed by EBCIEM / SEBCIEM correction, the alternate path; the rest directly.
-    let corrected: Vec<bool> = bnd
-        .iter()
-        .map(|b| {
-            b.components.iter().any(|c| c.is_some())
-                && b.nodes
-                    .iter()
-                    .any(|&i| build.regions.node[i] != NodeRole::Fe)
-        })
-        .collect();
-    let bc_method = corrected
+    let bc_method = corrected_boundaries(&build, &bnd)
         .iter()
         .any(|&c| c)
         .then(|| d.bc_method.resolve(d.support));
@@ -296,30 +286,6 @@ pub(super) fn prepare_coupled(scene: &Scene) -> Result<Prepared> {
                 .into(),
         ));
     }
-    let vertex = build.vertex_weights()?;
-    let probes = scene
-        .probes
-        .iter()
-        .map(|(name, p)| match (&p.select, p.position) {
-            (Some(sel), _) => mean_probe(name, sel, &build.nodes, input.as_ref(), |i| {
-                Ok(vertex[i].clone())
-            }),
-            (None, Some(x)) => {
-                let x = Vector3::from(x);
-                let w = build.shape_values(name, &x)?;
-                Ok(Probe {
-                    name: name.clone(),
-                    position: x,
-                    nodes: w.iter().map(|p| p.0).collect(),
-                    weights: w.iter().map(|p| p.1).collect(),
-                    element: usize::MAX,
-                })
-            }
-            (None, None) => Err(Error::Input(format!(
-                "probe '{name}' has neither position nor select"
-            ))),
-        })
-        .collect::<Result<Vec<_>>>()?;
     // Each point takes the material of its cell (the FE-layer or interior cell it belongs to).
     let nf = build.fe_mesh.num_cells();
     let cell_centroid = |o: usize| {
@@ -343,34 +309,35 @@ pub(super) fn prepare_coupled(scene: &Scene) -> Result<Prepared> {
             })
             .collect(),
     };
-    let (materials, point_material, region_counts) =
-        regions::point_materials(scene, input.as_ref(), &places)?;
-    let mut points = build.points.clone();
-    regions::scale_hourglass(
-        &mut points,
-        &point_material,
-        &|m| self::hourglass_modulus(scene, m),
-        &materials,
-    );
-    let masses = build.lumped_masses(&|p| {
-        materials[point_material.get(p).copied().unwrap_or(0) as usize].density()
-    });
-    let mut model = Model::with_materials(
-        build.nodes.clone(),
-        points,
-        materials,
-        point_material.clone(),
-        bnd.clone(),
-    )?;
-    model.set_lumped_masses(&masses)?;
-    add_loads_and_contact(
-        &mut model,
-        scene,
-        Discretized::Coupled(&build),
-        input.as_ref(),
-        &mut warnings,
-    )?;
-    if let Some(method) = bc_method {
+    let parts = Parts {
+        mesh: build.fe_mesh.clone(),
+        points: build.points.clone(),
+        method: Discretization::Coupled {
+            build: Box::new(build),
+            bc_method,
+        },
+        quadratic: None,
+        places,
+        boundaries: bnd,
+        kind,
+        min_dihedral,
+        warnings,
+    };
+    assemble(scene, input.as_ref(), parts, t0)
+}
+
+/// The EBCIEM / SEBCIEM (`method`) correction of the boundaries of `model` that prescribe
+/// components on interface or meshless nodes (no Kronecker delta there), built after the
+/// masses are final; the rest hold their FE nodes directly.
+pub(super) fn impose(
+    build: &CoupledBuild,
+    method: BcMethod,
+    model: &mut Model<Solid>,
+    warnings: &mut Vec<String>,
+) -> Result<()> {
+    let bnd = &model.boundaries;
+    let corrected = corrected_boundaries(build, bnd);
+    {
         let tris: Vec<[usize; 3]> = if method == BcMethod::Ebciem {
             let mut faces = quality::boundary_faces(&build.fe_mesh)
                 .map_err(|e| Error::Input(format!("coupled FE layer: {e}")))?;
@@ -403,18 +370,14 @@ pub(super) fn prepare_coupled(scene: &Scene) -> Result<Prepared> {
         } else {
             Vec::new()
         };
-        let shape = |x: &Vector3<f64>| -> Result<crate::bc::ebciem::SparseVec> {
-            Ok(build
-                .shape_values("essential-boundary point", x)?
-                .into_iter()
-                .map(|(i, p)| (i as u32, p))
-                .collect())
+        let shape = |x: &Vector3<f64>| -> Result<crate::quadrature::SparseRow> {
+            build.shape_values(x, &|| "essential-boundary point".into())
         };
         let (corr, report) = MeshlessCorrector::from_parts(
             &build.nodes,
             &tris,
             &shape,
-            &bnd,
+            bnd,
             &model.mass,
             imposition(method),
         )?;
@@ -436,21 +399,19 @@ pub(super) fn prepare_coupled(scene: &Scene) -> Result<Prepared> {
             "boundaries {names:?} act on meshless nodes of the coupled discretization; imposed by {} (alternate path)",
             method.name()
         ));
-        model.set_corrector(Box::new(corr), corrected)?;
+        model.set_corrector(Box::new(corr), corrected)
     }
-    Ok(Prepared {
-        mesh: build.fe_mesh.clone(),
-        meshless: None,
-        coupled: Some(build),
-        bc_method,
-        warnings,
-        model,
-        point_material,
-        regions: region_counts,
-        probes,
-        kind,
-        min_dihedral,
-        preprocess_seconds: t0.elapsed().as_secs_f64(),
-        source_volume: None,
-    })
+}
+
+/// Which boundaries reach interface or meshless nodes with a prescribed component: those the
+/// corrector imposes.
+fn corrected_boundaries(build: &CoupledBuild, bnd: &[crate::bc::Boundary]) -> Vec<bool> {
+    bnd.iter()
+        .map(|b| {
+            b.components.iter().any(|c| c.is_some())
+                && b.nodes
+                    .iter()
+                    .any(|&i| build.regions.node[i] != NodeRole::Fe)
+        })
+        .collect()
 }

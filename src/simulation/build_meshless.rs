@@ -1,26 +1,24 @@
-//! A meshless run's preparation: the node cloud, integration points and supports, boundaries
-//! (EBCIEM / SEBCIEM where not interpolating), probes and loads.
+//! A meshless run's parts: the node cloud, integration points and supports, boundaries, and
+//! their EBCIEM / SEBCIEM correction where the shape functions do not interpolate.
 
 use std::time::Instant;
 
 use nalgebra::Vector3;
 
 use crate::fe::ElementKind;
-use crate::meshless::discretize;
+use crate::material::Solid;
+use crate::meshless::discretize::{self, MeshlessBuild};
 use crate::meshless::essential::MeshlessCorrector;
-use crate::probe::Probe;
-use crate::scene::{BcMethod, Scene};
+use crate::scene::{BcMethod, ProbeSpec, Scene};
 use crate::solver::Model;
-use crate::{Error, Result};
+use crate::Result;
 
+use super::build::{assemble, Discretization, Parts};
 use super::surface::Discretized;
 use super::translate::{cloud_sets, load_mesh_input, meshless_settings};
-use super::{
-    add_loads_and_contact, boundaries, imposition, mean_probe, regions, select_nodes, translate,
-    Prepared,
-};
+use super::{boundaries, imposition, regions, select_nodes, Prepared};
 
-/// Meshless branch of [`prepare`]: cloud, integration points, supports and shape functions,
+/// Meshless branch of [`super::prepare`]: cloud, integration points, supports and shape functions,
 /// masses, boundaries (EBCIEM / SEBCIEM correction or prescribed nodal parameters) and probes
 /// interpolated with the shape functions.
 pub(super) fn prepare_meshless(scene: &Scene) -> Result<Prepared> {
@@ -44,16 +42,14 @@ pub(super) fn prepare_meshless(scene: &Scene) -> Result<Prepared> {
             v.extend(b.nodes);
         }
         for (name, p) in &scene.probes {
-            if let Some(sel) = &p.select {
-                v.extend(select_nodes(
-                    sel,
-                    nodes,
-                    &format!("probe '{name}'"),
-                    input.as_ref(),
-                )?);
-                continue;
-            }
-            let x = Vector3::from(p.position.unwrap_or_default());
+            let x = match p {
+                ProbeSpec::Select(sel) => {
+                    let what = format!("probe '{name}'");
+                    v.extend(select_nodes(sel, nodes, &what, input.as_ref())?);
+                    continue;
+                }
+                ProbeSpec::Position(x) => Vector3::from(*x),
+            };
             if let Some((i, _)) = nodes
                 .iter()
                 .enumerate()
@@ -81,39 +77,6 @@ pub(super) fn prepare_meshless(scene: &Scene) -> Result<Prepared> {
     let bnd = boundaries(scene, &build.nodes, input.as_ref(), &|| {
         Discretized::Meshless(&build).surface_nodes()
     })?;
-    let dom = translate::domain(scene);
-    let h = translate::spacing(scene).unwrap_or(0.0);
-    let probes = scene
-        .probes
-        .iter()
-        .map(|(name, p)| {
-            if let Some(sel) = &p.select {
-                // Mean of the interpolated displacements at the selected nodes.
-                return mean_probe(name, sel, &build.nodes, input.as_ref(), |i| {
-                    let s = build.shape_values(&build.nodes[i], &|| format!("probe '{name}'"))?;
-                    Ok(s.ids.into_iter().zip(s.phi).collect())
-                });
-            }
-            let position = p.position.unwrap_or_default();
-            let x = Vector3::from(position);
-            if dom
-                .as_ref()
-                .is_some_and(|d| !d.contains(&x, 0.05 * h.max(1e-12)))
-            {
-                return Err(Error::Input(format!(
-                    "probe '{name}' at {position:?} m lies outside the body; move it inside"
-                )));
-            }
-            let s = build.shape_values(&x, &|| format!("probe '{name}'"))?;
-            Ok(Probe {
-                name: name.clone(),
-                position: x,
-                nodes: s.ids,
-                weights: s.phi,
-                element: usize::MAX,
-            })
-        })
-        .collect::<Result<Vec<_>>>()?;
     // Element sets reach meshless points through their background tet when the cloud is the
     // vertices of the scene's mesh file (hexahedra split into six tets each).
     let from_file = input.as_ref().filter(|m| {
@@ -131,50 +94,47 @@ pub(super) fn prepare_meshless(scene: &Scene) -> Result<Prepared> {
             .map(|&o| (from_file.is_some() && o != usize::MAX).then_some(o / per_cell))
             .collect(),
     };
-    let (materials, point_material, region_counts) =
-        regions::point_materials(scene, input.as_ref(), &places)?;
-    let mut model = Model::with_materials(
-        build.nodes.clone(),
-        build.points.clone(),
-        materials,
-        point_material.clone(),
-        bnd.clone(),
-    )?;
-    add_loads_and_contact(
-        &mut model,
-        scene,
-        Discretized::Meshless(&build),
-        input.as_ref(),
-        &mut warnings,
-    )?;
-    let corrected: Vec<bool> = bnd
+    let parts = Parts {
+        mesh: build.background.clone(),
+        points: build.points.clone(),
+        method: Discretization::Meshless {
+            build: Box::new(build),
+            bc_method: method,
+        },
+        quadratic: None,
+        places,
+        boundaries: bnd,
+        kind: ElementKind::Tet4,
+        min_dihedral: None,
+        warnings,
+    };
+    assemble(scene, input.as_ref(), parts, t0)
+}
+
+/// The EBCIEM / SEBCIEM correction of the boundaries of `model` that prescribe components
+/// (`method` other than direct correction), built after the masses are final.
+pub(super) fn impose(
+    build: &MeshlessBuild,
+    method: BcMethod,
+    model: &mut Model<Solid>,
+    warnings: &mut Vec<String>,
+) -> Result<()> {
+    let corrected: Vec<bool> = model
+        .boundaries
         .iter()
         .map(|b| method != BcMethod::Correction && b.components.iter().any(|c| c.is_some()))
         .collect();
-    if corrected.iter().any(|&c| c) {
-        let (corr, report) = MeshlessCorrector::new(&build, &bnd, &model.mass, imposition(method))?;
-        if report.lumped_nodes > 0 {
-            warnings.push(format!(
-                "EBCIEM: {} constrained node(s) lie on no boundary triangle whose vertices are all constrained; \
-                 their boundary force is lumped at the node (SEBCIEM)",
-                report.lumped_nodes
-            ));
-        }
-        model.set_corrector(Box::new(corr), corrected)?;
+    if !corrected.iter().any(|&c| c) {
+        return Ok(());
     }
-    Ok(Prepared {
-        mesh: build.background.clone(),
-        meshless: Some(build),
-        coupled: None,
-        bc_method: Some(method),
-        warnings,
-        model,
-        point_material,
-        regions: region_counts,
-        probes,
-        kind: ElementKind::Tet4,
-        min_dihedral: None,
-        preprocess_seconds: t0.elapsed().as_secs_f64(),
-        source_volume: None,
-    })
+    let (corr, report) =
+        MeshlessCorrector::new(build, &model.boundaries, &model.mass, imposition(method))?;
+    if report.lumped_nodes > 0 {
+        warnings.push(format!(
+            "EBCIEM: {} constrained node(s) lie on no boundary triangle whose vertices are all constrained; \
+             their boundary force is lumped at the node (SEBCIEM)",
+            report.lumped_nodes
+        ));
+    }
+    model.set_corrector(Box::new(corr), corrected)
 }

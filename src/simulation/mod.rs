@@ -1,14 +1,15 @@
 //! The pipeline of one run: scene -> mesh -> quadrature points -> model -> solver -> outputs.
 
-use std::collections::BTreeMap;
 use std::path::PathBuf;
 use std::time::Instant;
 
 use nalgebra::Vector3;
 
+mod build;
 mod build_coupled;
 mod build_fe;
 mod build_meshless;
+mod fields;
 mod loads;
 mod measured;
 mod output;
@@ -18,10 +19,12 @@ mod summary;
 mod surface;
 mod translate;
 
+pub use build::Discretization;
 use build_coupled::prepare_coupled;
 use build_fe::prepare_fe;
 use build_meshless::prepare_meshless;
-pub use output::{write_outputs, write_results, FrameLabels, FrameWriter, PointFields};
+pub use fields::{PointFields, ResultPoints};
+pub use output::{write_outputs, write_results, FrameLabels, FrameWriter};
 pub use session::{Checkpoint, Session, Solution};
 pub use summary::{element_label, method_name, summarize};
 use surface::Discretized;
@@ -75,46 +78,6 @@ fn select_nodes(
     };
     let sets: Option<&crate::geometry::select::SetLookup> = input.map(|_| &lookup as _);
     sel.select_with(nodes, what, sets)
-}
-
-/// A probe that averages the displacements interpolated at the nodes `sel` selects (with the
-/// mesh file's sets): `weights(i)` gives the (node, shape-function value) pairs that interpolate
-/// node i (its MLS or blended shape functions). Its position is the centroid of those nodes.
-fn mean_probe<W>(
-    name: &str,
-    sel: &crate::geometry::select::Selection,
-    nodes: &[Vector3<f64>],
-    input: Option<&MeshInput>,
-    weights: W,
-) -> Result<Probe>
-where
-    W: Fn(usize) -> Result<Vec<(usize, f64)>>,
-{
-    let ids = select_nodes(sel, nodes, &format!("probe '{name}'"), input)?;
-    let mut acc: BTreeMap<usize, f64> = BTreeMap::new();
-    for &i in &ids {
-        for (j, w) in weights(i)? {
-            *acc.entry(j).or_default() += w / ids.len() as f64;
-        }
-    }
-    let mut pr = set_probe(name, nodes, acc.into_iter().collect());
-    pr.position = ids.iter().fold(Vector3::zeros(), |a, &i| a + nodes[i]) / ids.len() as f64;
-    Ok(pr)
-}
-
-/// A probe that averages nodal values with the given (node, weight) pairs; its position is the
-/// weighted centroid of the nodes.
-fn set_probe(name: &str, nodes: &[Vector3<f64>], w: Vec<(usize, f64)>) -> Probe {
-    let position = w
-        .iter()
-        .fold(Vector3::zeros(), |a, &(i, x)| a + nodes[i] * x);
-    Probe {
-        name: name.into(),
-        position,
-        nodes: w.iter().map(|p| p.0).collect(),
-        weights: w.iter().map(|p| p.1).collect(),
-        element: usize::MAX,
-    }
 }
 
 /// The scene's boundaries with their selected nodes, then its measured displacements matched
@@ -181,14 +144,11 @@ fn boundaries_only(
 
 /// A scene turned into a model, ready to run.
 pub struct Prepared {
-    /// FE mesh, or the meshless background tets (VTU geometry).
+    /// FE mesh (tet10: its linear split over all nodes), the meshless background tets, or the
+    /// coupled FE layer: the geometry outputs are written on.
     pub mesh: Mesh,
-    /// The meshless discretization, for meshless scenes.
-    pub meshless: Option<MeshlessBuild>,
-    /// The coupled FE + meshless discretization, for coupled scenes.
-    pub coupled: Option<CoupledBuild>,
-    /// How essential conditions act on meshless nodes (None for FE).
-    pub bc_method: Option<BcMethod>,
+    /// The method and what it keeps beside the model.
+    pub method: Discretization,
     /// Things the user should know that do not stop the run.
     pub warnings: Vec<String>,
     pub model: Model<Solid>,
@@ -205,6 +165,24 @@ pub struct Prepared {
     /// labelled voxels) or a surface file (what it encloses): the mesh's volume is compared
     /// with it ([`geometry_volume`]).
     pub source_volume: Option<(f64, String)>,
+}
+
+impl Prepared {
+    /// The meshless build, for meshless scenes.
+    pub fn meshless(&self) -> Option<&MeshlessBuild> {
+        self.method.meshless()
+    }
+
+    /// The coupled build, for coupled scenes.
+    pub fn coupled(&self) -> Option<&CoupledBuild> {
+        self.method.coupled()
+    }
+
+    /// How essential conditions act on meshless nodes (None for FE, and for coupled scenes
+    /// whose conditions hold FE nodes only).
+    pub fn bc_method(&self) -> Option<BcMethod> {
+        self.method.bc_method()
+    }
 }
 
 /// The body's mesh: the mesh file's (its reader's warnings and the duplicate-node check go to
@@ -430,7 +408,7 @@ pub fn prepare(scene: &Scene) -> Result<Prepared> {
     if let Some(w) = initial_velocity_warning(scene, &p) {
         p.warnings.push(w);
     }
-    if scene.solver.mode == Mode::Static && p.bc_method == Some(BcMethod::Ebciem) {
+    if scene.solver.mode == Mode::Static && p.bc_method() == Some(BcMethod::Ebciem) {
         p.warnings.push(
             "solver.mode = \"static\" imposes the meshless essential boundaries exactly at their \
              nodes with constraint forces distributed by the shape functions, as SEBCIEM does: the \
@@ -516,13 +494,15 @@ fn locking_warning(scene: &Scene, p: &Prepared) -> Option<String> {
         ));
     }
     // The coupled table holds its FE and transition points first, the interior's last.
-    let (mls_points, free) = match (&p.meshless, &p.coupled) {
-        (Some(_), _) => (volumetric_constraints(&p.model.points, 0), free_dofs(p)),
-        (_, Some(c)) => (
+    let (mls_points, free) = match &p.method {
+        Discretization::Meshless { .. } => {
+            (volumetric_constraints(&p.model.points, 0), free_dofs(p))
+        }
+        Discretization::Coupled { build: c, .. } => (
             volumetric_constraints(&p.model.points, c.fe_points + c.transition_points),
             3 * c.mls_nodes.len(),
         ),
-        _ => return None,
+        Discretization::Fe => return None,
     };
     let per_dof = mls_points as f64 / free.max(1) as f64;
     if per_dof > LOCKING_POINTS_PER_DOF {
@@ -584,19 +564,10 @@ pub fn run_scene(scene: &Scene, opts: &RunOptions) -> Result<Summary> {
         let Prepared {
             model,
             mesh,
-            meshless,
-            coupled,
+            method,
             ..
         } = &mut prep;
-        let mut frames = FrameWriter::new(
-            &staging,
-            &name,
-            mesh,
-            meshless.as_ref(),
-            coupled.as_ref(),
-            labels,
-            opts.vtu_format,
-        )?;
+        let mut frames = FrameWriter::new(&staging, &name, mesh, method, labels, opts.vtu_format)?;
         let run = solver::run_streaming(model, &settings, &mut |m, t, u| frames.write(m, t, u));
         frames.write_series()?;
         let image_written = match &run {

@@ -7,15 +7,14 @@ use std::path::{Path, PathBuf};
 
 use nalgebra::Vector3;
 
-use super::Prepared;
-use crate::coupling::CoupledBuild;
+use super::fields::ResultPoints;
+use super::{Discretization, Prepared};
 use crate::geometry::Mesh;
 use crate::io::vtu::{self, DataArray, VtuFormat};
 use crate::material::Solid;
-use crate::meshless::discretize::MeshlessBuild;
 use crate::report::Summary;
 use crate::scene::Scene;
-use crate::solver::{Fields, Model, RunOutput};
+use crate::solver::{Model, RunOutput};
 use crate::{Error, Result};
 
 /// VTU cells making each of `n` points a VTK vertex (type 1), so ParaView draws them:
@@ -183,7 +182,7 @@ impl FrameLabels {
                 (b.name.clone(), on)
             })
             .collect();
-        let fe = prep.meshless.is_none() && prep.coupled.is_none();
+        let fe = matches!(prep.method, Discretization::Fe);
         let element_cells = if fe && prep.kind == crate::fe::ElementKind::Tet10 {
             8
         } else {
@@ -192,20 +191,20 @@ impl FrameLabels {
         let point_cells = if prep.point_material.is_empty() {
             Vec::new()
         } else {
-            match (&prep.meshless, &prep.coupled) {
-                (Some(m), _) => m
+            match &prep.method {
+                Discretization::Meshless { build: m, .. } => m
                     .owner
                     .iter()
                     .copied()
                     .zip(prep.point_material.iter().copied())
                     .collect(),
-                (None, Some(c)) => c
+                Discretization::Coupled { build: c, .. } => c
                     .owner
                     .iter()
                     .copied()
                     .zip(prep.point_material.iter().copied())
                     .collect(),
-                (None, None) => {
+                Discretization::Fe => {
                     let per_element = element_points(
                         prep.point_material.len(),
                         prep.mesh.num_cells(),
@@ -232,7 +231,7 @@ impl FrameLabels {
 
 /// Quadrature points per FE element, for `points` points over `cells` frame cells of which
 /// `element_cells` make one element (at least 1).
-fn element_points(points: usize, cells: usize, element_cells: usize) -> usize {
+pub(super) fn element_points(points: usize, cells: usize, element_cells: usize) -> usize {
     let elements = (cells / element_cells.max(1)).max(1);
     (points / elements).max(1)
 }
@@ -242,224 +241,38 @@ fn element_points(points: usize, cells: usize, element_cells: usize) -> usize {
 pub struct FrameWriter<'a> {
     dir: PathBuf,
     name: String,
-    mesh: &'a Mesh,
-    meshless: Option<&'a MeshlessBuild>,
-    coupled: Option<&'a CoupledBuild>,
-    /// Meshless and coupled: the nodes and shape-function values that give each VTU point's
-    /// displacement (nodal parameters are not displacements).
-    interp: Option<Vec<(Vec<usize>, Vec<f64>)>>,
+    /// The frames' points and cells and the interpolation of nodal values to them.
+    points: ResultPoints<'a>,
     labels: FrameLabels,
     format: VtuFormat,
     /// (time s, file name) of every frame written.
     series: Vec<(f64, String)>,
 }
 
-/// A frame's points (m), its cells (connectivity, offsets, VTK types) and the cell of each
-/// quadrature point (None: one point per cell, in cell order).
-type FrameGeometry<'a> = (
-    &'a [Vector3<f64>],
-    (Vec<usize>, Vec<usize>, Vec<u8>),
-    Option<&'a [usize]>,
-);
-
-/// The fields of one state at the points of the VTU frames ([`FrameWriter::point_fields`]):
-/// reference positions (m), cells as VTK writes them (connectivity, offsets, VTK cell types),
-/// displacement (m) and the nodal Cauchy stress (Pa), Green-Lagrange strain, von Mises stress
-/// (Pa) and J ([`Model::nodal_fields`]; meshless: interpolated with the shape functions).
-#[derive(Debug, Clone)]
-pub struct PointFields {
-    pub points: Vec<Vector3<f64>>,
-    pub connectivity: Vec<usize>,
-    pub offsets: Vec<usize>,
-    pub types: Vec<u8>,
-    pub displacement: Vec<Vector3<f64>>,
-    pub fields: Fields,
-}
-
-/// Sums `rows` (entries, weights) of `values` (`width` numbers per entry) into one entry per row.
-fn interpolate(rows: &[(Vec<usize>, Vec<f64>)], values: &[f64], width: usize) -> Vec<f64> {
-    let mut out = vec![0.0; rows.len() * width];
-    for (r, (ids, phi)) in rows.iter().enumerate() {
-        for (&i, &p) in ids.iter().zip(phi) {
-            for c in 0..width {
-                out[r * width + c] += p * values[i * width + c];
-            }
-        }
-    }
-    out
-}
-
 impl<'a> FrameWriter<'a> {
-    /// A writer of `name_0000.vtu`, ... in `dir` (created if missing).
+    /// A writer of `name_0000.vtu`, ... in `dir` (created when the first frame is written)
+    /// for the discretization `method` over `mesh` ([`super::Prepared`]'s).
     pub fn new(
         dir: &Path,
         name: &str,
         mesh: &'a Mesh,
-        meshless: Option<&'a MeshlessBuild>,
-        coupled: Option<&'a CoupledBuild>,
+        method: &'a Discretization,
         labels: FrameLabels,
         format: VtuFormat,
     ) -> Result<Self> {
-        let interp: Option<Vec<(Vec<usize>, Vec<f64>)>> = match (meshless, coupled) {
-            (None, Some(c)) => Some(
-                c.vertex_weights()?
-                    .into_iter()
-                    .map(|w| w.into_iter().unzip())
-                    .collect(),
-            ),
-            (Some(m), _) => Some(
-                m.background
-                    .nodes
-                    .iter()
-                    .enumerate()
-                    .map(|(v, x)| {
-                        m.shape_values(x, &|| format!("output point {v}"))
-                            .map(|s| (s.ids, s.phi))
-                    })
-                    .collect::<Result<Vec<_>>>()?,
-            ),
-            (None, None) => None,
-        };
         Ok(FrameWriter {
             dir: dir.to_path_buf(),
             name: name.to_string(),
-            mesh,
-            meshless,
-            coupled,
-            interp,
+            points: ResultPoints::new(mesh, method)?,
             labels,
             format,
             series: Vec::new(),
         })
     }
 
-    /// The frame's cells as one mesh over its points (reference positions, m) and the
-    /// displacement (m) at each point for nodal values `u`: what `output.image` warps with.
-    pub fn deformation(&self, u: &[Vector3<f64>]) -> Result<(Mesh, Vec<Vector3<f64>>)> {
-        let mesh = match (self.meshless, self.coupled) {
-            (Some(m), _) => {
-                if m.background.num_cells() == 0 {
-                    return Err(Error::Input(
-                        "output.image needs the body's cells, and this meshless cloud has no background \
-                         tets (use integration = \"tets\" or cloud = \"mesh\")"
-                            .into(),
-                    ));
-                }
-                m.background.clone()
-            }
-            (None, Some(c)) => {
-                let fe = crate::geometry::mesh::hex_to_tets(c.fe_mesh.clone());
-                let inner = crate::geometry::mesh::hex_to_tets(c.interior.clone());
-                let mut cells = fe.cells;
-                cells.extend_from_slice(&inner.cells);
-                Mesh {
-                    nodes: c.nodes.clone(),
-                    shape: crate::geometry::ElementShape::Tet4,
-                    cells,
-                }
-            }
-            (None, None) => self.mesh.clone(),
-        };
-        let flat_u: Vec<f64> = u.iter().flat_map(|v| [v.x, v.y, v.z]).collect();
-        let disp = match &self.interp {
-            Some(rows) => interpolate(rows, &flat_u, 3),
-            None => flat_u,
-        };
-        let disp: Vec<Vector3<f64>> = disp
-            .chunks_exact(3)
-            .map(|c| Vector3::new(c[0], c[1], c[2]))
-            .collect();
-        if disp.len() != mesh.nodes.len() {
-            return Err(Error::Input(format!(
-                "output.image: {} displacements for the frame's {} points",
-                disp.len(),
-                mesh.nodes.len()
-            )));
-        }
-        Ok((mesh, disp))
-    }
-
-    /// The frame's points and cells: FE mesh, meshless background tets (or vertices),
-    /// coupled FE layer and interior; `owner` maps points to cells (None: one per element).
-    fn geometry(&self) -> FrameGeometry<'a> {
-        match (self.meshless, self.coupled) {
-            (Some(m), _) => {
-                let b = &m.background;
-                let cells = if b.num_cells() == 0 {
-                    // A cloud without tets: each vertex a VTK vertex.
-                    let n = b.nodes.len();
-                    ((0..n).collect(), (1..=n).collect(), vec![1u8; n])
-                } else {
-                    let npc = b.shape.nodes_per_cell();
-                    (
-                        b.cells.clone(),
-                        (1..=b.num_cells()).map(|e| e * npc).collect(),
-                        vec![b.shape.vtk_type(); b.num_cells()],
-                    )
-                };
-                (&b.nodes, cells, Some(&m.owner[..]))
-            }
-            (None, Some(c)) => (&c.nodes, c.vtu_cells(), Some(&c.owner[..])),
-            (None, None) => {
-                let m = self.mesh;
-                let npc = m.shape.nodes_per_cell();
-                (
-                    &m.nodes,
-                    (
-                        m.cells.clone(),
-                        (1..=m.num_cells()).map(|e| e * npc).collect(),
-                        vec![m.shape.vtk_type(); m.num_cells()],
-                    ),
-                    None,
-                )
-            }
-        }
-    }
-
-    /// Displacements (m, x y z per point) and nodal fields at the frame's points for nodal
-    /// values `u` (m).
-    fn at_points(&self, model: &mut Model<Solid>, u: &[Vector3<f64>]) -> (Vec<f64>, Fields) {
-        let nodal = model.nodal_fields(u);
-        let flat_u: Vec<f64> = u.iter().flat_map(|v| [v.x, v.y, v.z]).collect();
-        match (&self.interp, self.meshless) {
-            (Some(rows), Some(_)) => {
-                let mut f = Fields::zeros(rows.len());
-                let (c, e, j) = (
-                    interpolate(rows, &nodal.cauchy, 9),
-                    interpolate(rows, &nodal.green, 9),
-                    interpolate(rows, &nodal.j, 1),
-                );
-                for v in 0..rows.len() {
-                    f.set(
-                        v,
-                        &nalgebra::Matrix3::from_row_slice(&c[9 * v..9 * v + 9]),
-                        &nalgebra::Matrix3::from_row_slice(&e[9 * v..9 * v + 9]),
-                        j[v],
-                    );
-                }
-                (interpolate(rows, &flat_u, 3), f)
-            }
-            (Some(rows), None) => (interpolate(rows, &flat_u, 3), nodal),
-            (None, _) => (flat_u, nodal),
-        }
-    }
-
-    /// A state's fields on the frame's points, in memory: what [`Self::write`] writes as
-    /// point data, with the frame's cells.
-    pub fn point_fields(&self, model: &mut Model<Solid>, u: &[Vector3<f64>]) -> PointFields {
-        let (xs, (connectivity, offsets, types), _) = self.geometry();
-        let (disp, fields) = self.at_points(model, u);
-        PointFields {
-            points: xs.to_vec(),
-            connectivity,
-            offsets,
-            types,
-            displacement: disp
-                .chunks_exact(3)
-                .map(|c| Vector3::new(c[0], c[1], c[2]))
-                .collect(),
-            fields,
-        }
+    /// The frames' points (see [`ResultPoints`]).
+    pub fn points(&self) -> &ResultPoints<'a> {
+        &self.points
     }
 
     /// Writes the next frame at displacements `u` (m) and time `t` (s). Point data:
@@ -476,9 +289,9 @@ impl<'a> FrameWriter<'a> {
             std::fs::create_dir_all(&self.dir).map_err(|e| Error::io(&self.dir, e))?;
         }
         let path = self.dir.join(&file);
-        let (xs, (conn, offsets, types), owner) = self.geometry();
+        let (xs, (conn, offsets, types), owner) = self.points.geometry();
         let ncell = types.len();
-        let (disp, at_points) = self.at_points(model, u);
+        let (disp, at_points) = self.points.at_points(model, u);
         let stretches: Vec<f64> = (0..at_points.len())
             .flat_map(|v| at_points.principal_stretches(v))
             .collect();
@@ -539,16 +352,7 @@ impl<'a> FrameWriter<'a> {
             r
         };
         // Boundary labels at the frame's points (meshless: at the field node of a vertex).
-        let node_of = |v: usize| -> Option<usize> {
-            match self.meshless {
-                Some(m) => m
-                    .background_node
-                    .get(v)
-                    .copied()
-                    .filter(|&i| i != usize::MAX),
-                None => Some(v),
-            }
-        };
+        let node_of = |v: usize| self.points.node(v);
         let labels: Vec<(String, Vec<f64>)> = self
             .labels
             .boundaries
@@ -665,15 +469,7 @@ pub fn write_outputs(
 ) -> Result<()> {
     let name = scene.name.clone().unwrap_or_else(|| "run".into());
     let labels = FrameLabels::of(prep);
-    let mut frames = FrameWriter::new(
-        dir,
-        &name,
-        &prep.mesh,
-        prep.meshless.as_ref(),
-        prep.coupled.as_ref(),
-        labels,
-        format,
-    )?;
+    let mut frames = FrameWriter::new(dir, &name, &prep.mesh, &prep.method, labels, format)?;
     for (t, u) in &out.frames {
         frames.write(&mut prep.model, *t, u)?;
     }
@@ -709,7 +505,7 @@ pub fn write_image_outputs(
     let Some((image, path)) = image else {
         return Ok(());
     };
-    let (mesh, disp) = frames.deformation(u)?;
+    let (mesh, disp) = frames.points().deformation(u)?;
     let (d, covered) = crate::geometry::warp::pull_back(image, &mesh, &disp)?;
     if covered == 0 {
         let (lo, hi) = crate::geometry::select::bounds(&mesh.nodes);
@@ -775,7 +571,7 @@ pub fn write_results(
     format: VtuFormat,
 ) -> Result<()> {
     let points_file = dir.join(format!("{name}_integration_points.vtu"));
-    if let Some(m) = prep.meshless.as_ref().filter(|m| m.adaptive.is_some()) {
+    if let Some(m) = prep.meshless().filter(|m| m.adaptive.is_some()) {
         write_integration_points(
             &points_file,
             &m.positions,
@@ -786,8 +582,7 @@ pub fn write_results(
         )?;
     }
     if let Some((c, (pos, levels))) = prep
-        .coupled
-        .as_ref()
+        .coupled()
         .and_then(|c| c.adaptive_points.as_ref().map(|a| (c, a)))
     {
         // The interior's points are the last ones; their owners are offset by the FE cells.

@@ -28,7 +28,7 @@ use std::time::Instant;
 
 use nalgebra::Vector3;
 
-use super::{prepare, settings, summarize, FrameLabels, FrameWriter, PointFields, Prepared};
+use super::{prepare, settings, summarize, PointFields, Prepared, ResultPoints};
 use crate::material::Solid;
 use crate::report::Summary;
 use crate::scene::Scene;
@@ -426,8 +426,7 @@ impl Session {
         let Prepared {
             model,
             mesh,
-            meshless,
-            coupled,
+            method,
             ..
         } = &mut self.prep;
         if u.len() != model.nodes.len() {
@@ -437,22 +436,7 @@ impl Session {
                 model.nodes.len()
             )));
         }
-        let labels = FrameLabels {
-            boundaries: Vec::new(),
-            point_cells: Vec::new(),
-            element_cells: 1,
-        };
-        // Nothing is written: the writer's folder is never created.
-        let writer = FrameWriter::new(
-            std::path::Path::new(""),
-            "fields",
-            mesh,
-            meshless.as_ref(),
-            coupled.as_ref(),
-            labels,
-            crate::io::vtu::VtuFormat::default(),
-        )?;
-        Ok(writer.point_fields(model, u))
+        Ok(ResultPoints::new(mesh, method)?.point_fields(model, u))
     }
 }
 

@@ -11,25 +11,23 @@ use crate::report::{
 use crate::scene::Scene;
 use crate::solver::{Mode, RunOutput};
 
-use super::Prepared;
+use super::{Discretization, Prepared};
 
 /// "fe", "coupled" or "meshless".
 pub fn method_name(prep: &Prepared) -> &'static str {
-    if prep.meshless.is_some() {
-        "meshless"
-    } else if prep.coupled.is_some() {
-        "coupled"
-    } else {
-        "fe"
+    match prep.method {
+        Discretization::Meshless { .. } => "meshless",
+        Discretization::Coupled { .. } => "coupled",
+        Discretization::Fe => "fe",
     }
 }
 
 /// The element or basis of a prepared scene: "hex8", "mls", "hex8+mls", ...
 pub fn element_label(scene: &Scene, prep: &Prepared) -> String {
-    match (&prep.meshless, &prep.coupled) {
-        (Some(_), _) => basis_name(scene).into(),
-        (None, Some(_)) => format!("{}+{}", prep.kind.name(), basis_name(scene)),
-        (None, None) => prep.kind.name().into(),
+    match prep.method {
+        Discretization::Meshless { .. } => basis_name(scene).into(),
+        Discretization::Coupled { .. } => format!("{}+{}", prep.kind.name(), basis_name(scene)),
+        Discretization::Fe => prep.kind.name().into(),
     }
 }
 
@@ -334,14 +332,13 @@ pub fn summarize(scene: &Scene, prep: &Prepared, out: &RunOutput, total_seconds:
             geometry_volume_of: prep.source_volume.as_ref().map(|v| v.1.clone()),
         },
         support_nodes: prep
-            .meshless
-            .as_ref()
+            .meshless()
             .map(|m| m.support_statistics())
-            .or_else(|| prep.coupled.as_ref().map(|c| c.support_statistics()))
+            .or_else(|| prep.coupled().map(|c| c.support_statistics()))
             .map(|(mean, min, max)| SupportNodes { mean, min, max }),
-        removed_nodes: prep.meshless.as_ref().map(|m| m.removed_nodes),
-        bc_method: prep.bc_method.map(|b| b.name().to_string()),
-        meshless: prep.meshless.as_ref().map(|m| MeshlessInfo {
+        removed_nodes: prep.meshless().map(|m| m.removed_nodes),
+        bc_method: prep.bc_method().map(|b| b.name().to_string()),
+        meshless: prep.meshless().map(|m| MeshlessInfo {
             cloud: m.cloud.clone(),
             integration: m.integration.clone(),
             basis: basis_long(scene),
@@ -349,7 +346,7 @@ pub fn summarize(scene: &Scene, prep: &Prepared, out: &RunOutput, total_seconds:
             exact_volume: m.exact_volume,
             adaptive: m.adaptive.clone(),
         }),
-        coupled: prep.coupled.as_ref().map(|c| {
+        coupled: prep.coupled().map(|c| {
             use crate::coupling::{CellRole, NodeRole};
             CoupledInfo {
                 fe_layers: scene.discretization.fe_layers(),

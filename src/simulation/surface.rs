@@ -5,18 +5,34 @@
 
 use nalgebra::Vector3;
 
-use crate::bc::loads::{Face, Row};
+use crate::bc::loads::Face;
 use crate::coupling::CoupledBuild;
+use crate::fe::tet10::Tet10Mesh;
 use crate::geometry::{quality, Mesh};
 use crate::meshless::discretize::MeshlessBuild;
+use crate::probe::locate_among;
+use crate::quadrature::SparseRow;
 use crate::{Error, Result};
 
-/// A built discretization, seen through what surfaces and nodes need.
+/// A built discretization, seen through what the pipeline shared by the methods needs
+/// (issue 58's build seam): its nodes, the rows that interpolate the displacement at a node or
+/// a point, the selections a node set implies, and its surface. Loads, contact, measured
+/// displacements and probes are built over it once for every method.
 #[derive(Clone, Copy)]
 pub(crate) enum Discretized<'a> {
-    Fe(&'a Mesh),
+    /// A finite-element mesh; with quadratic (tet10) elements, its mesh is the linear split
+    /// over all nodes and [`QuadraticFe`] gives the elements.
+    Fe(&'a Mesh, Option<QuadraticFe<'a>>),
     Meshless(&'a MeshlessBuild),
     Coupled(&'a CoupledBuild),
+}
+
+/// Quadratic tets: the elements and the linear mesh of their vertices, where points are
+/// located before the quadratic shape functions are taken at their barycentric coordinates.
+#[derive(Clone, Copy)]
+pub(crate) struct QuadraticFe<'a> {
+    pub tets: &'a Tet10Mesh,
+    pub linear: &'a Mesh,
 }
 
 /// The body's boundary: vertex positions (m) and outward faces over them, each with the cell
@@ -26,15 +42,11 @@ pub(crate) struct Surface {
     pub faces: Vec<(Vec<usize>, Option<usize>)>,
 }
 
-fn sparse(w: Vec<(usize, f64)>) -> Row {
-    w.into_iter().map(|(i, p)| (i as u32, p)).collect()
-}
-
 impl<'a> Discretized<'a> {
     /// The model's nodes, m.
     pub fn nodes(&self) -> &'a [Vector3<f64>] {
         match self {
-            Discretized::Fe(m) => &m.nodes,
+            Discretized::Fe(m, _) => &m.nodes,
             Discretized::Meshless(b) => &b.nodes,
             Discretized::Coupled(b) => &b.nodes,
         }
@@ -47,38 +59,76 @@ impl<'a> Discretized<'a> {
         x: &Vector3<f64>,
         cell: Option<usize>,
         what: &dyn Fn() -> String,
-    ) -> Result<Row> {
+    ) -> Result<SparseRow> {
         match self {
-            Discretized::Fe(_) => Err(Error::Input(format!(
+            Discretized::Fe(..) => Err(Error::Input(format!(
                 "{}: FE faces take their nodes' values (internal)",
                 what()
             ))),
-            Discretized::Meshless(b) => {
-                let s = b.shape_values(x, what)?;
-                Ok(s.ids
-                    .iter()
-                    .zip(&s.phi)
-                    .map(|(&i, &p)| (i as u32, p))
-                    .collect())
+            Discretized::Meshless(b) => b.shape_values(x, what),
+            Discretized::Coupled(b) => b.shape_values_in(cell, x, what),
+        }
+    }
+
+    /// The row that gives the displacement at the reference point `x` (m), its cell found by
+    /// search (a probe's position), and the element whose shape functions make it (FE).
+    /// `what` names the point in errors.
+    pub fn point_row(
+        &self,
+        x: &Vector3<f64>,
+        what: &dyn Fn() -> String,
+    ) -> Result<(SparseRow, Option<usize>)> {
+        match self {
+            Discretized::Fe(m, q) => {
+                let mesh = q.map_or(*m, |q| q.linear);
+                let at = locate_among(x, mesh, 0..mesh.num_cells(), what)?;
+                let row = match q {
+                    // The element's quadratic shape functions at the barycentric coordinates.
+                    Some(q) => {
+                        let l = std::array::from_fn(|k| at.weights[k]);
+                        q.tets
+                            .weights(at.element, l)
+                            .into_iter()
+                            .map(|(i, w)| (i as u32, w))
+                            .collect()
+                    }
+                    None => at.nodes.iter().map(|&i| i as u32).zip(at.weights).collect(),
+                };
+                Ok((row, Some(at.element)))
             }
-            Discretized::Coupled(b) => Ok(sparse(b.shape_values_in(cell, x, what)?)),
+            Discretized::Meshless(b) => Ok((b.shape_values(x, what)?, None)),
+            Discretized::Coupled(b) => Ok((b.shape_values(x, what)?, None)),
+        }
+    }
+
+    /// Adds to a selection of nodes (ascending or not) the nodes it implies: a quadratic
+    /// mesh's edge nodes between the vertices it holds (named sets are of the vertices).
+    pub fn extend_selection(&self, ids: &mut Vec<usize>) {
+        match self {
+            Discretized::Fe(_, Some(q)) => q.tets.extend_selection(ids),
+            Discretized::Coupled(b) => {
+                if let Some(q) = &b.quadratic {
+                    q.extend_selection(ids);
+                }
+            }
+            _ => {}
         }
     }
 
     /// The row that gives the displacement at node `i`'s position.
-    pub fn node_row(&self, i: usize) -> Result<Row> {
+    pub fn node_row(&self, i: usize) -> Result<SparseRow> {
         match self {
-            Discretized::Fe(_) => Ok(vec![(i as u32, 1.0)]),
+            Discretized::Fe(..) => Ok(vec![(i as u32, 1.0)]),
             Discretized::Meshless(b) => self.row_at(&b.nodes[i], None, &|| format!("node {i}")),
-            Discretized::Coupled(b) => Ok(sparse(b.vertex_weights_of(i, &|| format!("node {i}"))?)),
+            Discretized::Coupled(b) => b.vertex_weights_of(i, &|| format!("node {i}")),
         }
     }
 
     /// The row that gives the displacement at vertex `i` of `surface`.
-    pub fn vertex_row(&self, surface: &Surface, i: usize) -> Result<Row> {
+    pub fn vertex_row(&self, surface: &Surface, i: usize) -> Result<SparseRow> {
         match self {
             // FE and coupled surfaces are over the model's nodes.
-            Discretized::Fe(_) | Discretized::Coupled(_) => self.node_row(i),
+            Discretized::Fe(..) | Discretized::Coupled(_) => self.node_row(i),
             Discretized::Meshless(_) => self.row_at(&surface.vertices[i], None, &|| {
                 format!("boundary vertex {i}")
             }),
@@ -117,7 +167,7 @@ impl<'a> Discretized<'a> {
             quality::boundary_faces_with_cells(m).map_err(|e| Error::Input(format!("{what}: {e}")))
         };
         match self {
-            Discretized::Fe(m) => Ok(Surface {
+            Discretized::Fe(m, _) => Ok(Surface {
                 vertices: m.nodes.clone(),
                 faces: faces(m, "mesh")?
                     .into_iter()
@@ -174,7 +224,7 @@ impl<'a> Discretized<'a> {
     pub fn face(&self, surface: &Surface, k: usize) -> Result<Face> {
         let (ids, cell) = &surface.faces[k];
         match self {
-            Discretized::Fe(m) => Face::interpolating(ids, &m.nodes),
+            Discretized::Fe(m, _) => Face::interpolating(ids, &m.nodes),
             _ => {
                 let x: Vec<Vector3<f64>> = ids.iter().map(|&i| surface.vertices[i]).collect();
                 Face::with_shape(&x, &|p| {
