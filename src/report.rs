@@ -6,6 +6,130 @@ use serde::Serialize;
 
 use crate::solver::integrate::RelaxationRecord;
 
+/// What a warning is about. Callers (the Python package, re-solves, sweeps) tell warnings
+/// apart by their kind, never by their text; summary.json lists the kinds beside the messages
+/// (`warning_kinds`, in the same order).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum WarningKind {
+    /// The input: a mesh file's content and quality, its units, the model's volume against
+    /// the geometry's.
+    Input,
+    /// The discretization: volumetric locking, nodes removed or reached by few points,
+    /// combinations not verified.
+    Discretization,
+    /// Boundary conditions: parts no boundary holds, initial motion against held nodes,
+    /// drives under-integrated, conditions imposed by EBCIEM or SEBCIEM.
+    Boundary,
+    /// Rigid contact: a tool that starts inside the body, points left inside a tool.
+    Contact,
+    /// `output.frames` in a steady-state run, which writes its load stages instead.
+    SteadyFrames,
+    /// The solve: restarts, cut load steps, out-of-balance forces, the energy balance.
+    Solve,
+    /// A re-solve of a prepared model: a tool moved far, a warm start that failed.
+    Resolve,
+}
+
+impl WarningKind {
+    /// The kind's name in summary.json and Python (`"input"`, `"steady_frames"`, ...).
+    pub fn name(self) -> &'static str {
+        match self {
+            WarningKind::Input => "input",
+            WarningKind::Discretization => "discretization",
+            WarningKind::Boundary => "boundary",
+            WarningKind::Contact => "contact",
+            WarningKind::SteadyFrames => "steady_frames",
+            WarningKind::Solve => "solve",
+            WarningKind::Resolve => "resolve",
+        }
+    }
+}
+
+/// Something the user should know that does not stop the run: its kind and its message.
+/// It reads as its message (`Display`, and as a `str`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Warning {
+    pub kind: WarningKind,
+    pub message: String,
+}
+
+impl Warning {
+    pub fn new(kind: WarningKind, message: impl Into<String>) -> Self {
+        Warning {
+            kind,
+            message: message.into(),
+        }
+    }
+
+    /// Messages of one kind, as warnings.
+    pub fn all(kind: WarningKind, messages: impl IntoIterator<Item = String>) -> Vec<Warning> {
+        messages
+            .into_iter()
+            .map(|m| Warning::new(kind, m))
+            .collect()
+    }
+}
+
+impl std::fmt::Display for Warning {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.message)
+    }
+}
+
+impl std::ops::Deref for Warning {
+    type Target = str;
+    fn deref(&self) -> &str {
+        &self.message
+    }
+}
+
+impl std::borrow::Borrow<str> for Warning {
+    fn borrow(&self) -> &str {
+        &self.message
+    }
+}
+
+/// summary.json's `warnings` (the messages) and `warning_kinds` (their kinds, in order);
+/// nothing without warnings.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Warnings(pub Vec<Warning>);
+
+impl Serialize for Warnings {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        use serde::ser::SerializeMap;
+        let mut m = s.serialize_map(None)?;
+        if !self.0.is_empty() {
+            let messages: Vec<&str> = self.0.iter().map(|w| w.message.as_str()).collect();
+            let kinds: Vec<&str> = self.0.iter().map(|w| w.kind.name()).collect();
+            m.serialize_entry("warnings", &messages)?;
+            m.serialize_entry("warning_kinds", &kinds)?;
+        }
+        m.end()
+    }
+}
+
+impl std::ops::Deref for Warnings {
+    type Target = Vec<Warning>;
+    fn deref(&self) -> &Vec<Warning> {
+        &self.0
+    }
+}
+
+impl<'a> IntoIterator for &'a Warnings {
+    type Item = &'a Warning;
+    type IntoIter = std::slice::Iter<'a, Warning>;
+    fn into_iter(self) -> Self::IntoIter {
+        self.0.iter()
+    }
+}
+
+impl std::ops::DerefMut for Warnings {
+    fn deref_mut(&mut self) -> &mut Vec<Warning> {
+        &mut self.0
+    }
+}
+
 /// Wall-clock times, s.
 #[derive(Debug, Clone, Serialize)]
 pub struct WallSeconds {
@@ -296,8 +420,8 @@ pub struct Summary {
     pub meshless: Option<MeshlessInfo>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub coupled: Option<CoupledInfo>,
-    #[serde(skip_serializing_if = "Vec::is_empty")]
-    pub warnings: Vec<String>,
+    #[serde(flatten)]
+    pub warnings: Warnings,
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub relaxation: Vec<RelaxationRecord>,
 }

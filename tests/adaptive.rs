@@ -9,14 +9,9 @@
 mod common;
 use common::*;
 
-use hytled::scene::Scene;
 use hytled::simulation::{self, prepare, settings, Prepared};
 use hytled::solver;
 use nalgebra::Vector3;
-
-fn scene(case: &str, overrides: &[&str]) -> Scene {
-    common::load_scene(&format!("cases/{case}.toml"), overrides)
-}
 
 /// One row of the tolerance study.
 #[derive(Debug)]
@@ -33,8 +28,8 @@ struct Row {
 /// `tolerance`: points used and the mean / largest nodal error against the exact field
 /// u = ((a - 1) x, (a - 1) y, -0.2 z), a = 1.11574668.
 fn cube_row(size: &str, tolerance: f64) -> Row {
-    let sc = scene(
-        "cube-compression",
+    let sc = common::load_scene(
+        "cases/cube-compression.toml",
         &[
             "discretization.method=meshless",
             "discretization.basis=quadratic",
@@ -127,8 +122,8 @@ fn cube_tolerance_study() {
 
 #[test]
 fn summary_reports_the_refinement_and_vtu_holds_the_points() {
-    let sc = scene(
-        "cube-compression",
+    let sc = common::load_scene(
+        "cases/cube-compression.toml",
         &[
             "discretization.method=meshless",
             "discretization.integration=adaptive",
@@ -181,13 +176,13 @@ fn coupled_interior_refines_adaptively() {
     // One point per interior tet: the adaptive rule's starting points.
     let mut one = base.to_vec();
     one.push("discretization.tets_per_point=1");
-    let plain = prepare(&scene("cube-compression", &one)).unwrap();
+    let plain = prepare(&common::load_scene("cases/cube-compression.toml", &one)).unwrap();
     let mut o = base.to_vec();
     o.extend([
         "discretization.integration=adaptive",
         "discretization.tolerance=0.001",
     ]);
-    let sc = scene("cube-compression", &o);
+    let sc = common::load_scene("cases/cube-compression.toml", &o);
     let mut adaptive = prepare(&sc).unwrap();
     let (cp, ca) = (plain.coupled().unwrap(), adaptive.coupled().unwrap());
     let info = ca.adaptive.clone().expect("adaptive report");
@@ -235,8 +230,8 @@ fn bad_adaptive_settings_are_scene_errors() {
 /// A hexahedral coupled interior keeps its Gauss points and says so.
 #[test]
 fn adaptive_on_a_hexahedral_coupled_interior_is_a_warning() {
-    let p = prepare(&scene(
-        "cube-compression",
+    let p = prepare(&common::load_scene(
+        "cases/cube-compression.toml",
         &[
             "discretization.method=coupled",
             "discretization.element=hex8",

@@ -238,6 +238,7 @@ fn a_linear_surface_layer_around_a_concentrated_drive_is_warned_of() {
             .warnings
             .into_iter()
             .filter(|w| w.contains("fe_region = 'surface'"))
+            .map(|w| w.message)
             .collect()
     };
     let w = warned(&[

@@ -10,12 +10,9 @@ use hytled::simulation::{prepare, settings, Prepared};
 use hytled::solver::{self, forces::deformation_gradient};
 use nalgebra::{Matrix3, Vector3};
 
-fn scene(case: &str, overrides: &[&str]) -> Scene {
-    common::load_scene(case, overrides)
-}
-
 fn prepared(case: &str, overrides: &[&str]) -> Prepared {
-    prepare(&scene(case, overrides)).unwrap_or_else(|e| panic!("{case} {overrides:?}: {e}"))
+    prepare(&common::load_scene(case, overrides))
+        .unwrap_or_else(|e| panic!("{case} {overrides:?}: {e}"))
 }
 
 /// Interpolated displacement sum_j phi_j(x) u_j at `x` (m).
@@ -110,7 +107,7 @@ fn ebciem_and_sebciem_impose_prescribed_values_and_correction_does_not() {
             "solver.duration=0.5",
             bc.as_str(),
         ];
-        let sc = scene("cases/cylinder-compression.toml", &ov);
+        let sc = common::load_scene("cases/cylinder-compression.toml", &ov);
         let mut prep = prepare(&sc).unwrap();
         let out = run(&mut prep, &sc);
         let mut worst = 0.0f64;
@@ -141,7 +138,7 @@ fn ebciem_and_sebciem_impose_prescribed_values_and_correction_does_not() {
 fn meshless_cube_errors(overrides: &[&str]) -> (f64, Vec<f64>, usize) {
     let mut o = vec!["discretization.method=meshless"];
     o.extend_from_slice(overrides);
-    let sc = scene("cases/cube-compression.toml", &o);
+    let sc = common::load_scene("cases/cube-compression.toml", &o);
     let mut prep = prepare(&sc).unwrap();
     let out = run(&mut prep, &sc);
     assert!(out.converged);
@@ -382,7 +379,7 @@ fn bad_clouds_are_clear_errors() {
     std::fs::write(&empty, "# nothing here\n\n").unwrap();
     for (file, want) in [(&bad, "line 3"), (&empty, "empty")] {
         let f = format!("discretization.cloud_file={}", file.display());
-        let sc = scene(
+        let sc = common::load_scene(
             "cases/cube-compression.toml",
             &[
                 "discretization.method=meshless",
@@ -482,7 +479,7 @@ fn cube_meshless_mmls_relaxation_matches_exact_solution() {
 
 #[test]
 fn ebciem_with_nearest_supports_is_warned_about() {
-    let sc = scene(
+    let sc = common::load_scene(
         "cases/cube-compression.toml",
         &[
             "discretization.method=meshless",
@@ -502,7 +499,7 @@ fn ebciem_with_nearest_supports_is_warned_about() {
 #[test]
 fn meshless_vtu_frames_carry_interpolated_displacement_and_read_back() {
     let dir = std::env::temp_dir().join(format!("hytled-meshless-vtu-{}", std::process::id()));
-    let sc = scene(
+    let sc = common::load_scene(
         "cases/cube-compression.toml",
         &[
             "discretization.method=meshless",
@@ -595,7 +592,7 @@ fn mesh_file_vertices_serve_as_a_node_cloud() {
 
 #[test]
 fn meshless_results_are_identical_for_any_thread_count() {
-    let sc = scene(
+    let sc = common::load_scene(
         "cases/cylinder-compression.toml",
         &[
             "discretization.method=meshless",
@@ -633,7 +630,7 @@ fn removing_a_node_that_carries_a_boundary_condition_is_an_error() {
     let file = dir.join("cloud.csv");
     std::fs::write(&file, text).unwrap();
     let f = format!("discretization.cloud_file={}", file.display());
-    let sc = scene(
+    let sc = common::load_scene(
         "cases/cube-compression.toml",
         &[
             "discretization.method=meshless",

@@ -420,3 +420,44 @@ fn a_tool_moved_far_is_not_warm_started_through_the_surface() {
         "{cold}"
     );
 }
+
+/// Warnings carry a kind (issue 58): `output.frames` in a relaxation is a `SteadyFrames`
+/// warning, which a warm re-solve leaves out by its kind (it wrote no frames), while the
+/// cold solve keeps it; summary.json lists each warning's kind beside its message.
+#[test]
+fn a_warm_resolve_drops_the_steady_frames_warning_by_its_kind() {
+    use hytled::report::WarningKind;
+    let scene = measured_cube("warning-kinds", 0.5, &["output.frames=5"]);
+    let mut session = Session::new(scene).unwrap();
+    let kinds = |w: &[hytled::report::Warning]| w.iter().map(|w| w.kind).collect::<Vec<_>>();
+    assert!(
+        kinds(&session.prepared().warnings).contains(&WarningKind::SteadyFrames),
+        "{:?}",
+        session.prepared().warnings
+    );
+    let cold = session.solve().unwrap();
+    assert!(kinds(&cold.summary.warnings).contains(&WarningKind::SteadyFrames));
+    let json: serde_json::Value = serde_json::to_value(&cold.summary).unwrap();
+    let (messages, names) = (&json["warnings"], &json["warning_kinds"]);
+    assert_eq!(
+        messages.as_array().map(|a| a.len()),
+        names.as_array().map(|a| a.len())
+    );
+    let k = cold
+        .summary
+        .warnings
+        .iter()
+        .position(|w| w.kind == WarningKind::SteadyFrames)
+        .unwrap();
+    assert_eq!(names[k], "steady_frames");
+    assert_eq!(messages[k], cold.summary.warnings[k].message.as_str());
+    let (_, exact) = exact_top(1.0);
+    session.set_measured("top", &exact).unwrap();
+    let warm = session.solve().unwrap();
+    assert!(warm.warm, "{:?}", warm.summary.warnings);
+    assert!(
+        !kinds(&warm.summary.warnings).contains(&WarningKind::SteadyFrames),
+        "{:?}",
+        warm.summary.warnings
+    );
+}

@@ -203,7 +203,7 @@ fn cylinder_0_4999(overrides: &[&str]) -> hytled::report::Summary {
     run_case("cases/cylinder-compression.toml", &o)
 }
 
-fn locking_warnings(s: &hytled::report::Summary) -> Vec<&String> {
+fn locking_warnings(s: &hytled::report::Summary) -> Vec<&hytled::report::Warning> {
     s.warnings
         .iter()
         .filter(|w| w.contains("locking"))
@@ -247,7 +247,7 @@ fn locking_discretizations_warn_and_name_the_fix() {
                 extra,
             ],
         );
-        let w: Vec<&String> = p
+        let w: Vec<&hytled::report::Warning> = p
             .warnings
             .iter()
             .filter(|w| w.contains("locking"))

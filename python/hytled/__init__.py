@@ -197,7 +197,14 @@ class Result:
 
     @property
     def warnings(self) -> list:
+        """The run's warnings (messages); their kinds are in `warning_kinds`."""
         return self.summary.get("warnings", [])
+
+    @property
+    def warning_kinds(self) -> list:
+        """The kind of each warning, in order: "input", "discretization", "boundary",
+        "contact", "steady_frames", "solve" or "resolve"; test these, not the messages."""
+        return self.summary.get("warning_kinds", [])
 
     def _cells(self):
         """(VTK type, connectivity array) blocks in cell order."""
@@ -300,7 +307,13 @@ class Model:
 
     @property
     def warnings(self) -> list:
+        """Warnings of the preparation (messages); their kinds are in `warning_kinds`."""
         return self._inner.warnings
+
+    @property
+    def warning_kinds(self) -> list:
+        """The kind of each preparation warning, in order (see `Run.warning_kinds`)."""
+        return self._inner.warning_kinds
 
     @property
     def boundaries(self) -> list:

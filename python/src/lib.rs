@@ -331,10 +331,27 @@ impl Model {
         vec3_array(&self.lock().prepared().model.nodes).into_pyarray(py)
     }
 
-    /// Warnings of the preparation.
+    /// Warnings of the preparation (messages).
     #[getter]
     fn warnings(&self) -> Vec<String> {
-        self.lock().prepared().warnings.clone()
+        let s = self.lock();
+        s.prepared()
+            .warnings
+            .iter()
+            .map(|w| w.message.clone())
+            .collect()
+    }
+
+    /// The kind of each warning of the preparation, in order ("input", "discretization",
+    /// "boundary", "contact", "steady_frames", "solve", "resolve").
+    #[getter]
+    fn warning_kinds(&self) -> Vec<&'static str> {
+        let s = self.lock();
+        s.prepared()
+            .warnings
+            .iter()
+            .map(|w| w.kind.name())
+            .collect()
     }
 
     /// Names of the boundaries (measured ones included), loads and rigid bodies.

@@ -87,6 +87,16 @@ def test_a_changed_boundary_resolves_warm_to_the_cold_answer():
     assert abs(warm.reactions["top"][2] - cold.reactions["top"][2]) < 1e-6
 
 
+def test_warnings_carry_their_kinds():
+    m = cube(**{"output.frames": 5})
+    assert len(m.warning_kinds) == len(m.warnings)
+    k = m.warning_kinds.index("steady_frames")
+    assert "output.frames" in m.warnings[k]
+    r = m.solve()
+    assert len(r.warning_kinds) == len(r.warnings)
+    assert "output.frames" in r.warnings[r.warning_kinds.index("steady_frames")]
+
+
 def test_load_factors_and_the_gpu_flag_pass_through():
     d = {
         "geometry": {"shape": "box", "min": [0, 0, 0], "max": [0.1, 0.1, 0.1]},

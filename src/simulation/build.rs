@@ -19,6 +19,7 @@ use crate::material::Material;
 use crate::meshless::discretize::MeshlessBuild;
 use crate::probe::Probe;
 use crate::quadrature::QuadraturePoints;
+use crate::report::Warning;
 use crate::scene::{BcMethod, ProbeSpec, Scene};
 use crate::solver::Model;
 use crate::{Error, Result};
@@ -99,7 +100,7 @@ pub(super) struct Parts {
     pub boundaries: Vec<Boundary>,
     pub kind: ElementKind,
     pub min_dihedral: Option<(f64, usize)>,
-    pub warnings: Vec<String>,
+    pub warnings: Vec<Warning>,
 }
 
 /// The shared pipeline after a method's build: probes, regions (each point's material and

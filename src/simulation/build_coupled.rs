@@ -12,6 +12,7 @@ use crate::geometry::quality;
 use crate::material::{Material, Solid};
 use crate::meshless::discretize;
 use crate::meshless::essential::MeshlessCorrector;
+use crate::report::{Warning, WarningKind};
 use crate::scene::{BcMethod, Scene};
 use crate::solver::Model;
 use crate::{coupling, Error, Result};
@@ -144,7 +145,7 @@ pub(super) fn prepare_coupled(scene: &Scene) -> Result<Prepared> {
                 if !is_concentrated_drive(b, share) {
                     continue;
                 }
-                warnings.push(format!(
+                warnings.push(Warning::new(WarningKind::Discretization, format!(
                     "discretization.fe_region = 'surface' puts linear tets along the whole surface, \
                      the rim of boundary '{}' (it drives {:.1} % of the surface area) included, and the \
                      force then converges like fe tet4-anp's (brain-indentation benchmark, worst error \
@@ -153,7 +154,7 @@ pub(super) fn prepare_coupled(scene: &Scene) -> Result<Prepared> {
                      default, or element = 'tet10'",
                     b.name,
                     100.0 * share,
-                ));
+                )));
             }
         }
     }
@@ -239,18 +240,21 @@ pub(super) fn prepare_coupled(scene: &Scene) -> Result<Prepared> {
         coupling::build(mesh, &settings)
     };
     let build = built.map_err(|e| name_file_element(e, input.as_ref()))?;
-    warnings.extend(build.warnings.iter().cloned());
+    warnings.extend(Warning::all(
+        WarningKind::Discretization,
+        build.warnings.iter().cloned(),
+    ));
     if kind == ElementKind::Tet10 {
         // Measured on the exact cube (cases/cube-compression.toml, 12.5 mm cubes split into tets):
         // an open defect of this layout, docs/methods.md.
-        warnings.push(
+        warnings.push(Warning::new(
+            WarningKind::Discretization,
             "discretization.element = 'tet10' in the coupled method is not verified: on the \
              exact cube (12.5 mm cubes split into tets) it misses the lateral stretch by 6.1 % \
              at nu = 0.49 and 15.9 % at nu = 0.3 (the quadratic transition cells' one mean J \
              per cell); use the coupled default element = 'tet4-anp' (0.74 % there) or \
-             method = 'fe' with tet10 (exact)"
-                .into(),
-        );
+             method = 'fe' with tet10 (exact)",
+        ));
     }
     let mut bnd = boundaries(scene, &build.nodes, input.as_ref(), &|| {
         Discretized::Coupled(&build).surface_nodes()
@@ -268,9 +272,9 @@ pub(super) fn prepare_coupled(scene: &Scene) -> Result<Prepared> {
         && mesh_boundaries.is_none()
         && build.fe_mesh.shape == crate::geometry::ElementShape::Tet4
     {
-        warnings.extend(concentrated_drives(
-            &bnd,
-            Discretized::Coupled(&build).surface_nodes()?.len(),
+        warnings.extend(Warning::all(
+            WarningKind::Boundary,
+            concentrated_drives(&bnd, Discretized::Coupled(&build).surface_nodes()?.len()),
         ));
     }
     // Boundaries that reach interface or meshless nodes (no Kronecker delta there) are
@@ -333,7 +337,7 @@ pub(super) fn impose(
     build: &CoupledBuild,
     method: BcMethod,
     model: &mut Model<Solid>,
-    warnings: &mut Vec<String>,
+    warnings: &mut Vec<Warning>,
 ) -> Result<()> {
     let bnd = &model.boundaries;
     let corrected = corrected_boundaries(build, bnd);
@@ -382,12 +386,12 @@ pub(super) fn impose(
             imposition(method),
         )?;
         if report.lumped_nodes > 0 {
-            warnings.push(format!(
+            warnings.push(Warning::new(WarningKind::Boundary, format!(
                 "{}: {} constrained meshless node(s) lie on no boundary triangle whose vertices are all constrained; \
                  their boundary force is lumped at the node (SEBCIEM)",
                 method.name(),
                 report.lumped_nodes
-            ));
+            )));
         }
         let names: Vec<&str> = bnd
             .iter()
@@ -395,10 +399,10 @@ pub(super) fn impose(
             .filter(|(_, &c)| c)
             .map(|(b, _)| b.name.as_str())
             .collect();
-        warnings.push(format!(
+        warnings.push(Warning::new(WarningKind::Boundary, format!(
             "boundaries {names:?} act on meshless nodes of the coupled discretization; imposed by {} (alternate path)",
             method.name()
-        ));
+        )));
         model.set_corrector(Box::new(corr), corrected)
     }
 }

@@ -9,6 +9,7 @@ use crate::fe::ElementKind;
 use crate::material::Solid;
 use crate::meshless::discretize::{self, MeshlessBuild};
 use crate::meshless::essential::MeshlessCorrector;
+use crate::report::{Warning, WarningKind};
 use crate::scene::{BcMethod, ProbeSpec, Scene};
 use crate::solver::Model;
 use crate::Result;
@@ -64,15 +65,13 @@ pub(super) fn prepare_meshless(scene: &Scene) -> Result<Prepared> {
         Ok(v)
     };
     let build = discretize::build(meshless_settings(scene)?, &protected)?;
-    let mut warnings = build.warnings.clone();
+    let mut warnings = Warning::all(WarningKind::Discretization, build.warnings.clone());
     if method == BcMethod::Ebciem
         && scene.discretization.support == crate::scene::SupportKind::Nearest
     {
-        warnings.push(
-            "bc_method = 'ebciem' with support = 'nearest': the nearest-node shape functions jump where the \
-             support changes, and EBCIEM runs of this kind diverged in our tests; prefer 'sebciem' (the default, 'auto')"
-                .into(),
-        );
+        warnings.push(Warning::new(WarningKind::Boundary, "bc_method = 'ebciem' with support = 'nearest': the nearest-node shape functions jump where the \
+             support changes, and EBCIEM runs of this kind diverged in our tests; prefer 'sebciem' (the default, 'auto')",
+                ));
     }
     let bnd = boundaries(scene, &build.nodes, input.as_ref(), &|| {
         Discretized::Meshless(&build).surface_nodes()
@@ -117,7 +116,7 @@ pub(super) fn impose(
     build: &MeshlessBuild,
     method: BcMethod,
     model: &mut Model<Solid>,
-    warnings: &mut Vec<String>,
+    warnings: &mut Vec<Warning>,
 ) -> Result<()> {
     let corrected: Vec<bool> = model
         .boundaries
@@ -130,11 +129,11 @@ pub(super) fn impose(
     let (corr, report) =
         MeshlessCorrector::new(build, &model.boundaries, &model.mass, imposition(method))?;
     if report.lumped_nodes > 0 {
-        warnings.push(format!(
+        warnings.push(Warning::new(WarningKind::Boundary, format!(
             "EBCIEM: {} constrained node(s) lie on no boundary triangle whose vertices are all constrained; \
              their boundary force is lumped at the node (SEBCIEM)",
             report.lumped_nodes
-        ));
+        )));
     }
     model.set_corrector(Box::new(corr), corrected)
 }

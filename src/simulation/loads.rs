@@ -7,6 +7,7 @@ use super::{load_curve, select_nodes};
 use crate::bc::contact::{Contact, ContactPoint, RigidBody};
 use crate::bc::loads::{Load, LoadKind};
 use crate::io::model::MeshInput;
+use crate::report::{Warning, WarningKind};
 use crate::scene::Scene;
 use crate::Result;
 
@@ -80,7 +81,7 @@ pub(super) fn scene_contact(
     d: Discretized<'_>,
     input: Option<&MeshInput>,
     boundaries: &[crate::bc::Boundary],
-    warnings: &mut Vec<String>,
+    warnings: &mut Vec<Warning>,
 ) -> Result<Option<Contact>> {
     if scene.contact.is_empty() {
         return Ok(None);
@@ -177,7 +178,10 @@ pub(super) fn scene_contact(
     let quadratic =
         crate::fe::ElementKind::from(scene.discretization.element) == crate::fe::ElementKind::Tet10;
     if quadratic && !matches!(d, Discretized::Meshless(_)) {
-        warnings.push(TET10_CONTACT_WARNING.to_string());
+        warnings.push(Warning::new(
+            WarningKind::Contact,
+            TET10_CONTACT_WARNING.to_string(),
+        ));
     }
     for (b, name) in contact.names().enumerate() {
         // Touching means deeper than the contact tolerance: a surface tool inside the tissue
@@ -217,11 +221,11 @@ pub(super) fn scene_contact(
     }
     for (b, name) in contact.names().enumerate() {
         if let Some((deepest, _)) = contact.deepest_at_rest(b, 0.0).filter(|x| x.0 > tolerance) {
-            warnings.push(format!(
+            warnings.push(Warning::new(WarningKind::Contact, format!(
                 "contact '{name}' starts {deepest:.3e} m inside the body's surface; the first correction \
                  pushes the surface out in one step (deeper than half the distance a wave crosses in a \
                  step is refused; move the rigid body or its curve's start)"
-            ));
+            )));
         }
     }
     Ok(Some(contact))

@@ -43,7 +43,7 @@ use crate::material::{Material, Solid};
 use crate::meshless::discretize::MeshlessBuild;
 use crate::meshless::essential::Imposition;
 use crate::probe::Probe;
-use crate::report::Summary;
+use crate::report::{Summary, Warning, WarningKind};
 use crate::scene::{BcMethod, Component, Geometry, Method, Scene};
 use crate::solver::{self, Model, RunOutput};
 pub use crate::solver::{Device, Mode, Settings};
@@ -150,7 +150,7 @@ pub struct Prepared {
     /// The method and what it keeps beside the model.
     pub method: Discretization,
     /// Things the user should know that do not stop the run.
-    pub warnings: Vec<String>,
+    pub warnings: Vec<Warning>,
     pub model: Model<Solid>,
     /// Each quadrature point's material (discretization order: elements, meshless or coupled
     /// points): 0 is `[material]`, k the k-th region; empty without regions.
@@ -189,11 +189,15 @@ impl Prepared {
 /// `warnings`) or the built-in shape's; refused before its points are built when their model
 /// would not fit in memory ([`crate::fe::check_model_memory`]), and a built-in shape's before
 /// it is meshed ([`translate::planned_mesh`]: TetGen takes minutes at millions of tets).
-fn body_mesh(scene: &Scene, input: Option<&MeshInput>, warnings: &mut Vec<String>) -> Result<Mesh> {
+fn body_mesh(
+    scene: &Scene,
+    input: Option<&MeshInput>,
+    warnings: &mut Vec<Warning>,
+) -> Result<Mesh> {
     let mesh = match input {
         Some(m) => {
-            warnings.extend(m.warnings.iter().cloned());
-            warnings.extend(mesh_checks(&m.mesh));
+            warnings.extend(Warning::all(WarningKind::Input, m.warnings.iter().cloned()));
+            warnings.extend(Warning::all(WarningKind::Input, mesh_checks(&m.mesh)));
             m.mesh.clone()
         }
         None => {
@@ -248,7 +252,7 @@ fn add_loads_and_contact(
     scene: &Scene,
     d: Discretized<'_>,
     input: Option<&MeshInput>,
-    warnings: &mut Vec<String>,
+    warnings: &mut Vec<Warning>,
 ) -> Result<()> {
     model.set_loads(loads::scene_loads(scene, d, input)?)?;
     // Mass scaling by default except for models of tet4-anp elements only: their elements'
@@ -403,40 +407,44 @@ pub fn prepare(scene: &Scene) -> Result<Prepared> {
     };
     crate::interrupt::check(|| "while preparing the model".into())?;
     if let Some(w) = locking_warning(scene, &p) {
-        p.warnings.push(w);
+        p.warnings
+            .push(Warning::new(WarningKind::Discretization, w));
     }
     if let Some(w) = initial_velocity_warning(scene, &p) {
-        p.warnings.push(w);
+        p.warnings.push(Warning::new(WarningKind::Boundary, w));
     }
     if scene.solver.mode == Mode::Static && p.bc_method() == Some(BcMethod::Ebciem) {
-        p.warnings.push(
+        p.warnings.push(Warning::new(
+            WarningKind::Boundary,
             "solver.mode = \"static\" imposes the meshless essential boundaries exactly at their \
              nodes with constraint forces distributed by the shape functions, as SEBCIEM does: the \
              answer is bc_method = \"sebciem\"'s (the exact cube: lateral stretch 0.18 % off \
              against EBCIEM relaxation's 0.07 %); for EBCIEM's boundary-integral distribution use \
-             solver.mode = \"relaxation\""
-                .into(),
-        );
+             solver.mode = \"relaxation\"",
+        ));
     }
     if let Some(w) = units_warning(scene, &p.model.nodes) {
-        p.warnings.push(w);
+        p.warnings.push(Warning::new(WarningKind::Input, w));
     }
     p.source_volume = translate::geometry_volume(scene)?;
     if let Some(w) = volume_warning(scene, &p) {
-        p.warnings.push(w);
+        p.warnings.push(Warning::new(WarningKind::Input, w));
     }
     if let (true, Some(n)) = (scene.solver.mode.is_steady(), scene.output.frames) {
-        p.warnings.push(format!(
+        p.warnings.push(Warning::new(
+            WarningKind::SteadyFrames,
+            format!(
             "output.frames = {n} applies to dynamic runs: relaxation writes the unloaded state, \
              each load stage (a reference's `at`) and the converged state (its path in \
              pseudo-time is no physical history); for the states along the load, give \
              references with `at` or run in dynamics"
+        ),
         ));
     }
     let free = crate::bc::free_parts(p.model.nodes.len(), &p.model.points, &p.model.boundaries);
     if let Some(&(count, node)) = free.first() {
         let x = p.model.nodes[node];
-        p.warnings.push(format!(
+        p.warnings.push(Warning::new(WarningKind::Boundary, format!(
             "{} part(s) of the body are held by no boundary (the largest: {count} nodes, node {node} at \
              ({:.4e}, {:.4e}, {:.4e}) m): they can move as rigid bodies, and relaxation cannot settle them \
              if anything pushes them; select some of their nodes in a boundary or remove them",
@@ -444,7 +452,7 @@ pub fn prepare(scene: &Scene) -> Result<Prepared> {
             x.x,
             x.y,
             x.z
-        ));
+        )));
     }
     Ok(p)
 }
@@ -599,7 +607,7 @@ pub fn solve(prep: &mut Prepared, settings: &Settings) -> Result<RunOutput> {
 /// A run that fails takes the preparation's warnings along in its message: they are printed
 /// with the summary, which a failed run never reaches, and they often name the cause (a
 /// rigid body that starts inside the body, removed meshless nodes).
-fn with_setup_warnings(e: Error, warnings: &[String]) -> Error {
+fn with_setup_warnings(e: Error, warnings: &[Warning]) -> Error {
     match e {
         Error::Unstable(msg) if !warnings.is_empty() => Error::Unstable(format!(
             "{msg}\n  the setup warned: {}",

@@ -30,7 +30,7 @@ use nalgebra::Vector3;
 
 use super::{prepare, settings, summarize, PointFields, Prepared, ResultPoints};
 use crate::material::Solid;
-use crate::report::Summary;
+use crate::report::{Summary, Warning, WarningKind};
 use crate::scene::Scene;
 use crate::solver::{Mode, Model, RunOutput, Settings, WarmStart};
 use crate::{Error, Result};
@@ -288,15 +288,20 @@ impl Session {
         // solved from the unloaded state, where the tool comes along its curve in small steps.
         if let Some(moved) = self.tool_jump() {
             let mut cold = self.run(None)?;
-            cold.summary.warnings.push(moved);
+            cold.summary
+                .warnings
+                .push(Warning::new(WarningKind::Resolve, moved));
             return Ok(cold);
         }
         match self.run(Some(w)) {
             Err(Error::Unstable(msg)) => {
                 let mut cold = self.run(None)?;
-                cold.summary.warnings.push(format!(
+                cold.summary.warnings.push(Warning::new(
+                    WarningKind::Resolve,
+                    format!(
                     "the warm start from the last equilibrium failed ({msg}); solved again from \
                      the unloaded state"
+                ),
                 ));
                 Ok(cold)
             }
@@ -406,7 +411,9 @@ impl Session {
         // The preparation happened once, before the first solve (`prepare_seconds`).
         summary.wall_seconds.preprocess = 0.0;
         if is_warm {
-            summary.warnings.retain(|w| !w.contains("output.frames"));
+            summary
+                .warnings
+                .retain(|w| w.kind != WarningKind::SteadyFrames);
         }
         self.warm_from_swapped = swap;
         // Only a converged relaxation is an equilibrium to start from.

@@ -6,7 +6,7 @@ use std::collections::BTreeMap;
 
 use crate::report::{
     Comparison, CoupledInfo, Energy, MeshInfo, MeshlessInfo, ProbeResult, Summary, SupportNodes,
-    WallSeconds,
+    WallSeconds, Warning, WarningKind, Warnings,
 };
 use crate::scene::Scene;
 use crate::solver::{Mode, RunOutput};
@@ -96,8 +96,11 @@ pub fn summarize(scene: &Scene, prep: &Prepared, out: &RunOutput, total_seconds:
         .map(|(b, r)| (b, [r.x, r.y, r.z]))
         .collect();
     let mut warnings = prep.warnings.clone();
-    warnings.extend(out.restarts.iter().cloned());
-    warnings.extend(out.notes.iter().cloned());
+    warnings.extend(Warning::all(
+        WarningKind::Solve,
+        out.restarts.iter().cloned(),
+    ));
+    warnings.extend(Warning::all(WarningKind::Solve, out.notes.iter().cloned()));
     let equilibrium_residual = out
         .load_steps
         .is_some()
@@ -109,7 +112,9 @@ pub fn summarize(scene: &Scene, prep: &Prepared, out: &RunOutput, total_seconds:
         equilibrium_residual.is_some_and(|r| !(r <= crate::report::RESIDUAL_NOT_CONVERGED));
     let converged = out.converged && !out_of_balance;
     if out.converged && out_of_balance {
-        warnings.push(format!(
+        warnings.push(Warning::new(
+            WarningKind::Solve,
+            format!(
             "not converged: the relaxation's displacement criterion (solver.tolerance = {:e} m) \
              was met, but the largest out-of-balance force is {:.2e} of the largest nodal force \
              (more than {:.0e}): the body is not at equilibrium; lower solver.tolerance, and \
@@ -117,14 +122,18 @@ pub fn summarize(scene: &Scene, prep: &Prepared, out: &RunOutput, total_seconds:
             scene.solver.tolerance,
             equilibrium_residual.unwrap_or(f64::NAN),
             crate::report::RESIDUAL_NOT_CONVERGED
+        ),
         ));
     } else if let Some(r) = equilibrium_residual.filter(|&r| r > crate::report::RESIDUAL_WARNING) {
-        warnings.push(format!(
-            "equilibrium: the largest out-of-balance force at a free node is {r:.2e} of the \
+        warnings.push(Warning::new(
+            WarningKind::Solve,
+            format!(
+                "equilibrium: the largest out-of-balance force at a free node is {r:.2e} of the \
              largest nodal force at the end of this relaxation (more than {:.0e}): the \
              displacements are not at equilibrium to the digits shown; lower solver.tolerance \
              or raise solver.max_steps",
-            crate::report::RESIDUAL_WARNING
+                crate::report::RESIDUAL_WARNING
+            ),
         ));
     }
     let balance_error = (scene.solver.mode == Mode::Dynamic).then(|| {
@@ -139,26 +148,32 @@ pub fn summarize(scene: &Scene, prep: &Prepared, out: &RunOutput, total_seconds:
         )
     });
     if let Some(b) = balance_error.filter(|&b| b > crate::report::ENERGY_WARNING) {
-        warnings.push(format!(
-            "energy balance: {:.2} % of the work put in is unaccounted for at the end of this \
+        warnings.push(Warning::new(
+            WarningKind::Solve,
+            format!(
+                "energy balance: {:.2} % of the work put in is unaccounted for at the end of this \
              dynamic run (more than {:.0} %): an instability that grew without diverging, most \
              likely; the step ended at {:.4e} s against a critical estimate of {:.4e} s at the \
              start (solver.dt_factor {:.3}). Rerun with a smaller solver.dt_factor and compare",
-            100.0 * b,
-            100.0 * crate::report::ENERGY_WARNING,
-            out.dt,
-            out.dt_critical,
-            scene.solver.dt_factor,
+                100.0 * b,
+                100.0 * crate::report::ENERGY_WARNING,
+                out.dt,
+                out.dt_critical,
+                scene.solver.dt_factor,
+            ),
         ));
     }
     if let Some(c) = &model.contact {
         if c.worst_penetration() > c.tolerance() {
-            warnings.push(format!(
+            warnings.push(Warning::new(
+                WarningKind::Contact,
+                format!(
                 "contact: a step left a surface point {:.3e} m inside a rigid body, more than the \
                  tolerance {:.1e} m (the corrections did not converge within their sweeps; a \
                  sharp edge of the rigid surface or a large step per load increment)",
                 c.worst_penetration(),
                 c.tolerance()
+            ),
             ));
         }
     }
@@ -365,7 +380,7 @@ pub fn summarize(scene: &Scene, prep: &Prepared, out: &RunOutput, total_seconds:
                 adaptive: c.adaptive.clone(),
             }
         }),
-        warnings,
+        warnings: Warnings(warnings),
         relaxation: out.relaxation.clone(),
         load_steps: out.load_steps,
         momentum: (scene.mode_is_dynamic()).then_some(out.momentum),

@@ -19,6 +19,16 @@ pub fn load_scene(rel: &str, overrides: &[&str]) -> Scene {
     hytled::scene::load(&path(rel), &o).unwrap_or_else(|e| panic!("{rel} {overrides:?}: {e}"))
 }
 
+/// The text of the exact cube's scene file.
+pub fn cube_text() -> String {
+    std::fs::read_to_string(path("cases/cube-compression.toml")).unwrap()
+}
+
+/// The exact cube (`cases/cube-compression.toml`) with `--set` style overrides.
+pub fn cube_scene(overrides: &[&str]) -> Scene {
+    load_scene("cases/cube-compression.toml", overrides)
+}
+
 /// Runs a committed case with `--set` style overrides.
 pub fn run_case(case: &str, overrides: &[&str]) -> Summary {
     let scene = load_scene(case, overrides);
@@ -141,4 +151,18 @@ pub fn ascii_stl(points: &[[f64; 3]], triangles: &[[usize; 3]]) -> String {
         s += "    endloop\n  endfacet\n";
     }
     s + "endsolid body\n"
+}
+
+/// `hytled run` on the cube at 27 nodes, dynamic over 0.3 s (about 60 steps).
+pub fn coarse_dynamic_cube() -> std::process::Command {
+    let mut c = std::process::Command::new(env!("CARGO_BIN_EXE_hytled"));
+    c.arg("run").arg(path("cases/cube-compression.toml")).args([
+        "--set",
+        "discretization.size=0.05",
+        "--set",
+        "solver.mode=dynamic",
+        "--set",
+        "solver.duration=0.3",
+    ]);
+    c
 }
