@@ -47,7 +47,7 @@ fn dense_lambda_max(p: &mut simulation::Prepared) -> f64 {
         m.forces.compute(&m.points, &m.slots, &u, &mut fm);
         u[j][l] = 0.0;
         for (r, &(i, k)) in free.iter().enumerate() {
-            a[(r, c)] = (fp[i][k] - fm[i][k]) / (2.0 * h) / (m.mass[i] * m.mass[j]).sqrt();
+            a[(r, c)] = (fp[i][k] - fm[i][k]) / (2.0 * h) / (m.mass()[i] * m.mass()[j]).sqrt();
         }
     }
     let sym = (&a + a.transpose()) * 0.5;
@@ -175,7 +175,7 @@ fn global_step_is_safe_under_compression_and_not_loose() {
             "solver.mass_scaling=true",
         ],
     );
-    assert!(scaled.model.mass_scaled);
+    assert!(scaled.model.mass_scaled());
     let (b, crit) = stable_step(&scaled.model);
     assert!(matches!(crit, Critical::Node(_)));
     let (global, crit) = critical_step(&mut scaled.model, StepEstimate::Global);

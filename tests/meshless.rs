@@ -290,7 +290,7 @@ history_rows = 10
     let v0: Vec<Vector3<f64>> = prep.model.nodes.iter().map(|x| w.cross(x)).collect();
     let mut st = settings(&sc, false);
     st.initial_velocity = Some(v0.clone());
-    let m = prep.model.mass.clone();
+    let m = prep.model.mass().to_vec();
     let l0: Vector3<f64> = prep
         .model
         .nodes

@@ -89,7 +89,7 @@ fn coupled_tet_defaults_put_fe_at_the_essential_faces_only() {
         qp.total_weight()
     );
     // Masses follow the lumped volumes (density 1000 kg/m^3).
-    for (m, v) in p.model.mass.iter().zip(&c.lumped_volume) {
+    for (m, v) in p.model.mass().iter().zip(&c.lumped_volume) {
         assert!((m - 1000.0 * v).abs() <= 1e-12 * m);
     }
 }

@@ -382,7 +382,7 @@ pub(super) fn impose(
             &tris,
             &shape,
             bnd,
-            &model.mass,
+            model.mass(),
             imposition(method),
         )?;
         if report.lumped_nodes > 0 {

@@ -32,7 +32,7 @@ use super::{prepare, settings, summarize, PointFields, Prepared, ResultPoints};
 use crate::material::Solid;
 use crate::report::{Summary, Warning, WarningKind};
 use crate::scene::Scene;
-use crate::solver::{Mode, Model, RunOutput, Settings, WarmStart};
+use crate::solver::{MassState, Mode, Model, RunOutput, Settings, WarmStart};
 use crate::{Error, Result};
 
 /// A prepared scene solved as often as its inputs change.
@@ -372,7 +372,7 @@ impl Session {
     /// meshless correction, which was built with the model's masses.
     fn scales_warm_masses(&self) -> bool {
         let m = &self.prep.model;
-        self.scene.solver.mass_scaling.is_none() && !m.mass_scaled && m.corrector.is_none()
+        self.scene.solver.mass_scaling.is_none() && !m.mass_scaled() && m.corrector.is_none()
     }
 
     fn run(&mut self, warm: Option<WarmStart>) -> Result<Solution> {
@@ -452,10 +452,8 @@ impl Session {
 /// error or panics (a Python caller goes on after a panic) leaves the model as it was.
 struct ScaledMasses<'a> {
     prep: &'a mut Prepared,
-    /// The model's masses and their flags as they were.
-    physical: Vec<f64>,
-    uneven: bool,
-    scaled: bool,
+    /// The model's masses and their flags as they were (taken when `None` after the drop).
+    physical: Option<MassState>,
 }
 
 impl<'a> ScaledMasses<'a> {
@@ -463,26 +461,22 @@ impl<'a> ScaledMasses<'a> {
     /// a copy there.
     fn put_in(prep: &'a mut Prepared, cached: &mut Option<Vec<f64>>) -> Result<Self> {
         let model = &mut prep.model;
-        let (physical, uneven, scaled) =
-            (model.mass.clone(), model.masses_uneven, model.mass_scaled);
-        match cached {
-            Some(m) => {
-                model.mass.copy_from_slice(m);
-                model.masses_uneven = true;
-                model.mass_scaled = true;
-            }
-            None => {
-                model.scale_masses()?;
-                if model.mass_scaled {
-                    *cached = Some(model.mass.clone());
+        let physical = model.mass_state();
+        let put = match cached {
+            Some(m) => model.set_scaled_masses(m),
+            None => model.scale_masses().map(|()| {
+                if model.mass_scaled() {
+                    *cached = Some(model.mass().to_vec());
                 }
-            }
+            }),
+        };
+        if let Err(e) = put {
+            model.restore_masses(physical);
+            return Err(e);
         }
         Ok(ScaledMasses {
             prep,
-            physical,
-            uneven,
-            scaled,
+            physical: Some(physical),
         })
     }
 }
@@ -502,10 +496,9 @@ impl std::ops::DerefMut for ScaledMasses<'_> {
 
 impl Drop for ScaledMasses<'_> {
     fn drop(&mut self) {
-        let model = &mut self.prep.model;
-        model.mass = std::mem::take(&mut self.physical);
-        model.masses_uneven = self.uneven;
-        model.mass_scaled = self.scaled;
+        if let Some(m) = self.physical.take() {
+            self.prep.model.restore_masses(m);
+        }
     }
 }
 
@@ -540,22 +533,22 @@ mod tests {
             s.set_displacement("top", [None, None, Some(-0.021)])
                 .expect("the top boundary");
         }
-        let physical = a.prep.model.mass.clone();
+        let physical = a.prep.model.mass().to_vec();
         let warm = a.warm.clone();
         assert!(warm.is_some() && a.scales_warm_masses());
         let mut scaled_inside = false;
         let caught = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
             let _ = a.run_with(warm, |prep, _| {
-                scaled_inside = prep.model.mass_scaled && prep.model.mass != physical;
+                scaled_inside = prep.model.mass_scaled() && prep.model.mass() != physical;
                 panic!("a fault inside the solve");
             });
         }));
         assert!(caught.is_err() && scaled_inside);
-        assert_eq!(a.prep.model.mass, physical);
-        assert!(!a.prep.model.mass_scaled);
+        assert_eq!(a.prep.model.mass(), physical);
+        assert!(!a.prep.model.mass_scaled());
         let (ra, rb) = (a.solve().expect("warm a"), b.solve().expect("warm b"));
         assert!(ra.warm && rb.warm);
         assert_eq!(ra.output.u, rb.output.u);
-        assert_eq!(a.prep.model.mass, physical);
+        assert_eq!(a.prep.model.mass(), physical);
     }
 }

@@ -97,6 +97,15 @@ pub struct LinearConstraint {
 
 /// Everything the time loop needs: reference nodes, quadrature points, lumped masses,
 /// constraints and the force evaluator.
+/// A model's lumped masses and their flags, kept to be put back
+/// ([`Model::mass_state`], [`Model::restore_masses`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct MassState {
+    mass: Vec<f64>,
+    uneven: bool,
+    scaled: bool,
+}
+
 pub struct Model<M: Material> {
     /// Reference node coordinates, m.
     pub nodes: Vec<Vector3<f64>>,
@@ -106,8 +115,9 @@ pub struct Model<M: Material> {
     /// as messages and outputs give it).
     pub point_ids: Vec<u32>,
     pub slots: NodeSlots,
-    /// Lumped nodal masses, kg.
-    pub mass: Vec<f64>,
+    /// Lumped nodal masses, kg ([`Self::mass`]; changed only through the methods that keep
+    /// `masses_uneven` and `mass_scaled` with them).
+    mass: Vec<f64>,
     pub boundaries: Vec<Boundary>,
     pub constraints: Constraints,
     pub forces: Forces<M>,
@@ -124,9 +134,9 @@ pub struct Model<M: Material> {
     /// `mass` is not each point's mass split evenly over its nodes (set by
     /// [`Self::set_lumped_masses`] and [`Self::scale_masses`]): the per-point step bounds,
     /// which assume that split, are then not used.
-    pub masses_uneven: bool,
+    masses_uneven: bool,
     /// `mass` holds the fictitious masses of [`Self::scale_masses`] (relaxation only).
-    pub mass_scaled: bool,
+    mass_scaled: bool,
     /// The static solve's tangent pattern, numbering and factorization, kept between solves
     /// ([`statics::solve`]).
     pub(crate) static_cache: Option<statics::Cache>,
@@ -329,6 +339,55 @@ impl<M: Material> Model<M> {
     /// [`Self::set_loads`] (gravity keeps the physical masses) and before building
     /// correctors, which must use the masses of the update. Not for dynamic runs: it changes
     /// the dynamics.
+    /// Lumped nodal masses, kg.
+    pub fn mass(&self) -> &[f64] {
+        &self.mass
+    }
+
+    /// Whether the masses are not each point's mass split evenly over its nodes (lumped by
+    /// [`Self::set_lumped_masses`] or scaled by [`Self::scale_masses`]).
+    pub fn masses_uneven(&self) -> bool {
+        self.masses_uneven
+    }
+
+    /// Whether the masses are the fictitious ones of [`Self::scale_masses`].
+    pub fn mass_scaled(&self) -> bool {
+        self.mass_scaled
+    }
+
+    /// The masses and how they were made, to put back with [`Self::restore_masses`].
+    pub fn mass_state(&self) -> MassState {
+        MassState {
+            mass: self.mass.clone(),
+            uneven: self.masses_uneven,
+            scaled: self.mass_scaled,
+        }
+    }
+
+    /// Puts back masses taken with [`Self::mass_state`] (of this model).
+    pub fn restore_masses(&mut self, state: MassState) {
+        debug_assert_eq!(state.mass.len(), self.mass.len());
+        self.mass = state.mass;
+        self.masses_uneven = state.uneven;
+        self.mass_scaled = state.scaled;
+    }
+
+    /// Puts in fictitious masses `mass` (kg, one per node) that an earlier
+    /// [`Self::scale_masses`] of this model gave.
+    pub fn set_scaled_masses(&mut self, mass: &[f64]) -> Result<()> {
+        if mass.len() != self.mass.len() {
+            return Err(crate::Error::Input(format!(
+                "{} scaled masses for {} nodes",
+                mass.len(),
+                self.mass.len()
+            )));
+        }
+        self.mass.copy_from_slice(mass);
+        self.masses_uneven = true;
+        self.mass_scaled = true;
+        Ok(())
+    }
+
     pub fn scale_masses(&mut self) -> Result<()> {
         let moduli = |p: usize| self.point_moduli(p);
         let rows = timestep::gershgorin_rows(&self.points, &self.slots, &moduli);
