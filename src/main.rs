@@ -496,7 +496,11 @@ fn check(CheckArgs { scene, set }: CheckArgs) -> hytled::Result<u8> {
     for b in &prep.model.boundaries {
         println!("  boundary {:<12} {} nodes", b.name, b.nodes.len());
     }
-    for (name, count) in &prep.regions {
+    for hytled::simulation::RegionPoints {
+        name,
+        points: count,
+    } in &prep.regions
+    {
         println!("  region {name:<14} {count} integration points");
     }
     for name in prep.model.loads.names() {
@@ -520,7 +524,11 @@ fn check(CheckArgs { scene, set }: CheckArgs) -> hytled::Result<u8> {
             ),
         }
     }
-    if let Some((a, e)) = prep.min_dihedral {
+    if let Some(hytled::simulation::MinDihedral {
+        degrees: a,
+        element: e,
+    }) = prep.min_dihedral
+    {
         println!("  min dihedral angle {a:.2} deg (element {e})");
     }
     println!(

@@ -268,7 +268,11 @@ fn a_labelled_ball_with_a_cavity_and_a_region() {
     // within a half-voxel shell's share (4 pi r^2 s / 2 over 4/3 pi r^3 = 1.5 s / r = 12.5 %
     // at r = 12 voxels; the cavity adds its own).
     assert!(rel < 0.06, "{rel:e}");
-    let hard = prep.regions.iter().find(|(n, _)| n == "hard").map(|r| r.1);
+    let hard = prep
+        .regions
+        .iter()
+        .find(|r| r.name == "hard")
+        .map(|r| r.points);
     assert!(hard.is_some_and(|n| n > 0), "{:?}", prep.regions);
     let out = run_scene(&sc, &RunOptions::default()).unwrap();
     println!(
@@ -497,7 +501,11 @@ fn the_mni_case_prepares() {
     let sc = hytled::scene::load(&path("cases/mni-brain-shift.toml"), &[]).unwrap();
     let prep = hytled::simulation::prepare(&sc).unwrap_or_else(|e| panic!("{e}"));
     let nodes = prep.mesh.nodes.len();
-    let regions: std::collections::BTreeMap<_, _> = prep.regions.iter().cloned().collect();
+    let regions: std::collections::BTreeMap<_, _> = prep
+        .regions
+        .iter()
+        .map(|r| (r.name.clone(), r.points))
+        .collect();
     println!(
         "mni: {nodes} nodes, {} tets, regions {regions:?}",
         prep.mesh.num_cells()

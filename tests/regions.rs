@@ -134,7 +134,13 @@ fn two_regions_side_by_side_reproduce_the_exact_mean_reaction() {
     )
     .unwrap();
     let p = prepare(&sc).unwrap();
-    assert_eq!(p.regions, vec![("hard".to_string(), 32)]);
+    assert_eq!(
+        p.regions,
+        vec![hytled::simulation::RegionPoints {
+            name: "hard".to_string(),
+            points: 32
+        }]
+    );
     assert_eq!(p.point_material.iter().filter(|&&m| m == 1).count(), 32);
 }
 
@@ -183,7 +189,10 @@ fn element_set_regions_reach_every_method() {
         );
         assert!(err < tolerance(method), "{method:?}");
         let p = prepare(&sc).unwrap();
-        let (name, count) = &p.regions[0];
+        let hytled::simulation::RegionPoints {
+            name,
+            points: count,
+        } = &p.regions[0];
         assert_eq!(name, "hard");
         assert!(
             *count * 2 >= p.model.points.len() * 9 / 10

@@ -517,7 +517,10 @@ fn a_body_that_loses_volume_is_warned_of_with_the_size_that_fixes_it() {
         hytled::simulation::prepare(&sc).unwrap()
     };
     let coarse = prepare(0.006);
-    let (labelled, of) = coarse.source_volume.clone().unwrap();
+    let hytled::simulation::SourceVolume {
+        volume: labelled,
+        of,
+    } = coarse.source_volume.clone().unwrap();
     let volume = coarse.model.points.total_weight();
     let lost = (labelled - volume) / labelled;
     println!(

@@ -385,8 +385,8 @@ fn a_nested_surface_is_a_conforming_region() {
     let points = prep
         .regions
         .iter()
-        .find(|r| r.0 == "inclusion")
-        .map(|r| r.1);
+        .find(|r| r.name == "inclusion")
+        .map(|r| r.points);
     println!(
         "stiff inclusion: {} tets, {straddling} straddling, region points {points:?}",
         prep.mesh.num_cells()

@@ -99,7 +99,7 @@ pub(super) struct Parts {
     pub places: regions::Places,
     pub boundaries: Vec<Boundary>,
     pub kind: ElementKind,
-    pub min_dihedral: Option<(f64, usize)>,
+    pub min_dihedral: Option<super::MinDihedral>,
     pub warnings: Vec<Warning>,
 }
 

@@ -211,7 +211,8 @@ pub(super) fn prepare_coupled(scene: &Scene) -> Result<Prepared> {
             None
         },
     };
-    let min_dihedral = quality::min_dihedral_angle(&mesh);
+    let min_dihedral = quality::min_dihedral_angle(&mesh)
+        .map(|(degrees, element)| super::MinDihedral { degrees, element });
     let tets = |p: &[Vector3<f64>]| -> Result<Vec<[usize; 4]>> {
         Ok(discretize::delaunay(p)?
             .chunks_exact(4)

@@ -156,15 +156,38 @@ pub struct Prepared {
     /// points): 0 is `[material]`, k the k-th region; empty without regions.
     pub point_material: Vec<u16>,
     /// Regions and the points each holds.
-    pub regions: Vec<(String, usize)>,
+    pub regions: Vec<RegionPoints>,
     pub probes: Vec<Probe>,
     pub kind: ElementKind,
-    pub min_dihedral: Option<(f64, usize)>,
+    /// The smallest dihedral angle of the FE mesh's tets and its element (None without tets).
+    pub min_dihedral: Option<MinDihedral>,
     pub preprocess_seconds: f64,
     /// The volume the geometry gives (m^3) and what gives it, for a labelled image (its
     /// labelled voxels) or a surface file (what it encloses): the mesh's volume is compared
     /// with it ([`geometry_volume`]).
-    pub source_volume: Option<(f64, String)>,
+    pub source_volume: Option<SourceVolume>,
+}
+
+/// A region and the integration points it holds.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct RegionPoints {
+    pub name: String,
+    pub points: usize,
+}
+
+/// The smallest dihedral angle of a tet mesh, degrees, and the element that has it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MinDihedral {
+    pub degrees: f64,
+    pub element: usize,
+}
+
+/// The volume the geometry gives (m^3) and what gives it (a labelled image's voxels, what a
+/// surface file encloses).
+#[derive(Debug, Clone, PartialEq)]
+pub struct SourceVolume {
+    pub volume: f64,
+    pub of: String,
 }
 
 impl Prepared {
@@ -330,7 +353,10 @@ pub const VOLUME_WARNING: f64 = 0.02;
 /// without a word), with the size that would bring them within it: the error of the blocks'
 /// surface shrinks as the square of the size, so `size sqrt(0.02 / difference)`.
 fn volume_warning(scene: &Scene, p: &Prepared) -> Option<String> {
-    let (source, what) = p.source_volume.as_ref()?;
+    let SourceVolume {
+        volume: source,
+        of: what,
+    } = p.source_volume.as_ref()?;
     let volume = p.model.points.total_weight();
     let d = (volume - source) / source;
     if !(d.abs() > VOLUME_WARNING) {
@@ -426,7 +452,8 @@ pub fn prepare(scene: &Scene) -> Result<Prepared> {
     if let Some(w) = units_warning(scene, &p.model.nodes) {
         p.warnings.push(Warning::new(WarningKind::Input, w));
     }
-    p.source_volume = translate::geometry_volume(scene)?;
+    p.source_volume =
+        translate::geometry_volume(scene)?.map(|(volume, of)| SourceVolume { volume, of });
     if let Some(w) = volume_warning(scene, &p) {
         p.warnings.push(Warning::new(WarningKind::Input, w));
     }

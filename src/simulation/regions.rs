@@ -17,7 +17,7 @@ pub(super) struct Places {
 }
 
 /// The model's materials, each point's index into them and each region's point count.
-pub(super) type PointMaterials = (Vec<Solid>, Vec<u16>, Vec<(String, usize)>);
+pub(super) type PointMaterials = (Vec<Solid>, Vec<u16>, Vec<super::RegionPoints>);
 
 /// The model's materials and each point's index into them: 0 is `[material]`, k the k-th
 /// `[regions]` entry in name order. Without regions the index list is empty (every point has
@@ -128,7 +128,10 @@ pub(super) fn point_materials(
             }
             index[p] = id;
         }
-        counts.push((name.clone(), members.len()));
+        counts.push(super::RegionPoints {
+            name: name.clone(),
+            points: members.len(),
+        });
         materials.push(scene.material.with(r).solid());
     }
     Ok((materials, index, counts))

@@ -339,12 +339,12 @@ pub fn summarize(scene: &Scene, prep: &Prepared, out: &RunOutput, total_seconds:
         stages,
         mesh: MeshInfo {
             elements: prep.mesh.num_cells(),
-            min_dihedral_deg: prep.min_dihedral.map(|m| m.0),
-            min_dihedral_element: prep.min_dihedral.map(|m| m.1),
+            min_dihedral_deg: prep.min_dihedral.map(|m| m.degrees),
+            min_dihedral_element: prep.min_dihedral.map(|m| m.element),
             critical: out.critical,
             volume: model.points.total_weight(),
-            geometry_volume: prep.source_volume.as_ref().map(|v| v.0),
-            geometry_volume_of: prep.source_volume.as_ref().map(|v| v.1.clone()),
+            geometry_volume: prep.source_volume.as_ref().map(|v| v.volume),
+            geometry_volume_of: prep.source_volume.as_ref().map(|v| v.of.clone()),
         },
         support_nodes: prep
             .meshless()
