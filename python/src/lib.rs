@@ -74,7 +74,10 @@ fn interrupted_run(py: Python<'_>) -> PyResult<&Bound<'_, pyo3::types::PyType>> 
         .map(|t| t.bind(py))
 }
 
-/// The library's error as the Python exception of its kind, with `kind` and `exit_code`.
+/// The library's error as the Python exception of its kind, with `kind` and `exit_code`, and
+/// the facts the error holds as attributes (None where it has none): `file` (the scene file, or
+/// the file an I/O error is about), `element` and `volume` (m^3) of an inverted element,
+/// `signal` of an interrupted run.
 fn to_py(e: hytled::Error) -> PyErr {
     let msg = e.to_string();
     let err = match &e {
@@ -91,6 +94,23 @@ fn to_py(e: hytled::Error) -> PyErr {
         let v = err.value(py);
         let _ = v.setattr("kind", e.kind());
         let _ = v.setattr("exit_code", e.exit_code());
+        let file = match &e {
+            hytled::Error::Scene { file, .. } => Some(file.display().to_string()),
+            hytled::Error::Io { path, .. } => Some(path.display().to_string()),
+            _ => None,
+        };
+        let (element, volume) = match &e {
+            hytled::Error::InvalidElement { element, volume } => (Some(*element), Some(*volume)),
+            _ => (None, None),
+        };
+        let signal = match &e {
+            hytled::Error::Interrupted { signal, .. } => Some(*signal),
+            _ => None,
+        };
+        let _ = v.setattr("file", file);
+        let _ = v.setattr("element", element);
+        let _ = v.setattr("volume", volume);
+        let _ = v.setattr("signal", signal);
     });
     err
 }

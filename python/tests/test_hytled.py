@@ -58,9 +58,11 @@ def test_errors_carry_the_cli_s_kind_and_exit_code():
         hytled.Scene(CUBE, overrides={"solver.dt_fator": 0.5})
     assert e.value.kind == "scene" and e.value.exit_code == 2
     assert "dt_factor" in str(e.value)  # the CLI's suggestion
+    assert e.value.file.endswith("cube-compression.toml") and e.value.element is None
     with pytest.raises(hytled.FileError) as e:
         hytled.Scene("no-such-scene.toml")
     assert e.value.exit_code == 5
+    assert e.value.file.endswith("no-such-scene.toml")
     m = cube()
     with pytest.raises(hytled.InputError) as e:
         m.set_displacement("lid", z=0.0)
