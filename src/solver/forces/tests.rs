@@ -327,7 +327,7 @@ fn no_chunk_cuts_a_mean_dilatation_group() {
     let u: Vec<Vector3<f64>> = field(&mesh.nodes).iter().map(|v| v * 0.05).collect();
     let slots = NodeSlots::new(&qp, mesh.nodes.len());
     let mat = NeoHookean::from_young_poisson(3000.0, 0.49, 1000.0);
-    let mut f = Forces::new(mat.clone(), &qp, &slots, mesh.nodes.len());
+    let mut f = Forces::new(mat, &qp, &slots, mesh.nodes.len());
     assert!(f.plan.chunks.len() > 4, "{} chunks", f.plan.chunks.len());
     let mut cut_somewhere = false;
     for ch in &f.plan.chunks {
