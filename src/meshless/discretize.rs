@@ -22,8 +22,9 @@ pub struct MeshlessBuild {
     /// Background tetrahedra over `background.nodes` (no cells for grid integration of a
     /// cloud without tets): the geometry written to VTU and triangulating the boundary.
     pub background: Mesh,
-    /// For each background vertex, its field node (usize::MAX when removed).
-    pub background_node: Vec<usize>,
+    /// For each background vertex, its field node (None when it was removed as poorly
+    /// supported).
+    pub background_node: Vec<Option<usize>>,
     pub points: QuadraturePoints,
     /// Integration point positions, m.
     pub positions: Vec<Vector3<f64>>,
@@ -418,9 +419,9 @@ pub fn build(settings: MeshlessSettings, protected: &ProtectedNodes) -> Result<M
                 ));
             }
             let background_node = {
-                let mut m = vec![usize::MAX; background.nodes.len()];
+                let mut m = vec![None; background.nodes.len()];
                 for (new, &old) in keep.iter().enumerate() {
-                    m[old] = new;
+                    m[old] = Some(new);
                 }
                 m
             };

@@ -134,11 +134,8 @@ impl MeshlessCorrector {
                     .map_err(|e| crate::Error::Input(format!("background tets: {e}")))?
                     .into_iter()
                     .filter_map(|f| {
-                        let t = [
-                            build.background_node[f[0]],
-                            build.background_node[f[1]],
-                            build.background_node[f[2]],
-                        ];
+                        let node = |v: usize| build.background_node[v];
+                        let t = [node(f[0])?, node(f[1])?, node(f[2])?];
                         t.iter().all(|&i| i < n).then_some(t)
                     })
                     .collect()

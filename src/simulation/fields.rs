@@ -84,11 +84,9 @@ impl<'a> ResultPoints<'a> {
     /// where it was removed as poorly supported).
     pub fn node(&self, v: usize) -> Option<usize> {
         match self.method {
-            Discretization::Meshless { build, .. } => build
-                .background_node
-                .get(v)
-                .copied()
-                .filter(|&i| i != usize::MAX),
+            Discretization::Meshless { build, .. } => {
+                build.background_node.get(v).copied().flatten()
+            }
             _ => Some(v),
         }
     }

@@ -149,8 +149,7 @@ impl<'a> Discretized<'a> {
             Discretized::Meshless(b) => {
                 let mut v: Vec<usize> = (0..on.len())
                     .filter(|&i| on[i])
-                    .map(|i| b.background_node[i])
-                    .filter(|&n| n != usize::MAX)
+                    .filter_map(|i| b.background_node[i])
                     .collect();
                 v.sort_unstable();
                 v
