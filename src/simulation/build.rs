@@ -124,9 +124,7 @@ pub(super) fn assemble(
         min_dihedral,
         mut warnings,
     } = parts;
-    let q = quadratic
-        .as_ref()
-        .map(|(tets, linear)| QuadraticFe { tets, linear });
+    let q = QuadraticFe::of(&quadratic);
     let view = method.view(&mesh, q);
     let probes = probes(scene, view, input)?;
     let (materials, point_material, region_counts) =

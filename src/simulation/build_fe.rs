@@ -54,9 +54,7 @@ pub(super) fn prepare_fe(scene: &Scene) -> Result<Prepared> {
         Some(t) => (t.split(), Some((t, mesh))),
         None => (mesh, None),
     };
-    let q = quadratic
-        .as_ref()
-        .map(|(tets, linear)| super::surface::QuadraticFe { tets, linear });
+    let q = super::surface::QuadraticFe::of(&quadratic);
     let view = Discretized::Fe(&body, q);
     let mut bnd = boundaries(scene, &body.nodes, input.as_ref(), &|| view.surface_nodes())?;
     for b in bnd.iter_mut().filter(|b| b.node_values.is_none()) {

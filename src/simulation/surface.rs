@@ -35,6 +35,14 @@ pub(crate) struct QuadraticFe<'a> {
     pub linear: &'a Mesh,
 }
 
+impl<'a> QuadraticFe<'a> {
+    /// The view of a build's quadratic tets and their linear mesh, where it has them.
+    pub fn of(q: &'a Option<(Tet10Mesh, Mesh)>) -> Option<Self> {
+        q.as_ref()
+            .map(|(tets, linear)| QuadraticFe { tets, linear })
+    }
+}
+
 /// The body's boundary: vertex positions (m) and outward faces over them, each with the cell
 /// it bounds (coupled: `Some(FE-layer cell)`, or `None` for the meshless interior).
 pub(crate) struct Surface {
