@@ -7,6 +7,7 @@
 //! per step (meshless, linear MLS, 8 nearest support nodes, 2 grid integration points per node),
 //! one-point hexahedra on the same nodes, and the coupled discretization.
 
+use crate::InputKind;
 use std::time::Instant;
 
 use nalgebra::Vector3;
@@ -128,12 +129,15 @@ pub struct BenchRow {
 /// Times `case` at each thread count of `opts`.
 pub fn run_case(case: &BenchCase, opts: &BenchOptions) -> Result<Vec<BenchRow>> {
     if opts.steps == 0 {
-        return Err(Error::Input("bench: --steps must be at least 1".into()));
+        return Err(Error::input(
+            InputKind::Value,
+            "bench: --steps must be at least 1",
+        ));
     }
     if opts.repeat == 0 {
-        return Err(Error::Input(
-            "bench: --repeat must be at least 1 (runs per thread count; the fastest is reported)"
-                .into(),
+        return Err(Error::input(
+            InputKind::Value,
+            "bench: --repeat must be at least 1 (runs per thread count; the fastest is reported)",
         ));
     }
     let mut rows: Vec<BenchRow> = Vec::new();
@@ -142,8 +146,9 @@ pub fn run_case(case: &BenchCase, opts: &BenchOptions) -> Result<Vec<BenchRow>> 
     let mut threads: Vec<usize> = Vec::new();
     for &t in &opts.threads {
         if t == 0 {
-            return Err(Error::Input(
-                "bench: thread counts must be at least 1".into(),
+            return Err(Error::input(
+                InputKind::Value,
+                "bench: thread counts must be at least 1",
             ));
         }
         if t > cores {
@@ -164,7 +169,12 @@ pub fn run_case(case: &BenchCase, opts: &BenchOptions) -> Result<Vec<BenchRow>> 
         let pool = rayon::ThreadPoolBuilder::new()
             .num_threads(t)
             .build()
-            .map_err(|e| Error::Input(format!("bench: cannot start {t} threads: {e}")))?;
+            .map_err(|e| {
+                Error::input(
+                    InputKind::Value,
+                    format!("bench: cannot start {t} threads: {e}"),
+                )
+            })?;
         crate::comparison::reset_peak_memory();
         let (mut row, u) = pool.install(|| time_once(case, opts.steps, t, device))?;
         for _ in 1..opts.repeat {

@@ -2,6 +2,7 @@
 //! with `--modes` each steady-state solver (relaxation, static), in one table of what each
 //! costs (wall time, force evaluations) and how close it comes to the scene's references.
 
+use crate::InputKind;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -80,20 +81,26 @@ fn parse_list(list: &str, known: &[&str], what: &str, empty: &str) -> Result<Vec
     let mut out: Vec<String> = Vec::new();
     for m in list.split(',').map(str::trim).filter(|m| !m.is_empty()) {
         if !known.contains(&m) {
-            return Err(Error::Input(format!(
-                "compare: unknown {what} '{m}'; use a comma-separated list of {}",
-                known.join(", ")
-            )));
+            return Err(Error::input(
+                InputKind::Value,
+                format!(
+                    "compare: unknown {what} '{m}'; use a comma-separated list of {}",
+                    known.join(", ")
+                ),
+            ));
         }
         if !out.iter().any(|o| o == m) {
             out.push(m.to_string());
         }
     }
     if out.is_empty() {
-        return Err(Error::Input(format!(
-            "compare: {empty}; use a comma-separated list of {}",
-            known.join(", ")
-        )));
+        return Err(Error::input(
+            InputKind::Value,
+            format!(
+                "compare: {empty}; use a comma-separated list of {}",
+                known.join(", ")
+            ),
+        ));
     }
     Ok(out)
 }

@@ -5,20 +5,18 @@ use std::path::PathBuf;
 /// Errors reachable from user input or from a run that cannot go on.
 #[derive(Debug, thiserror::Error)]
 pub enum Error {
-    /// A scene file that cannot be read or does not follow the schema.
-    #[error("{file}: {}", short_numbers(message))]
-    Scene { file: PathBuf, message: String },
-    /// A geometric input or selection that cannot be used.
-    #[error("{}", short_numbers(.0))]
-    Input(String),
+    /// A scene, file, mesh, selection or setting that cannot be used: [`Fault::kind`] says
+    /// which, [`Fault::facts`] where.
+    #[error("{0}")]
+    Input(Box<Fault>),
     /// An element or integration point with non-positive volume.
-    #[error("element {element} is inverted or degenerate: volume {volume:.6e} m^3; its volume (a hexahedron: its Jacobian determinant at a corner or Gauss point) is not positive or below 1e-12 of its size cubed; check its node order and coordinates (a node far from the others makes a needle)")]
+    #[error("element {element} is inverted or degenerate: volume {} m^3; its volume (a hexahedron: its Jacobian determinant at a corner or Gauss point) is not positive or below 1e-12 of its size cubed; check its node order and coordinates (a node far from the others makes a needle)", Sci(*.volume))]
     InvalidElement { element: usize, volume: f64 },
     /// The explicit integrator diverged.
-    #[error("{}", short_numbers(.0))]
+    #[error("{0}")]
     Unstable(String),
     /// SIGINT (Ctrl-C) or SIGTERM stopped the run between two steps ([`crate::interrupt`]).
-    #[error("interrupted by {} {}; nothing after that point was computed", crate::interrupt::signal_name(*.signal), short_numbers(.at))]
+    #[error("interrupted by {} {}; nothing after that point was computed", crate::interrupt::signal_name(*.signal), .at)]
     Interrupted {
         /// The signal number (2 SIGINT, 15 SIGTERM).
         signal: i32,
@@ -34,8 +32,223 @@ pub enum Error {
     },
 }
 
-/// A message with its extreme numbers in scientific notation. Rust (and serde) print an f64 in
-/// full decimal: a scene's `1e300` as 301 digits, `1e-300` as 0.000...1. A number of more than 20
+/// What must change for an input to be usable: a caller (the Python binding, a sweep) tells
+/// "no such boundary" from "bad mesh" by this, never by the message's text.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum InputKind {
+    /// The scene file or dict: its syntax, an unknown key, a value out of range, keys that
+    /// contradict each other. Facts: `file`, `line` (as written, before `--set`), `key`.
+    Scene,
+    /// A data file's text or bytes cannot be parsed (mesh, cloud, image header, CSV, INP,
+    /// surface). Facts: `file`, `line` where the format has lines.
+    Format,
+    /// A mesh, cloud, surface or image that parses but cannot be used: ids out of range,
+    /// degenerate or inverted cells, holes, cell types the method has no element for.
+    Mesh,
+    /// A name that does not exist or a selection that selects nothing (boundary, region,
+    /// probe, curve, node set). Facts: `key`.
+    Selection,
+    /// A value given at run time (a CLI flag, a Python argument, a re-solve's input) out of
+    /// its range or in contradiction with the model. Facts: `key`, `value`.
+    Value,
+    /// A combination the chosen method or element does not support.
+    Unsupported,
+    /// Shape functions, integration points or boundary constraints that cannot be built from
+    /// these nodes (a support too small, a singular moment matrix). Facts: `node`.
+    Discretization,
+    /// The model would exceed a limit: memory, a count, a time.
+    Limit,
+}
+
+impl InputKind {
+    /// The kind's name, as `InputKind`'s serde form gives it ("scene", "selection", ...).
+    pub fn name(self) -> &'static str {
+        match self {
+            InputKind::Scene => "scene",
+            InputKind::Format => "format",
+            InputKind::Mesh => "mesh",
+            InputKind::Selection => "selection",
+            InputKind::Value => "value",
+            InputKind::Unsupported => "unsupported",
+            InputKind::Discretization => "discretization",
+            InputKind::Limit => "limit",
+        }
+    }
+}
+
+/// Where an input error lies, as data: each is `None` where the error does not know it.
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize)]
+pub struct Facts {
+    /// The scene key (`discretization.size`, `boundaries.top`) or setting name.
+    pub key: Option<String>,
+    /// The file at fault (the scene file, a mesh, an image).
+    pub file: Option<PathBuf>,
+    /// The 1-based line in `file`.
+    pub line: Option<usize>,
+    /// The node, 0-based, in the order the model holds them.
+    pub node: Option<usize>,
+    /// The element or cell, 0-based.
+    pub element: Option<usize>,
+    /// The offending value, SI units.
+    pub value: Option<f64>,
+}
+
+/// An input error: its kind, its facts and the sentence that says what is wrong and how to
+/// fix it. The message is written once, from these: `file[:line]: ` (when the facts have a
+/// file) and the sentence.
+#[derive(Debug)]
+pub struct Fault {
+    /// What must change.
+    pub kind: InputKind,
+    /// Where.
+    pub facts: Facts,
+    /// What is wrong and how to fix it, without the file and line (the facts give them).
+    pub message: String,
+}
+
+impl std::fmt::Display for Fault {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match (&self.facts.file, self.facts.line) {
+            (Some(file), Some(line)) => write!(f, "{}:{line}: ", file.display())?,
+            (Some(file), None) => write!(f, "{}: ", file.display())?,
+            _ => {}
+        }
+        f.write_str(&self.message)
+    }
+}
+
+/// An f64 for a message, written as Rust writes it (`0.3`, `1500`) unless that takes more
+/// than 20 digits (a scene's `1e300` as 301 digits, `1e-300` as 0.000...1): then in scientific
+/// notation. 20 digits is longer than any u64 (node and element ids).
+/// Takes an `f64` or a `&f64`.
+#[derive(Clone, Copy, Debug)]
+pub struct Num<T = f64>(pub T);
+
+impl<T: std::borrow::Borrow<f64>> std::fmt::Display for Num<T> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let v = *self.0.borrow();
+        let plain = format!("{v}");
+        if plain.bytes().filter(u8::is_ascii_digit).count() > 20 {
+            write!(f, "{v:e}")
+        } else {
+            f.write_str(&plain)
+        }
+    }
+}
+
+/// An f64 in scientific notation for a message (`{:.3e}`, `{:e}`; a format's precision and
+/// width are kept), written as a decimal when its exponent is 0 to 4: 6.999288 rather than
+/// `6.999288e0`, 1234.5 rather than `1.2345e3`, with the same significant digits.
+/// Takes an `f64` or a `&f64`.
+#[derive(Clone, Copy, Debug)]
+pub struct Sci<T = f64>(pub T);
+
+impl<T: std::borrow::Borrow<f64>> std::fmt::Display for Sci<T> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let v = *self.0.borrow();
+        let e = match f.precision() {
+            Some(digits) => format!("{v:.digits$e}"),
+            None => format!("{v:e}"),
+        };
+        let (mantissa, k) = e
+            .rsplit_once('e')
+            .and_then(|(m, k)| Some((m, k.parse::<i32>().ok()?)))
+            .unwrap_or((&e, i32::MIN));
+        let text = if (0..=4).contains(&k) {
+            let frac = mantissa.split_once('.').map_or(0, |(_, d)| d.len()) as i32;
+            let decimals = (frac - k).max(0) as usize;
+            format!("{v:.decimals$}")
+        } else {
+            e.clone()
+        };
+        match f.width() {
+            Some(w) => write!(f, "{text:>w$}"),
+            None => f.write_str(&text),
+        }
+    }
+}
+
+impl<T: std::borrow::Borrow<f64>> std::fmt::LowerExp for Sci<T> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        std::fmt::Display::fmt(self, f)
+    }
+}
+
+impl Error {
+    /// An input error of `kind` with no facts yet: add them with [`Error::key`],
+    /// [`Error::file`], [`Error::line`], [`Error::node`], [`Error::element`], [`Error::value`].
+    pub fn input(kind: InputKind, message: impl Into<String>) -> Self {
+        Error::Input(Box::new(Fault {
+            kind,
+            facts: Facts::default(),
+            message: message.into(),
+        }))
+    }
+
+    /// A scene error in `file` (see [`InputKind::Scene`]).
+    pub fn scene(file: impl Into<PathBuf>, message: impl Into<String>) -> Self {
+        Error::input(InputKind::Scene, message).file(file)
+    }
+
+    /// The input error's kind and facts; `None` for other errors.
+    pub fn fault(&self) -> Option<&Fault> {
+        match self {
+            Error::Input(f) => Some(f),
+            _ => None,
+        }
+    }
+
+    fn with(mut self, set: impl FnOnce(&mut Facts)) -> Self {
+        if let Error::Input(f) = &mut self {
+            set(&mut f.facts);
+        }
+        self
+    }
+
+    /// Sets the scene key (input errors only; others are returned unchanged).
+    pub fn key(self, key: impl Into<String>) -> Self {
+        let key = key.into();
+        self.with(|f| f.key = Some(key))
+    }
+
+    /// Sets the file at fault; the message is then prefixed `file: `.
+    pub fn file(self, file: impl Into<PathBuf>) -> Self {
+        let file = file.into();
+        self.with(|f| f.file = Some(file))
+    }
+
+    /// Sets the 1-based line in the file; with a file the message is prefixed `file:line: `.
+    pub fn line(self, line: usize) -> Self {
+        self.with(|f| f.line = Some(line))
+    }
+
+    /// Sets the node (0-based).
+    pub fn node(self, node: usize) -> Self {
+        self.with(|f| f.node = Some(node))
+    }
+
+    /// Sets the element or cell (0-based).
+    pub fn element(self, element: usize) -> Self {
+        self.with(|f| f.element = Some(element))
+    }
+
+    /// Sets the offending value (SI units).
+    pub fn value(self, value: f64) -> Self {
+        self.with(|f| f.value = Some(value))
+    }
+
+    /// The same input error with `more` after its sentence (other errors unchanged).
+    pub fn append(mut self, more: &str) -> Self {
+        if let Error::Input(f) = &mut self {
+            f.message.push_str(more);
+        }
+        self
+    }
+}
+
+/// Another library's message (serde's, toml's) with its extreme numbers in scientific notation,
+/// as [`Num`] writes hytled's own. Rust (and serde) print an f64 in full decimal: a scene's `1e300` as 301 digits, `1e-300` as 0.000...1. A number of more than 20
 /// digits is longer than any u64 (node and element ids), so it is such an f64: it is shown as
 /// `1e300`; shorter numbers are left as written.
 pub fn short_numbers(message: &str) -> String {
@@ -174,7 +387,7 @@ impl Error {
     /// The exit code for this error ([`exit`]).
     pub fn exit_code(&self) -> u8 {
         match self {
-            Error::Scene { .. } | Error::Input(_) | Error::InvalidElement { .. } => exit::INPUT,
+            Error::Input(_) | Error::InvalidElement { .. } => exit::INPUT,
             Error::Unstable(_) => exit::UNSTABLE,
             Error::Io { .. } => exit::IO,
             Error::Interrupted { signal, .. } => {
@@ -187,16 +400,33 @@ impl Error {
         }
     }
 
-    /// A short name of the error's kind, as the JSON error object gives it.
+    /// A short name of the error's class, as the JSON error object gives it: "scene" for an
+    /// [`InputKind::Scene`] error, "input" for the other input kinds (see [`Error::fault`]).
     pub fn kind(&self) -> &'static str {
         match self {
-            Error::Scene { .. } => "scene",
+            Error::Input(f) if f.kind == InputKind::Scene => "scene",
             Error::Input(_) => "input",
             Error::InvalidElement { .. } => "invalid element",
             Error::Unstable(_) => "unstable",
             Error::Io { .. } => "io",
             Error::Interrupted { .. } => "interrupted",
         }
+    }
+
+    /// The error as the JSON object the CLI's `--json` and a run's failed summary give:
+    /// `error` ([`Error::kind`]), `exit_code`, `message`, and for an input error its
+    /// `input_kind` and `facts` ([`Facts`]; absent facts are null).
+    pub fn to_json(&self) -> serde_json::Value {
+        let mut v = serde_json::json!({
+            "error": self.kind(),
+            "exit_code": self.exit_code(),
+            "message": self.to_string(),
+        });
+        if let Some(f) = self.fault() {
+            v["input_kind"] = f.kind.name().into();
+            v["facts"] = serde_json::json!(f.facts);
+        }
+        v
     }
 
     /// Wraps an I/O error with the path it concerns.
@@ -217,17 +447,85 @@ mod tests {
         let huge = format!("{}", 1e300);
         let tiny = format!("{}", 2.5e-300);
         assert_eq!(huge.len(), 301);
-        let e = Error::Input(format!("dilatation {huge}; spacing -{tiny} m."));
+        // hytled's own messages write an f64 through Num, once.
+        let e = Error::input(
+            InputKind::Value,
+            format!("dilatation {}; spacing -{} m.", Num(1e300), Num(2.5e-300)),
+        );
         assert_eq!(e.to_string(), "dilatation 1e300; spacing -2.5e-300 m.");
+        assert_eq!(
+            format!("{} {} {}", Num(0.3), Num(1500.0), Num(-0.25)),
+            "0.3 1500 -0.25"
+        );
+        // Another library's text is shortened where it enters an error.
+        assert_eq!(
+            short_numbers(&format!("dilatation {huge}; spacing -{tiny} m.")),
+            "dilatation 1e300; spacing -2.5e-300 m."
+        );
         // Ids and ordinary numbers stay as written, the largest u64 included.
         let ok = "node 18446744073709551615 at 0.30000000000000004 m, x1000000000000000000000000, \
                   v1.2.3, /data/1234567890123456789012345/mesh.vtu";
         assert_eq!(short_numbers(ok), ok);
-        let s = Error::Scene {
-            file: "a.toml".into(),
-            message: format!("size = {}: too small", 1e-30),
-        };
+        let s = Error::scene("a.toml", "size = 1e-30: too small");
         assert_eq!(s.to_string(), "a.toml: size = 1e-30: too small");
+    }
+
+    /// Issue 58: the message is written once from the kind's facts; the facts are data.
+    #[test]
+    fn input_errors_carry_their_kind_and_facts() {
+        let e = Error::input(InputKind::Format, "expected 3 numbers x y z")
+            .file("cloud.xyz")
+            .line(7);
+        assert_eq!(e.to_string(), "cloud.xyz:7: expected 3 numbers x y z");
+        let f = e.fault().expect("an input error");
+        assert_eq!(f.kind, InputKind::Format);
+        assert_eq!((f.facts.line, f.facts.node), (Some(7), None));
+        assert_eq!(e.kind(), "input");
+        assert_eq!(e.exit_code(), exit::INPUT);
+        let s = Error::scene("a.toml", "x")
+            .key("discretization.size")
+            .line(3);
+        assert_eq!(s.kind(), "scene");
+        assert_eq!(s.to_string(), "a.toml:3: x");
+        let f = s.fault().expect("an input error");
+        assert_eq!(f.facts.key.as_deref(), Some("discretization.size"));
+        // Facts on other errors change nothing.
+        let u = Error::Unstable("diverged".into()).node(3).append("!");
+        assert!(u.fault().is_none() && u.to_string() == "diverged");
+        let n = Error::input(InputKind::Discretization, "singular")
+            .node(12)
+            .value(0.5);
+        let facts = &n.fault().expect("input").facts;
+        assert_eq!((facts.node, facts.value), (Some(12), Some(0.5)));
+        assert_eq!(
+            serde_json::to_value(InputKind::Unsupported).expect("json"),
+            InputKind::Unsupported.name()
+        );
+    }
+
+    /// `Sci` writes what `tidy_exponents` made of `{:.6e}`, from the number, not the text.
+    #[test]
+    fn sci_writes_small_exponents_as_decimals() {
+        for (v, digits) in [
+            (6.999288, 6),
+            (1.73557, 6),
+            (5.5936e-4, 4),
+            (2.0e5, 1),
+            (-1234.5, 3),
+            (0.0, 6),
+            (-1.5e-3, 6),
+        ] {
+            let e = format!("{v:.digits$e}");
+            assert_eq!(format!("{:.digits$}", Sci(v)), tidy_exponents(&e), "{v}");
+        }
+        assert_eq!(format!("{:.6e}", Sci(6.999288)), "6.999288");
+        assert_eq!(
+            format!("{:e}", Sci(1.5)),
+            tidy_exponents(&format!("{:e}", 1.5))
+        );
+        assert_eq!(format!("{:e}", Sci(1.5e-12)), "1.5e-12");
+        assert_eq!(format!("{:.3e}", Sci(2.5e-7)), "2.500e-7");
+        assert_eq!(format!("{:>13.6e}", Sci(-1.5e-3)), " -1.500000e-3");
     }
 
     #[test]

@@ -12,7 +12,7 @@ pub mod error;
 pub mod geometry;
 pub mod io;
 
-pub use error::{Error, Result};
+pub use error::{Error, InputKind, Result};
 pub mod bc;
 pub mod bench;
 pub mod comparison;

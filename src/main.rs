@@ -1,5 +1,6 @@
 //! hytled command-line interface (clap only; the work lives in the library).
 
+use hytled::InputKind;
 use std::io::IsTerminal;
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -292,12 +293,8 @@ fn main() -> ExitCode {
             eprintln!("error: {e}");
             if json {
                 // Scripts reading stdout get an object in every case.
-                let obj = serde_json::json!({
-                    "status": "failed",
-                    "error": e.kind(),
-                    "exit_code": e.exit_code(),
-                    "message": e.to_string(),
-                });
+                let mut obj = e.to_json();
+                obj["status"] = "failed".into();
                 println!("{}", serde_json::to_string_pretty(&obj).unwrap_or_default());
             }
             ExitCode::from(e.exit_code())
@@ -353,7 +350,10 @@ fn show_stages() {
 fn start_threads(threads: Option<usize>) -> hytled::Result<()> {
     let Some(n) = threads else { return Ok(()) };
     if n == 0 {
-        return Err(hytled::Error::Input("--threads must be at least 1".into()));
+        return Err(hytled::Error::input(
+            InputKind::Value,
+            "--threads must be at least 1",
+        ));
     }
     let cores = std::thread::available_parallelism().map_or(1, |c| c.get());
     let n = if n > cores {
@@ -365,7 +365,9 @@ fn start_threads(threads: Option<usize>) -> hytled::Result<()> {
     rayon::ThreadPoolBuilder::new()
         .num_threads(n)
         .build_global()
-        .map_err(|e| hytled::Error::Input(format!("cannot start {n} threads: {e}")))
+        .map_err(|e| {
+            hytled::Error::input(InputKind::Value, format!("cannot start {n} threads: {e}"))
+        })
 }
 
 fn execute(cmd: Command) -> hytled::Result<u8> {
@@ -398,8 +400,9 @@ fn run(
     set.extend(device.map(DeviceArg::set));
     start_threads(threads)?;
     if progress_every.is_some_and(|p| !(p >= 0.0 && p.is_finite())) {
-        return Err(hytled::Error::Input(
-            "--progress-every must be a number of seconds, 0 or more".into(),
+        return Err(hytled::Error::input(
+            InputKind::Value,
+            "--progress-every must be a number of seconds, 0 or more",
         ));
     }
     let sc = hytled::scene::load(&scene, &set)?;
@@ -660,9 +663,10 @@ fn compare(
     if json {
         println!(
             "{}",
-            serde_json::to_string_pretty(&rows).map_err(|e| hytled::Error::Input(format!(
-                "cannot serialise the comparison: {e}"
-            )))?
+            serde_json::to_string_pretty(&rows).map_err(|e| hytled::Error::input(
+                InputKind::Value,
+                format!("cannot serialise the comparison: {e}")
+            ))?
         );
     } else {
         print!("{}", hytled::comparison::table(&rows));
@@ -679,7 +683,10 @@ fn compare(
         }
     }
     if rows.iter().all(|r| r.error.is_some()) {
-        return Err(hytled::Error::Input("compare: every run failed".into()));
+        return Err(hytled::Error::input(
+            InputKind::Value,
+            "compare: every run failed",
+        ));
     }
     Ok(exit::SUCCESS)
 }
@@ -704,13 +711,15 @@ fn sweep(
     set.extend(device.map(DeviceArg::set));
     start_threads(threads)?;
     if repeat == 0 {
-        return Err(hytled::Error::Input(
-            "--repeat 0: give at least 1 run per combination".into(),
+        return Err(hytled::Error::input(
+            InputKind::Value,
+            "--repeat 0: give at least 1 run per combination",
         ));
     }
     if keep_outputs && out.is_none() {
-        return Err(hytled::Error::Input(
-            "--keep-outputs needs --out DIR to write the runs to".into(),
+        return Err(hytled::Error::input(
+            InputKind::Value,
+            "--keep-outputs needs --out DIR to write the runs to",
         ));
     }
     let varies = vary
@@ -721,9 +730,10 @@ fn sweep(
     for p in &preset {
         let (name, sets) = hytled::sweep::parse_preset(p)?;
         if presets.insert(name.clone(), sets).is_some() {
-            return Err(hytled::Error::Input(format!(
-                "--preset {name} is given twice"
-            )));
+            return Err(hytled::Error::input(
+                InputKind::Value,
+                format!("--preset {name} is given twice"),
+            ));
         }
     }
     let opts = hytled::sweep::SweepOptions {
@@ -738,15 +748,20 @@ fn sweep(
     if json {
         println!(
             "{}",
-            serde_json::to_string_pretty(&rows)
-                .map_err(|e| hytled::Error::Input(format!("cannot serialise the sweep: {e}")))?
+            serde_json::to_string_pretty(&rows).map_err(|e| hytled::Error::input(
+                InputKind::Value,
+                format!("cannot serialise the sweep: {e}")
+            ))?
         );
     } else {
         let dims = hytled::sweep::dimensions(&varies, &opts.presets);
         print!("{}", hytled::sweep::table(&dims, &rows));
     }
     if rows.iter().all(|r| r.error.is_some()) {
-        return Err(hytled::Error::Input("sweep: every run failed".into()));
+        return Err(hytled::Error::input(
+            InputKind::Value,
+            "sweep: every run failed",
+        ));
     }
     Ok(exit::SUCCESS)
 }
@@ -757,7 +772,10 @@ fn table(TableArgs { summaries }: TableArgs) -> hytled::Result<u8> {
     for p in &summaries {
         let text = std::fs::read_to_string(p).map_err(|e| hytled::Error::io(p, e))?;
         let v: serde_json::Value = serde_json::from_str(&text).map_err(|e| {
-            hytled::Error::Input(format!("{}: not a JSON run summary: {e}", p.display()))
+            hytled::Error::input(
+                InputKind::Format,
+                format!("{}: not a JSON run summary: {e}", p.display()),
+            )
         })?;
         vals.push(v);
     }

@@ -2,6 +2,7 @@
 //! the machine into an input error naming the setting to change (instead of an abort in the
 //! allocator).
 
+use crate::InputKind;
 use std::path::{Path, PathBuf};
 
 use crate::{Error, Result};
@@ -121,12 +122,15 @@ fn address_space_left(limits: &str, status: &str) -> Option<f64> {
 /// (`fix`).
 pub fn check(need: f64, what: &str, fix: &str) -> Result<()> {
     match available() {
-        Some(avail) if need > SHARE * avail => Err(Error::Input(format!(
+        Some(avail) if need > SHARE * avail => Err(Error::input(
+            InputKind::Limit,
+            format!(
             "{what} would take about {}, more than {:.0} % of the {} of memory available: {fix}",
             size(need),
             100.0 * SHARE,
             size(avail)
-        ))),
+        ),
+        )),
         _ => Ok(()),
     }
 }

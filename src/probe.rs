@@ -1,6 +1,7 @@
 //! Probes: displacement at arbitrary material points, interpolated with the shape functions of
 //! the element that contains the point (FE) or with the meshless shape functions there.
 
+use crate::InputKind;
 use nalgebra::Vector3;
 
 use crate::fe::{hex8, tet4};
@@ -88,11 +89,14 @@ pub fn locate_among(
             nodes: mesh.cell(e).to_vec(),
             weights: w,
         }),
-        _ => Err(Error::Input(format!(
-            "{} at {:?} m lies outside the mesh; move it inside the body",
-            what(),
-            position.as_slice()
-        ))),
+        _ => Err(Error::input(
+            InputKind::Selection,
+            format!(
+                "{} at {:?} m lies outside the mesh; move it inside the body",
+                what(),
+                position.as_slice()
+            ),
+        )),
     }
 }
 

@@ -4,6 +4,7 @@
 //! Any `--set` path can be varied. A run that fails (invalid value, unstable step, inverted
 //! element, singular support) is a row with its error message; the sweep goes on.
 
+use crate::InputKind;
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -27,7 +28,7 @@ pub struct Vary {
 /// `geometry.semi_axes=[1,2,3],[2,3,4]` gives two arrays.
 pub fn parse_vary(text: &str) -> Result<Vary> {
     let bad = |why: &str| {
-        Error::Input(format!(
+        Error::input(InputKind::Value, format!(
             "--vary '{text}': {why}; write --vary key.path=v1,v2,... (e.g. --vary discretization.divisions=[4,2,8],[6,3,12])"
         ))
     };
@@ -86,10 +87,13 @@ pub fn dimensions(varies: &[Vary], presets: &BTreeMap<String, Vec<String>>) -> V
 /// Parses `NAME=key.path=v;key.path=v` into the preset's name and its overrides.
 pub fn parse_preset(text: &str) -> Result<(String, Vec<String>)> {
     let bad = |why: &str| {
-        Error::Input(format!(
+        Error::input(
+            InputKind::Value,
+            format!(
             "--preset '{text}': {why}; write --preset NAME=key.path=v;key.path=v (e.g. --preset \
              mmls=discretization.method=meshless;discretization.basis=quadratic)"
-        ))
+        ),
+        )
     };
     let (name, rest) = text.split_once('=').ok_or_else(|| bad("no '='"))?;
     let name = name.trim();
@@ -244,9 +248,9 @@ pub fn run_sweep(
     let all = dimensions(varies, &opts.presets);
     let varies = &all[..];
     if varies.is_empty() {
-        return Err(Error::Input(
-            "sweep: nothing to vary; give at least one --vary key.path=v1,v2,... or --preset"
-                .into(),
+        return Err(Error::input(
+            InputKind::Value,
+            "sweep: nothing to vary; give at least one --vary key.path=v1,v2,... or --preset",
         ));
     }
     for v in varies {
@@ -264,10 +268,13 @@ pub fn run_sweep(
         });
         if !ok {
             let e = first_err.map(|e| e.to_string()).unwrap_or_default();
-            return Err(Error::Input(format!(
-                "sweep: no value of --vary {} gives a valid scene: {e}",
-                v.key
-            )));
+            return Err(Error::input(
+                InputKind::Value,
+                format!(
+                    "sweep: no value of --vary {} gives a valid scene: {e}",
+                    v.key
+                ),
+            ));
         }
     }
     let combos = combinations(varies);
@@ -881,7 +888,7 @@ pub fn write_outputs(
     std::fs::write(&p, md).map_err(|e| Error::io(&p, e))?;
     let p = dir.join("sweep.json");
     let json = serde_json::to_string_pretty(rows)
-        .map_err(|e| Error::Input(format!("cannot serialise the sweep: {e}")))?;
+        .map_err(|e| Error::input(InputKind::Value, format!("cannot serialise the sweep: {e}")))?;
     std::fs::write(&p, json).map_err(|e| Error::io(&p, e))?;
 
     let curves = curves(rows);

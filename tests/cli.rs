@@ -204,6 +204,9 @@ fn exit_codes_and_json_status_tell_scripts_what_happened() {
     let (code, out, _) = run(&["--json", "--set", "material.poisson_ratio=0.7"]);
     assert_eq!(code, Some(2));
     assert_eq!(json(&out)["error"], "scene");
+    // Issue 58: the kind and the facts, for a script to act on.
+    assert_eq!(json(&out)["input_kind"], "scene");
+    assert_eq!(json(&out)["facts"]["key"], "material");
     let (code, _, _) = run(&["--no-such-flag"]);
     assert_eq!(code, Some(2));
     // A file that cannot be read: 5.

@@ -258,3 +258,57 @@ fn invalid_values_are_clear_errors() {
         assert!(e.contains(want), "{sets:?}: {e}");
     }
 }
+
+/// Issue 58: an input error's kind and facts are data, so a caller tells "no such boundary"
+/// from "bad mesh" without reading the message; the message is written from them once.
+#[test]
+fn input_errors_carry_their_kind_and_facts() {
+    use hytled::InputKind;
+    let fault = |e: &hytled::Error| {
+        let f = e.fault().unwrap_or_else(|| panic!("not an input error: {e}"));
+        (f.kind, f.facts.clone())
+    };
+    // A schema error in a file: the file, the line as written and the key.
+    let text = cube_text().replace("youngs_modulus", "youngs_modulu");
+    let e = hytled::scene::parse(&text, Path::new("bad.toml"), &[]).expect_err("unknown key");
+    let (kind, facts) = fault(&e);
+    let line = 1 + text
+        .lines()
+        .position(|l| l.contains("youngs_modulu"))
+        .expect("the key");
+    assert_eq!(kind, InputKind::Scene);
+    assert_eq!(facts.line, Some(line), "{e}");
+    assert_eq!(facts.file.as_deref(), Some(Path::new("bad.toml")));
+    assert!(e.to_string().starts_with(&format!("bad.toml:{line}: ")), "{e}");
+    assert_eq!(facts.key.as_deref(), Some("material.youngs_modulu"), "{e}");
+    // A value refused by validation: its key, no line (an override has none).
+    let o = ["solver.dt_factor=11".to_string()];
+    let e = hytled::scene::parse(&cube_text(), Path::new("bad.toml"), &o).expect_err("dt");
+    let (kind, facts) = fault(&e);
+    assert_eq!((kind, facts.line), (InputKind::Scene, None));
+    assert_eq!(facts.key.as_deref(), Some("solver.dt_factor"));
+    assert_eq!(e.kind(), "scene");
+    // A selection that selects nothing.
+    let sc = cube_scene(&["boundaries.bottom.select.plane.value=-0.1"]);
+    let e = run_scene(&sc, &RunOptions::default()).expect_err("empty");
+    assert_eq!(fault(&e).0, InputKind::Selection, "{e}");
+    assert_eq!(e.kind(), "input");
+    // A mesh file's text: the file and the line.
+    let inp = "*NODE\n1, 0, 0, 0\n2, 1, 0, x\n";
+    let e = hytled::io::inp::parse_inp(inp, Path::new("m.inp")).expect_err("bad number");
+    let (kind, facts) = fault(&e);
+    assert_eq!((kind, facts.line), (InputKind::Format, Some(3)), "{e}");
+    assert!(e.to_string().starts_with("m.inp:3: "), "{e}");
+    // A node cloud the meshless method cannot use: the kind, not the text, says so.
+    let dir = std::env::temp_dir().join(format!("hytled-kinds-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("temp dir");
+    let cloud = dir.join("flat.xyz");
+    std::fs::write(&cloud, "0 0 0\n1 0 0\n0 1 0\n1 1 0\n2 2 0\n").expect("write");
+    let e = hytled::meshless::cloud::read_cloud(&cloud).expect_err("coplanar");
+    assert_eq!(fault(&e).0, InputKind::Mesh, "{e}");
+    std::fs::remove_dir_all(&dir).ok();
+    // The CLI's JSON object and a failed summary carry them too.
+    let v = e.to_json();
+    assert_eq!((v["error"].as_str(), v["input_kind"].as_str()), (Some("input"), Some("mesh")));
+    assert!(v["facts"]["node"].is_null());
+}

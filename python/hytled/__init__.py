@@ -25,12 +25,19 @@ import numpy as np
 
 from . import _hytled
 from ._hytled import (
+    DiscretizationError,
     FileError,
+    FormatError,
     HytledError,
     InputError,
     InterruptedRun,
+    InvalidValueError,
+    LimitError,
+    MeshError,
     SceneError,
+    SelectionError,
     UnstableError,
+    UnsupportedError,
 )
 
 __version__ = _hytled.__version__
@@ -40,8 +47,15 @@ __all__ = [
     "Model",
     "Result",
     "HytledError",
-    "SceneError",
     "InputError",
+    "SceneError",
+    "FormatError",
+    "MeshError",
+    "SelectionError",
+    "InvalidValueError",
+    "UnsupportedError",
+    "DiscretizationError",
+    "LimitError",
     "UnstableError",
     "FileError",
     "InterruptedRun",
@@ -114,7 +128,7 @@ def _plain(v: Any, at: str = "") -> Any:
         return int(v)
     if isinstance(v, (float, np.floating)) and not np.isfinite(v):
         e = SceneError(f"scene dict: {at or 'a value'} = {float(v)} is not a finite number; give a finite value")
-        e.kind, e.exit_code = "scene", 2
+        e.kind, e.exit_code, e.key = "scene", 2, at or None
         raise e
     if isinstance(v, (np.floating,)):
         return float(v)
@@ -340,7 +354,7 @@ class Model:
         of three (None leaves a component as it is) or x=, y=, z=."""
         v = list(value) if value is not None else [x, y, z]
         if len(v) != 3:
-            raise InputError(f"boundary '{name}': give three components, not {len(v)}")
+            raise InvalidValueError(f"boundary '{name}': give three components, not {len(v)}")
         self._inner.set_displacement(name, [None if c is None else float(c) for c in v])
 
     def displacement(self, name: str) -> list:
@@ -359,14 +373,14 @@ class Model:
         """New displacements (m, shape (M, 3)) measured at the points of [measured.NAME]."""
         a = np.ascontiguousarray(displacements, dtype=float)
         if a.ndim != 2:
-            raise InputError(f"measured '{name}': an array of shape (M, 3) is needed, not {a.shape}")
+            raise InvalidValueError(f"measured '{name}': an array of shape (M, 3) is needed, not {a.shape}")
         self._inner.set_measured(name, a)
 
     def set_tool_motion(self, name: str, motion: Iterable[float]) -> None:
         """New final displacement (m) of rigid body [contact.NAME] from its reference position."""
         m = [float(c) for c in motion]
         if len(m) != 3:
-            raise InputError(f"contact '{name}': give three components, not {len(m)}")
+            raise InvalidValueError(f"contact '{name}': give three components, not {len(m)}")
         self._inner.set_tool_motion(name, m)
 
     def tool_motion(self, name: str) -> np.ndarray:

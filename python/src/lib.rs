@@ -22,15 +22,57 @@ create_exception!(
 );
 create_exception!(
     _hytled,
-    SceneError,
+    InputError,
     HytledError,
-    "A scene that cannot be read or does not follow the schema (exit code 2)."
+    "An input that cannot be used (exit code 2); its subclass names the kind (`input_kind`)."
 );
 create_exception!(
     _hytled,
+    SceneError,
     InputError,
-    HytledError,
-    "An input that cannot be used: geometry, selection, mesh, values (exit code 2)."
+    "A scene that cannot be read or does not follow the schema: `file`, `line`, `key`."
+);
+create_exception!(
+    _hytled,
+    FormatError,
+    InputError,
+    "A data file (mesh, cloud, image, CSV, INP) whose text cannot be parsed: `file`, `line`."
+);
+create_exception!(
+    _hytled,
+    MeshError,
+    InputError,
+    "A mesh, cloud, surface or image that cannot be used: degenerate cells, bad ids, holes."
+);
+create_exception!(
+    _hytled,
+    SelectionError,
+    InputError,
+    "A name that does not exist or a selection that selects nothing: `key`."
+);
+create_exception!(
+    _hytled,
+    InvalidValueError,
+    InputError,
+    "A value out of range or in contradiction with the model: `key`, `value`."
+);
+create_exception!(
+    _hytled,
+    UnsupportedError,
+    InputError,
+    "A combination the chosen method or element does not support."
+);
+create_exception!(
+    _hytled,
+    DiscretizationError,
+    InputError,
+    "Shape functions or constraints that cannot be built from these nodes: `node`."
+);
+create_exception!(
+    _hytled,
+    LimitError,
+    InputError,
+    "A model that would exceed a limit: memory, a count, a time."
 );
 create_exception!(
     _hytled,
@@ -74,15 +116,31 @@ fn interrupted_run(py: Python<'_>) -> PyResult<&Bound<'_, pyo3::types::PyType>> 
         .map(|t| t.bind(py))
 }
 
+/// The Python exception class of an input kind.
+fn input_class(kind: hytled::InputKind) -> fn(String) -> PyErr {
+    use hytled::InputKind as K;
+    match kind {
+        K::Scene => SceneError::new_err,
+        K::Format => FormatError::new_err,
+        K::Mesh => MeshError::new_err,
+        K::Selection => SelectionError::new_err,
+        K::Value => InvalidValueError::new_err,
+        K::Unsupported => UnsupportedError::new_err,
+        K::Discretization => DiscretizationError::new_err,
+        K::Limit => LimitError::new_err,
+    }
+}
+
 /// The library's error as the Python exception of its kind, with `kind` and `exit_code`, and
-/// the facts the error holds as attributes (None where it has none): `file` (the scene file, or
-/// the file an I/O error is about), `element` and `volume` (m^3) of an inverted element,
+/// the facts the error holds as attributes (None where it has none): `input_kind` ("scene",
+/// "format", "mesh", "selection", "value", "unsupported", "discretization", "limit"), `key`,
+/// `file`, `line`, `node`, `element`, `value`, `volume` (m^3) of an inverted element and
 /// `signal` of an interrupted run.
 fn to_py(e: hytled::Error) -> PyErr {
     let msg = e.to_string();
     let err = match &e {
-        hytled::Error::Scene { .. } => SceneError::new_err(msg),
-        hytled::Error::Input(_) | hytled::Error::InvalidElement { .. } => InputError::new_err(msg),
+        hytled::Error::Input(f) => input_class(f.kind)(msg),
+        hytled::Error::InvalidElement { .. } => MeshError::new_err(msg),
         hytled::Error::Unstable(_) => UnstableError::new_err(msg),
         hytled::Error::Io { .. } => FileError::new_err(msg),
         hytled::Error::Interrupted { .. } => Python::attach(|py| match interrupted_run(py) {
@@ -90,25 +148,37 @@ fn to_py(e: hytled::Error) -> PyErr {
             Err(e) => e,
         }),
     };
+    let mut facts = e.fault().map(|f| f.facts.clone()).unwrap_or_default();
+    let input_kind = match &e {
+        hytled::Error::Input(f) => Some(f.kind.name()),
+        hytled::Error::InvalidElement { .. } => Some(hytled::InputKind::Mesh.name()),
+        _ => None,
+    };
+    let mut volume = None;
+    match &e {
+        hytled::Error::Io { path, .. } => facts.file = Some(path.clone()),
+        hytled::Error::InvalidElement { element, volume: v } => {
+            facts.element = Some(*element);
+            facts.value = Some(*v);
+            volume = Some(*v);
+        }
+        _ => {}
+    }
+    let signal = match &e {
+        hytled::Error::Interrupted { signal, .. } => Some(*signal),
+        _ => None,
+    };
     Python::attach(|py| {
         let v = err.value(py);
         let _ = v.setattr("kind", e.kind());
         let _ = v.setattr("exit_code", e.exit_code());
-        let file = match &e {
-            hytled::Error::Scene { file, .. } => Some(file.display().to_string()),
-            hytled::Error::Io { path, .. } => Some(path.display().to_string()),
-            _ => None,
-        };
-        let (element, volume) = match &e {
-            hytled::Error::InvalidElement { element, volume } => (Some(*element), Some(*volume)),
-            _ => (None, None),
-        };
-        let signal = match &e {
-            hytled::Error::Interrupted { signal, .. } => Some(*signal),
-            _ => None,
-        };
-        let _ = v.setattr("file", file);
-        let _ = v.setattr("element", element);
+        let _ = v.setattr("input_kind", input_kind);
+        let _ = v.setattr("key", facts.key);
+        let _ = v.setattr("file", facts.file.map(|f| f.display().to_string()));
+        let _ = v.setattr("line", facts.line);
+        let _ = v.setattr("node", facts.node);
+        let _ = v.setattr("element", facts.element);
+        let _ = v.setattr("value", facts.value);
         let _ = v.setattr("volume", volume);
         let _ = v.setattr("signal", signal);
     });
@@ -207,9 +277,12 @@ impl Model {
                     }
                 }
             }
-            let result = worker
-                .join()
-                .unwrap_or_else(|_| Err(hytled::Error::Input("the solve panicked".into())));
+            let result = worker.join().unwrap_or_else(|_| {
+                Err(hytled::Error::input(
+                    hytled::InputKind::Value,
+                    "the solve panicked",
+                ))
+            });
             (result, stop)
         });
         let Some(signal) = stop else {
@@ -263,7 +336,7 @@ impl Model {
                 "cpu" => Device::Cpu,
                 "gpu" => Device::Gpu,
                 other => {
-                    return Err(InputError::new_err(format!(
+                    return Err(InvalidValueError::new_err(format!(
                         "device '{other}': give \"cpu\" or \"gpu\""
                     )))
                 }
@@ -431,7 +504,7 @@ impl Model {
     fn set_measured(&self, name: &str, u: PyReadonlyArray2<'_, f64>) -> PyResult<()> {
         let a = u.as_array();
         if a.ncols() != 3 {
-            return Err(InputError::new_err(format!(
+            return Err(InvalidValueError::new_err(format!(
                 "measured '{name}': an array of shape (M, 3) is needed, not {:?}",
                 a.shape()
             )));
@@ -492,18 +565,65 @@ fn _hytled(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("InputError", py.get_type::<InputError>())?;
     m.add("UnstableError", py.get_type::<UnstableError>())?;
     m.add("FileError", py.get_type::<FileError>())?;
+    let inputs = [
+        (py.get_type::<SceneError>(), hytled::InputKind::Scene),
+        (py.get_type::<FormatError>(), hytled::InputKind::Format),
+        (py.get_type::<MeshError>(), hytled::InputKind::Mesh),
+        (
+            py.get_type::<SelectionError>(),
+            hytled::InputKind::Selection,
+        ),
+        (py.get_type::<InvalidValueError>(), hytled::InputKind::Value),
+        (
+            py.get_type::<UnsupportedError>(),
+            hytled::InputKind::Unsupported,
+        ),
+        (
+            py.get_type::<DiscretizationError>(),
+            hytled::InputKind::Discretization,
+        ),
+        (py.get_type::<LimitError>(), hytled::InputKind::Limit),
+    ];
+    for (ty, kind) in &inputs {
+        m.add(ty.name()?, ty)?;
+        ty.setattr("input_kind", kind.name())?;
+    }
     m.add("InterruptedRun", interrupted_run(py)?)?;
     // Each class carries its CLI kind and exit code, so an error raised without them (an
     // argument checked here) still has both.
     for (ty, kind, code) in [
         (py.get_type::<HytledError>(), "error", 1),
-        (py.get_type::<SceneError>(), "scene", 2),
         (py.get_type::<InputError>(), "input", 2),
         (py.get_type::<UnstableError>(), "unstable", 3),
         (py.get_type::<FileError>(), "io", 5),
     ] {
         ty.setattr("kind", kind)?;
         ty.setattr("exit_code", code)?;
+    }
+    // Every fact is an attribute of every error, None where it has none (an error raised in
+    // Python, or one that does not know it).
+    for fact in [
+        "input_kind",
+        "key",
+        "file",
+        "line",
+        "node",
+        "element",
+        "value",
+        "volume",
+        "signal",
+    ] {
+        py.get_type::<HytledError>().setattr(fact, py.None())?;
+    }
+    for (ty, kind) in &inputs {
+        ty.setattr(
+            "kind",
+            if *kind == hytled::InputKind::Scene {
+                "scene"
+            } else {
+                "input"
+            },
+        )?;
     }
     interrupted_run(py)?.setattr("kind", "interrupted")?;
     interrupted_run(py)?.setattr("exit_code", 130)?;

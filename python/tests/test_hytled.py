@@ -77,6 +77,43 @@ def test_errors_carry_the_cli_s_kind_and_exit_code():
         hytled.Model(CUBE, device="tpu")
 
 
+def test_errors_are_chosen_by_kind_with_their_facts(tmp_path):
+    """Issue 58: the exception's class says what must change (an InputError subclass per
+    kind) and its facts are attributes, never to be parsed out of the text."""
+    m = cube()
+    with pytest.raises(hytled.SelectionError) as e:
+        m.set_displacement("lid", z=0.0)
+    assert isinstance(e.value, hytled.InputError) and e.value.input_kind == "selection"
+    assert e.value.key == "boundaries.lid" and e.value.exit_code == 2
+    with pytest.raises(hytled.InvalidValueError) as e:
+        m.set_displacement("top", z=float("nan"))
+    assert e.value.input_kind == "value" and e.value.node is None
+    # A scene key refused by validation: the key as data.
+    with pytest.raises(hytled.SceneError) as e:
+        hytled.Scene(CUBE, overrides={"solver.dt_factor": 11})
+    assert e.value.key == "solver.dt_factor" and e.value.line is None
+    assert isinstance(e.value, hytled.InputError) and e.value.kind == "scene"
+    # A schema error in a file: its key and its line as written.
+    text = CUBE.read_text().replace("[solver]\n", "[solver]\ndt_fator = 0.5\n", 1)
+    bad = tmp_path / "bad.toml"
+    bad.write_text(text)
+    with pytest.raises(hytled.SceneError) as e:
+        hytled.Scene(bad)
+    line = text.splitlines().index("dt_fator = 0.5") + 1
+    assert e.value.line == line and e.value.file.endswith("bad.toml"), (e.value.line, line)
+    assert str(e.value).startswith(f"{e.value.file}:{line}: ")
+    # A file that cannot be parsed: a FormatError naming it.
+    short = tmp_path / "short.nii"
+    short.write_bytes(b"\0" * 10)
+    with pytest.raises(hytled.FormatError) as e:
+        hytled.read_image(short)
+    assert e.value.file.endswith("short.nii") and e.value.input_kind == "format"
+    # Errors raised in Python have every fact attribute too.
+    with pytest.raises(hytled.InvalidValueError) as e:
+        m.set_displacement("top", [0.0, 0.0])
+    assert e.value.key is None and e.value.line is None
+
+
 def test_a_changed_boundary_resolves_warm_to_the_cold_answer():
     m = cube(**{"solver.tolerance": 1e-9})
     m.solve()

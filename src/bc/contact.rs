@@ -15,6 +15,7 @@
 //! and leaves the tangential components free (frictionless). The force the rigid body applies
 //! is the sum of lambda n over its points; no penalty stiffness enters the stable step.
 
+use crate::InputKind;
 use nalgebra::Vector3;
 use rayon::prelude::*;
 
@@ -302,26 +303,35 @@ impl Contact {
         tolerance: f64,
     ) -> Result<Self> {
         if bodies.len() != points.len() {
-            return Err(Error::Input(
-                "contact: one point list per rigid body".into(),
+            return Err(Error::input(
+                InputKind::Value,
+                "contact: one point list per rigid body",
             ));
         }
         let mut hit = vec![false; num_nodes];
         for (b, pts) in bodies.iter().zip(&points) {
             if pts.is_empty() {
-                return Err(Error::Input(format!(
-                    "contact '{}': no surface point to touch (check its select)",
-                    b.name
-                )));
+                return Err(Error::input(
+                    InputKind::Selection,
+                    format!(
+                        "contact '{}': no surface point to touch (check its select)",
+                        b.name
+                    ),
+                )
+                .key(format!("contact.{}", b.name)));
             }
             for p in pts {
                 for &(j, _) in &p.row {
                     let j = j as usize;
                     if j >= num_nodes {
-                        return Err(Error::Input(format!(
-                            "contact '{}': node {j} beyond the model's {num_nodes}",
-                            b.name
-                        )));
+                        return Err(Error::input(
+                            InputKind::Value,
+                            format!(
+                                "contact '{}': node {j} beyond the model's {num_nodes}",
+                                b.name
+                            ),
+                        )
+                        .node(j));
                     }
                     hit[j] = true;
                 }
@@ -475,13 +485,12 @@ impl Contact {
                 cores.into_iter().find(inside)
             };
             if let Some(q) = end {
-                return Err(Error::Input(format!(
+                return Err(Error::input(InputKind::Value, format!(
                     "contact '{}' ends inside the body (its point ({:.4e}, {:.4e}, {:.4e}) m) pressing no \
                      surface point: it passed through the surface between the surface's nodes \
                      (contact acts on them), so its answer (no force) is wrong. Refine the surface where the \
                      tool acts (discretization.size, refine), use a larger tool, or a smaller motion",
-                    body.name, q.x, q.y, q.z
-                )));
+                    body.name, crate::error::Sci(q.x), crate::error::Sci(q.y), crate::error::Sci(q.z))));
             }
         }
         Ok(())
@@ -544,10 +553,14 @@ impl Contact {
     pub fn set_motion(&mut self, name: &str, motion: Vector3<f64>) -> Result<()> {
         let k = self.index(name)?;
         if !motion.iter().all(|c| c.is_finite()) {
-            return Err(Error::Input(format!(
-                "contact '{name}': motion {:?} m is not finite",
-                motion.as_slice()
-            )));
+            return Err(Error::input(
+                InputKind::Value,
+                format!(
+                    "contact '{name}': motion {:?} m is not finite",
+                    motion.as_slice()
+                ),
+            )
+            .key(format!("contact.{name}")));
         }
         self.bodies[k].motion = motion;
         Ok(())
@@ -559,10 +572,14 @@ impl Contact {
             .position(|b| b.name == name)
             .ok_or_else(|| {
                 let names: Vec<&str> = self.names().collect();
-                Error::Input(format!(
-                    "no rigid body named '{name}'; the model's contact bodies: {}",
-                    names.join(", ")
-                ))
+                Error::input(
+                    InputKind::Selection,
+                    format!(
+                        "no rigid body named '{name}'; the model's contact bodies: {}",
+                        names.join(", ")
+                    ),
+                )
+                .key(format!("contact.{name}"))
             })
     }
 

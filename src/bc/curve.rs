@@ -1,6 +1,7 @@
 //! Load curves: the factor (of a load's or a prescribed displacement's final value) at a
 //! load fraction tau, built in or tabulated.
 
+use crate::InputKind;
 use std::sync::Arc;
 
 use crate::{Error, Result};
@@ -83,30 +84,36 @@ impl CurveTable {
     /// `what` names the curve in errors.
     pub fn from_times(points: &[[f64; 2]], load_time: f64, what: &str) -> Result<Self> {
         if points.is_empty() {
-            return Err(Error::Input(format!(
-                "{what}: a tabulated curve needs at least one point"
-            )));
+            return Err(Error::input(
+                InputKind::Value,
+                format!("{what}: a tabulated curve needs at least one point"),
+            ));
         }
         if !(load_time > 0.0 && load_time.is_finite()) {
-            return Err(Error::Input(format!(
-                "{what}: the load time {load_time} s must be positive to map the table's times"
-            )));
+            return Err(Error::input(
+                InputKind::Value,
+                format!(
+                    "{what}: the load time {load_time} s must be positive to map the table's times"
+                ),
+            ));
         }
         for (k, p) in points.iter().enumerate() {
             if !p.iter().all(|v| v.is_finite()) {
-                return Err(Error::Input(format!(
-                    "{what}: point {} ({:?}) is not finite",
-                    k + 1,
-                    p
-                )));
+                return Err(Error::input(
+                    InputKind::Value,
+                    format!("{what}: point {} ({:?}) is not finite", k + 1, p),
+                ));
             }
             if k > 0 && !(p[0] > points[k - 1][0]) {
-                return Err(Error::Input(format!(
-                    "{what}: times must increase; point {} has t = {} s after t = {} s",
-                    k + 1,
-                    p[0],
-                    points[k - 1][0]
-                )));
+                return Err(Error::input(
+                    InputKind::Value,
+                    format!(
+                        "{what}: times must increase; point {} has t = {} s after t = {} s",
+                        k + 1,
+                        p[0],
+                        points[k - 1][0]
+                    ),
+                ));
             }
         }
         Ok(CurveTable {
@@ -166,10 +173,13 @@ pub fn parse_curve_csv(text: &str, source: &str) -> Result<Vec<[f64; 2]>> {
             } else {
                 ""
             };
-            return Err(Error::Input(format!(
+            return Err(Error::input(
+                InputKind::Format,
+                format!(
                 "{source}: line {}: expected two numbers (time s, factor), found '{shown}'{hint}",
                 i + 1
-            )));
+            ),
+            ));
         }
         out.push([nums[0], nums[1]]);
     }

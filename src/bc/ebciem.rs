@@ -17,6 +17,7 @@
 //! sparse products and one pair of triangular solves. `M^-1 V A^-1` is never formed: it would be
 //! dense N x ne.
 
+use crate::InputKind;
 use faer::sparse::{SparseColMat, Triplet};
 use nalgebra::Vector3;
 
@@ -152,7 +153,7 @@ impl ComponentCorrection {
         mass: &[f64],
     ) -> Result<Self> {
         if component > 2 {
-            return Err(Error::Input(format!(
+            return Err(Error::input(InputKind::Discretization, format!(
                 "essential boundary correction: component {component} does not exist; use 0 (x), 1 (y) or 2 (z)"
             )));
         }
@@ -160,7 +161,7 @@ impl ComponentCorrection {
         let ne = nodes.len();
         let n = mass.len();
         if phi_rows.len() != ne || v_cols.len() != ne {
-            return Err(Error::Input(format!(
+            return Err(Error::input(InputKind::Discretization, format!(
                 "essential boundary correction ({axis}): {ne} constrained nodes but {} shape-function rows and {} boundary-force columns; \
                  give one row and one column per constrained node",
                 phi_rows.len(),
@@ -172,25 +173,25 @@ impl ComponentCorrection {
             .enumerate()
             .find(|(_, &m)| !(m > 0.0 && m.is_finite()))
         {
-            return Err(Error::Input(format!(
+            return Err(Error::input(InputKind::Discretization, format!(
                 "essential boundary correction ({axis}): node {j} has lumped mass {m} kg; every node needs a positive finite mass \
                  (check that the node lies inside a quadrature cell and that the density is positive)"
-            )));
+            )).node(j));
         }
         // Repeated ids would make two identical rows of A; say so directly rather than
         // reporting a singular matrix.
         let mut seen = vec![false; n];
         for &node in &nodes {
             if node >= n {
-                return Err(Error::Input(format!(
+                return Err(Error::input(InputKind::Discretization, format!(
                     "essential boundary correction ({axis}): constrained node {node} is out of range (the model has {n} nodes)"
-                )));
+                )).node(node));
             }
             if std::mem::replace(&mut seen[node], true) {
-                return Err(Error::Input(format!(
+                return Err(Error::input(InputKind::Discretization, format!(
                     "essential boundary correction ({axis}): node {node} is listed twice among the constrained nodes; \
                      list each constrained node once"
-                )));
+                )).node(node));
             }
         }
         for (what, vecs) in [
@@ -199,21 +200,21 @@ impl ComponentCorrection {
         ] {
             for (k, vec) in vecs.iter().enumerate() {
                 if vec.is_empty() {
-                    return Err(Error::Input(format!(
+                    return Err(Error::input(InputKind::Discretization, format!(
                         "essential boundary correction ({axis}): the {what} of constrained node {} is empty; \
                          the node must lie in the support of some nodes (and, for EBCIEM, on a boundary triangle)",
                         nodes[k]
-                    )));
+                    )).node(nodes[k]));
                 }
                 if let Some(&(j, x)) = vec
                     .iter()
                     .find(|&&(j, x)| j as usize >= n || !x.is_finite())
                 {
-                    return Err(Error::Input(format!(
+                    return Err(Error::input(InputKind::Discretization, format!(
                         "essential boundary correction ({axis}): the {what} of constrained node {} has entry ({j}, {x}); \
                          node ids must be below {n} and values finite",
                         nodes[k]
-                    )));
+                    )).node(nodes[k]));
                 }
             }
         }
@@ -265,7 +266,7 @@ impl ComponentCorrection {
         let n = self.num_nodes;
         let axis = AXIS[self.component];
         let singular = |detail: String| {
-            Error::Input(format!(
+            Error::input(InputKind::Discretization, format!(
                 "essential boundary correction ({axis}): the {ne} x {ne} matrix Phi M^-1 V (thesis eq. 4.24) for the {ne} constrained nodes \
                  is singular ({detail}); likely causes: constrained nodes closer together than the shape-function support spacing \
                  (their shape-function rows are nearly identical), or two constrained nodes at the same position; \
@@ -326,20 +327,27 @@ impl ComponentCorrection {
 
         let a =
             SparseColMat::<usize, f64>::try_new_from_triplets(ne, ne, &triplets).map_err(|e| {
-                Error::Input(format!(
-                    "essential boundary correction: cannot assemble Phi M^-1 V: {e:?}"
-                ))
+                Error::input(
+                    InputKind::Discretization,
+                    format!("essential boundary correction: cannot assemble Phi M^-1 V: {e:?}"),
+                )
             })?;
         let factor = SparseLu::factor(a.as_ref()).map_err(|e| match e {
             FactorError::StructurallySingular(index) => singular(format!(
                 "structurally: no pivot at elimination step {index}"
             )),
-            FactorError::OutOfMemory => Error::Input(format!(
-                "essential boundary correction: out of memory factoring a {ne} x {ne} matrix"
-            )),
-            FactorError::Other(e) => Error::Input(format!(
-                "essential boundary correction: LU factorization of Phi M^-1 V failed: {e}"
-            )),
+            FactorError::OutOfMemory => Error::input(
+                InputKind::Limit,
+                format!(
+                    "essential boundary correction: out of memory factoring a {ne} x {ne} matrix"
+                ),
+            ),
+            FactorError::Other(e) => Error::input(
+                InputKind::Discretization,
+                format!(
+                    "essential boundary correction: LU factorization of Phi M^-1 V failed: {e}"
+                ),
+            ),
         })?;
         self.factor = Some(factor);
         self.work = vec![[0.0; LANES]; ne];
@@ -350,7 +358,8 @@ impl ComponentCorrection {
         let cond = a_norm * inv_norm;
         if !(cond.is_finite() && cond <= MAX_CONDITION) {
             return Err(singular(format!(
-                "estimated 1-norm condition number {cond:.3e}"
+                "estimated 1-norm condition number {sci_cond:.3e}",
+                sci_cond = crate::error::Sci(cond)
             )));
         }
         self.cond = cond;
@@ -736,13 +745,13 @@ impl EssentialCorrection {
         for (i, a) in components.iter().enumerate() {
             for b in &components[..i] {
                 if a.component == b.component {
-                    return Err(Error::Input(format!(
+                    return Err(Error::input(InputKind::Discretization, format!(
                         "essential boundary correction: component {} is given twice; merge its constrained nodes into one correction",
                         AXIS[a.component]
                     )));
                 }
                 if a.num_nodes != b.num_nodes {
-                    return Err(Error::Input(format!(
+                    return Err(Error::input(InputKind::Discretization, format!(
                         "essential boundary correction: components {} and {} were built for {} and {} nodes",
                         AXIS[b.component], AXIS[a.component], b.num_nodes, a.num_nodes
                     )));
@@ -835,14 +844,18 @@ pub fn ebciem_columns(
     let mut column = vec![usize::MAX; n];
     for (k, &node) in nodes.iter().enumerate() {
         if node >= n {
-            return Err(Error::Input(format!(
+            return Err(Error::input(
+                InputKind::Discretization,
+                format!(
                 "EBCIEM boundary: constrained node {node} is out of range (the model has {n} nodes)"
-            )));
+            ),
+            )
+            .node(node));
         }
         if column[node] != usize::MAX {
-            return Err(Error::Input(format!(
+            return Err(Error::input(InputKind::Discretization, format!(
                 "EBCIEM boundary: node {node} is listed twice among the constrained nodes; list each once"
-            )));
+            )).node(node));
         }
         column[node] = k;
     }
@@ -858,18 +871,19 @@ pub fn ebciem_columns(
             match column.get(v) {
                 Some(&k) if k != usize::MAX => *slot = k,
                 _ => {
-                    return Err(Error::Input(format!(
+                    return Err(Error::input(InputKind::Discretization, format!(
                         "EBCIEM boundary: vertex {v} of boundary triangle {t} is not a constrained node; \
                          the essential boundary triangulation must use only constrained nodes"
-                    )))
+                    )).node(v))
                 }
             }
         }
         let p = tri.map(|v| positions[v]);
         if p.iter().any(|x| !x.iter().all(|c| c.is_finite())) {
-            return Err(Error::Input(format!(
-                "EBCIEM boundary: boundary triangle {t} has a non-finite vertex position"
-            )));
+            return Err(Error::input(
+                InputKind::Discretization,
+                format!("EBCIEM boundary: boundary triangle {t} has a non-finite vertex position"),
+            ));
         }
         let area = 0.5 * (p[1] - p[0]).cross(&(p[2] - p[0])).norm();
         if !(area > 0.0) {
@@ -883,7 +897,7 @@ pub fn ebciem_columns(
                 .iter()
                 .find(|&&(j, val)| j as usize >= n || !val.is_finite())
             {
-                return Err(Error::Input(format!(
+                return Err(Error::input(InputKind::Discretization, format!(
                     "EBCIEM boundary: shape functions at a Gauss point of boundary triangle {t} contain entry ({j}, {val}); \
                      node ids must be below {n} and values finite"
                 )));
@@ -894,11 +908,11 @@ pub fn ebciem_columns(
         }
     }
     if let Some(k) = cols.iter().position(Vec::is_empty) {
-        return Err(Error::Input(format!(
+        return Err(Error::input(InputKind::Discretization, format!(
             "EBCIEM boundary: constrained node {} belongs to no boundary triangle of positive area; \
              triangulate the whole essential boundary or use SEBCIEM",
             nodes[k]
-        )));
+        )).node(nodes[k]));
     }
     Ok(cols.into_iter().map(canonical).collect())
 }
@@ -958,7 +972,7 @@ mod tests {
             .collect();
         let sum: f64 = out.iter().map(|e| e.1).sum();
         if !(sum > 0.0) {
-            return Err(Error::Input("no support".into()));
+            return Err(Error::input(InputKind::Discretization, "no support"));
         }
         out.iter_mut().for_each(|e| e.1 /= sum);
         Ok(out)

@@ -11,6 +11,7 @@
 //! sect. 4.3). Rows sum to one (partition of unity), so a load's total force is the integral
 //! of the traction whatever the discretization.
 
+use crate::InputKind;
 use nalgebra::Vector3;
 
 use super::LoadCurve;
@@ -42,7 +43,10 @@ fn gauss_rule(n: usize) -> Result<&'static [([f64; 2], f64)]> {
     match n {
         3 => Ok(&TRI_GAUSS),
         4 => Ok(&QUAD_GAUSS),
-        _ => Err(Error::Input(format!("a face has 3 or 4 corners, not {n}"))),
+        _ => Err(Error::input(
+            InputKind::Mesh,
+            format!("a face has 3 or 4 corners, not {n}"),
+        )),
     }
 }
 
@@ -240,10 +244,14 @@ impl Loads {
         let mut reached = vec![false; n];
         for l in loads {
             let bad = |i: usize| {
-                Error::Input(format!(
-                    "load '{}' refers to node {i}, but the model has {n} nodes",
-                    l.name
-                ))
+                Error::input(
+                    InputKind::Value,
+                    format!(
+                        "load '{}' refers to node {i}, but the model has {n} nodes",
+                        l.name
+                    ),
+                )
+                .node(i)
             };
             let item = match l.kind {
                 LoadKind::Gravity(g) => {
@@ -306,11 +314,15 @@ impl Loads {
                 Prepared::Pressure { faces, .. } => faces.is_empty(),
             };
             if empty {
-                return Err(Error::Input(format!(
+                return Err(Error::input(
+                    InputKind::Selection,
+                    format!(
                     "load '{}' acts on no node or face: check its selection (surface loads act on \
                      boundary faces whose corners are all selected)",
                     l.name
-                )));
+                ),
+                )
+                .key(format!("loads.{}", l.name)));
             }
             out.names.push(l.name);
             out.curves.push(l.curve);
@@ -328,9 +340,12 @@ impl Loads {
     pub fn set_factor(&mut self, name: &str, factor: f64) -> Result<()> {
         let k = self.index(name)?;
         if !factor.is_finite() {
-            return Err(Error::Input(format!(
-                "load '{name}': factor {factor} is not finite"
-            )));
+            return Err(Error::input(
+                InputKind::Value,
+                format!("load '{name}': factor {factor} is not finite"),
+            )
+            .key(format!("loads.{name}"))
+            .value(factor));
         }
         self.factors[k] = factor;
         Ok(())
@@ -343,14 +358,18 @@ impl Loads {
 
     fn index(&self, name: &str) -> Result<usize> {
         self.names.iter().position(|n| n == name).ok_or_else(|| {
-            Error::Input(format!(
-                "no load named '{name}'; the model's loads: {}",
-                if self.names.is_empty() {
-                    "none".to_string()
-                } else {
-                    self.names.join(", ")
-                }
-            ))
+            Error::input(
+                InputKind::Selection,
+                format!(
+                    "no load named '{name}'; the model's loads: {}",
+                    if self.names.is_empty() {
+                        "none".to_string()
+                    } else {
+                        self.names.join(", ")
+                    }
+                ),
+            )
+            .key(format!("loads.{name}"))
         })
     }
 

@@ -9,6 +9,7 @@ pub mod sparse_lu;
 
 pub use curve::{CurveTable, LoadCurve};
 
+use crate::InputKind;
 use crate::{Error, Result};
 
 /// One named boundary: its nodes and, per component, the final prescribed displacement (m)
@@ -84,25 +85,36 @@ impl Boundary {
     /// a count that does not match.
     pub fn set_measured(&mut self, u: &[[f64; 3]]) -> Result<()> {
         let map = self.measured.as_ref().ok_or_else(|| {
-            Error::Input(format!(
-                "boundary '{}' is not a [measured] boundary; set its displacement instead",
-                self.name
-            ))
+            Error::input(
+                InputKind::Value,
+                format!(
+                    "boundary '{}' is not a [measured] boundary; set its displacement instead",
+                    self.name
+                ),
+            )
+            .key(format!("boundaries.{}", self.name))
         })?;
         if u.len() != map.points.len() {
-            return Err(Error::Input(format!(
+            return Err(Error::input(
+                InputKind::Value,
+                format!(
                 "measured '{}': {} displacements for its {} measured points; give one [ux, uy, uz] \
                  per point, in the order of its file",
                 self.name,
                 u.len(),
                 map.points.len()
-            )));
+            ),
+            )
+            .key(format!("measured.{}", self.name)));
         }
         if let Some(j) = u.iter().position(|x| !x.iter().all(|c| c.is_finite())) {
-            return Err(Error::Input(format!(
-                "measured '{}': the displacement of point {j} is not finite",
-                self.name
-            )));
+            return Err(Error::input(
+                InputKind::Value,
+                format!(
+                    "measured '{}': the displacement of point {j} is not finite",
+                    self.name
+                ),
+            ));
         }
         self.node_values = Some(map.node_values(u));
         if let Some(m) = self.measured.as_mut() {
@@ -172,7 +184,7 @@ impl Constraints {
                             let zero = v.abs() <= SAME_VALUE && v0.abs() <= SAME_VALUE;
                             let same_curve = boundaries[other].curve == b.curve || zero;
                             if (v - v0).abs() > SAME_VALUE || !same_curve {
-                                return Err(Error::Input(format!(
+                                return Err(Error::input(InputKind::Value, format!(
                                     "node {n} component {} is prescribed by {} ({v0} m) and by {} ({v} m); \
                                      make the selections disjoint or give both the same value and curve",
                                     ["x", "y", "z"][k],

@@ -2,6 +2,7 @@
 //! inner surface bounds the cavity) and a node cloud that fills the cavity. The interior is
 //! integrated on the Delaunay tets of the interface and cloud nodes that lie in the cavity.
 
+use crate::InputKind;
 use nalgebra::Vector3;
 
 use super::{assemble, CellRole, CoupledBuild, CoupledSettings, NodeRole, Regions};
@@ -15,7 +16,8 @@ const MAX_VOLUME_MISMATCH: f64 = 0.02;
 
 /// Boundary surface components of a mesh as triangles (quads split), grouped by connectivity.
 fn surface_components(mesh: &Mesh) -> Result<Vec<Vec<[usize; 3]>>> {
-    let faces = boundary_faces(mesh).map_err(|e| Error::Input(format!("FE layer mesh: {e}")))?;
+    let faces = boundary_faces(mesh)
+        .map_err(|e| Error::input(InputKind::Mesh, format!("FE layer mesh: {e}")))?;
     // Union-find over vertices.
     let mut parent: Vec<usize> = (0..mesh.nodes.len()).collect();
     fn root(p: &mut [usize], mut i: usize) -> usize {
@@ -149,10 +151,9 @@ pub fn build(
     super::check_shape(s, fe.shape)?;
     let comps = surface_components(&fe)?;
     if comps.len() < 2 {
-        return Err(Error::Input(
+        return Err(Error::input(InputKind::Mesh,
             "coupled with a node cloud: the FE-layer mesh has a single boundary surface, so it has no cavity for the cloud; \
-             give a shell mesh (the FE layer) whose inner surface bounds the cloud, or drop cloud = 'file' to split the mesh into layers"
-                .into(),
+             give a shell mesh (the FE layer) whose inner surface bounds the cloud, or drop cloud = 'file' to split the mesh into layers",
         ));
     }
     let outer = (0..comps.len())
@@ -176,8 +177,12 @@ pub fn build(
     // the cavity.
     let fe_tree = {
         let pts: Vec<[f64; 3]> = fe.nodes.iter().map(|p| [p.x, p.y, p.z]).collect();
-        kiddo::ImmutableKdTree::<f64, 3>::new_from_slice(&pts)
-            .map_err(|e| Error::Input(format!("cannot build the FE-node search tree: {e:?}")))?
+        kiddo::ImmutableKdTree::<f64, 3>::new_from_slice(&pts).map_err(|e| {
+            Error::input(
+                InputKind::Discretization,
+                format!("cannot build the FE-node search tree: {e:?}"),
+            )
+        })?
     };
     let (mut duplicates, mut outside, mut near_surface) = (0, 0, 0);
     let mut kept = Vec::new();
@@ -201,8 +206,8 @@ pub fn build(
         }
     }
     if kept.is_empty() {
-        return Err(Error::Input(
-            "coupled: no cloud node lies inside the FE layer's cavity; check the cloud's units and position".into(),
+        return Err(Error::input(InputKind::Discretization,
+            "coupled: no cloud node lies inside the FE layer's cavity; check the cloud's units and position",
         ));
     }
     // Delaunay of interface + cloud nodes; tets whose centroid is in the cavity.
@@ -242,13 +247,13 @@ pub fn build(
     let cavity_volume = enclosed_volume(&fe.nodes, &inner);
     let mismatch = (interior_volume - cavity_volume).abs() / cavity_volume.max(f64::MIN_POSITIVE);
     if mismatch > MAX_VOLUME_MISMATCH {
-        return Err(Error::Input(format!(
-            "coupled: the interior tets fill {interior_volume:.6e} m^3 but the FE layer's inner surface encloses \
-             {cavity_volume:.6e} m^3 ({:.2} % apart, more than {:.0} %): the cloud and the FE layer leave gaps or overlap; \
+        return Err(Error::input(InputKind::Discretization, format!(
+            "coupled: the interior tets fill {sci_interior_volume:.6e} m^3 but the FE layer's inner surface encloses \
+             {sci_cavity_volume:.6e} m^3 ({:.2} % apart, more than {:.0} %): the cloud and the FE layer leave gaps or overlap; \
              the cloud must fill the cavity up to the inner surface (whose nodes are added to it)",
             100.0 * mismatch,
             100.0 * MAX_VOLUME_MISMATCH
-        )));
+        , sci_interior_volume = crate::error::Sci(interior_volume), sci_cavity_volume = crate::error::Sci(cavity_volume))));
     }
     // Cloud nodes no interior tet uses carry no mass: drop them and renumber.
     let mut used = vec![false; nodes.len()];

@@ -14,6 +14,7 @@ pub mod mixed;
 pub mod quadratic;
 pub mod regions;
 
+use crate::InputKind;
 use nalgebra::{Matrix3, Vector3};
 use rayon::prelude::*;
 
@@ -216,14 +217,23 @@ impl CoupledBuild {
         let w: Vec<f64> = match self.fe_mesh.shape {
             ElementShape::Hex8 => {
                 let c: [Vector3<f64>; 8] = std::array::from_fn(|a| self.nodes[ids[a]]);
-                let xi = hex8::natural_coordinates(&c, x)
-                    .ok_or_else(|| Error::Input(format!("{}: not on FE-layer cell {e}", what())))?;
+                let xi = hex8::natural_coordinates(&c, x).ok_or_else(|| {
+                    Error::input(
+                        InputKind::Discretization,
+                        format!("{}: not on FE-layer cell {e}", what()),
+                    )
+                })?;
                 hex8::shape(xi).to_vec()
             }
             ElementShape::Tet4 => {
                 let c: [Vector3<f64>; 4] = std::array::from_fn(|a| self.nodes[ids[a]]);
                 tet4::barycentric(&c, x)
-                    .ok_or_else(|| Error::Input(format!("{}: not on FE-layer cell {e}", what())))?
+                    .ok_or_else(|| {
+                        Error::input(
+                            InputKind::Discretization,
+                            format!("{}: not on FE-layer cell {e}", what()),
+                        )
+                    })?
                     .to_vec()
             }
         };
@@ -556,12 +566,15 @@ pub fn build(mesh: Mesh, s: &CoupledSettings) -> Result<CoupledBuild> {
 /// The FE formulation must match the mesh's cells.
 fn check_shape(s: &CoupledSettings, shape: ElementShape) -> Result<()> {
     if s.element.shape() != shape {
-        return Err(Error::Input(format!(
-            "coupled: element '{}' needs a {:?} mesh but the (FE-layer) mesh holds {:?} cells",
-            s.element.name(),
-            s.element.shape(),
-            shape
-        )));
+        return Err(Error::input(
+            InputKind::Mesh,
+            format!(
+                "coupled: element '{}' needs a {:?} mesh but the (FE-layer) mesh holds {:?} cells",
+                s.element.name(),
+                s.element.shape(),
+                shape
+            ),
+        ));
     }
     Ok(())
 }
@@ -596,10 +609,14 @@ fn assemble(
         .map(|c| [local[c[0]], local[c[1]], local[c[2]], local[c[3]]])
         .collect();
     if let Some(t) = local_tets.iter().position(|t| t.contains(&usize::MAX)) {
-        return Err(Error::Input(format!(
-            "coupled: interior tet {t} uses an FE-layer node that is not on the interface; \
+        return Err(Error::input(
+            InputKind::Discretization,
+            format!(
+                "coupled: interior tet {t} uses an FE-layer node that is not on the interface; \
              the FE layer and the interior overlap"
-        )));
+            ),
+        )
+        .element(t));
     }
     let mut support = Support::new(
         mls_nodes.iter().map(|&i| nodes[i]).collect(),
@@ -696,9 +713,8 @@ fn assemble(
             let x: Vec<Vector3<f64>> = interior.cell(e).iter().map(|&i| nodes[i]).collect();
             for q in &g {
                 let (_, _, p, wq) = fe_point(ElementShape::Hex8, &x, q).map_err(|volume| {
-                    Error::Input(format!(
-                        "coupled: interior cell {e} has a non-positive Jacobian {volume:.6e} at a Gauss point"
-                    ))
+                    Error::input(InputKind::Discretization, format!(
+                        "coupled: interior cell {e} has a non-positive Jacobian {sci_volume:.6e} at a Gauss point", sci_volume = crate::error::Sci(volume))).element(e).value(volume)
                 })?;
                 out.0.push(p);
                 out.1.push(wq);
@@ -709,9 +725,8 @@ fn assemble(
     } else {
         let bad_tet = |e| {
             match e {
-            Error::InvalidElement { element, volume } => Error::Input(format!(
-                "coupled: interior background tet {element} has non-positive volume {volume:.6e} m^3"
-            )),
+            Error::InvalidElement { element, volume } => Error::input(InputKind::Discretization, format!(
+                "coupled: interior background tet {element} has non-positive volume {sci_volume:.6e} m^3", sci_volume = crate::error::Sci(volume))).element(element).value(volume),
             e => e,
         }
         };

@@ -3,6 +3,7 @@
 
 use crate::geometry::quality::boundary_faces;
 use crate::geometry::Mesh;
+use crate::InputKind;
 use crate::{Error, Result};
 
 /// What a cell is in the coupled discretization.
@@ -67,7 +68,8 @@ pub fn node_depth(mesh: &Mesh, region: &FeRegion) -> Result<Vec<usize>> {
     let mut depth = vec![usize::MAX; mesh.nodes.len()];
     match region {
         FeRegion::Surface => {
-            let faces = boundary_faces(mesh).map_err(|e| Error::Input(format!("coupled: {e}")))?;
+            let faces = boundary_faces(mesh)
+                .map_err(|e| Error::input(InputKind::Discretization, format!("coupled: {e}")))?;
             for f in &faces {
                 for &i in f {
                     depth[i] = 0;
@@ -110,18 +112,16 @@ pub fn node_depth(mesh: &Mesh, region: &FeRegion) -> Result<Vec<usize>> {
 /// are meshless. Errors when the FE layer covers everything or nothing.
 pub fn split(mesh: &Mesh, fe_layers: usize, region: &FeRegion) -> Result<Regions> {
     if fe_layers == 0 {
-        return Err(Error::Input(
+        return Err(Error::input(InputKind::Value,
             "discretization.fe_layers = 0: the coupled method needs at least one layer of finite elements on the boundary \
-             (use method = 'meshless' for none)"
-                .into(),
+             (use method = 'meshless' for none)",
         ));
     }
     if let FeRegion::Around(nodes) = region {
         if nodes.is_empty() {
-            return Err(Error::Input(
+            return Err(Error::input(InputKind::Value,
                 "discretization.fe_region = 'essential' but no boundary prescribes a displacement component: \
-                 there is no essential boundary to put finite elements on (use fe_region = 'surface')"
-                    .into(),
+                 there is no essential boundary to put finite elements on (use fe_region = 'surface')",
             ));
         }
     }
@@ -143,7 +143,7 @@ pub fn split(mesh: &Mesh, fe_layers: usize, region: &FeRegion) -> Result<Regions
         })
         .collect();
     if !cell.contains(&CellRole::Meshless) {
-        return Err(Error::Input(format!(
+        return Err(Error::input(InputKind::Value, format!(
             "discretization.fe_layers = {fe_layers} leaves no meshless interior: the mesh is only {} cell layer(s) deep; \
              lower fe_layers or refine the mesh (divisions / size)",
             max_depth

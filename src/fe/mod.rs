@@ -7,6 +7,7 @@ pub mod tet4;
 
 use crate::geometry::{ElementShape, Mesh};
 use crate::quadrature::{PointKind, QuadraturePoints};
+use crate::InputKind;
 use crate::{Error, Result};
 
 /// Finite-element formulations hytled offers.
@@ -77,12 +78,15 @@ pub fn element_points(
     modulus: f64,
 ) -> Result<QuadraturePoints> {
     if mesh.shape != kind.shape() {
-        return Err(Error::Input(format!(
-            "element '{}' needs a {:?} mesh but the mesh holds {:?} cells",
-            kind.name(),
-            kind.shape(),
-            mesh.shape
-        )));
+        return Err(Error::input(
+            InputKind::Mesh,
+            format!(
+                "element '{}' needs a {:?} mesh but the mesh holds {:?} cells",
+                kind.name(),
+                kind.shape(),
+                mesh.shape
+            ),
+        ));
     }
     if kind == ElementKind::Tet10 {
         return tet10::Tet10Mesh::from_tet4(mesh)?.points();

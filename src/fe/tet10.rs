@@ -8,6 +8,7 @@
 //! Node order within an element is VTK's quadratic tetra (type 24): corners 0-3, then the
 //! edges (0,1), (1,2), (0,2), (0,3), (1,3), (2,3).
 
+use crate::InputKind;
 use std::collections::HashMap;
 
 use nalgebra::{Matrix3, Vector3};
@@ -44,11 +45,14 @@ impl Tet10Mesh {
     /// the order the elements first reach the edges (so the numbering follows the mesh's).
     pub fn from_tet4(mesh: &Mesh) -> Result<Self> {
         if mesh.shape != ElementShape::Tet4 {
-            return Err(Error::Input(format!(
+            return Err(Error::input(
+                InputKind::Mesh,
+                format!(
                 "element 'tet10' is built from a tetrahedral mesh, but the mesh holds {:?} cells; \
                  use a tet mesh (mesher = \"tetgen\", or a tet mesh file)",
                 mesh.shape
-            )));
+            ),
+            ));
         }
         let vertices = mesh.nodes.len();
         let mut nodes = mesh.nodes.clone();

@@ -8,6 +8,7 @@
 //! (the outer piece outward, cavities inward; a piece oriented the other way is turned, not
 //! refused).
 
+use crate::InputKind;
 use std::collections::HashMap;
 
 use nalgebra::Vector3;
@@ -43,7 +44,7 @@ pub fn check_closed_surface(
     points: Vec<Vector3<f64>>,
     triangles: Vec<[usize; 3]>,
 ) -> Result<ClosedSurface> {
-    let bad = |msg: String| Error::Input(format!("{what}: {msg}"));
+    let bad = |msg: String| Error::input(InputKind::Mesh, format!("{what}: {msg}"));
     if triangles.len() < 4 {
         return Err(bad(format!(
             "{} triangle(s); a closed surface needs at least 4",
@@ -92,14 +93,14 @@ pub fn check_closed_surface(
         let height = (b - a).cross(&(c - a)).norm() / longest;
         if !(height > 1e-6 * longest) {
             return Err(bad(format!(
-                "triangle {k} (vertices {}, {}, {} at {}) is a sliver: {height:.3e} m high against an edge of \
-                 {longest:.3e} m (a vertex almost on the opposite edge); remove it or repair the surface \
+                "triangle {k} (vertices {}, {}, {} at {}) is a sliver: {sci_height:.3e} m high against an edge of \
+                 {sci_longest:.3e} m (a vertex almost on the opposite edge); remove it or repair the surface \
                  (e.g. MeshLab's 'Remove T-Vertices' or 'Remove Zero Area Faces', or remesh it)",
                 t[0],
                 t[1],
                 t[2],
                 at(&a)
-            )));
+            , sci_height = crate::error::Sci(height), sci_longest = crate::error::Sci(longest))));
         }
     }
     // Each directed edge once, and its reverse once.
@@ -241,11 +242,14 @@ pub fn nest(
         let x = s.points[s.triangles[0][0]];
         let w = winding_number(&x, &body.points, body.triangles.iter().map(|t| &t[..]));
         if w < 0.5 {
-            return Err(Error::Input(format!(
-                "region '{name}': its surface (vertex at {}) lies outside the body's material \
+            return Err(Error::input(
+                InputKind::Mesh,
+                format!(
+                    "region '{name}': its surface (vertex at {}) lies outside the body's material \
                  (outside the body or in a cavity); a region surface must lie inside the body",
-                at(&x)
-            )));
+                    at(&x)
+                ),
+            ));
         }
         let base = points.len();
         points.extend_from_slice(&s.points);
@@ -265,13 +269,16 @@ pub fn nest(
                 format!("region '{}'", inner[o - 1].0)
             }
         };
-        return Err(Error::Input(format!(
-            "{} and {} cross (near {}); a region surface must lie inside the body without \
+        return Err(Error::input(
+            InputKind::Mesh,
+            format!(
+                "{} and {} cross (near {}); a region surface must lie inside the body without \
              touching its surface or another region's",
-            name(owner[a]),
-            name(owner[b]),
-            at(&points[all[a][0]])
-        )));
+                name(owner[a]),
+                name(owner[b]),
+                at(&points[all[a][0]])
+            ),
+        ));
     }
     Ok((
         ClosedSurface {

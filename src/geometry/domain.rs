@@ -5,6 +5,7 @@
 //!
 //! Lengths are in metres, volumes in m^3.
 
+use crate::InputKind;
 use nalgebra::{Vector2, Vector3};
 
 use super::shapes::check_box;
@@ -39,20 +40,26 @@ impl Domain {
                 if radius.is_finite() && radius > 0.0 && height.is_finite() && height > 0.0 {
                     Ok(())
                 } else {
-                    Err(Error::Input(format!(
+                    Err(Error::input(
+                        InputKind::Value,
+                        format!(
                         "cylinder radius {radius} m and height {height} m must be positive and \
                          finite"
-                    )))
+                    ),
+                    ))
                 }
             }
             Domain::HalfEllipsoid { semi_axes } => {
                 if semi_axes.iter().all(|v| v.is_finite() && *v > 0.0) {
                     Ok(())
                 } else {
-                    Err(Error::Input(format!(
-                        "half-ellipsoid semi-axes {:?} m must be positive and finite",
-                        semi_axes.as_slice()
-                    )))
+                    Err(Error::input(
+                        InputKind::Value,
+                        format!(
+                            "half-ellipsoid semi-axes {:?} m must be positive and finite",
+                            semi_axes.as_slice()
+                        ),
+                    ))
                 }
             }
         }

@@ -9,6 +9,7 @@
 //! 10 x 14 mm pit on the brain's 6 mm mesh for a 10 mm indenter) and changes with every mesh,
 //! so the indentation force does not settle under refinement (issue 40).
 
+use crate::InputKind;
 use nalgebra::Vector3;
 
 use crate::{Error, Result};
@@ -92,31 +93,37 @@ pub fn half_ellipsoid_outlined(
         }
     });
     let Some(r_o) = outlines.last().map(|o| o.radius) else {
-        return Err(Error::Input("no outline to follow".into()));
+        return Err(Error::input(InputKind::Mesh, "no outline to follow"));
     };
     let reach = 0.8 * a.min(b);
     for o in &outlines {
         if !(o.radius.is_finite() && o.radius > 0.0 && o.radius <= reach) {
-            return Err(Error::Input(format!(
-                "an outline of radius {} m about the z axis cannot be a feature of the \
+            return Err(Error::input(
+                InputKind::Value,
+                format!(
+                    "an outline of radius {} m about the z axis cannot be a feature of the \
                  half-ellipsoid: it must lie within 0.8 x its smaller semi-axis ({reach} m)",
-                o.radius
-            )));
+                    o.radius
+                ),
+            ));
         }
         if let Some(g) = o.grading {
             if !(g.size.is_finite() && g.size > 0.0 && g.growth.is_finite() && g.growth > 1.0) {
-                return Err(Error::Input(format!(
-                    "refinement size {} m must be positive and growth {} above 1",
-                    g.size, g.growth
-                )));
+                return Err(Error::input(
+                    InputKind::Value,
+                    format!(
+                        "refinement size {} m must be positive and growth {} above 1",
+                        g.size, g.growth
+                    ),
+                ));
             }
         }
     }
     if outlines.iter().filter(|o| o.floor.is_some()).count() > 1 {
-        return Err(Error::Input(
+        return Err(Error::input(
+            InputKind::Unsupported,
             "more than one driven plug (cylinder selection with a `min`) on the half-ellipsoid: \
-             their sides and floors would cross; drive one plug"
-                .into(),
+             their sides and floors would cross; drive one plug",
         ));
     }
     // The dome over a point of the base (z >= 0).
@@ -191,10 +198,13 @@ pub fn half_ellipsoid_outlined(
         .filter_map(|o| o.grading.map(|g| g.size))
         .fold(h, f64::min);
     if !(s_end / finest * (2.0 * std::f64::consts::PI * a / finest) <= limit * 50.0) {
-        return Err(Error::Input(format!(
-            "half-ellipsoid surface edge length {finest} m is too small for semi-axes \
+        return Err(Error::input(
+            InputKind::Limit,
+            format!(
+                "half-ellipsoid surface edge length {finest} m is too small for semi-axes \
              {semi_axes:?} m (millions of surface points); lengths are in metres"
-        )));
+            ),
+        ));
     }
     // Ring levels (arc length S): fixed ones, and between them equal steps of int dS / H.
     let mut fixed = vec![0.0];
@@ -285,12 +295,15 @@ pub fn half_ellipsoid_outlined(
             .map(|&i| plc.points[i].z)
             .fold(f64::INFINITY, f64::min);
         if !(floor > 0.0 && floor < lowest) {
-            return Err(Error::Input(format!(
+            return Err(Error::input(
+                InputKind::Value,
+                format!(
                 "the driven plug of radius {} m with its floor at z = {floor} m: the floor must \
                  lie between the base (z = 0) and the lowest point of its outline on the dome \
                  (z = {lowest} m)",
                 o.radius
-            )));
+            ),
+            ));
         }
         let under: Vec<usize> = ring
             .iter()
@@ -350,14 +363,16 @@ pub(crate) fn assert_closed_sphere(tris: &[[usize; 3]]) {
 /// Refuses semi-axes (m) or a surface edge length `h` (m) that are not positive and finite.
 pub(crate) fn check_half_ellipsoid(semi_axes: [f64; 3], h: f64) -> Result<()> {
     if !semi_axes.iter().all(|v| v.is_finite() && *v > 0.0) {
-        return Err(Error::Input(format!(
-            "half-ellipsoid semi-axes {semi_axes:?} m must be positive and finite"
-        )));
+        return Err(Error::input(
+            InputKind::Value,
+            format!("half-ellipsoid semi-axes {semi_axes:?} m must be positive and finite"),
+        ));
     }
     if !(h.is_finite() && h > 0.0) {
-        return Err(Error::Input(format!(
-            "half-ellipsoid surface edge length {h} m must be positive and finite"
-        )));
+        return Err(Error::input(
+            InputKind::Value,
+            format!("half-ellipsoid surface edge length {h} m must be positive and finite"),
+        ));
     }
     Ok(())
 }

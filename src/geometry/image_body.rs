@@ -9,6 +9,7 @@
 //! body). Label-0 (or unchosen) holes inside the body are cavities; pieces of tissue apart from
 //! the largest are dropped (they would float free), and said.
 
+use crate::InputKind;
 use nalgebra::Vector3;
 
 use super::closed_surface::{check_closed_surface, ClosedSurface};
@@ -37,7 +38,7 @@ pub fn tissue_mask(image: &Image, labels: &[i64]) -> Vec<bool> {
 /// it does hold), or no tissue at all. `what` names the image.
 pub fn body_mask(image: &Image, labels: &[i64], what: &str) -> Result<Vec<bool>> {
     if image.dims.contains(&1) {
-        return Err(Error::Input(format!(
+        return Err(Error::input(InputKind::Mesh, format!(
             "{what}: the image is {:?} voxels, one voxel thin: a 2-D image holds no body; use a 3-D labelmap",
             image.dims
         )));
@@ -57,15 +58,16 @@ pub fn body_mask(image: &Image, labels: &[i64], what: &str) -> Result<Vec<bool>>
         format!("[{}{more}]", shown.join(", "))
     };
     if !missing.is_empty() {
-        return Err(Error::Input(format!(
+        return Err(Error::input(InputKind::Mesh, format!(
             "{what}: no voxel holds label(s) {missing:?}; the image's nonzero labels are {}: check the labels",
             listed()
         )));
     }
     if nonzero.is_empty() {
-        return Err(Error::Input(format!(
-            "{what}: every voxel is 0: the image holds no labelled tissue"
-        )));
+        return Err(Error::input(
+            InputKind::Mesh,
+            format!("{what}: every voxel is 0: the image holds no labelled tissue"),
+        ));
     }
     Ok(tissue_mask(image, labels))
 }
@@ -154,7 +156,7 @@ pub fn voxel_mesh(image: &Image, mask: &[bool], block: usize, what: &str) -> Res
         sizes.push(size);
     }
     let Some(largest) = (0..sizes.len()).max_by_key(|&p| sizes[p]) else {
-        return Err(Error::Input(format!(
+        return Err(Error::input(InputKind::Mesh, format!(
             "{what}: no block of voxels is more than half tissue; check geometry.labels or use a smaller discretization.size"
         )));
     };
@@ -242,7 +244,7 @@ pub fn label_surface(
     let p = m.map(|v| v + 2 * PAD);
     let too_big = p.iter().any(|&v| v > u32::MAX as usize / 4) || p[0] * p[1] * p[2] > 1 << 28;
     if too_big {
-        return Err(Error::Input(format!(
+        return Err(Error::input(InputKind::Limit, format!(
             "{what}: {m:?} blocks are too many for the surface extraction; raise discretization.size"
         )));
     }
@@ -269,9 +271,12 @@ pub fn label_surface(
         &mut buffer,
     );
     if buffer.indices.is_empty() {
-        return Err(Error::Input(format!(
+        return Err(Error::input(
+            InputKind::Mesh,
+            format!(
             "{what}: the chosen labels hold no tissue at this resolution; check geometry.labels"
-        )));
+        ),
+        ));
     }
     // Block-sample index -> voxel index: sample (I) sits at the centre of block I.
     let centre = (block as f64 - 1.0) / 2.0;
@@ -301,11 +306,14 @@ pub fn label_surface(
     }
     let points: Vec<Vector3<f64>> = points.into_iter().map(|v| world(image, v)).collect();
     let surface = check_closed_surface(what, points, triangles).map_err(|e| {
-        Error::Input(format!(
+        Error::input(
+            InputKind::Mesh,
+            format!(
             "{e}\n(the surface was extracted from the image's labels at {block} voxel(s) a block: \
              a thin bridge of tissue makes such a fault; a larger discretization.size or \
              geometry.smoothing, or a cleaned segmentation, avoids it)"
-        ))
+        ),
+        )
     })?;
     Ok((surface, report))
 }

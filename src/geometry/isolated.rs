@@ -11,6 +11,7 @@
 //! The child returns its result as two flat arrays through a pipe. On targets without
 //! `fork` the call runs in-process.
 
+use crate::InputKind;
 use crate::{Error, Result};
 
 /// What a child returns: numbers and indices.
@@ -53,10 +54,13 @@ pub fn run(
         for fd in [data_r, data_w, log_r, log_w] {
             close(fd);
         }
-        return Err(Error::Input(format!(
-            "{what}: could not start a process for it: {}",
-            std::io::Error::last_os_error()
-        )));
+        return Err(Error::input(
+            InputKind::Mesh,
+            format!(
+                "{what}: could not start a process for it: {}",
+                std::io::Error::last_os_error()
+            ),
+        ));
     }
     if pid == 0 {
         child(job, data_r, data_w, log_r, log_w);
@@ -87,12 +91,12 @@ pub fn run(
     match status {
         Ok(0) => decode(&data)
             .map(|o| (o, printed.clone()))
-            .map_err(|m| Error::Input(format!("{what}: {m}{said}"))),
-        Ok(code) if code == crate::error::exit::INPUT as i32 && data.is_empty() => Err(Error::Input(format!(
+            .map_err(|m| Error::input(InputKind::Mesh, format!("{what}: {m}{said}"))),
+        Ok(code) if code == crate::error::exit::INPUT as i32 && data.is_empty() => Err(Error::input(InputKind::Limit, format!(
             "{what}: it ran out of memory{said}; raise discretization.size or run where more memory is free"
         ))),
-        Ok(code) => Err(Error::Input(format!("{what}: it stopped with exit code {code}{said}"))),
-        Err(signal) => Err(Error::Input(format!(
+        Ok(code) => Err(Error::input(InputKind::Mesh, format!("{what}: it stopped with exit code {code}{said}"))),
+        Err(signal) => Err(Error::input(InputKind::Mesh, format!(
             "{what}: it crashed ({}){said}; the input is probably one the mesher cannot handle: \
              check the surface for thin or nearly degenerate triangles, or remesh it (e.g. with \
              a uniform remesher) before meshing",
@@ -110,7 +114,7 @@ pub fn run(
     crate::interrupt::check(|| format!("before {what}"))?;
     job()
         .map(|o| (o, String::new()))
-        .map_err(|m| Error::Input(format!("{what}: {m}")))
+        .map_err(|m| Error::input(InputKind::Mesh, format!("{what}: {m}")))
 }
 
 #[cfg(unix)]
@@ -131,10 +135,13 @@ fn pipe(what: &str) -> Result<(i32, i32)> {
     let mut fds = [0i32; 2];
     // SAFETY: fds has room for the two descriptors.
     if unsafe { libc::pipe(fds.as_mut_ptr()) } != 0 {
-        return Err(Error::Input(format!(
-            "{what}: could not open a pipe: {}",
-            std::io::Error::last_os_error()
-        )));
+        return Err(Error::input(
+            InputKind::Mesh,
+            format!(
+                "{what}: could not open a pipe: {}",
+                std::io::Error::last_os_error()
+            ),
+        ));
     }
     Ok((fds[0], fds[1]))
 }
@@ -225,9 +232,10 @@ fn collect(data_r: i32, log_r: i32, pid: i32, what: &str) -> Result<(Vec<u8>, Ve
             if e.kind() == std::io::ErrorKind::Interrupted {
                 continue;
             }
-            return Err(Error::Input(format!(
-                "{what}: waiting for its process: {e}"
-            )));
+            return Err(Error::input(
+                InputKind::Mesh,
+                format!("{what}: waiting for its process: {e}"),
+            ));
         }
         for p in fds.iter().filter(|p| p.revents != 0) {
             // SAFETY: reads into a live buffer of buf.len() bytes.

@@ -1,5 +1,6 @@
 //! Node selections for boundaries and probes.
 
+use crate::InputKind;
 use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
 
@@ -116,11 +117,10 @@ impl Selection {
                         .iter()
                         .map(|p| (p[k] - value).abs())
                         .fold(f64::INFINITY, f64::min);
-                    return Err(Error::Input(format!(
-                        "{what}: plane {axis:?} = {value} m selects no node (tolerance {tol:.3e} m; nearest node is {nearest:.6e} m away; \
+                    return Err(Error::input(InputKind::Selection, format!(
+                        "{what}: plane {axis:?} = {value} m selects no node (tolerance {sci_tol:.3e} m; nearest node is {sci_nearest:.6e} m away; \
                          the model spans {axis:?} {:.6e}..{:.6e} m)",
-                        lo[k], hi[k]
-                    )));
+                        crate::error::Sci(lo[k]), crate::error::Sci(hi[k]), sci_tol = crate::error::Sci(tol), sci_nearest = crate::error::Sci(nearest))));
                 }
                 sel
             }
@@ -141,16 +141,19 @@ impl Selection {
                 max,
             } => {
                 if !(radius.is_finite() && *radius >= 0.0) {
-                    return Err(Error::Input(format!(
-                        "{what}: cylinder radius {radius} m must be non-negative and finite"
-                    )));
+                    return Err(Error::input(
+                        InputKind::Value,
+                        format!(
+                            "{what}: cylinder radius {radius} m must be non-negative and finite"
+                        ),
+                    ));
                 }
                 let (lo_a, hi_a) = (
                     min.unwrap_or(f64::NEG_INFINITY),
                     max.unwrap_or(f64::INFINITY),
                 );
                 if lo_a.is_nan() || hi_a.is_nan() || lo_a > hi_a {
-                    return Err(Error::Input(format!(
+                    return Err(Error::input(InputKind::Value, format!(
                         "{what}: cylinder bounds min = {lo_a} m, max = {hi_a} m must satisfy min <= max"
                     )));
                 }
@@ -188,23 +191,23 @@ impl Selection {
                         (None, Some(b)) => format!(" ({axis:?} <= {b} m)"),
                         (None, None) => String::new(),
                     };
-                    return Err(Error::Input(format!(
+                    return Err(Error::input(InputKind::Selection, format!(
                         "{what}: cylinder along {axis:?} through {center:?} of radius {radius} m{span} \
-                         selects no node (nearest node is {nearest:.6e} m away; the model spans X {:.6e}..{:.6e}, \
+                         selects no node (nearest node is {sci_nearest:.6e} m away; the model spans X {:.6e}..{:.6e}, \
                          Y {:.6e}..{:.6e}, Z {:.6e}..{:.6e} m)",
-                        lo.x, hi.x, lo.y, hi.y, lo.z, hi.z
-                    )));
+                        crate::error::Sci(lo.x), crate::error::Sci(hi.x), crate::error::Sci(lo.y), crate::error::Sci(hi.y), crate::error::Sci(lo.z), crate::error::Sci(hi.z), sci_nearest = crate::error::Sci(nearest))));
                 }
                 sel
             }
             Selection::Set(name) => {
                 let Some(lookup) = sets else {
-                    return Err(Error::Input(format!(
+                    return Err(Error::input(InputKind::Selection, format!(
                         "{what}: named set '{name}' is not available: built-in shapes define no node sets; \
                          select with plane, box, sphere or cylinder, or read the body from a mesh file (geometry.mesh)"
                     )));
                 };
-                let pos = lookup(name).map_err(|m| Error::Input(format!("{what}: {m}")))?;
+                let pos = lookup(name)
+                    .map_err(|m| Error::input(InputKind::Mesh, format!("{what}: {m}")))?;
                 let keys: std::collections::HashSet<[u64; 3]> = pos
                     .iter()
                     .map(|p| [p.x.to_bits(), p.y.to_bits(), p.z.to_bits()])
@@ -221,11 +224,14 @@ impl Selection {
             }
         };
         if picked.is_empty() {
-            return Err(Error::Input(format!(
+            return Err(Error::input(
+                InputKind::Selection,
+                format!(
                 "{what}: selection {self:?} contains no node (model bounding box {:?} .. {:?} m)",
                 lo.as_slice(),
                 hi.as_slice()
-            )));
+            ),
+            ));
         }
         Ok(picked)
     }

@@ -15,6 +15,7 @@
 //! Nodes are numbered layer by layer: node `k * n2d + i` is cross-section node `i` at height
 //! `z_k`, so a cross-section's `n2d` nodes repeat on `n_axial + 1` layers.
 
+use crate::InputKind;
 use nalgebra::{Vector2, Vector3};
 
 use super::mesh::{check_mesh_memory, ElementShape, Mesh};
@@ -156,11 +157,14 @@ fn tets_per_hex(shape: ElementShape) -> f64 {
 pub(crate) fn check_box(min: Vector3<f64>, max: Vector3<f64>) -> Result<()> {
     for a in 0..3 {
         if !(min[a].is_finite() && max[a].is_finite() && min[a] < max[a]) {
-            return Err(Error::Input(format!(
+            return Err(Error::input(
+                InputKind::Value,
+                format!(
                 "box corners min = [{}, {}, {}] m and max = [{}, {}, {}] m must be finite with \
                  min < max on every axis",
                 min.x, min.y, min.z, max.x, max.y, max.z
-            )));
+            ),
+            ));
         }
     }
     Ok(())
@@ -173,9 +177,10 @@ fn box_section(
     div: [usize; 3],
 ) -> Result<(QuadMesh2, Vec<f64>)> {
     if div.contains(&0) {
-        return Err(Error::Input(format!(
-            "box mesh divisions {div:?} must all be at least 1"
-        )));
+        return Err(Error::input(
+            InputKind::Value,
+            format!("box mesh divisions {div:?} must all be at least 1"),
+        ));
     }
     check_box(min, max)?;
     let xs = linspace(min.x, max.x, div[0]);
@@ -221,15 +226,19 @@ fn cylinder_section(
     rounding: f64,
 ) -> Result<(QuadMesh2, Vec<f64>)> {
     if !(radius.is_finite() && radius > 0.0 && height.is_finite() && height > 0.0) {
-        return Err(Error::Input(format!(
-            "cylinder radius {radius} m and height {height} m must be positive and finite"
-        )));
+        return Err(Error::input(
+            InputKind::Value,
+            format!("cylinder radius {radius} m and height {height} m must be positive and finite"),
+        ));
     }
     if n_inner == 0 || n_radial == 0 || n_axial == 0 {
-        return Err(Error::Input(format!(
-            "cylinder mesh counts n_inner = {n_inner}, n_radial = {n_radial}, n_axial = \
+        return Err(Error::input(
+            InputKind::Value,
+            format!(
+                "cylinder mesh counts n_inner = {n_inner}, n_radial = {n_radial}, n_axial = \
              {n_axial} must all be at least 1"
-        )));
+            ),
+        ));
     }
     let n = n_inner;
     let m = n_radial;

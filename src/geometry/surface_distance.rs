@@ -14,6 +14,7 @@
 //! to the next and never settle (the MNI skull: error estimate stuck at 2-4e-5 m); flat faces
 //! and sharp edges (a cube, a flat-ended indenter) keep their face and pseudo-normals.
 
+use crate::InputKind;
 use std::collections::HashMap;
 
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
@@ -149,7 +150,10 @@ impl SurfaceDistance {
             })
             .fold(0.0, f64::max);
         let tree = ImmutableKdTree::new_from_slice(&centroids).map_err(|e| {
-            crate::Error::Input(format!("cannot index the surface's triangles: {e:?}"))
+            crate::Error::input(
+                InputKind::Mesh,
+                format!("cannot index the surface's triangles: {e:?}"),
+            )
         })?;
         Ok(SurfaceDistance {
             surface,

@@ -18,6 +18,7 @@
 //! points come back unchanged), which keeps tritet's fixed-point formatting of the volume bound
 //! (`%.15f`) accurate for volumes in m^3.
 
+use crate::InputKind;
 use std::sync::Mutex;
 
 use nalgebra::Vector3;
@@ -85,14 +86,18 @@ pub fn tetgen_cylinder(
     radius_edge_ratio: Option<f64>,
 ) -> Result<Mesh> {
     if !(radius.is_finite() && radius > 0.0 && height.is_finite() && height > 0.0) {
-        return Err(Error::Input(format!(
-            "cylinder radius {radius} m and height {height} m must be positive and finite"
-        )));
+        return Err(Error::input(
+            InputKind::Value,
+            format!("cylinder radius {radius} m and height {height} m must be positive and finite"),
+        ));
     }
     if n_circ < 3 {
-        return Err(Error::Input(format!(
+        return Err(Error::input(
+            InputKind::Value,
+            format!(
             "cylinder needs at least 3 segments around the circumference, got n_circ = {n_circ}"
-        )));
+        ),
+        ));
     }
     let mut points = Vec::with_capacity(2 * n_circ);
     for &z in &[0.0, height] {
@@ -170,10 +175,13 @@ pub fn half_ellipsoid_surface(semi_axes: [f64; 3], h: f64) -> Result<TriSurface>
     let ellipse = EllipseArc::new(a, b);
     let rim_points = (ellipse.perimeter() / h).round().max(6.0);
     if !(n_lat * rim_points <= limit && n_base * rim_points <= limit) {
-        return Err(Error::Input(format!(
+        return Err(Error::input(
+            InputKind::Limit,
+            format!(
             "half-ellipsoid surface edge length {h} m is too small for semi-axes {semi_axes:?} \
              m (millions of surface points); lengths are in metres"
-        )));
+        ),
+        ));
     }
     let (n_lat, n_base) = (n_lat as usize, n_base as usize);
 
@@ -341,8 +349,12 @@ fn snap_to_half_ellipsoid(
         .iter()
         .map(|p| [p.x.to_bits(), p.y.to_bits(), p.z.to_bits()])
         .collect();
-    let faces = super::quality::boundary_faces(mesh)
-        .map_err(|m| Error::Input(format!("TetGen's half-ellipsoid mesh: {m}")))?;
+    let faces = super::quality::boundary_faces(mesh).map_err(|m| {
+        Error::input(
+            InputKind::Mesh,
+            format!("TetGen's half-ellipsoid mesh: {m}"),
+        )
+    })?;
     let flat = 1e-9 * s.z;
     // Per node: 1 = on a base triangle, 2 = on a dome triangle.
     let mut on = vec![0u8; mesh.nodes.len()];
@@ -424,10 +436,9 @@ fn snap_to_half_ellipsoid(
     for e in 0..cells.len() {
         let v = volume(&nodes, e);
         if !(v > 0.0) {
-            return Err(Error::Input(format!(
-                "TetGen's half-ellipsoid mesh: element {e} has volume {v:e} m^3 after moving the surface \
-                 points TetGen added onto the curved surface; try another size"
-            )));
+            return Err(Error::input(InputKind::Mesh, format!(
+                "TetGen's half-ellipsoid mesh: element {e} has volume {sci_v:e} m^3 after moving the surface \
+                 points TetGen added onto the curved surface; try another size", sci_v = crate::error::Sci(v))).element(e).value(v));
         }
     }
     mesh.nodes = nodes;
@@ -531,16 +542,16 @@ fn run_tetgen(
         holes,
     } = plc;
     if !tritet::TETGEN_IS_AVAILABLE {
-        return Err(Error::Input(
+        return Err(Error::input(
+            InputKind::Unsupported,
             "hytled was built with its `tetgen` feature but the tritet crate without TetGen; \
              enable tritet's `with_tetgen` feature in Cargo.toml \
-             (tritet = { version = \"3.4\", optional = true, features = [\"with_tetgen\"] })"
-                .into(),
+             (tritet = { version = \"3.4\", optional = true, features = [\"with_tetgen\"] })",
         ));
     }
     if let Some(q) = radius_edge_ratio {
         if !(q.is_finite() && (MIN_RADIUS_EDGE_RATIO..=1e6).contains(&q)) {
-            return Err(Error::Input(format!(
+            return Err(Error::input(InputKind::Value, format!(
                 "TetGen radius-edge ratio bound {q} must lie in [{MIN_RADIUS_EDGE_RATIO}, 1e6] (TetGen's \
                  default is 2; closer to 1 TetGen may not terminate: on the brain at h = 4 mm, 1.1 meshed in \
                  1.6 s and 1.05 ran past 60 s)"
@@ -557,9 +568,10 @@ fn run_tetgen(
     let scaled_max_volume = match max_volume {
         None => None,
         Some(v) if !(v.is_finite() && v > 0.0) => {
-            return Err(Error::Input(format!(
-                "TetGen maximum element volume {v} m^3 must be positive and finite"
-            )));
+            return Err(Error::input(
+                InputKind::Value,
+                format!("TetGen maximum element volume {v} m^3 must be positive and finite"),
+            ));
         }
         Some(v) => {
             let sv = v * scale.powi(3);
@@ -571,20 +583,18 @@ fn run_tetgen(
                 } else {
                     ""
                 };
-                return Err(Error::Input(format!(
-                    "TetGen maximum element volume {v:e} m^3 is too small for the {what} of \
-                     volume {volume:e} m^3 (over a billion elements); use a larger value{units}"
-                )));
+                return Err(Error::input(InputKind::Limit, format!(
+                    "TetGen maximum element volume {sci_v:e} m^3 is too small for the {what} of \
+                     volume {sci_volume:e} m^3 (over a billion elements); use a larger value{units}", sci_v = crate::error::Sci(v), sci_volume = crate::error::Sci(volume))));
             }
             // Each tet is at most the bound, so the volume over it is the fewest tets TetGen
             // makes; a tet has at least about a sixth of a vertex of its own.
             let tets = (volume / v).max(TETS_PER_FACET * facets.len() as f64);
             super::mesh::check_mesh_memory(tets / 6.0, tets, ElementShape::Tet4).map_err(|e| {
                 if volume >= 1.0 {
-                    Error::Input(format!(
-                        "{e}\n(the {what} encloses {volume:.3e} m^3, a body over a metre across: if its file \
-                         is in millimetres, set its units = 0.001)"
-                    ))
+                    Error::input(InputKind::Mesh, format!(
+                        "{e}\n(the {what} encloses {sci_volume:.3e} m^3, a body over a metre across: if its file \
+                         is in millimetres, set its units = 0.001)", sci_volume = crate::error::Sci(volume)))
                 } else {
                     e
                 }
@@ -598,7 +608,12 @@ fn run_tetgen(
         }
     };
 
-    let fail = |msg: &str| Error::Input(format!("TetGen failed to mesh the {what}: {msg}"));
+    let fail = |msg: &str| {
+        Error::input(
+            InputKind::Mesh,
+            format!("TetGen failed to mesh the {what}: {msg}"),
+        )
+    };
     let _guard = TETGEN_LOCK.lock().unwrap_or_else(|e| e.into_inner());
     let scaled_max_volume = if regions.is_empty() {
         scaled_max_volume
@@ -671,11 +686,10 @@ fn run_tetgen(
     }
     if ((total - volume) / volume).abs() > volume_tolerance {
         return Err(fail(&format!(
-            "its tetrahedra fill {total:e} m^3 instead of {volume:e} m^3 (relative difference {:.2e}, more than \
-             {volume_tolerance:e}): a cavity was filled or a part of the body lost; check the surface for \
+            "its tetrahedra fill {sci_total:e} m^3 instead of {sci_volume:e} m^3 (relative difference {:.2e}, more than \
+             {sci_volume_tolerance:e}): a cavity was filled or a part of the body lost; check the surface for \
              pieces that touch or nearly touch",
-            (total - volume) / volume
-        )));
+            crate::error::Sci((total - volume) / volume), sci_total = crate::error::Sci(total), sci_volume = crate::error::Sci(volume), sci_volume_tolerance = crate::error::Sci(volume_tolerance))));
     }
     Ok(Mesh {
         nodes,
@@ -752,9 +766,10 @@ fn tetgen_status(printed: &str) -> String {
 /// of the domain.
 pub fn delaunay(points: &[Vector3<f64>]) -> Result<Vec<[usize; 4]>> {
     let fail = |msg: &str| {
-        Error::Input(format!(
-            "TetGen failed to tetrahedralize the node cloud: {msg}"
-        ))
+        Error::input(
+            InputKind::Mesh,
+            format!("TetGen failed to tetrahedralize the node cloud: {msg}"),
+        )
     };
     if points.len() < 4 {
         return Err(fail(&format!(

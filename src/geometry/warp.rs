@@ -8,6 +8,7 @@
 //! image is I_w(x) = I(x + d(x)) = I(X): the pre-operative image resampled by the transform.
 //! Outside the deformed body d = 0 and I_w = I.
 
+use crate::InputKind;
 use nalgebra::Vector3;
 
 use super::image::Image;
@@ -27,11 +28,14 @@ pub fn pull_back(
     u: &[Vector3<f64>],
 ) -> Result<(Vec<Vector3<f64>>, usize)> {
     if u.len() != mesh.nodes.len() {
-        return Err(Error::Input(format!(
-            "{} displacements for {} mesh nodes",
-            u.len(),
-            mesh.nodes.len()
-        )));
+        return Err(Error::input(
+            InputKind::Value,
+            format!(
+                "{} displacements for {} mesh nodes",
+                u.len(),
+                mesh.nodes.len()
+            ),
+        ));
     }
     let tets = if mesh.shape == ElementShape::Hex8 {
         super::mesh::hex_to_tets(mesh.clone())

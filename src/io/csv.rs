@@ -1,5 +1,6 @@
 //! CSV output for time histories and other tables of numbers.
 
+use crate::InputKind;
 use std::io::Write;
 use std::path::Path;
 
@@ -20,12 +21,15 @@ pub fn write_csv(path: &Path, header: &[String], rows: &[Vec<f64>]) -> Result<()
             .enumerate()
             .find(|(_, r)| r.len() != header.len())
         {
-            return Err(Error::Input(format!(
-                "{}: CSV row {i} has {} values but the header has {} columns",
-                path.display(),
-                r.len(),
-                header.len()
-            )));
+            return Err(Error::input(
+                InputKind::Format,
+                format!(
+                    "{}: CSV row {i} has {} values but the header has {} columns",
+                    path.display(),
+                    r.len(),
+                    header.len()
+                ),
+            ));
         }
     }
     write_atomically(path, |w| {
@@ -98,7 +102,7 @@ mod tests {
 
         let bad = write_csv(&dir.join("bad.csv"), &header, &[vec![1.0, 2.0]]);
         assert!(
-            matches!(bad, Err(Error::Input(ref m)) if m.contains("row 0")),
+            matches!(&bad, Err(e @ Error::Input(_)) if e.to_string().contains("row 0")),
             "{bad:?}"
         );
         assert!(!dir.join("bad.csv").exists());

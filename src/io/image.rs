@@ -13,6 +13,7 @@
 //! with intent VECTOR, the ANTs convention; NRRD: a `vector` axis first, `space:
 //! left-posterior-superior`).
 
+use crate::InputKind;
 use std::io::{BufRead, Read, Write};
 use std::path::Path;
 
@@ -836,11 +837,10 @@ pub fn write_image(path: &Path, image: &Image) -> Result<()> {
 /// NIfTI (5-D, intent VECTOR) or NRRD (vector axis first, LPS space), by extension.
 pub fn write_displacement_field(path: &Path, grid: &Image, u: &[Vector3<f64>]) -> Result<()> {
     if u.len() != grid.len() {
-        return Err(Error::Input(format!(
-            "{} displacements for {} voxels",
-            u.len(),
-            grid.len()
-        )));
+        return Err(Error::input(
+            InputKind::Value,
+            format!("{} displacements for {} voxels", u.len(), grid.len()),
+        ));
     }
     match ImageFormat::from_path(path) {
         Some(ImageFormat::Nifti) => {

@@ -4,6 +4,7 @@
 //! `id, ux, uy, uz`. Metres; comma, semicolon or blank separated; an optional header line and
 //! `#` comments.
 
+use crate::InputKind;
 use std::path::Path;
 
 use nalgebra::Vector3;
@@ -52,23 +53,30 @@ pub fn parse_measured(text: &str, source: &Path) -> Result<Vec<Measured>> {
         }
         let shown: String = body.chars().take(60).collect();
         if numbers.len() != fields.len() || !(numbers.len() == 6 || numbers.len() == 4) {
-            return Err(Error::Input(format!(
+            return Err(Error::input(
+                InputKind::Format,
+                format!(
                 "{name}: line {line}: expected x, y, z, ux, uy, uz (6 numbers) or id, ux, uy, uz \
                  (4), found '{shown}'"
-            )));
+            ),
+            ));
         }
         if *width.get_or_insert(numbers.len()) != numbers.len() {
-            return Err(Error::Input(format!(
+            return Err(Error::input(
+                InputKind::Format,
+                format!(
                 "{name}: line {line}: {} numbers where the earlier lines have {}; use one form \
                  for the whole file",
                 numbers.len(),
                 width.unwrap_or(0)
-            )));
+            ),
+            ));
         }
         if let Some(v) = numbers.iter().find(|v| !v.is_finite()) {
-            return Err(Error::Input(format!(
-                "{name}: line {line}: {v} is not a finite number"
-            )));
+            return Err(Error::input(
+                InputKind::Format,
+                format!("{name}: line {line}: {v} is not a finite number"),
+            ));
         }
         let (at, u) = if numbers.len() == 6 {
             (
@@ -77,10 +85,13 @@ pub fn parse_measured(text: &str, source: &Path) -> Result<Vec<Measured>> {
             )
         } else {
             let id = fields[0].parse::<u64>().map_err(|_| {
-                Error::Input(format!(
-                    "{name}: line {line}: node id '{}' is not a non-negative integer",
-                    fields[0]
-                ))
+                Error::input(
+                    InputKind::Format,
+                    format!(
+                        "{name}: line {line}: node id '{}' is not a non-negative integer",
+                        fields[0]
+                    ),
+                )
             })?;
             (
                 MeasuredAt::Node(id),
@@ -90,9 +101,10 @@ pub fn parse_measured(text: &str, source: &Path) -> Result<Vec<Measured>> {
         out.push(Measured { line, at, u });
     }
     if out.is_empty() {
-        return Err(Error::Input(format!(
-            "{name}: no measured displacement in the file"
-        )));
+        return Err(Error::input(
+            InputKind::Format,
+            format!("{name}: no measured displacement in the file"),
+        ));
     }
     Ok(out)
 }

@@ -1,6 +1,7 @@
 //! Reading any supported mesh file by format, with the scene's unit factor and the checks a
 //! mesh needs before it is used.
 
+use crate::InputKind;
 use std::path::Path;
 
 use serde::{Deserialize, Serialize};
@@ -42,10 +43,13 @@ pub fn read_mesh(path: &Path, format: Option<MeshFormat>, units: f64) -> Result<
     let format = format
         .or_else(|| MeshFormat::from_path(path))
         .ok_or_else(|| {
-            Error::Input(format!(
-                "{}: unknown mesh format; use .inp, .msh, .vtk or .vtu, or set geometry.format",
-                path.display()
-            ))
+            Error::input(
+                InputKind::Format,
+                format!(
+                    "{}: unknown mesh format; use .inp, .msh, .vtk or .vtu, or set geometry.format",
+                    path.display()
+                ),
+            )
         })?;
     let mut m = read_raw(path, format)?;
     drop_unused_nodes(&mut m);
@@ -174,10 +178,13 @@ pub fn write_mesh_file(
     match MeshFormat::from_path(path) {
         Some(MeshFormat::Vtu) => write_mesh_vtu(path, m, vtu_format),
         Some(MeshFormat::Inp) => super::inp::write_inp(path, m),
-        _ => Err(Error::Input(format!(
-            "{}: hytled convert writes .vtu and .inp; choose one of those extensions",
-            path.display()
-        ))),
+        _ => Err(Error::input(
+            InputKind::Value,
+            format!(
+                "{}: hytled convert writes .vtu and .inp; choose one of those extensions",
+                path.display()
+            ),
+        )),
     }
 }
 

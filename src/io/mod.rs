@@ -1,5 +1,7 @@
 //! Readers and writers: VTU/PVD for ParaView, CSV time histories.
 
+use crate::InputKind;
+
 pub mod csv;
 pub mod image;
 pub mod inp;
@@ -15,9 +17,9 @@ mod vtk_legacy5;
 mod vtk_xml;
 pub mod vtu;
 
-/// An input error naming the file: "FILE: message".
+/// A format error in a file: "FILE: message", the file as a fact.
 pub(crate) fn file_error(path: &std::path::Path, m: impl std::fmt::Display) -> crate::Error {
-    crate::Error::Input(format!("{}: {m}", path.display()))
+    crate::Error::input(InputKind::Format, m.to_string()).file(path)
 }
 
 /// A line shortened to 60 characters for messages.

@@ -17,6 +17,7 @@
 //!   frames it wrote before it stopped. Whatever a kill, a power cut or a full disk leaves is
 //!   the next run's to remove.
 
+use crate::InputKind;
 use std::fs::File;
 use std::io::{Read, Seek, Write};
 use std::path::{Path, PathBuf};
@@ -46,7 +47,7 @@ fn out_of_memory(message: &str) {
         Ok(d) => d.clone(),
         Err(_) => return,
     };
-    let e = Error::Input(message.to_string());
+    let e = Error::input(InputKind::Value, message.to_string());
     for d in dirs {
         fail_at(&d, &e);
     }
@@ -102,10 +103,10 @@ fn write_manifest(dir: &Path, names: &[String]) -> Result<()> {
 
 fn write_status(dir: &Path, status: &str, error: Option<&Error>) -> Result<()> {
     let mut v = serde_json::json!({ "status": status, "pid": std::process::id() });
-    if let Some(e) = error {
-        v["error"] = e.kind().into();
-        v["exit_code"] = e.exit_code().into();
-        v["message"] = e.to_string().into();
+    if let (Some(e), Some(o)) = (error, v.as_object_mut()) {
+        if let serde_json::Value::Object(fields) = e.to_json() {
+            o.extend(fields);
+        }
     }
     let text = serde_json::to_string_pretty(&v).unwrap_or_default();
     write_atomic(dir, SUMMARY, &text)
@@ -143,11 +144,14 @@ fn lock(dir: &Path) -> Result<File> {
                 ),
                 _ => "a process that is starting".into(),
             };
-            return Err(Error::Input(format!(
+            return Err(Error::input(
+                InputKind::Value,
+                format!(
                 "--out {}: another hytled run ({holder}) is writing into this folder; wait for \
                  it to end or give another folder",
                 dir.display()
-            )));
+            ),
+            ));
         }
         Err(std::fs::TryLockError::Error(e)) => return Err(io(&path, e)),
     }
@@ -168,10 +172,13 @@ impl OutDir {
     /// then those files are removed.
     pub fn open(dir: &Path) -> Result<Self> {
         if dir.exists() && !dir.is_dir() {
-            return Err(Error::Input(format!(
-                "--out {}: exists and is not a folder; give a folder path",
-                dir.display()
-            )));
+            return Err(Error::input(
+                InputKind::Value,
+                format!(
+                    "--out {}: exists and is not a folder; give a folder path",
+                    dir.display()
+                ),
+            ));
         }
         std::fs::create_dir_all(dir).map_err(|e| io(dir, e))?;
         let lock = lock(dir)?;
@@ -193,7 +200,9 @@ impl OutDir {
         if !foreign.is_empty() {
             foreign.sort();
             let shown: Vec<&str> = foreign.iter().take(5).map(String::as_str).collect();
-            return Err(Error::Input(format!(
+            return Err(Error::input(
+                InputKind::Value,
+                format!(
                 "--out {}: the folder holds {} file(s) hytled did not write ({}{}); give an empty \
                  or new folder, or one an earlier hytled run wrote",
                 dir.display(),
@@ -204,7 +213,8 @@ impl OutDir {
                 } else {
                     ""
                 }
-            )));
+            ),
+            ));
         }
         // The order makes every moment safe to be killed at: summary.json is in the manifest
         // before it is written, and says "running" before any earlier file goes.

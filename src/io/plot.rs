@@ -1,6 +1,7 @@
 //! Line plots as SVG (plotters, SVG backend: text stays text, so no fonts or system libraries
 //! are needed): reaction force and energies against time, written next to `history.csv`.
 
+use crate::InputKind;
 use std::path::Path;
 
 use plotters::prelude::*;
@@ -30,7 +31,12 @@ pub fn line_plot(
     y_label: &str,
     series: &[Series],
 ) -> Result<()> {
-    let fail = |e: String| Error::Input(format!("{}: cannot draw the plot: {e}", path.display()));
+    let fail = |e: String| {
+        Error::input(
+            InputKind::Value,
+            format!("{}: cannot draw the plot: {e}", path.display()),
+        )
+    };
     let finite = series
         .iter()
         .flat_map(|s| s.points.iter())
@@ -106,7 +112,12 @@ pub fn log_log_plot(
     series: &[Series],
     front: Option<&[(f64, f64)]>,
 ) -> Result<()> {
-    let fail = |e: String| Error::Input(format!("{}: cannot draw the plot: {e}", path.display()));
+    let fail = |e: String| {
+        Error::input(
+            InputKind::Value,
+            format!("{}: cannot draw the plot: {e}", path.display()),
+        )
+    };
     let ok = |&(x, y): &(f64, f64)| x > 0.0 && y > 0.0 && x.is_finite() && y.is_finite();
     let pts = series
         .iter()

@@ -9,6 +9,7 @@
 //! Every file is written to a hidden temporary file in the target directory and renamed into
 //! place once complete, so an interrupted run never leaves a truncated `.vtu` or `.pvd` behind.
 
+use crate::InputKind;
 use std::fs::File;
 use std::io::{self, BufWriter, Write};
 use std::path::{Path, PathBuf};
@@ -157,10 +158,13 @@ pub fn write_vtu(path: &Path, piece: &Piece, format: VtuFormat) -> Result<()> {
 /// directory of the `.pvd` file.
 pub fn write_pvd(path: &Path, frames: &[(f64, String)]) -> Result<()> {
     if let Some((t, f)) = frames.iter().find(|(t, _)| !t.is_finite()) {
-        return Err(Error::Input(format!(
-            "{}: time {t} of frame \"{f}\" is not finite; give every frame a finite time in s",
-            path.display()
-        )));
+        return Err(Error::input(
+            InputKind::Value,
+            format!(
+                "{}: time {t} of frame \"{f}\" is not finite; give every frame a finite time in s",
+                path.display()
+            ),
+        ));
     }
     write_atomically(path, |w| {
         w.write_all(
@@ -183,9 +187,12 @@ pub(crate) fn write_atomically<F>(path: &Path, body: F) -> Result<()>
 where
     F: FnOnce(&mut BufWriter<File>) -> io::Result<()>,
 {
-    let name = path
-        .file_name()
-        .ok_or_else(|| Error::Input(format!("{}: output path has no file name", path.display())))?;
+    let name = path.file_name().ok_or_else(|| {
+        Error::input(
+            InputKind::Value,
+            format!("{}: output path has no file name", path.display()),
+        )
+    })?;
     let mut tmp_name = std::ffi::OsString::from(".");
     tmp_name.push(name);
     tmp_name.push(format!(".{}.tmp", std::process::id()));
@@ -242,7 +249,7 @@ fn points_per_cell(t: u8) -> Option<usize> {
 
 fn validate(path: &Path, piece: &Piece) -> Result<()> {
     let p = path.display();
-    let err = |m: String| Err(Error::Input(format!("{p}: {m}")));
+    let err = |m: String| Err(Error::input(InputKind::Format, format!("{p}: {m}")));
     let n_cells = piece.types.len();
     if piece.offsets.len() != n_cells {
         return err(format!(

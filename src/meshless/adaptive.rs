@@ -10,6 +10,7 @@
 //! smooth" function of thesis eq. 5.5, f = (sum_k phi_k,x^2, sum_k phi_k,y^2, sum_k phi_k,z^2):
 //! if it is integrated accurately, the smoother integrands of the internal forces are too.
 
+use crate::InputKind;
 use nalgebra::Vector3;
 use rayon::prelude::*;
 
@@ -278,19 +279,22 @@ pub fn adaptive_points<const D: usize>(
     f: impl Fn(&Vector3<f64>) -> Result<[f64; D]> + Sync,
 ) -> Result<AdaptivePoints> {
     if !(s.tolerance > 0.0 && s.tolerance.is_finite()) {
-        return Err(Error::Input(format!(
-            "discretization.tolerance = {}: must be a positive relative accuracy (e.g. 0.001)",
-            s.tolerance
-        )));
+        return Err(Error::input(
+            InputKind::Value,
+            format!(
+                "discretization.tolerance = {}: must be a positive relative accuracy (e.g. 0.001)",
+                s.tolerance
+            ),
+        ));
     }
     if ![2, 4, 8].contains(&s.subdivision) {
-        return Err(Error::Input(format!(
+        return Err(Error::input(InputKind::Value, format!(
             "discretization.subdivision = {}: use 2 (longest-edge bisection), 4 (three edge midpoints) or 8 (all six)",
             s.subdivision
         )));
     }
     if s.max_level > max_level_for(s.subdivision) {
-        return Err(Error::Input(format!(
+        return Err(Error::input(InputKind::Value, format!(
             "discretization.max_level = {}: at most {} with subdivision = {} (a cell may split into at most 2^{MAX_LEAVES_LOG2} leaves)",
             s.max_level,
             max_level_for(s.subdivision),
@@ -509,7 +513,7 @@ mod tests {
         }
         let failing = |x: &Vector3<f64>| {
             if x.x > 0.5 {
-                Err(Error::Input("no support here".into()))
+                Err(Error::input(InputKind::Discretization, "no support here"))
             } else {
                 Ok([1.0])
             }

@@ -8,6 +8,7 @@
 //! reach the surface well when nodes lie on it, and essential boundary conditions are applied
 //! at surface nodes. Coordinates are in metres.
 
+use crate::InputKind;
 use std::f64::consts::PI;
 use std::path::Path;
 
@@ -68,15 +69,19 @@ pub fn jittered_lattice(
 ) -> Result<Vec<Vector3<f64>>> {
     domain.validate()?;
     if !(h.is_finite() && h > 0.0) {
-        return Err(Error::Input(format!(
-            "node spacing h = {h} m must be positive and finite"
-        )));
+        return Err(Error::input(
+            InputKind::Value,
+            format!("node spacing h = {h} m must be positive and finite"),
+        ));
     }
     if !(0.0..0.5).contains(&jitter) {
-        return Err(Error::Input(format!(
-            "lattice jitter {jitter} must be in [0, 0.5) (a fraction of the spacing; 0.5 or \
+        return Err(Error::input(
+            InputKind::Value,
+            format!(
+                "lattice jitter {jitter} must be in [0, 0.5) (a fraction of the spacing; 0.5 or \
              more would let neighbouring nodes swap or coincide)"
-        )));
+            ),
+        ));
     }
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     match *domain {
@@ -90,10 +95,13 @@ pub fn jittered_lattice(
 
 /// The generated clouds do not fill the half-ellipsoid yet: use the TetGen mesh's vertices.
 fn unsupported_cloud(kind: &str) -> Error {
-    Error::Input(format!(
-        "cloud = '{kind}' is not available for the half-ellipsoid; use cloud = 'mesh' (the \
+    Error::input(
+        InputKind::Unsupported,
+        format!(
+            "cloud = '{kind}' is not available for the half-ellipsoid; use cloud = 'mesh' (the \
          vertices of its TetGen mesh, mesher = 'tetgen') or cloud = 'file'"
-    ))
+        ),
+    )
 }
 
 /// Divisions round(len / h), at least 1, or an error when absurdly many.
@@ -106,10 +114,9 @@ fn divisions(len: f64, h: f64, what: &str) -> Result<usize> {
 }
 
 fn too_many(h: f64, what: &str, n: f64) -> Error {
-    Error::Input(format!(
-        "node spacing {h} m gives about {n:.3e} nodes {what}, more than the limit of {MAX_NODES}; \
-         lengths are in metres (is the spacing given in mm?)"
-    ))
+    Error::input(InputKind::Limit, format!(
+        "node spacing {h} m gives about {sci_n:.3e} nodes {what}, more than the limit of {MAX_NODES}; \
+         lengths are in metres (is the spacing given in mm?)", sci_n = crate::error::Sci(n)))
 }
 
 /// Uniform in [-1, 1).
@@ -421,23 +428,28 @@ pub fn halton_fill(
     domain.validate()?;
     let s = min_spacing;
     if !(s.is_finite() && s > 0.0) {
-        return Err(Error::Input(format!(
-            "minimum node spacing {s} m must be positive and finite"
-        )));
+        return Err(Error::input(
+            InputKind::Value,
+            format!("minimum node spacing {s} m must be positive and finite"),
+        ));
     }
     if count == 0 || count > MAX_NODES {
-        return Err(Error::Input(format!(
-            "node count {count} must be between 1 and {MAX_NODES}"
-        )));
+        return Err(Error::input(
+            InputKind::Value,
+            format!("node count {count} must be between 1 and {MAX_NODES}"),
+        ));
     }
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let (lo, hi) = domain.bounds();
     let mut grid = SpacingGrid::new(s, lo, hi, count);
     let surface_error = |n: usize| {
-        Error::Input(format!(
-            "the surface alone takes more than {n} nodes at the minimum spacing {s} m, more \
+        Error::input(
+            InputKind::Value,
+            format!(
+                "the surface alone takes more than {n} nodes at the minimum spacing {s} m, more \
              than the node count {count}; a larger minimum spacing or count fits"
-        ))
+            ),
+        )
     };
 
     match *domain {
@@ -445,10 +457,13 @@ pub fn halton_fill(
             let len = max - min;
             let shortest = len.min();
             if s > shortest {
-                return Err(Error::Input(format!(
-                    "minimum node spacing {s} m is larger than the shortest box side \
+                return Err(Error::input(
+                    InputKind::Value,
+                    format!(
+                        "minimum node spacing {s} m is larger than the shortest box side \
                      {shortest} m, so the faces cannot all carry nodes"
-                )));
+                    ),
+                ));
             }
             // Edge nodes at spacing len / floor(len / s) >= s, estimated first so that a tiny
             // spacing is refused before anything is allocated.
@@ -505,11 +520,14 @@ pub fn halton_fill(
         }
         Domain::Cylinder { radius, height } => {
             if s > height || s > 3f64.sqrt() * radius {
-                return Err(Error::Input(format!(
-                    "minimum node spacing {s} m is too large for the cylinder of radius \
+                return Err(Error::input(
+                    InputKind::Value,
+                    format!(
+                        "minimum node spacing {s} m is too large for the cylinder of radius \
                      {radius} m and height {height} m (at most the height and sqrt(3) x the \
                      radius, so that caps and rims carry nodes)"
-                )));
+                    ),
+                ));
             }
             // Rim nodes: the most that keep the chord 2 R sin(pi / n) >= s.
             let mut n_rim = (PI / (0.5 * s / radius).min(1.0).asin()).floor();
@@ -626,10 +644,13 @@ pub fn read_cloud(path: &Path) -> Result<Vec<Vector3<f64>>> {
 pub fn check_cloud(nodes: &[Vector3<f64>], source: &Path) -> Result<()> {
     let name = source.display();
     if nodes.len() < 4 {
-        return Err(Error::Input(format!(
+        return Err(Error::input(
+            InputKind::Mesh,
+            format!(
             "{name}: {} node(s); a meshless body needs at least 4 nodes spread through a volume",
             nodes.len()
-        )));
+        ),
+        ));
     }
     let (mut lo, mut hi) = (nodes[0], nodes[0]);
     for p in nodes {
@@ -668,13 +689,16 @@ pub fn check_cloud(nodes: &[Vector3<f64>], source: &Path) -> Result<()> {
                 )
             })
             .collect();
-        return Err(Error::Input(format!(
-            "{name}: {} pair(s) of coincident nodes (closer than {tol:.1e} m): {}{}; remove or \
+        return Err(Error::input(
+            InputKind::Mesh,
+            format!(
+            "{name}: {} pair(s) of coincident nodes (closer than {sci_tol:.1e} m): {}{}; remove or \
              merge them (node numbers count from 1 in file order)",
             pairs.len(),
             list.join("; "),
             if pairs.len() > 5 { "; ..." } else { "" }
-        )));
+        , sci_tol = crate::error::Sci(tol)),
+        ));
     }
     let n = nodes.len() as f64;
     let mean = nodes.iter().sum::<Vector3<f64>>() / n;
@@ -686,13 +710,15 @@ pub fn check_cloud(nodes: &[Vector3<f64>], source: &Path) -> Result<()> {
     let eig = cov.symmetric_eigenvalues();
     let (min, max) = (eig.min(), eig.max());
     if !(min > 1e-12 * max) {
-        return Err(Error::Input(format!(
+        return Err(Error::input(
+            InputKind::Mesh,
+            format!(
             "{name}: the {} nodes lie on one plane or line (thickness {:.3e} m across a spread \
              of {:.3e} m); a meshless body needs nodes spread through a volume",
             nodes.len(),
-            min.max(0.0).sqrt(),
-            max.sqrt()
-        )));
+            crate::error::Sci(min.max(0.0).sqrt()),
+            crate::error::Sci(max.sqrt())),
+        ));
     }
     Ok(())
 }
@@ -744,21 +770,24 @@ pub fn parse_cloud_sets(text: &str, source: &Path) -> Result<(Vec<Vector3<f64>>,
             continue;
         }
         if fields.len() < 3 {
-            return Err(Error::Input(format!(
-                "{name}: line {line_no}: expected 3 numbers x y z, found '{line}'"
-            )));
+            return Err(Error::input(
+                InputKind::Format,
+                format!("{name}: line {line_no}: expected 3 numbers x y z, found '{line}'"),
+            ));
         }
         let mut x = [0.0; 3];
         for (v, f) in x.iter_mut().zip(&fields) {
             *v = f.parse::<f64>().map_err(|_| {
-                Error::Input(format!(
-                    "{name}: line {line_no}: expected 3 numbers x y z, found '{f}'"
-                ))
+                Error::input(
+                    InputKind::Format,
+                    format!("{name}: line {line_no}: expected 3 numbers x y z, found '{f}'"),
+                )
             })?;
             if !v.is_finite() {
-                return Err(Error::Input(format!(
-                    "{name}: line {line_no}: coordinate '{f}' is not finite"
-                )));
+                return Err(Error::input(
+                    InputKind::Format,
+                    format!("{name}: line {line_no}: coordinate '{f}' is not finite"),
+                ));
             }
         }
         if let Some(label) = fields.get(3).and_then(|f| f.parse::<i64>().ok()) {
@@ -767,9 +796,10 @@ pub fn parse_cloud_sets(text: &str, source: &Path) -> Result<(Vec<Vector3<f64>>,
         nodes.push(Vector3::new(x[0], x[1], x[2]));
     }
     if nodes.is_empty() {
-        return Err(Error::Input(format!(
-            "{name}: no nodes found; a node cloud needs one line 'x y z' (m) per node"
-        )));
+        return Err(Error::input(
+            InputKind::Format,
+            format!("{name}: no nodes found; a node cloud needs one line 'x y z' (m) per node"),
+        ));
     }
     Ok((nodes, sets))
 }

@@ -1,6 +1,7 @@
 //! The meshless discretization: nodes, background integration, supports, shape
 //! functions, and removal of nodes that too few supports reach (Horton 2010 sect. 2.5).
 
+use crate::InputKind;
 use nalgebra::Vector3;
 
 use super::adaptive::{self, AdaptiveSettings};
@@ -229,10 +230,9 @@ pub fn delaunay(nodes: &[Vector3<f64>]) -> Result<Vec<usize>> {
 /// Without TetGen: an error that says how to do without.
 #[cfg(not(feature = "tetgen"))]
 pub fn delaunay(_nodes: &[Vector3<f64>]) -> Result<Vec<usize>> {
-    Err(Error::Input(
+    Err(Error::input(InputKind::Unsupported,
         "integration = 'tets' on a generated or file cloud needs a Delaunay tetrahedralization (feature `tetgen`); \
-         use integration = 'grid' or cloud = 'mesh'"
-            .into(),
+         use integration = 'grid' or cloud = 'mesh'",
     ))
 }
 
@@ -381,10 +381,9 @@ pub fn build(settings: MeshlessSettings, protected: &ProtectedNodes) -> Result<M
         }
         Integration::Grid { point_ratio } => {
             let dom = domain.as_ref().ok_or_else(|| {
-                Error::Input(
+                Error::input(InputKind::Unsupported,
                     "integration = 'grid' needs a built-in shape (box or cylinder); with geometry.mesh \
-                     use cloud = 'mesh' or 'file' and integration = 'tets'"
-                        .into(),
+                     use cloud = 'mesh' or 'file' and integration = 'tets'",
                 )
             })?;
             let (p, w) = integration::grid_points(dom, background.nodes.len(), point_ratio)?;
@@ -394,7 +393,7 @@ pub fn build(settings: MeshlessSettings, protected: &ProtectedNodes) -> Result<M
         }
     };
     if positions.is_empty() {
-        return Err(Error::Input("the meshless discretization has no integration points; refine the grid (point_ratio) or check the cloud".into()));
+        return Err(Error::input(InputKind::Discretization, "the meshless discretization has no integration points; refine the grid (point_ratio) or check the cloud"));
     }
 
     // Field nodes: the background vertices, less those reached by fewer than two supports.
@@ -455,14 +454,14 @@ pub fn build(settings: MeshlessSettings, protected: &ProtectedNodes) -> Result<M
         }
         let guarded = protected(&nodes)?;
         if let Some(&g) = guarded.iter().find(|g| low.binary_search(g).is_ok()) {
-            return Err(Error::Input(format!(
+            return Err(Error::input(InputKind::Discretization, format!(
                 "meshless node {} at {:?} m carries a boundary condition or a probe but only {} integration point(s) reach it, \
                  so it would have to be removed; add integration points (tet_rule, point_ratio) or enlarge the supports \
                  (dilatation, support_nodes)",
                 keep[g],
                 nodes[g].as_slice(),
                 counts[g]
-            )));
+            )).node(keep[g]));
         }
         removed_total += low.len();
         let drop: std::collections::BTreeSet<usize> = low.into_iter().collect();
@@ -473,9 +472,8 @@ pub fn build(settings: MeshlessSettings, protected: &ProtectedNodes) -> Result<M
             .map(|(_, k)| k)
             .collect();
     }
-    Err(Error::Input(
+    Err(Error::input(InputKind::Discretization,
         "removing meshless nodes that fewer than two integration points reach did not settle after 4 rounds; \
-         the cloud is much coarser than the integration (or the reverse): add integration points or enlarge the supports"
-            .into(),
+         the cloud is much coarser than the integration (or the reverse): add integration points or enlarge the supports",
     ))
 }

@@ -1,6 +1,7 @@
 //! Essential boundary conditions on meshless nodes through the shared integrator: the
 //! EBCIEM / SEBCIEM correction (thesis chapter 4) wrapped as a [`Corrector`].
 
+use crate::InputKind;
 use nalgebra::Vector3;
 use std::sync::atomic::{AtomicBool, Ordering};
 
@@ -128,20 +129,23 @@ impl MeshlessCorrector {
     ) -> Result<(Self, CorrectorReport)> {
         let n = build.nodes.len();
         // Boundary triangles of the background tets, in field-node ids (all vertices kept).
-        let tris: Vec<[usize; 3]> =
-            if method == Imposition::Ebciem && build.background.num_cells() > 0 {
-                quality::boundary_faces(&build.background)
-                    .map_err(|e| crate::Error::Input(format!("background tets: {e}")))?
-                    .into_iter()
-                    .filter_map(|f| {
-                        let node = |v: usize| build.background_node[v];
-                        let t = [node(f[0])?, node(f[1])?, node(f[2])?];
-                        t.iter().all(|&i| i < n).then_some(t)
-                    })
-                    .collect()
-            } else {
-                Vec::new()
-            };
+        let tris: Vec<[usize; 3]> = if method == Imposition::Ebciem
+            && build.background.num_cells() > 0
+        {
+            quality::boundary_faces(&build.background)
+                .map_err(|e| {
+                    crate::Error::input(InputKind::Discretization, format!("background tets: {e}"))
+                })?
+                .into_iter()
+                .filter_map(|f| {
+                    let node = |v: usize| build.background_node[v];
+                    let t = [node(f[0])?, node(f[1])?, node(f[2])?];
+                    t.iter().all(|&i| i < n).then_some(t)
+                })
+                .collect()
+        } else {
+            Vec::new()
+        };
         let shape = |x: &Vector3<f64>| -> Result<SparseRow> {
             build.shape_values(x, &|| "essential-boundary point".to_string())
         };
@@ -482,7 +486,7 @@ impl Corrector for MeshlessCorrector {
 
     fn set_values(&mut self, boundaries: &[Boundary]) -> Result<()> {
         if boundaries.len() != self.num_boundaries {
-            return Err(crate::Error::Input(format!(
+            return Err(crate::Error::input(InputKind::Discretization, format!(
                 "the meshless corrections were built for {} boundaries, not {}; prepare the model again",
                 self.num_boundaries,
                 boundaries.len()
@@ -494,12 +498,15 @@ impl Corrector for MeshlessCorrector {
                 for (m, &(b, k)) in c.sources.iter().enumerate() {
                     let bd = &boundaries[b];
                     c.amplitude[m] = bd.value(k, comp).ok_or_else(|| {
-                        crate::Error::Input(format!(
+                        crate::Error::input(
+                            InputKind::Discretization,
+                            format!(
                             "boundary '{}': component {} is no longer prescribed; its meshless \
                              correction was built for it: prepare the model again",
                             bd.name,
                             ["x", "y", "z"][comp]
-                        ))
+                        ),
+                        )
                     })?;
                     c.curve[m] = bd.curve.clone();
                 }

@@ -5,6 +5,7 @@
 //! tetrahedral mesh with a Gauss-type rule per cell, or a regular grid of cubic cells over the
 //! bounding box with one point per cell.
 
+use crate::InputKind;
 use nalgebra::Vector3;
 
 use crate::geometry::domain::Domain;
@@ -127,26 +128,36 @@ pub fn tet_points(mesh: &Mesh, rule: TetRule) -> Result<(Vec<Vector3<f64>>, Vec<
 #[allow(clippy::type_complexity)] // vertices with their volume
 pub(crate) fn checked_tets(mesh: &Mesh, what: &str) -> Result<Vec<([Vector3<f64>; 4], f64)>> {
     if mesh.shape != ElementShape::Tet4 {
-        return Err(Error::Input(format!(
-            "{what} need a Tet4 background mesh, got a {:?} mesh",
-            mesh.shape
-        )));
+        return Err(Error::input(
+            InputKind::Mesh,
+            format!(
+                "{what} need a Tet4 background mesh, got a {:?} mesh",
+                mesh.shape
+            ),
+        ));
     }
     if !mesh.cells.len().is_multiple_of(4) {
-        return Err(Error::Input(format!(
-            "tet mesh connectivity has {} entries, not a multiple of 4",
-            mesh.cells.len()
-        )));
+        return Err(Error::input(
+            InputKind::Mesh,
+            format!(
+                "tet mesh connectivity has {} entries, not a multiple of 4",
+                mesh.cells.len()
+            ),
+        ));
     }
     (0..mesh.num_cells())
         .map(|e| {
             let mut x = [Vector3::zeros(); 4];
             for (xi, &i) in x.iter_mut().zip(mesh.cell(e)) {
                 *xi = *mesh.nodes.get(i).ok_or_else(|| {
-                    Error::Input(format!(
-                        "tet {e} refers to node {i}, but the mesh has {} nodes",
-                        mesh.nodes.len()
-                    ))
+                    Error::input(
+                        InputKind::Mesh,
+                        format!(
+                            "tet {e} refers to node {i}, but the mesh has {} nodes",
+                            mesh.nodes.len()
+                        ),
+                    )
+                    .element(e)
                 })?;
             }
             let volume = tet_signed_volume(&x[0], &x[1], &x[2], &x[3]);
@@ -176,14 +187,18 @@ pub fn grid_points(
 ) -> Result<(Vec<Vector3<f64>>, Vec<f64>)> {
     domain.validate()?;
     if nodes == 0 {
-        return Err(Error::Input(
-            "a background integration grid needs at least one node".into(),
+        return Err(Error::input(
+            InputKind::Discretization,
+            "a background integration grid needs at least one node",
         ));
     }
     if !(ratio.is_finite() && ratio > 0.0) {
-        return Err(Error::Input(format!(
-            "integration point to node ratio {ratio} must be positive and finite (typically 2)"
-        )));
+        return Err(Error::input(
+            InputKind::Value,
+            format!(
+                "integration point to node ratio {ratio} must be positive and finite (typically 2)"
+            ),
+        ));
     }
     let a = (domain.volume() / (ratio * nodes as f64)).cbrt();
     let (lo, hi) = domain.bounds();
@@ -191,10 +206,9 @@ pub fn grid_points(
     let counts = len.map(|l| (l / a).round().max(1.0));
     let cells = counts.product();
     if !(cells <= MAX_GRID_POINTS) {
-        return Err(Error::Input(format!(
-            "integration grid of {nodes} nodes x ratio {ratio} needs {cells:.3e} cells, more \
-             than the limit of {MAX_GRID_POINTS:.0e}; lower the ratio or the node count"
-        )));
+        return Err(Error::input(InputKind::Limit, format!(
+            "integration grid of {nodes} nodes x ratio {ratio} needs {sci_cells:.3e} cells, more \
+             than the limit of {sci_MAX_GRID_POINTS:.0e}; lower the ratio or the node count", sci_cells = crate::error::Sci(cells), sci_MAX_GRID_POINTS = crate::error::Sci(MAX_GRID_POINTS))));
     }
     let n = counts.map(|c| c as usize);
     let d = len.component_div(&counts);

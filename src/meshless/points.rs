@@ -1,5 +1,6 @@
 //! Quadrature points of the meshless discretization and shape-function evaluation with support growth.
 
+use crate::InputKind;
 use nalgebra::Vector3;
 use rayon::prelude::*;
 
@@ -88,20 +89,20 @@ fn shape_into(
         }
     }
     let shown: Vec<String> = sc.ids.iter().take(40).map(|i| i.to_string()).collect();
-    Err(Error::Input(format!(
+    Err(Error::input(InputKind::Discretization, format!(
         "{} at ({:.6e}, {:.6e}, {:.6e}) m: {} with its support of {} nodes [{}{}] even after growing the support to {}x. \
          The nodes around this point are too few or (nearly) coplanar: refine the cloud there, raise \
          discretization.dilatation / support_nodes, or use basis = 'quadratic' (MMLS)",
         what(),
-        x.x,
-        x.y,
-        x.z,
+        crate::error::Sci(x.x),
+        crate::error::Sci(x.y),
+        crate::error::Sci(x.z),
         last.map(|e| e.to_string()).unwrap_or_default(),
         sc.ids.len(),
         shown.join(", "),
         if sc.ids.len() > 40 { ", ..." } else { "" },
         factors.last().copied().unwrap_or(1.0),
-    )))
+)))
 }
 
 /// Refuses a point table that would not fit in memory before it is built: the mean support

@@ -10,6 +10,7 @@
 //!   nearest nodes when there are no tetrahedra); a point's support is every node whose sphere
 //!   covers it (thesis sect. 4.4.3, D = 2; the coupled-cylinder paper uses 1.6).
 
+use crate::InputKind;
 use std::num::NonZero;
 
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
@@ -77,34 +78,45 @@ impl Support {
         tets: Option<&[[usize; 4]]>,
     ) -> Result<Self> {
         if nodes.len() < 4 {
-            return Err(Error::Input(format!(
-                "the meshless cloud has {} nodes; at least 4 (not coplanar) are needed",
-                nodes.len()
-            )));
+            return Err(Error::input(
+                InputKind::Mesh,
+                format!(
+                    "the meshless cloud has {} nodes; at least 4 (not coplanar) are needed",
+                    nodes.len()
+                ),
+            ));
         }
         if let Some(i) = nodes.iter().position(|p| !p.iter().all(|v| v.is_finite())) {
-            return Err(Error::Input(format!(
-                "meshless node {i} has a non-finite coordinate {:?}",
-                nodes[i].as_slice()
-            )));
+            return Err(Error::input(
+                InputKind::Mesh,
+                format!(
+                    "meshless node {i} has a non-finite coordinate {:?}",
+                    nodes[i].as_slice()
+                ),
+            )
+            .node(i));
         }
         let pts: Vec<[f64; 3]> = nodes.iter().map(|p| [p.x, p.y, p.z]).collect();
-        let tree = ImmutableKdTree::new_from_slice(&pts)
-            .map_err(|e| Error::Input(format!("cannot build the neighbour search tree: {e:?}")))?;
+        let tree = ImmutableKdTree::new_from_slice(&pts).map_err(|e| {
+            Error::input(
+                InputKind::Discretization,
+                format!("cannot build the neighbour search tree: {e:?}"),
+            )
+        })?;
         match rule {
             SupportRule::Nearest { n, alpha } => {
                 if n < MIN_NEAREST || !(alpha >= MIN_ALPHA) {
-                    return Err(Error::Input(format!(
+                    return Err(Error::input(InputKind::Value, format!(
                         "support: nearest rule needs support_nodes >= {MIN_NEAREST} and alpha >= {MIN_ALPHA} (got {n} and {alpha})"
                     )));
                 }
             }
             SupportRule::Radius { dilatation } => {
                 if !(dilatation > DILATATION.0 && dilatation < DILATATION.1) {
-                    return Err(Error::Input(format!(
+                    return Err(Error::input(InputKind::Value, format!(
                         "support: dilatation must lie in ({}, {}) (got {dilatation}); 1.6 to 2.0 is usual",
                         DILATATION.0, DILATATION.1
-                    )));
+                    )).value(dilatation));
                 }
             }
         }
@@ -194,7 +206,10 @@ impl Support {
                 })
                 .collect();
             let tree = ImmutableKdTree::new_from_slice(&pts).map_err(|e| {
-                Error::Input(format!("cannot build the neighbour search tree: {e:?}"))
+                Error::input(
+                    InputKind::Discretization,
+                    format!("cannot build the neighbour search tree: {e:?}"),
+                )
             })?;
             let max_radius = ids
                 .iter()

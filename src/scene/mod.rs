@@ -7,6 +7,7 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
+use crate::error::short_numbers;
 use crate::solver::Mode;
 use crate::{Error, Result};
 
@@ -18,7 +19,7 @@ mod validate;
 pub use discretization::*;
 pub use geometry::*;
 pub use specs::*;
-use validate::{resolve_exact, validate};
+use validate::{resolve_exact, validate, Invalid};
 
 /// A complete scene.
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -109,10 +110,7 @@ fn surface_element_default(value: &mut toml::Table) -> bool {
 /// errors name it as `BASE_DIR/<dict>`.
 pub fn from_json(json: &str, base_dir: &Path, overrides: &[String]) -> Result<Scene> {
     let file = base_dir.join("<dict>");
-    let err = |message: String| Error::Scene {
-        file: file.clone(),
-        message,
-    };
+    let err = |message: String| Error::scene(&file, short_numbers(&message));
     let value: serde_json::Value =
         serde_json::from_str(json).map_err(|e| err(format!("not a JSON object: {e}")))?;
     if !value.is_object() {
@@ -129,33 +127,45 @@ pub fn from_json(json: &str, base_dir: &Path, overrides: &[String]) -> Result<Sc
     parse(&text, &file, overrides)
 }
 
-/// Parses scene text (see [`load`]); `path` names the source in errors.
+/// Parses scene text (see [`load`]); `path` names the source in errors, which are
+/// [`InputKind::Scene`] errors with the file, the line (as written, when the text has it) and
+/// the key (when it is known).
 pub fn parse(text: &str, path: &Path, overrides: &[String]) -> Result<Scene> {
-    let err = |message: String| Error::Scene {
-        file: PathBuf::from(path),
-        message,
-    };
+    // serde's and toml's messages write an f64 in full (1e300 as 301 digits).
+    let err = |message: &str| Error::scene(path, short_numbers(message));
+    let bad = |b: Invalid| err(&b.message).key(b.key);
     // Deserialise the file as written first, so schema errors carry its line numbers.
     let mut scene: Scene = toml::from_str(text).map_err(|e| {
-        let hint = toml::from_str::<toml::Table>(text)
-            .ok()
-            .and_then(|t| name_hint(&t))
+        let table = toml::from_str::<toml::Table>(text).ok();
+        let hint = table
+            .as_ref()
+            .and_then(name_hint)
             .map_or(String::new(), |h| format!("\n  {h}"));
-        err(format!(
+        let mut error = err(&format!(
             "{}{hint}",
             with_suggestion(&e.to_string()).trim_end()
-        ))
+        ));
+        if let Some(span) = e.span() {
+            error = error.line(1 + text[..span.start.min(text.len())].matches('\n').count());
+        }
+        match table.as_ref().and_then(schema_path) {
+            Some(key) => error.key(key),
+            None => error,
+        }
     })?;
-    let mut value: toml::Table = toml::from_str(text).map_err(|e| err(e.to_string()))?;
+    let mut value: toml::Table = toml::from_str(text).map_err(|e| err(&e.to_string()))?;
     for o in overrides {
-        apply_override(&mut value, o).map_err(|m| err(format!("--set {o}: {m}")))?;
+        apply_override(&mut value, o).map_err(|m| {
+            let key = o.split_once('=').map_or(o.as_str(), |(k, _)| k.trim());
+            err(&format!("--set {o}: {m}")).key(key)
+        })?;
     }
-    check_finite(&toml::Value::Table(value.clone()), "").map_err(err)?;
+    check_finite(&toml::Value::Table(value.clone()), "").map_err(bad)?;
     let tets_by_default = surface_element_default(&mut value);
     let written = toml::Value::Table(value.clone());
     if !overrides.is_empty() {
         if let Some(h) = name_hint(&value) {
-            return Err(err(format!("after --set overrides: {h}")));
+            return Err(err(&format!("after --set overrides: {h}")));
         }
         // The merged table has no source lines to point at; name the key path instead.
         scene = serde_path_to_error::deserialize(toml::Value::Table(value)).map_err(
@@ -167,10 +177,15 @@ pub fn parse(text: &str, path: &Path, overrides: &[String]) -> Result<Scene> {
                 } else {
                     format!("{at}: ")
                 };
-                err(format!(
+                let error = err(&format!(
                     "after --set overrides: {key}{}",
                     with_suggestion(message)
-                ))
+                ));
+                if at == "." {
+                    error
+                } else {
+                    error.key(at)
+                }
             },
         )?;
     }
@@ -179,15 +194,24 @@ pub fn parse(text: &str, path: &Path, overrides: &[String]) -> Result<Scene> {
     }
     // serde fills a fixed-size array from the first elements of a longer one: compare.
     if let Ok(typed) = toml::Value::try_from(&scene) {
-        check_lengths(&written, &typed, "").map_err(err)?;
+        check_lengths(&written, &typed, "").map_err(bad)?;
     }
     scene.base_dir = path.parent().map(PathBuf::from).unwrap_or_default();
     if scene.name.is_none() {
         scene.name = path.file_stem().map(|s| s.to_string_lossy().into_owned());
     }
-    validate(&scene).map_err(err)?;
-    resolve_exact(&mut scene).map_err(err)?;
+    let invalid = |b: Invalid| Error::scene(path, b.message).key(b.key);
+    validate(&scene).map_err(invalid)?;
+    resolve_exact(&mut scene).map_err(invalid)?;
     Ok(scene)
+}
+
+/// The dotted key at which a table fails to read as a [`Scene`] (`"."` is the whole scene).
+fn schema_path(table: &toml::Table) -> Option<String> {
+    let e =
+        serde_path_to_error::deserialize::<_, Scene>(toml::Value::Table(table.clone())).err()?;
+    let at = e.path().to_string();
+    (at != ".").then_some(at)
 }
 
 /// Refuses numeric arrays longer (or shorter) than the key takes: `written` is the scene as
@@ -197,7 +221,7 @@ fn check_lengths(
     written: &toml::Value,
     typed: &toml::Value,
     at: &str,
-) -> std::result::Result<(), String> {
+) -> std::result::Result<(), Invalid> {
     use toml::Value as V;
     let key = |k: &str| {
         if at.is_empty() {
@@ -219,10 +243,9 @@ fn check_lengths(
                 .iter()
                 .all(|x| matches!(x, V::Integer(_) | V::Float(_) | V::Array(_)));
             if numeric && !a.is_empty() && a.len() != b.len() {
-                return Err(format!(
-                    "{at}: {} values given, it takes {}",
-                    a.len(),
-                    b.len()
+                return Err(Invalid::at(
+                    at,
+                    format!("{at}: {} values given, it takes {}", a.len(), b.len()),
                 ));
             }
             for (i, (x, y)) in a.iter().zip(b).enumerate() {
@@ -265,10 +288,11 @@ fn name_hint(table: &toml::Table) -> Option<String> {
 }
 
 /// Refuses nan and inf anywhere in the scene (TOML allows them; no scene value means them).
-fn check_finite(v: &toml::Value, key: &str) -> std::result::Result<(), String> {
+fn check_finite(v: &toml::Value, key: &str) -> std::result::Result<(), Invalid> {
     match v {
-        toml::Value::Float(x) if !x.is_finite() => Err(format!(
-            "{key} = {x}: numbers must be finite (nan and inf are not scene values)"
+        toml::Value::Float(x) if !x.is_finite() => Err(Invalid::at(
+            key,
+            format!("{key} = {x}: numbers must be finite (nan and inf are not scene values)"),
         )),
         toml::Value::Array(a) => a
             .iter()

@@ -4,6 +4,7 @@
 //! contact, the essential-boundary correction and [`Prepared`]. A new method (an element, a
 //! point kind) gives its parts and a [`Discretized`] view; it copies no pipeline.
 
+use crate::InputKind;
 use std::collections::BTreeMap;
 use std::time::Instant;
 
@@ -210,9 +211,10 @@ fn probes(scene: &Scene, d: Discretized<'_>, input: Option<&MeshInput>) -> Resul
                     .as_ref()
                     .is_some_and(|(dom, tolerance)| !dom.contains(&x, *tolerance))
                 {
-                    return Err(Error::Input(format!(
-                        "probe '{name}' at {p:?} m lies outside the body; move it inside"
-                    )));
+                    return Err(Error::input(
+                        InputKind::Selection,
+                        format!("probe '{name}' at {p:?} m lies outside the body; move it inside"),
+                    ));
                 }
                 let (row, element) = d.point_row(&x, &what)?;
                 Probe {

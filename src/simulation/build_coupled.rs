@@ -1,6 +1,7 @@
 //! A coupled run's preparation: the FE layer, transition cells and meshless interior, their
 //! points, boundaries, probes and loads.
 
+use crate::InputKind;
 use std::collections::BTreeMap;
 use std::time::Instant;
 
@@ -161,10 +162,9 @@ pub(super) fn prepare_coupled(scene: &Scene) -> Result<Prepared> {
     let fe_region = match d.fe_region() {
         crate::scene::FeRegionKind::Surface => coupling::FeRegion::Surface,
         crate::scene::FeRegionKind::Essential if mixed || generated => {
-            return Err(Error::Input(
+            return Err(Error::input(InputKind::Unsupported,
                 "discretization.fe_region = 'essential' places the FE layer within the scene's mesh; \
-                 with cloud = 'file', 'lattice' or 'halton' the FE layer is the given shell: use fe_region = 'surface'"
-                    .into(),
+                 with cloud = 'file', 'lattice' or 'halton' the FE layer is the given shell: use fe_region = 'surface'",
             ))
         }
         crate::scene::FeRegionKind::Essential => {
@@ -178,7 +178,7 @@ pub(super) fn prepare_coupled(scene: &Scene) -> Result<Prepared> {
                 .collect();
             if !scene.contact.is_empty() {
                 let faces = crate::geometry::quality::boundary_faces(&mesh)
-                    .map_err(|e| Error::Input(format!("coupled: {e}")))?;
+                    .map_err(|e| Error::input(InputKind::Value, format!("coupled: {e}")))?;
                 nodes.extend(super::loads::contact_reach(scene, &mesh.nodes, &faces)?);
             }
             nodes.sort_unstable();
@@ -220,11 +220,10 @@ pub(super) fn prepare_coupled(scene: &Scene) -> Result<Prepared> {
             .collect())
     };
     if kind == ElementKind::Tet10 && (mixed || generated) {
-        return Err(Error::Input(
+        return Err(Error::input(InputKind::Unsupported,
             "discretization.element = 'tet10' in the coupled method makes the scene's own tet mesh \
              quadratic; a given FE shell with a cloud (cloud = 'file', 'lattice' or 'halton') is \
-             not supported yet: use element = 'tet4-anp' there, or cloud = 'mesh'"
-                .into(),
+             not supported yet: use element = 'tet4-anp' there, or cloud = 'mesh'",
         ));
     }
     let built = if mixed {
@@ -285,10 +284,9 @@ pub(super) fn prepare_coupled(scene: &Scene) -> Result<Prepared> {
         .any(|&c| c)
         .then(|| d.bc_method.resolve(d.support));
     if bc_method == Some(BcMethod::Correction) {
-        return Err(Error::Input(
+        return Err(Error::input(InputKind::Unsupported,
             "bc_method = 'correction' cannot impose conditions on the meshless nodes of a coupled scene; \
-             use 'ebciem' or 'sebciem' (or select FE-layer nodes only)"
-                .into(),
+             use 'ebciem' or 'sebciem' (or select FE-layer nodes only)",
         ));
     }
     // Each point takes the material of its cell (the FE-layer or interior cell it belongs to).
@@ -345,10 +343,11 @@ pub(super) fn impose(
     {
         let tris: Vec<[usize; 3]> = if method == BcMethod::Ebciem {
             let mut faces = quality::boundary_faces(&build.fe_mesh)
-                .map_err(|e| Error::Input(format!("coupled FE layer: {e}")))?;
+                .map_err(|e| Error::input(InputKind::Value, format!("coupled FE layer: {e}")))?;
             faces.extend(
-                quality::boundary_faces(&build.interior)
-                    .map_err(|e| Error::Input(format!("coupled interior: {e}")))?,
+                quality::boundary_faces(&build.interior).map_err(|e| {
+                    Error::input(InputKind::Value, format!("coupled interior: {e}"))
+                })?,
             );
             // Faces on both sides of the interface are inside the body.
             let mut seen: BTreeMap<Vec<usize>, usize> = BTreeMap::new();

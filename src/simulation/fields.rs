@@ -3,6 +3,7 @@
 //! there (meshless and blended nodal values are parameters, not displacements). The VTU
 //! frames, warped images and the Python fields all read them here.
 
+use crate::InputKind;
 use nalgebra::Vector3;
 
 use super::Discretization;
@@ -97,10 +98,9 @@ impl<'a> ResultPoints<'a> {
         let mesh = match self.method {
             Discretization::Meshless { build: m, .. } => {
                 if m.background.num_cells() == 0 {
-                    return Err(Error::Input(
+                    return Err(Error::input(InputKind::Unsupported,
                         "output.image needs the body's cells, and this meshless cloud has no background \
-                         tets (use integration = \"tets\" or cloud = \"mesh\")"
-                            .into(),
+                         tets (use integration = \"tets\" or cloud = \"mesh\")",
                     ));
                 }
                 m.background.clone()
@@ -128,11 +128,14 @@ impl<'a> ResultPoints<'a> {
             .map(|c| Vector3::new(c[0], c[1], c[2]))
             .collect();
         if disp.len() != mesh.nodes.len() {
-            return Err(Error::Input(format!(
-                "output.image: {} displacements for the frame's {} points",
-                disp.len(),
-                mesh.nodes.len()
-            )));
+            return Err(Error::input(
+                InputKind::Value,
+                format!(
+                    "output.image: {} displacements for the frame's {} points",
+                    disp.len(),
+                    mesh.nodes.len()
+                ),
+            ));
         }
         Ok((mesh, disp))
     }

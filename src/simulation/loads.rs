@@ -1,5 +1,6 @@
 //! The scene's `[loads]` and `[contact]` on a built discretization.
 
+use crate::InputKind;
 use nalgebra::Vector3;
 
 use super::surface::{Discretized, Surface};
@@ -208,15 +209,14 @@ pub(super) fn scene_contact(
             cores.into_iter().find(in_body)
         };
         if let Some(q) = inside {
-            return Err(crate::Error::Input(format!(
+            return Err(crate::Error::input(InputKind::Value, format!(
                 "contact '{name}' starts inside the body without touching its surface (its point \
                  ({:.4e}, {:.4e}, {:.4e}) m is inside the body, and no surface point is inside it): \
                  contact acts on the body's surface, so a rigid body inside the tissue is never felt. \
                  Start it outside the body, or touching its surface",
-                q.x,
-                q.y,
-                q.z
-            )));
+                crate::error::Sci(q.x),
+                crate::error::Sci(q.y),
+                crate::error::Sci(q.z))));
         }
     }
     for (b, name) in contact.names().enumerate() {

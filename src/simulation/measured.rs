@@ -1,5 +1,6 @@
 //! `[measured]` displacements matched to surface nodes: the image-driven brain-shift workflow.
 
+use crate::InputKind;
 use nalgebra::Vector3;
 
 use super::{load_curve, scene_path};
@@ -36,9 +37,10 @@ pub(super) fn boundary(
         .tolerance
         .unwrap_or(DEFAULT_TOLERANCE * (hi - lo).norm());
     if candidates.is_empty() {
-        return Err(Error::Input(format!(
-            "measured '{name}': the body has no surface node to take the displacements"
-        )));
+        return Err(Error::input(
+            InputKind::Value,
+            format!("measured '{name}': the body has no surface node to take the displacements"),
+        ));
     }
     let tree = {
         let pts: Vec<[f64; 3]> = candidates
@@ -46,9 +48,10 @@ pub(super) fn boundary(
             .map(|&i| [nodes[i].x, nodes[i].y, nodes[i].z])
             .collect();
         kiddo::ImmutableKdTree::<f64, 3>::new_from_slice(&pts).map_err(|e| {
-            Error::Input(format!(
-                "measured '{name}': cannot index the surface nodes: {e:?}"
-            ))
+            Error::input(
+                InputKind::Value,
+                format!("measured '{name}': cannot index the surface nodes: {e:?}"),
+            )
         })?
     };
     if spec.interpolate {
@@ -97,27 +100,29 @@ pub(super) fn boundary(
         let dist = best.distance.sqrt();
         if dist > tolerance {
             let y = nodes[node];
-            return Err(Error::Input(format!(
-                "{}: the point ({:.6e}, {:.6e}, {:.6e}) m is {dist:.3e} m from the nearest surface \
-                 node ({node}, at ({:.6e}, {:.6e}, {:.6e}) m), beyond the tolerance {tolerance:.3e} m: \
+            return Err(Error::input(InputKind::Value, format!(
+                "{}: the point ({:.6e}, {:.6e}, {:.6e}) m is {sci_dist:.3e} m from the nearest surface \
+                 node ({node}, at ({:.6e}, {:.6e}, {:.6e}) m), beyond the tolerance {sci_tolerance:.3e} m: \
                  check the file's units (m) and frame, or raise measured.{name}.tolerance",
                 where_(m.line),
-                x.x,
-                x.y,
-                x.z,
-                y.x,
-                y.y,
-                y.z
-            )));
+                crate::error::Sci(x.x),
+                crate::error::Sci(x.y),
+                crate::error::Sci(x.z),
+                crate::error::Sci(y.x),
+                crate::error::Sci(y.y),
+                crate::error::Sci(y.z), sci_dist = crate::error::Sci(dist), sci_tolerance = crate::error::Sci(tolerance))));
         }
         let other = line_of[node];
         if other != 0 {
-            return Err(Error::Input(format!(
+            return Err(Error::input(
+                InputKind::Value,
+                format!(
                 "{}: the point takes surface node {node}, which line {other} already took: two \
                  measured points closer to each other than to any other node; thin the \
                  measurements or refine the surface",
                 where_(m.line)
-            )));
+            ),
+            ));
         }
         line_of[node] = m.line;
         taken.push((node, m.line));
@@ -159,20 +164,19 @@ fn without_repeats(
             }
             Some(&k) if kept[k].u == m.u => repeats.push((m.line, kept[k].line)),
             Some(&k) => {
-                return Err(Error::Input(format!(
+                return Err(Error::input(InputKind::Value, format!(
                     "{}: the point ({:.6e}, {:.6e}, {:.6e}) m is given again with another displacement                      ({:.6e}, {:.6e}, {:.6e}) m; line {} gives ({:.6e}, {:.6e}, {:.6e}) m there: keep one of them",
                     where_(m.line),
-                    x.x,
-                    x.y,
-                    x.z,
-                    m.u.x,
-                    m.u.y,
-                    m.u.z,
+                    crate::error::Sci(x.x),
+                    crate::error::Sci(x.y),
+                    crate::error::Sci(x.z),
+                    crate::error::Sci(m.u.x),
+                    crate::error::Sci(m.u.y),
+                    crate::error::Sci(m.u.z),
                     kept[k].line,
-                    kept[k].u.x,
-                    kept[k].u.y,
-                    kept[k].u.z
-                )))
+                    crate::error::Sci(kept[k].u.x),
+                    crate::error::Sci(kept[k].u.y),
+                    crate::error::Sci(kept[k].u.z))))
             }
         }
     }
@@ -196,17 +200,20 @@ fn position(
         MeasuredAt::Position(x) => Ok(x),
         MeasuredAt::Node(id) => {
             let file = input.ok_or_else(|| {
-                Error::Input(format!(
-                    "{}: node id {id} needs a mesh file (geometry.mesh); give positions \
+                Error::input(
+                    InputKind::Value,
+                    format!(
+                        "{}: node id {id} needs a mesh file (geometry.mesh); give positions \
                      x, y, z, ux, uy, uz instead",
-                    where_(m.line)
-                ))
+                        where_(m.line)
+                    ),
+                )
             })?;
             let k = file.node_ids.iter().position(|&n| n == id).ok_or_else(|| {
-                Error::Input(format!(
-                    "{}: the mesh file has no node {id}",
-                    where_(m.line)
-                ))
+                Error::input(
+                    InputKind::Selection,
+                    format!("{}: the mesh file has no node {id}", where_(m.line)),
+                )
             })?;
             Ok(file.mesh.nodes[k])
         }
@@ -238,16 +245,23 @@ fn interpolated(
     use nalgebra::{Matrix4, Vector4};
     let what = || format!("measured '{name}' ({})", path.display());
     if xs.len() < 3 {
-        return Err(Error::Input(format!(
-            "{}: {} point(s); interpolation needs at least 3 (or set interpolate = false to \
+        return Err(Error::input(
+            InputKind::Value,
+            format!(
+                "{}: {} point(s); interpolation needs at least 3 (or set interpolate = false to \
              match points to nodes)",
-            what(),
-            xs.len()
-        )));
+                what(),
+                xs.len()
+            ),
+        ));
     }
     let pts: Vec<[f64; 3]> = xs.iter().map(|x| [x.x, x.y, x.z]).collect();
-    let tree = ImmutableKdTree::<f64, 3>::new_from_slice(&pts)
-        .map_err(|e| Error::Input(format!("{}: cannot index the points: {e:?}", what())))?;
+    let tree = ImmutableKdTree::<f64, 3>::new_from_slice(&pts).map_err(|e| {
+        Error::input(
+            InputKind::Value,
+            format!("{}: cannot index the points: {e:?}", what()),
+        )
+    })?;
     let two = std::num::NonZero::new(2).expect("2 > 0");
     let mut gaps: Vec<f64> = pts
         .iter()
@@ -310,9 +324,12 @@ fn interpolated(
             a += p * p.transpose() * w;
             pw.push((j as u32, p * w));
         }
-        let inv = a
-            .pseudo_inverse(1e-10 * a.norm())
-            .map_err(|e| Error::Input(format!("{}: fit at node {i}: {e}", what())))?;
+        let inv = a.pseudo_inverse(1e-10 * a.norm()).map_err(|e| {
+            Error::input(
+                InputKind::Value,
+                format!("{}: fit at node {i}: {e}", what()),
+            )
+        })?;
         // The fit's value at the node is the first coefficient, row 0 of the inverse applied
         // to sum_j p_j w_j u_j: linear in the measurements, with these weights.
         let row0 = inv.row(0);
@@ -324,12 +341,12 @@ fn interpolated(
         taken.push(i);
     }
     if taken.is_empty() {
-        return Err(Error::Input(format!(
-            "{}: no surface node lies within {reach:.3e} m of the {} measured points: check the \
+        return Err(Error::input(InputKind::Value, format!(
+            "{}: no surface node lies within {sci_reach:.3e} m of the {} measured points: check the \
              file's units (m) and frame, or raise measured.{name}.tolerance",
             what(),
             xs.len()
-        )));
+        , sci_reach = crate::error::Sci(reach))));
     }
     log::info!(
         "measured '{name}': {} points (spacing {spacing:.3e} m) interpolated onto {} surface nodes",

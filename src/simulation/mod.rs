@@ -1,5 +1,6 @@
 //! The pipeline of one run: scene -> mesh -> quadrature points -> model -> solver -> outputs.
 
+use crate::InputKind;
 use std::path::PathBuf;
 use std::time::Instant;
 
@@ -248,12 +249,12 @@ fn body_mesh(
 /// An inverted-element error with the element's id in the mesh file.
 fn name_file_element(e: Error, input: Option<&MeshInput>) -> Error {
     match (&e, input) {
-        (Error::InvalidElement { element, volume }, Some(m)) => Error::Input(format!(
-            "element {} (id {} in the mesh file) is inverted or degenerate: volume {volume:.6e} m^3; its volume (a hexahedron: its Jacobian \
+        (Error::InvalidElement { element, volume }, Some(m)) => Error::input(InputKind::Mesh, format!(
+            "element {} (id {} in the mesh file) is inverted or degenerate: volume {sci_volume:.6e} m^3; its volume (a hexahedron: its Jacobian \
              determinant at a corner or Gauss point) is not positive or below 1e-12 of its size cubed; check its node order and coordinates (a node far from the others makes a needle)",
             element,
             m.element_ids.get(*element).copied().unwrap_or(0)
-        )),
+        , sci_volume = crate::error::Sci(*volume))).element(*element).value(*volume),
         _ => e,
     }
 }
@@ -409,12 +410,15 @@ pub fn prepare(scene: &Scene) -> Result<Prepared> {
     if let Some(f) = &scene.output.image {
         let p = translate::scene_path(scene, f);
         if !p.is_file() {
-            return Err(Error::Input(format!(
+            return Err(Error::input(
+                InputKind::Value,
+                format!(
                 "output.image = '{}': no such file ({}); give the image to warp (the run would \
                  fail at its end)",
                 f.display(),
                 p.display()
-            )));
+            ),
+            ));
         }
     }
     if scene.solver.device == Device::Gpu {

@@ -3,6 +3,7 @@
 //! points of adaptive runs, the time history (CSV and SVG plots), relaxation records and
 //! `summary.json`. Units SI.
 
+use crate::InputKind;
 use std::path::{Path, PathBuf};
 
 use nalgebra::Vector3;
@@ -531,14 +532,13 @@ pub fn write_image_outputs(
             })
             .collect();
         let (ilo, ihi) = crate::geometry::select::bounds(&corners);
-        return Err(Error::Input(format!(
+        return Err(Error::input(InputKind::Value, format!(
             "output.image {}: none of its {} voxels lies in the deformed body: the image spans \
              [{:.4e}, {:.4e}, {:.4e}] to [{:.4e}, {:.4e}, {:.4e}] m, the body [{:.4e}, {:.4e}, {:.4e}] to \
              [{:.4e}, {:.4e}, {:.4e}] m (RAS); give an image of the same scene (check its origin, units and orientation)",
             path.display(),
             image.len(),
-            ilo.x, ilo.y, ilo.z, ihi.x, ihi.y, ihi.z, lo.x, lo.y, lo.z, hi.x, hi.y, hi.z
-        )));
+            crate::error::Sci(ilo.x), crate::error::Sci(ilo.y), crate::error::Sci(ilo.z), crate::error::Sci(ihi.x), crate::error::Sci(ihi.y), crate::error::Sci(ihi.z), crate::error::Sci(lo.x), crate::error::Sci(lo.y), crate::error::Sci(lo.z), crate::error::Sci(hi.x), crate::error::Sci(hi.y), crate::error::Sci(hi.z))));
     }
     let warped = crate::geometry::warp::warp(image, &d);
     let ext = match crate::io::image::ImageFormat::from_path(path) {
@@ -646,8 +646,12 @@ pub fn write_results(
             .collect();
         crate::io::csv::write_csv(&dir.join("relaxation.csv"), &header, &rows)?;
     }
-    let json = serde_json::to_string_pretty(summary)
-        .map_err(|e| Error::Input(format!("cannot serialise the summary: {e}")))?;
+    let json = serde_json::to_string_pretty(summary).map_err(|e| {
+        Error::input(
+            InputKind::Value,
+            format!("cannot serialise the summary: {e}"),
+        )
+    })?;
     std::fs::write(dir.join("summary.json"), json)
         .map_err(|e| Error::io(dir.join("summary.json"), e))?;
     Ok(())

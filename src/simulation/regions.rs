@@ -1,5 +1,6 @@
 //! Tissue regions: which material each quadrature point takes.
 
+use crate::InputKind;
 use nalgebra::Vector3;
 
 use crate::io::model::MeshInput;
@@ -50,7 +51,7 @@ pub(super) fn point_materials(
                     .filter(|&p| tool.signed_distance(&places.position[p]).0 > 0.0)
                     .collect();
                 if v.is_empty() {
-                    return Err(Error::Input(format!(
+                    return Err(Error::input(InputKind::Selection, format!(
                         "{what}: no integration point lies inside its surface (is it inside the body, in the body's units?)"
                     )));
                 }
@@ -59,9 +60,12 @@ pub(super) fn point_materials(
             _ if r.labels.is_some() => {
                 let labels = r.labels.as_deref().unwrap_or_default();
                 let Some((im, path)) = image.as_ref() else {
-                    return Err(Error::Input(format!(
+                    return Err(Error::input(
+                        InputKind::Value,
+                        format!(
                         "{what}: labels select voxels of geometry.image, which this scene has not"
-                    )));
+                    ),
+                    ));
                 };
                 let v: Vec<usize> = (0..n)
                     .filter(|&p| {
@@ -70,28 +74,37 @@ pub(super) fn point_materials(
                     })
                     .collect();
                 if v.is_empty() {
-                    return Err(Error::Input(format!(
+                    return Err(Error::input(
+                        InputKind::Selection,
+                        format!(
                         "{what}: no integration point lies in a voxel labelled {labels:?} of {} \
                          (the labels' tissue may be smaller than the discretization.size)",
                         path.display()
-                    )));
+                    ),
+                    ));
                 }
                 v
             }
-            (Some(sel), _) => sel
-                .select(&places.position, &what)
-                .map_err(|e| Error::Input(format!("{e} (a region selects integration points)")))?,
+            (Some(sel), _) => sel.select(&places.position, &what).map_err(|e| {
+                Error::input(
+                    InputKind::Value,
+                    format!("{e} (a region selects integration points)"),
+                )
+            })?,
             (None, Some(set)) => {
                 let m = input.ok_or_else(|| {
-                    Error::Input(format!(
+                    Error::input(InputKind::Value, format!(
                         "{what}: elements = '{set}' needs a mesh file (geometry.mesh) with that element set"
                     ))
                 })?;
                 let cells = m.element_sets.get(set).ok_or_else(|| {
                     let known: Vec<&String> = m.element_sets.keys().collect();
-                    Error::Input(format!(
-                        "{what}: the mesh file has no element set '{set}' (it has {known:?})"
-                    ))
+                    Error::input(
+                        InputKind::Selection,
+                        format!(
+                            "{what}: the mesh file has no element set '{set}' (it has {known:?})"
+                        ),
+                    )
                 })?;
                 let mut inside = vec![false; m.mesh.num_cells()];
                 for &e in cells {
@@ -103,28 +116,33 @@ pub(super) fn point_materials(
                     .filter(|&p| places.element[p].is_some_and(|e| inside.get(e) == Some(&true)))
                     .collect();
                 if v.is_empty() {
-                    return Err(Error::Input(format!(
+                    return Err(Error::input(
+                        InputKind::Selection,
+                        format!(
                         "{what}: no integration point lies in element set '{set}' (meshless \
                          points know their element only when the cloud is the mesh file's vertices)"
-                    )));
+                    ),
+                    ));
                 }
                 v
             }
             (None, None) => unreachable!("validated: a region selects"),
         };
-        let id =
-            u16::try_from(k + 1).map_err(|_| Error::Input("more than 65,534 regions".into()))?;
+        let id = u16::try_from(k + 1)
+            .map_err(|_| Error::input(InputKind::Limit, "more than 65,534 regions"))?;
         for &p in &members {
             if index[p] != 0 {
                 let x = places.position[p];
-                return Err(Error::Input(format!(
+                return Err(Error::input(
+                    InputKind::Value,
+                    format!(
                     "regions '{}' and '{name}' overlap at the point at ({:.4e}, {:.4e}, {:.4e}) m; \
                      a point takes one material: make the selections disjoint",
                     names[index[p] as usize - 1],
-                    x.x,
-                    x.y,
-                    x.z
-                )));
+                    crate::error::Sci(x.x),
+                    crate::error::Sci(x.y),
+                    crate::error::Sci(x.z)),
+                ));
             }
             index[p] = id;
         }

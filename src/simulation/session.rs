@@ -24,6 +24,7 @@
 //! # Ok::<(), hytled::Error>(())
 //! ```
 
+use crate::InputKind;
 use std::time::Instant;
 
 use nalgebra::Vector3;
@@ -137,14 +138,18 @@ impl Session {
             .position(|b| b.name == name)
             .ok_or_else(|| {
                 let names: Vec<&str> = boundaries.iter().map(|b| b.name.as_str()).collect();
-                Error::Input(format!(
-                    "no boundary named '{name}'; the model's boundaries: {}",
-                    if names.is_empty() {
-                        "none".to_string()
-                    } else {
-                        names.join(", ")
-                    }
-                ))
+                Error::input(
+                    InputKind::Selection,
+                    format!(
+                        "no boundary named '{name}'; the model's boundaries: {}",
+                        if names.is_empty() {
+                            "none".to_string()
+                        } else {
+                            names.join(", ")
+                        }
+                    ),
+                )
+                .key(format!("boundaries.{name}"))
             })
     }
 
@@ -165,26 +170,39 @@ impl Session {
     pub fn set_displacement(&mut self, name: &str, value: [Option<f64>; 3]) -> Result<()> {
         let b = self.boundary_mut(name)?;
         if b.measured.is_some() || b.node_values.is_some() {
-            return Err(Error::Input(format!(
+            return Err(Error::input(
+                InputKind::Value,
+                format!(
                 "boundary '{name}' prescribes a value per node (measured displacements); give new \
                  measurements with set_measured"
-            )));
+            ),
+            )
+            .key(format!("boundaries.{name}")));
         }
         for (c, v) in value.iter().enumerate() {
             let Some(v) = v else { continue };
             if !v.is_finite() {
-                return Err(Error::Input(format!(
-                    "boundary '{name}': {} displacement {v} m is not finite",
-                    ["x", "y", "z"][c]
-                )));
+                return Err(Error::input(
+                    InputKind::Value,
+                    format!(
+                        "boundary '{name}': {} displacement {v} m is not finite",
+                        ["x", "y", "z"][c]
+                    ),
+                )
+                .key(format!("boundaries.{name}"))
+                .value(*v));
             }
             if b.components[c].is_none() {
-                return Err(Error::Input(format!(
+                return Err(Error::input(
+                    InputKind::Value,
+                    format!(
                     "boundary '{name}' leaves its {} component free, so it cannot prescribe one \
                      now; prescribe it in the scene ([boundaries.{name}] displacement or fix) and \
                      prepare again",
                     ["x", "y", "z"][c]
-                )));
+                ),
+                )
+                .key(format!("boundaries.{name}")));
             }
         }
         for (c, v) in value.iter().enumerate() {
@@ -202,10 +220,13 @@ impl Session {
     }
 
     fn measured_map(&self, name: &str) -> Result<&crate::bc::MeasuredMap> {
-        self.boundary(name)?
-            .measured
-            .as_deref()
-            .ok_or_else(|| Error::Input(format!("boundary '{name}' is not a [measured] boundary")))
+        self.boundary(name)?.measured.as_deref().ok_or_else(|| {
+            Error::input(
+                InputKind::Value,
+                format!("boundary '{name}' is not a [measured] boundary"),
+            )
+            .key(format!("boundaries.{name}"))
+        })
     }
 
     /// The positions (m) of the measured points of `[measured.NAME]`, in its file's order.
@@ -238,9 +259,11 @@ impl Session {
     }
 
     fn no_contact(name: &str) -> Error {
-        Error::Input(format!(
-            "no rigid body named '{name}': the scene has no [contact]"
-        ))
+        Error::input(
+            InputKind::Selection,
+            format!("no rigid body named '{name}': the scene has no [contact]"),
+        )
+        .key(format!("contact.{name}"))
     }
 
     fn contact(&self, name: &str) -> Result<&crate::bc::contact::Contact> {
@@ -437,11 +460,14 @@ impl Session {
             ..
         } = &mut self.prep;
         if u.len() != model.nodes.len() {
-            return Err(Error::Input(format!(
-                "{} displacements for the model's {} nodes",
-                u.len(),
-                model.nodes.len()
-            )));
+            return Err(Error::input(
+                InputKind::Value,
+                format!(
+                    "{} displacements for the model's {} nodes",
+                    u.len(),
+                    model.nodes.len()
+                ),
+            ));
         }
         Ok(ResultPoints::new(mesh, method)?.point_fields(model, u))
     }

@@ -3,6 +3,7 @@
 //! (the node itself for FE nodes; shape functions for meshless and blended nodes, which do not
 //! interpolate) and the body's outward boundary faces with the rows at points on them.
 
+use crate::InputKind;
 use nalgebra::Vector3;
 
 use crate::bc::loads::Face;
@@ -69,10 +70,10 @@ impl<'a> Discretized<'a> {
         what: &dyn Fn() -> String,
     ) -> Result<SparseRow> {
         match self {
-            Discretized::Fe(..) => Err(Error::Input(format!(
-                "{}: FE faces take their nodes' values (internal)",
-                what()
-            ))),
+            Discretized::Fe(..) => Err(Error::input(
+                InputKind::Value,
+                format!("{}: FE faces take their nodes' values (internal)", what()),
+            )),
             Discretized::Meshless(b) => b.shape_values(x, what),
             Discretized::Coupled(b) => b.shape_values_in(cell, x, what),
         }
@@ -171,7 +172,8 @@ impl<'a> Discretized<'a> {
     /// interior less the faces they share.
     pub fn surface(&self) -> Result<Surface> {
         let faces = |m: &Mesh, what: &str| {
-            quality::boundary_faces_with_cells(m).map_err(|e| Error::Input(format!("{what}: {e}")))
+            quality::boundary_faces_with_cells(m)
+                .map_err(|e| Error::input(InputKind::Value, format!("{what}: {e}")))
         };
         match self {
             Discretized::Fe(m, _) => Ok(Surface {
@@ -183,10 +185,10 @@ impl<'a> Discretized<'a> {
             }),
             Discretized::Meshless(b) => {
                 if b.background.num_cells() == 0 {
-                    return Err(Error::Input(
+                    return Err(Error::input(
+                        InputKind::Unsupported,
                         "surface loads and contact on a meshless body need its boundary \
-                         triangles: use integration = 'tets' (or a cloud with background tets)"
-                            .into(),
+                         triangles: use integration = 'tets' (or a cloud with background tets)",
                     ));
                 }
                 Ok(Surface {

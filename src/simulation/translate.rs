@@ -2,6 +2,7 @@
 //! (built-in shapes, TetGen, mesh files), the material, the meshless and coupled settings and
 //! the integrator's. The only place besides the pipeline itself that reads a [`Scene`].
 
+use crate::InputKind;
 use std::path::PathBuf;
 
 use nalgebra::Vector3;
@@ -151,11 +152,11 @@ pub fn region_surface(
     let r = scene
         .regions
         .get(name)
-        .ok_or_else(|| Error::Input(format!("no region '{name}'")))?;
+        .ok_or_else(|| Error::input(InputKind::Selection, format!("no region '{name}'")))?;
     let file = r
         .surface
         .as_ref()
-        .ok_or_else(|| Error::Input(format!("region '{name}' has no surface")))?;
+        .ok_or_else(|| Error::input(InputKind::Value, format!("region '{name}' has no surface")))?;
     crate::io::surface_file::read_surface(&scene_path(scene, file), r.units.unwrap_or(1.0))
 }
 
@@ -261,7 +262,7 @@ pub fn build_mesh(scene: &Scene) -> Result<Mesh> {
                 Geometry::Surface { .. } => "geometry.surface (TetGen fills it) makes tetrahedra: use element = 'tet4-anp', 'tet4' or 'tet10'",
                 _ => "discretization.mesher = 'tetgen' makes tetrahedra: use element = 'tet4-anp', 'tet4' or 'tet10'",
             };
-            return Err(Error::Input(what.into()));
+            return Err(Error::input(InputKind::Unsupported, what));
         }
         log::info!("meshing with TetGen");
         let m = tetgen_mesh(scene)?;
@@ -284,10 +285,10 @@ pub fn build_mesh(scene: &Scene) -> Result<Mesh> {
             ElementShape::Hex8 => shapes::cylinder_hex(*radius, *height, ni, nr, nz),
             ElementShape::Tet4 => shapes::cylinder_tet(*radius, *height, ni, nr, nz),
         },
-        (Geometry::HalfEllipsoid { .. }, _) => Err(Error::Input(
+        (Geometry::HalfEllipsoid { .. }, _) => Err(Error::input(
+            InputKind::Unsupported,
             "geometry.shape = 'half_ellipsoid' has no structured mesh: use mesher = 'tetgen' \
-             (discretization.mesher = \"tetgen\" with element = 'tet4-anp' or 'tet4')"
-                .into(),
+             (discretization.mesher = \"tetgen\" with element = 'tet4-anp' or 'tet4')",
         )),
         _ => Ok(load_mesh(scene)?.mesh),
     }
@@ -336,8 +337,9 @@ pub fn planned_mesh(scene: &Scene, shape: ElementShape) -> Option<(f64, f64, Str
 }
 
 fn unreachable_sizing<T>() -> Result<T> {
-    Err(Error::Input(
-        "discretization: give `size` (m) or `divisions`".into(),
+    Err(Error::input(
+        InputKind::Value,
+        "discretization: give `size` (m) or `divisions`",
     ))
 }
 
@@ -357,8 +359,9 @@ fn tetgen_edge(scene: &Scene) -> Result<f64> {
                 .map(|(len, n)| len / n.max(1) as f64)
                 .fold(f64::INFINITY, f64::min))
         }
-        _ => Err(Error::Input(
-            "discretization.mesher = 'tetgen' needs `size` (target edge length, m)".into(),
+        _ => Err(Error::input(
+            InputKind::Value,
+            "discretization.mesher = 'tetgen' needs `size` (target edge length, m)",
         )),
     }
 }
@@ -438,8 +441,8 @@ fn tetgen_mesh(scene: &Scene) -> Result<Mesh> {
             );
             tetgen::tetgen_surface(&surface, &extra, max_volume, d.radius_edge_ratio, &what)
         }
-        Geometry::Mesh { .. } => Err(Error::Input(
-            "discretization.mesher = 'tetgen' meshes built-in shapes; a mesh file is used as it is (remove mesher)".into(),
+        Geometry::Mesh { .. } => Err(Error::input(InputKind::Value,
+            "discretization.mesher = 'tetgen' meshes built-in shapes; a mesh file is used as it is (remove mesher)",
         )),
     }
 }
@@ -543,17 +546,20 @@ pub fn dome_outlines(
         if hits.is_empty() {
             let known =
                 scene.boundaries.contains_key(&r.near) || scene.contact.contains_key(&r.near);
-            return Err(Error::Input(if known {
-                format!(
+            return Err(Error::input(
+                InputKind::Selection,
+                if known {
+                    format!(
                     "discretization.refine: near = '{}' has no outline the half-ellipsoid's mesh can                      follow; only a boundary selecting a cylinder about the z axis from a floor                      `min` below the dome (an indenter's plug) and a rigid cylinder tool along the                      z axis are features (radius at most {reach} m)",
                     r.near
                 )
-            } else {
-                format!(
+                } else {
+                    format!(
                     "discretization.refine: near = '{}' names no [boundaries] or [contact] entry",
                     r.near
                 )
-            }));
+                },
+            ));
         }
         for i in hits {
             let g = Grading {
@@ -572,7 +578,7 @@ pub fn dome_outlines(
 
 #[cfg(not(feature = "tetgen"))]
 fn tetgen_mesh(_scene: &Scene) -> Result<Mesh> {
-    Err(Error::Input("this hytled was built without the `tetgen` feature; use mesher = 'structured' or rebuild with default features".into()))
+    Err(Error::input(InputKind::Unsupported, "this hytled was built without the `tetgen` feature; use mesher = 'structured' or rebuild with default features"))
 }
 
 /// The scene's mesh file, read and scaled to m, checked against the element the scene asks for.
@@ -600,27 +606,31 @@ pub fn load_mesh_input(scene: &Scene) -> Result<Option<MeshInput>> {
     let kind: ElementKind = scene.discretization.element.into();
     let meshless = scene.discretization.method == Method::Meshless;
     if !meshless && m.mesh.shape != kind.shape() {
-        return Err(Error::Input(format!(
-            "{}: the mesh has {} cells but discretization.element = '{}'; use {}",
-            path.display(),
-            if m.mesh.shape == ElementShape::Hex8 {
-                "hexahedral"
-            } else {
-                "tetrahedral"
-            },
-            kind.name(),
-            if m.mesh.shape == ElementShape::Hex8 {
-                "element = 'hex8'"
-            } else {
-                "element = 'tet4-anp' (or 'tet4')"
-            }
-        )));
+        return Err(Error::input(
+            InputKind::Mesh,
+            format!(
+                "{}: the mesh has {} cells but discretization.element = '{}'; use {}",
+                path.display(),
+                if m.mesh.shape == ElementShape::Hex8 {
+                    "hexahedral"
+                } else {
+                    "tetrahedral"
+                },
+                kind.name(),
+                if m.mesh.shape == ElementShape::Hex8 {
+                    "element = 'hex8'"
+                } else {
+                    "element = 'tet4-anp' (or 'tet4')"
+                }
+            ),
+        ));
     }
     Ok(Some(m))
 }
 
 fn load_mesh(scene: &Scene) -> Result<MeshInput> {
-    load_mesh_input(scene)?.ok_or_else(|| Error::Input("the scene has no mesh file".into()))
+    load_mesh_input(scene)?
+        .ok_or_else(|| Error::input(InputKind::Value, "the scene has no mesh file"))
 }
 
 /// Warnings a mesh file deserves: duplicate nodes (coincident within 1e-9 x the bounding-box
@@ -744,7 +754,7 @@ pub fn domain(scene: &Scene) -> Option<Domain> {
 
 fn need_domain(scene: &Scene, what: &str) -> Result<Domain> {
     domain(scene).ok_or_else(|| {
-        Error::Input(format!(
+        Error::input(InputKind::Unsupported, format!(
             "{what} needs a built-in shape (box or cylinder); with geometry.mesh use cloud = 'mesh' or 'file' and integration = 'tets'"
         ))
     })
@@ -757,7 +767,10 @@ pub fn spacing(scene: &Scene) -> Result<f64> {
         return Ok(h);
     }
     let div = d.divisions.ok_or_else(|| {
-        Error::Input("discretization: give `size` (node spacing, m) or `divisions`".into())
+        Error::input(
+            InputKind::Value,
+            "discretization: give `size` (node spacing, m) or `divisions`",
+        )
     })?;
     Ok(match &scene.geometry {
         Geometry::Box { min, max } => (0..3)
@@ -773,9 +786,9 @@ pub fn spacing(scene: &Scene) -> Result<f64> {
             .map(|(len, n)| len / n.max(1) as f64)
             .fold(f64::INFINITY, f64::min),
         Geometry::Mesh { .. } | Geometry::Surface { .. } | Geometry::Image { .. } => {
-            return Err(Error::Input(
-                "a node spacing from `divisions` needs a built-in shape; give discretization.size"
-                    .into(),
+            return Err(Error::input(
+                InputKind::Value,
+                "a node spacing from `divisions` needs a built-in shape; give discretization.size",
             ))
         }
     })
@@ -833,11 +846,14 @@ pub fn generated_cloud(scene: &Scene) -> Result<(Vec<Vector3<f64>>, String, f64)
             let count = 3 * cloud::jittered_lattice(domain, h, 0.0, 0)?.len();
             let nodes =
                 cloud::halton_fill(domain, count, d.min_spacing * h, d.seed).map_err(|e| {
-                    Error::Input(format!(
+                    Error::input(
+                        InputKind::Value,
+                        format!(
                     "discretization.cloud = 'halton' with min_spacing = {} (x size {h} m): {e}; \
                      min_spacing is a fraction of size (default 0.85)",
                     d.min_spacing
-                ))
+                ),
+                    )
                 })?;
             Ok((
                 nodes,
@@ -849,17 +865,22 @@ pub fn generated_cloud(scene: &Scene) -> Result<(Vec<Vector3<f64>>, String, f64)
                 h,
             ))
         }
-        other => Err(Error::Input(format!(
-            "cloud = '{other:?}' is not a generated cloud (use 'lattice' or 'halton')"
-        ))),
+        other => Err(Error::input(
+            InputKind::Value,
+            format!("cloud = '{other:?}' is not a generated cloud (use 'lattice' or 'halton')"),
+        )),
     }
 }
 
 /// The scene's rule per background tet (`tet_rule`: 1, 4 or 5 points).
 pub fn tet_rule(scene: &Scene) -> Result<TetRule> {
     let n = scene.discretization.tet_rule();
-    TetRule::from_points(n)
-        .ok_or_else(|| Error::Input(format!("discretization.tet_rule = {n}: use 1, 4 or 5")))
+    TetRule::from_points(n).ok_or_else(|| {
+        Error::input(
+            InputKind::Value,
+            format!("discretization.tet_rule = {n}: use 1, 4 or 5"),
+        )
+    })
 }
 
 /// The scene's adaptive-integration settings: `tolerance`, `tet_rule` (the base rule),
@@ -982,9 +1003,10 @@ pub(super) fn load_curve(scene: &Scene, name: &str) -> Result<LoadCurve> {
         return Ok(c);
     }
     let spec = scene.curves.get(name).ok_or_else(|| {
-        Error::Input(format!(
-            "no curve '{name}' (built in: smooth, ramp, constant, smooth-return)"
-        ))
+        Error::input(
+            InputKind::Selection,
+            format!("no curve '{name}' (built in: smooth, ramp, constant, smooth-return)"),
+        )
     })?;
     let what = format!("curves.{name}");
     let points = match (&spec.points, &spec.file) {

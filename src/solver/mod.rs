@@ -13,6 +13,7 @@ pub mod statics;
 pub mod timestep;
 mod two_ended;
 
+use crate::InputKind;
 use nalgebra::{Matrix3, Vector3};
 
 use crate::bc::contact::Contact;
@@ -171,13 +172,16 @@ impl BoundaryLayout {
 fn check_boundary_values(b: &Boundary) -> Result<()> {
     if let Some(v) = &b.node_values {
         if v.len() != b.nodes.len() {
-            return Err(crate::Error::Input(format!(
+            return Err(crate::Error::input(
+                InputKind::Value,
+                format!(
                 "boundary '{}': {} node values for its {} nodes; give one [x, y, z] per node, in \
                  the order of its nodes",
                 b.name,
                 v.len(),
                 b.nodes.len()
-            )));
+            ),
+            ));
         }
     }
     // Per-node values replace the uniform ones on the prescribed components.
@@ -185,11 +189,14 @@ fn check_boundary_values(b: &Boundary) -> Result<()> {
     for k in 0..entries {
         for c in 0..3 {
             if let Some(x) = b.value(k, c).filter(|x| !x.is_finite()) {
-                return Err(crate::Error::Input(format!(
+                return Err(crate::Error::input(
+                    InputKind::Value,
+                    format!(
                     "boundary '{}': prescribed {} displacement {x} m (its entry {k}) is not finite",
                     b.name,
                     ["x", "y", "z"][c]
-                )));
+                ),
+                ));
             }
         }
     }
@@ -226,12 +233,15 @@ impl<M: Material> Model<M> {
                 .iter()
                 .any(|&m| m as usize >= materials.len())
         {
-            return Err(crate::Error::Input(format!(
-                "{} point materials for {} points and {} materials",
-                point_material.len(),
-                points.len(),
-                materials.len()
-            )));
+            return Err(crate::Error::input(
+                InputKind::Value,
+                format!(
+                    "{} point materials for {} points and {} materials",
+                    point_material.len(),
+                    points.len(),
+                    materials.len()
+                ),
+            ));
         }
         let (points, point_ids) = order::spatial_order(points, &nodes);
         // The materials follow their points into the spatial order.
@@ -258,13 +268,13 @@ impl<M: Material> Model<M> {
             })
             .collect();
         if let Some(i) = mass.iter().position(|&m| !(m > 0.0)) {
-            return Err(crate::Error::Input(format!(
+            return Err(crate::Error::input(InputKind::Mesh, format!(
                 "node {i} at {:?} m belongs to no element and lies in no integration point's support, so it \
                  has no mass: remove unused nodes from the mesh, or, for a meshless node, give the \
                  points larger supports (discretization.dilatation, support_nodes) or more points \
                  (a smaller tets_per_point, a larger point_ratio)",
                 nodes[i].as_slice()
-            )));
+            )).node(i));
         }
         for b in &boundaries {
             check_boundary_values(b)?;
@@ -311,18 +321,22 @@ impl<M: Material> Model<M> {
     /// not positive.
     pub fn set_lumped_masses(&mut self, mass: &[f64]) -> Result<()> {
         if mass.len() != self.mass.len() {
-            return Err(crate::Error::Input(format!(
-                "{} lumped masses for {} nodes",
-                mass.len(),
-                self.mass.len()
-            )));
+            return Err(crate::Error::input(
+                InputKind::Value,
+                format!("{} lumped masses for {} nodes", mass.len(), self.mass.len()),
+            ));
         }
         if let Some(i) = mass.iter().position(|&v| !(v > 0.0)) {
-            return Err(crate::Error::Input(format!(
-                "node {i} at {:?} m has lumped mass {:.3e} kg; it needs a positive mass",
-                self.nodes[i].as_slice(),
-                mass[i]
-            )));
+            return Err(crate::Error::input(
+                InputKind::Value,
+                format!(
+                    "node {i} at {:?} m has lumped mass {:.3e} kg; it needs a positive mass",
+                    self.nodes[i].as_slice(),
+                    crate::error::Sci(mass[i])
+                ),
+            )
+            .node(i)
+            .value(mass[i]));
         }
         self.mass.copy_from_slice(mass);
         self.masses_uneven = true;
@@ -376,11 +390,10 @@ impl<M: Material> Model<M> {
     /// [`Self::scale_masses`] of this model gave.
     pub fn set_scaled_masses(&mut self, mass: &[f64]) -> Result<()> {
         if mass.len() != self.mass.len() {
-            return Err(crate::Error::Input(format!(
-                "{} scaled masses for {} nodes",
-                mass.len(),
-                self.mass.len()
-            )));
+            return Err(crate::Error::input(
+                InputKind::Value,
+                format!("{} scaled masses for {} nodes", mass.len(), self.mass.len()),
+            ));
         }
         self.mass.copy_from_slice(mass);
         self.masses_uneven = true;
@@ -455,12 +468,15 @@ impl<M: Material> Model<M> {
     /// built on them: prepare the model again).
     pub fn apply_boundary_changes(&mut self) -> Result<()> {
         if self.boundaries.len() != self.layout.len() {
-            return Err(crate::Error::Input(format!(
+            return Err(crate::Error::input(
+                InputKind::Value,
+                format!(
                 "the model was built with {} boundaries and now has {}: boundaries cannot be added \
                  or removed after preparing; prepare the model again with them",
                 self.layout.len(),
                 self.boundaries.len()
-            )));
+            ),
+            ));
         }
         for (b, was) in self.boundaries.iter().zip(&self.layout) {
             let now = BoundaryLayout::of(b);
@@ -480,12 +496,15 @@ impl<M: Material> Model<M> {
                 } else {
                     "its values changed between uniform and per node".to_string()
                 };
-                return Err(crate::Error::Input(format!(
-                    "boundary '{}' {what} after the model was prepared: the constraints and \
+                return Err(crate::Error::input(
+                    InputKind::Value,
+                    format!(
+                        "boundary '{}' {what} after the model was prepared: the constraints and \
                      corrections were built on its nodes and components, so only its values and \
                      curve may change between runs; prepare the model again for a new selection",
-                    b.name
-                )));
+                        b.name
+                    ),
+                ));
             }
             check_boundary_values(b)?;
         }

@@ -1,5 +1,6 @@
 //! ABAQUS/CAE's parts, assembly and instances: placed copies merged into one body.
 
+use crate::InputKind;
 use std::collections::{BTreeMap, HashMap, HashSet};
 
 use nalgebra::Vector3;
@@ -130,13 +131,10 @@ impl Placement {
 
 /// Adds "[instance 'I' of part 'P']" to an input error.
 fn in_instance(e: Error, inst: &InstanceDef) -> Error {
-    match e {
-        Error::Input(m) => Error::Input(format!(
-            "{m} [instance '{}' of part '{}']",
-            inst.name, inst.part
-        )),
-        other => other,
-    }
+    e.append(&format!(
+        " [instance '{}' of part '{}']",
+        inst.name, inst.part
+    ))
 }
 
 /// Node and element ids of one instance read, with their positions in the merged mesh.
@@ -520,7 +518,7 @@ impl Merged {
             }
         }
         let Some((shape, _)) = shape else {
-            return Err(Error::Input(format!(
+            return Err(Error::input(InputKind::Format, format!(
                 "{}: no volume elements (C3D8*/C3D4*) found in any part instance; hytled needs a hexahedral or tetrahedral volume mesh",
                 files.name(0)
             )));

@@ -1,5 +1,6 @@
 //! Lines of a deck with its `*INCLUDE` files flattened in, and keyword lines parsed.
 
+use crate::InputKind;
 use std::borrow::Cow;
 use std::path::{Path, PathBuf};
 
@@ -37,7 +38,16 @@ impl Files {
     }
 
     pub(super) fn err(&self, loc: Loc, msg: impl std::fmt::Display) -> Error {
-        Error::Input(format!("{}: {msg}", self.at(loc)))
+        located(&self.0, loc, msg)
+    }
+}
+
+/// A format error at `loc`, the file and line as facts: "FILE:LINE: message".
+fn located(files: &[PathBuf], loc: Loc, msg: impl std::fmt::Display) -> Error {
+    let e = Error::input(InputKind::Format, msg.to_string());
+    match files.get(loc.file) {
+        Some(p) => e.file(p).line(loc.line),
+        None => e.append(&format!(" (line {})", loc.line)),
     }
 }
 
@@ -151,12 +161,7 @@ pub(super) struct Flattener {
 
 impl Flattener {
     pub(super) fn err(&self, loc: Loc, msg: impl std::fmt::Display) -> Error {
-        let name = self
-            .files
-            .get(loc.file)
-            .map(|p| p.display().to_string())
-            .unwrap_or_default();
-        Error::Input(format!("{name}:{}: {msg}", loc.line))
+        located(&self.files, loc, msg)
     }
 
     /// Non-blank, non-comment lines of a text, trimmed, with 1-based line numbers.

@@ -1,5 +1,6 @@
 //! The parser state: one body's nodes, elements, sets and surfaces read keyword by keyword.
 
+use crate::InputKind;
 use std::collections::HashMap;
 
 use nalgebra::Vector3;
@@ -133,7 +134,7 @@ impl<'f> Parser<'f> {
                 );
                 return Err(match loc {
                     Some(l) => self.err(l, msg),
-                    None => Error::Input(msg),
+                    None => Error::input(InputKind::Format, msg),
                 });
             }
         }
@@ -511,7 +512,7 @@ impl<'f> Parser<'f> {
 
     pub(super) fn finish(self) -> Result<MeshInput> {
         if self.shape.is_none() {
-            return Err(Error::Input(format!(
+            return Err(Error::input(InputKind::Format, format!(
                 "{}: no volume elements (C3D8*/C3D4*) found; hytled needs a hexahedral or tetrahedral volume mesh",
                 self.files.name(0)
             )));

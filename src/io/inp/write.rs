@@ -1,5 +1,6 @@
 //! The writer: a mesh and its sets as an `.inp` deck.
 
+use crate::InputKind;
 use std::collections::{HashMap, HashSet};
 use std::fmt::Write as _;
 use std::path::Path;
@@ -14,16 +15,19 @@ use super::lines::upper;
 /// A name as a parameter value: quoted when it has blanks; error when `.inp` cannot carry it.
 fn name_value(kind: &str, name: &str, path: &Path) -> Result<String> {
     if name.is_empty() {
-        return Err(Error::Input(format!(
-            "{}: a {kind} with an empty name cannot be written to .inp",
-            path.display()
-        )));
+        return Err(Error::input(
+            InputKind::Value,
+            format!(
+                "{}: a {kind} with an empty name cannot be written to .inp",
+                path.display()
+            ),
+        ));
     }
     if name
         .chars()
         .any(|c| matches!(c, ',' | '"' | '=') || c.is_control())
     {
-        return Err(Error::Input(format!(
+        return Err(Error::input(InputKind::Value, format!(
             "{}: {kind} '{name}' contains ',', '\"', '=' or a control character, which .inp cannot carry; rename it",
             path.display()
         )));
@@ -41,7 +45,7 @@ fn check_case_clash<'n>(names: impl Iterator<Item = &'n String>, path: &Path) ->
     for n in names {
         if let Some(prev) = seen.insert(upper(n), n) {
             if prev != n {
-                return Err(Error::Input(format!(
+                return Err(Error::input(InputKind::Value, format!(
                     "{}: set names '{prev}' and '{n}' differ only in case; ABAQUS names are case-insensitive, rename one",
                     path.display()
                 )));
@@ -76,7 +80,7 @@ fn write_id_lines(s: &mut String, ids: impl Iterator<Item = u64>) {
 }
 
 pub(super) fn format_inp(m: &MeshInput, path: &Path) -> Result<String> {
-    let bad = |msg: String| Error::Input(format!("{}: {msg}", path.display()));
+    let bad = |msg: String| Error::input(InputKind::Value, format!("{}: {msg}", path.display()));
     let mesh = &m.mesh;
     let n = mesh.nodes.len();
     let npe = mesh.shape.nodes_per_cell();

@@ -4,6 +4,7 @@
 //! that: it is maintained, needs no CUDA at build time, and compiles the kernels at run time
 //! for whatever GPU is there.
 
+use crate::InputKind;
 use std::ffi::c_void;
 use std::sync::Arc;
 
@@ -74,7 +75,7 @@ impl Pinned {
 unsafe impl Send for Cuda {}
 
 fn err(what: &str, e: impl std::fmt::Display) -> Error {
-    Error::Input(format!("--device gpu: {what}: {e}"))
+    Error::input(InputKind::Unsupported, format!("--device gpu: {what}: {e}"))
 }
 
 /// The checks of [`Cuda::new`] before the context: the libraries load, the driver starts and
@@ -82,26 +83,27 @@ fn err(what: &str, e: impl std::fmt::Display) -> Error {
 pub fn probe() -> Result<()> {
     // SAFETY: only probes whether the libraries can be loaded.
     if !unsafe { sys::is_culib_present() } {
-        return Err(Error::Input(
+        return Err(Error::input(
+            InputKind::Unsupported,
             "--device gpu: no NVIDIA driver found (libcuda.so could not be loaded); install \
-                 the NVIDIA driver, or run with --device cpu"
-                .into(),
+                 the NVIDIA driver, or run with --device cpu",
         ));
     }
     // SAFETY: as above.
     if !unsafe { cudarc::nvrtc::sys::is_culib_present() } {
-        return Err(Error::Input(
+        return Err(Error::input(
+            InputKind::Unsupported,
             "--device gpu: NVRTC, CUDA's run-time compiler, was not found (libnvrtc.so); \
                  install the CUDA toolkit or its nvrtc package and put the folder holding \
-                 libnvrtc.so on LD_LIBRARY_PATH, or run with --device cpu"
-                .into(),
+                 libnvrtc.so on LD_LIBRARY_PATH, or run with --device cpu",
         ));
     }
     result::init().map_err(|e| err("the NVIDIA driver failed to start", e))?;
     let count = result::device::get_count().map_err(|e| err("counting GPUs", e))?;
     if count < 1 {
-        return Err(Error::Input(
-            "--device gpu: the NVIDIA driver sees no GPU; run with --device cpu".into(),
+        return Err(Error::input(
+            InputKind::Unsupported,
+            "--device gpu: the NVIDIA driver sees no GPU; run with --device cpu",
         ));
     }
     Ok(())

@@ -4,6 +4,7 @@
 //! the GPU loop bitwise against the CPU path on machines with no GPU; it is far slower than
 //! either and not meant for runs.
 
+use crate::InputKind;
 use std::ffi::c_void;
 use std::path::PathBuf;
 use std::process::Command;
@@ -104,7 +105,7 @@ fn library() -> Result<&'static libloading::Library> {
     static LIB: OnceLock<std::result::Result<libloading::Library, String>> = OnceLock::new();
     LIB.get_or_init(build)
         .as_ref()
-        .map_err(|e| Error::Input(e.clone()))
+        .map_err(|e| Error::input(InputKind::Unsupported, e.clone()))
 }
 
 fn build() -> std::result::Result<libloading::Library, String> {
@@ -202,10 +203,13 @@ impl Backend for Emulator {
         // the parameters point to values of the kernel's argument types (Resident's launches).
         let _one = LAUNCH.lock().unwrap_or_else(|e| e.into_inner());
         unsafe {
-            let f: libloading::Symbol<unsafe extern "C" fn(u32, u32, *mut *mut c_void)> = self
-                .lib
-                .get(name.as_bytes())
-                .map_err(|e| Error::Input(format!("emulator kernel {name}: {e}")))?;
+            let f: libloading::Symbol<unsafe extern "C" fn(u32, u32, *mut *mut c_void)> =
+                self.lib.get(name.as_bytes()).map_err(|e| {
+                    Error::input(
+                        InputKind::Unsupported,
+                        format!("emulator kernel {name}: {e}"),
+                    )
+                })?;
             f(grid, BLOCK, params.as_mut_ptr());
         }
         Ok(())

@@ -154,10 +154,10 @@ pub fn cuda() -> Result<Box<dyn Backend>> {
     }
     #[cfg(not(feature = "gpu"))]
     {
-        Err(crate::Error::Input(
+        Err(crate::Error::input(
+            crate::InputKind::Unsupported,
             "--device gpu: this hytled was built without the `gpu` feature; build it with \
-             `cargo build --release` (the feature is on by default) or run with --device cpu"
-                .into(),
+             `cargo build --release` (the feature is on by default) or run with --device cpu",
         ))
     }
 }

@@ -1,5 +1,6 @@
 //! The run's state on the device and the launches of one step.
 
+use crate::InputKind;
 use std::ffi::c_void;
 
 use nalgebra::Vector3;
@@ -135,13 +136,16 @@ impl Resident {
         let need = t.device_bytes();
         if let Some(free) = dev.free_memory() {
             if need > free {
-                return Err(Error::Input(format!(
-                    "--device gpu: the model needs {} of GPU memory and {} has {} free; use a \
+                return Err(Error::input(
+                    InputKind::Limit,
+                    format!(
+                        "--device gpu: the model needs {} of GPU memory and {} has {} free; use a \
                      coarser discretization, a GPU with more memory, or --device cpu",
-                    Size(need as f64),
-                    dev.describe(),
-                    Size(free as f64)
-                )));
+                        Size(need as f64),
+                        dev.describe(),
+                        Size(free as f64)
+                    ),
+                ));
             }
         }
         let mut up = |v: &[u8]| -> Result<u64> {

@@ -4,6 +4,7 @@ use crate::bc::Constraints;
 use crate::material::Material;
 use crate::quadrature::PointKind;
 use crate::solver::Model;
+use crate::InputKind;
 use crate::{Error, Result};
 
 /// Host copies of everything the kernels read, in their layout: u32 ids, f64 values, vectors
@@ -68,9 +69,12 @@ pub(crate) const WIDE: usize = 8;
 /// u32 of a count, or the error that the model is too large for the kernels' 32-bit ids.
 fn id(n: usize, what: &str) -> Result<u32> {
     u32::try_from(n).map_err(|_| {
-        Error::Input(format!(
+        Error::input(
+            InputKind::Unsupported,
+            format!(
             "--device gpu: {n} {what} exceed the GPU kernels' 32-bit ids; run with --device cpu"
-        ))
+        ),
+        )
     })
 }
 
@@ -79,9 +83,12 @@ impl Tables {
     /// something the GPU loop does not evaluate yet.
     pub fn new<M: Material>(model: &Model<M>, cons: &Constraints) -> Result<Self> {
         let unsupported = |what: &str| {
-            Err(Error::Input(format!(
-                "--device gpu does not evaluate {what} yet; run this scene with --device cpu"
-            )))
+            Err(Error::input(
+                InputKind::Unsupported,
+                format!(
+                    "--device gpu does not evaluate {what} yet; run this scene with --device cpu"
+                ),
+            ))
         };
         let qp = &model.points;
         let n = model.nodes.len();

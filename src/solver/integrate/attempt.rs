@@ -1,6 +1,7 @@
 //! One pass of the time loop from the unloaded state at a fixed dt_factor (the caller,
 //! [`super::run`], restarts relaxation with a shorter step after an instability).
 
+use crate::InputKind;
 use std::time::Instant;
 
 use nalgebra::Vector3;
@@ -66,7 +67,7 @@ pub(super) fn attempt<M: Material>(
             Mode::Dynamic => format!(
                 "at step {} of the dynamic run, t = {:.6e} s",
                 pass.step,
-                pass.time.time(pass.step)
+                crate::error::Sci(pass.time.time(pass.step))
             ),
         })?;
         let t0 = pass.gpu.is_some().then(Instant::now);
@@ -118,15 +119,15 @@ fn contact_conflict<M: Material>(
         [one] => format!("boundary {one} prescribes"),
         [rest @ .., last] => format!("boundaries {} and {last} prescribe", rest.join(", ")),
     };
-    Error::Input(format!(
+    Error::input(InputKind::Value, format!(
         "contact '{name}' pushes {:.3e} m into the surface point at ({:.4e}, {:.4e}, {:.4e}) m (node {}) at \
          step {step} ({:.1} % of its curve), but {by} that node along the push: the contact \
          cannot move it without undoing that condition, so the rigid body would pass through the tissue. Leave these nodes out of the \
          contact (its select) or out of the boundary, or stop the rigid body before it reaches them",
-        c.depth,
-        c.x.x,
-        c.x.y,
-        c.x.z,
+        crate::error::Sci(c.depth),
+        crate::error::Sci(c.x.x),
+        crate::error::Sci(c.x.y),
+        crate::error::Sci(c.x.z),
         c.node,
         100.0 * load.min(1.0)
     ))
@@ -260,24 +261,29 @@ impl<'a, M: Material> Pass<'a, M> {
         let warm = s.warm_start.as_ref();
         if let Some(w) = warm {
             if dynamic {
-                return Err(Error::Input(
+                return Err(Error::input(InputKind::Value,
                     "a warm start continues a relaxation from its equilibrium; a dynamic run's answer \
-                     is its path from the initial state, so it cannot start from another run's end"
-                        .into(),
+                     is its path from the initial state, so it cannot start from another run's end",
                 ));
             }
             if w.u.len() != n {
-                return Err(Error::Input(format!(
+                return Err(Error::input(
+                    InputKind::Value,
+                    format!(
                     "the warm start has {} displacements for the model's {n} nodes: it comes from \
                      another model; start from the unloaded state",
                     w.u.len()
-                )));
+                ),
+                ));
             }
             if let Some(i) = w.u.iter().position(|x| !x.iter().all(|c| c.is_finite())) {
-                return Err(Error::Input(format!(
-                    "the warm start's displacement of node {i} is not finite; start from the \
+                return Err(Error::input(
+                    InputKind::Value,
+                    format!(
+                        "the warm start's displacement of node {i} is not finite; start from the \
                      unloaded state"
-                )));
+                    ),
+                ));
             }
         }
         let hints = Hints::new(s, critical);
@@ -339,10 +345,10 @@ impl<'a, M: Material> Pass<'a, M> {
         let initial = s.initial_velocity.as_ref().or(rigid.as_ref());
         if let (true, Some(v0)) = (dynamic, initial) {
             if v0.len() != n {
-                return Err(Error::Input(format!(
-                    "initial velocity has {} entries for {n} nodes",
-                    v0.len()
-                )));
+                return Err(Error::input(
+                    InputKind::Value,
+                    format!("initial velocity has {} entries for {n} nodes", v0.len()),
+                ));
             }
             // Backward difference: u(-1) = u(0) - v0 dt on the free DOFs.
             for i in 0..n {
@@ -409,9 +415,8 @@ impl<'a, M: Material> Pass<'a, M> {
         let assisted = model.corrector.is_some() || model.contact.is_some() || has_loads || damped;
         if let Some(g) = gpu.as_mut() {
             if damped && !late.is_empty() {
-                return Err(Error::Input(
-                    "--device gpu does not run damped dynamics with EBCIEM / SEBCIEM corrections                      or contact yet; set solver.damping = 0 or run with --device cpu"
-                        .into(),
+                return Err(Error::input(InputKind::Unsupported,
+                    "--device gpu does not run damped dynamics with EBCIEM / SEBCIEM corrections                      or contact yet; set solver.damping = 0 or run with --device cpu",
                 ));
             }
             g.set_mask(&cons.mask, &is_late)?;
@@ -517,23 +522,22 @@ impl<'a, M: Material> Pass<'a, M> {
         }
         if target < UPDATE_MIN_RATIO * self.updates.dt_initial {
             let msg = format!(
-                "the critical step fell to {crit:.4e} s at step {step}, t = {t_now:.6} s, below {:.0} % of \
+                "the critical step fell to {sci_crit:.4e} s at step {step}, t = {t_now:.6} s, below {:.0} % of \
                  the initial step {:.4e} s: a point is collapsing under the load (the largest frequency \
                  has risen {:.0}x). Refine where the body is compressed most, use a slower load, or \
                  check the boundary conditions",
                 100.0 * UPDATE_MIN_RATIO,
-                self.updates.dt_initial,
+                crate::error::Sci(self.updates.dt_initial),
                 (self.dt_crit / DEFORMATION_ALLOWANCE / e.critical_step()).max(1.0)
-            );
+            , sci_crit = crate::error::Sci(crit));
             return Err(self.unstable(msg));
         }
         let old_dt = self.time.dt;
         if let Err(k) = self.time.shorten(step, target, self.s) {
             let msg = format!(
-                "the critical step fell to {crit:.4e} s at step {step}, t = {t_now:.6} s, and the rest of \
-                 the run would need {k:.3e} more steps: use a slower load or a coarser mesh where \
-                 the body is compressed most, or set solver.max_steps to run it anyway"
-            );
+                "the critical step fell to {sci_crit:.4e} s at step {step}, t = {t_now:.6} s, and the rest of \
+                 the run would need {sci_k:.3e} more steps: use a slower load or a coarser mesh where \
+                 the body is compressed most, or set solver.max_steps to run it anyway", sci_crit = crate::error::Sci(crit), sci_k = crate::error::Sci(k));
             return Err(self.unstable(msg));
         }
         if self.dynamic {
@@ -599,17 +603,17 @@ impl<'a, M: Material> Pass<'a, M> {
         );
         let msg = format!(
             "integration point {id} near ({:.4e}, {:.4e}, {:.4e}) m inverted (J = {min_j:.4}) at step {step}, t = {t:.6} s \
-             (dt = {dt:.4e} s, {:.3} x the critical estimate {crit:.4e} s; one-point FE meshes number points as their elements). \
+             (dt = {sci_dt:.4e} s, {:.3} x the critical estimate {sci_crit:.4e} s; one-point FE meshes number points as their elements). \
              The load is too large or fast for this discretization, or the step too large: reduce solver.dt_factor \
              (large compression shortens the elements below the estimate, {}){}, refine, or use a slower load{}",
-            near.x,
-            near.y,
-            near.z,
+            crate::error::Sci(near.x),
+            crate::error::Sci(near.y),
+            crate::error::Sci(near.z),
             dt / crit,
             estimated_at(self.updates.estimates, self.schedule.last),
             self.hints.estimate,
             self.hints.damping
-        );
+        , sci_dt = crate::error::Sci(dt), sci_crit = crate::error::Sci(crit));
         Err(self.unstable(msg))
     }
 
@@ -662,11 +666,11 @@ impl<'a, M: Material> Pass<'a, M> {
             {
                 let (dt, crit) = (self.time.dt, self.crit_now);
                 let msg = format!(
-                    "kinetic energy {ke:.4e} J exceeds ten times the work done on the body ({external_work:.4e} J) at step {step}, t = {t:.6} s: \
-                     the integration is unstable with dt = {dt:.4e} s ({:.3} x the critical estimate {crit:.4e} s); reduce solver.dt_factor{}",
+                    "kinetic energy {sci_ke:.4e} J exceeds ten times the work done on the body ({sci_external_work:.4e} J) at step {step}, t = {t:.6} s: \
+                     the integration is unstable with dt = {sci_dt:.4e} s ({:.3} x the critical estimate {sci_crit:.4e} s); reduce solver.dt_factor{}",
                     dt / crit,
                     self.hints.estimate
-                );
+                , sci_ke = crate::error::Sci(ke), sci_external_work = crate::error::Sci(external_work), sci_dt = crate::error::Sci(dt), sci_crit = crate::error::Sci(crit));
                 return Err(self.unstable(msg));
             }
             let largest = self.f.iter().map(|v| v.amax()).fold(0.0, f64::max);
@@ -912,13 +916,13 @@ impl<'a, M: Material> Pass<'a, M> {
         if !max_u.is_finite() || !max_du.is_finite() || max_u > 10.0 * size || max_du > max_rate {
             let crit = self.crit_now;
             let msg = format!(
-                "the solution diverged at step {step}, t = {t:.6} s (largest displacement {max_u:.3e} m, largest change in one step {max_du:.3e} m): \
-                 dt = {dt:.4e} s is {:.3} x the critical estimate {crit:.4e} s ({}); reduce solver.dt_factor (default 0.9; \
+                "the solution diverged at step {step}, t = {t:.6} s (largest displacement {sci_max_u:.3e} m, largest change in one step {sci_max_du:.3e} m): \
+                 dt = {sci_dt:.4e} s is {:.3} x the critical estimate {sci_crit:.4e} s ({}); reduce solver.dt_factor (default 0.9; \
                  the estimate holds for the body as it was when made, and large compression lowers the critical step){}",
                 dt / crit,
                 estimated_at(self.updates.estimates, self.schedule.last),
                 self.hints.estimate
-            );
+            , sci_max_u = crate::error::Sci(max_u), sci_max_du = crate::error::Sci(max_du), sci_dt = crate::error::Sci(dt), sci_crit = crate::error::Sci(crit));
             return Err(self.unstable(msg));
         }
 

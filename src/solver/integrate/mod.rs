@@ -11,6 +11,7 @@ mod relaxation;
 mod schedule;
 mod timeline;
 
+use crate::InputKind;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
@@ -420,7 +421,7 @@ pub fn check_critical_step<M: Material>(model: &Model<M>, dt: f64) -> Result<()>
     }
     if model.constraints.mask.iter().flatten().all(|&c| c) {
         let names: Vec<&str> = model.boundaries.iter().map(|b| b.name.as_str()).collect();
-        return Err(Error::Input(format!(
+        return Err(Error::input(InputKind::Value, format!(
             "every degree of freedom of the {} nodes is prescribed by the boundaries ({}): no node is free to move, \
              so there is nothing to solve; refine the discretization (divisions, size) so that nodes lie between \
              the constrained ones, or constrain fewer components",
@@ -432,17 +433,15 @@ pub fn check_critical_step<M: Material>(model: &Model<M>, dt: f64) -> Result<()>
     // wave speed overflow, or the step underflow, before anything else goes wrong.
     let c = fastest_wave(model);
     if !(c.is_finite() && c > 0.0 && c < 1e8) {
-        return Err(Error::Input(format!(
-            "the critical time step estimate is {dt:.3e} s: the fastest dilatational wave speed of \
-             the materials, sqrt((lambda + 2 mu) / density), is {c:.3e} m/s; check the moduli (Pa) \
+        return Err(Error::input(InputKind::Value, format!(
+            "the critical time step estimate is {sci_dt:.3e} s: the fastest dilatational wave speed of \
+             the materials, sqrt((lambda + 2 mu) / density), is {sci_c:.3e} m/s; check the moduli (Pa) \
              and the density (kg/m^3) of [material] and [regions] (soft tissue: about 1e3-1e5 Pa, \
-             1000 kg/m^3)"
-        )));
+             1000 kg/m^3)", sci_dt = crate::error::Sci(dt), sci_c = crate::error::Sci(c))));
     }
-    Err(Error::Input(format!(
-        "the critical time step estimate is {dt:.3e} s (fastest wave speed {c:.4e} m/s); the \
-         discretization has no usable points"
-    )))
+    Err(Error::input(InputKind::Value, format!(
+        "the critical time step estimate is {sci_dt:.3e} s (fastest wave speed {sci_c:.4e} m/s); the \
+         discretization has no usable points", sci_dt = crate::error::Sci(dt), sci_c = crate::error::Sci(c))))
 }
 
 /// The fastest dilatational wave speed of the model's materials, m/s.
@@ -467,16 +466,15 @@ pub fn check_contact_start<M: Material>(model: &Model<M>, dt: f64) -> Result<()>
     let c = fastest_wave(model);
     for (b, name) in ct.names().enumerate() {
         if let Some((depth, x)) = ct.deepest_at_rest(b, 0.0).filter(|d| d.0 > 0.5 * c * dt) {
-            return Err(Error::Input(format!(
-            "contact '{name}' starts {depth:.3e} m inside the body (surface point at ({:.4e}, {:.4e}, {:.4e}) m), \
+            return Err(Error::input(InputKind::Value, format!(
+            "contact '{name}' starts {sci_depth:.3e} m inside the body (surface point at ({:.4e}, {:.4e}, {:.4e}) m), \
              deeper than the {:.3e} m a wave crosses in half a step, so the first correction cannot push the \
              surface out without tearing it: start the rigid body outside or touching the body (move it by at \
-             least {depth:.3e} m)",
-            x.x,
-            x.y,
-            x.z,
-            0.5 * c * dt
-        )));
+             least {sci_depth:.3e} m)",
+            crate::error::Sci(x.x),
+            crate::error::Sci(x.y),
+            crate::error::Sci(x.z),
+            crate::error::Sci(0.5 * c * dt), sci_depth = crate::error::Sci(depth))));
         }
     }
     Ok(())
@@ -593,10 +591,10 @@ fn run_on_pool<M: Material>(
     model.apply_boundary_changes()?;
     if s.mode == Mode::Static {
         if s.device != Device::Cpu {
-            return Err(Error::Input(
+            return Err(Error::input(
+                InputKind::Unsupported,
                 "solver.mode = \"static\" runs on the CPU; the GPU runs relaxation and dynamics \
-                 (set solver.mode = \"relaxation\" for the GPU, or solver.device = \"cpu\")"
-                    .into(),
+                 (set solver.mode = \"relaxation\" for the GPU, or solver.device = \"cpu\")",
             ));
         }
         let mut cache = model.static_cache.take();

@@ -2,6 +2,7 @@
 //! coefficients of each.
 
 use super::{Mode, Settings};
+use crate::InputKind;
 use crate::{Error, Result};
 
 /// Dynamic runs needing more steps than this are refused unless `max_steps` allows them (a
@@ -41,12 +42,12 @@ impl Timeline {
         let (dt, total_steps) = if dynamic {
             let steps = (s.duration / dt).ceil().max(1.0);
             if !(steps <= MAX_DYNAMIC_STEPS || steps <= s.max_steps as f64) {
-                return Err(Error::Input(format!(
-                    "the dynamic run needs {steps:.3e} steps (duration {:.4e} s / dt {dt:.4e} s), more than \
-                     {MAX_DYNAMIC_STEPS:.0e}: check solver.duration, solver.dt_factor ({}) and the material's \
+                return Err(Error::input(InputKind::Limit, format!(
+                    "the dynamic run needs {sci_steps:.3e} steps (duration {:.4e} s / dt {sci_dt:.4e} s), more than \
+                     {sci_MAX_DYNAMIC_STEPS:.0e}: check solver.duration, solver.dt_factor ({}) and the material's \
                      density, or set solver.max_steps to at least that many to run it anyway",
-                    s.duration, dt_factor
-                )));
+                    crate::error::Sci(s.duration), dt_factor
+                , sci_steps = crate::error::Sci(steps), sci_dt = crate::error::Sci(dt), sci_MAX_DYNAMIC_STEPS = crate::error::Sci(MAX_DYNAMIC_STEPS))));
             }
             let k = steps as usize;
             (s.duration / k as f64, k)

@@ -2,6 +2,7 @@
 //! order and symbolic Cholesky factorization built once per model, and numeric factorizations
 //! (faer's supernodal LL^T, LDL^T where the matrix is not positive definite) kept for reuse.
 
+use crate::InputKind;
 use faer::dyn_stack::{MemBuffer, MemStack};
 use faer::linalg::cholesky::ldlt::factor::LdltRegularization;
 use faer::linalg::cholesky::llt::factor::LltRegularization;
@@ -221,7 +222,12 @@ impl Factor {
                 how,
                 CholeskySymbolicParams::default(),
             )
-            .map_err(|e| Error::Input(format!("the static solve's symbolic factorization: {e:?}")))
+            .map_err(|e| {
+                Error::input(
+                    InputKind::Value,
+                    format!("the static solve's symbolic factorization: {e:?}"),
+                )
+            })
         };
         let nd = symbolic_with(SymmetricOrdering::Custom(faer::perm::PermRef::new_checked(
             &fwd, &inv, n,
@@ -235,7 +241,7 @@ impl Factor {
         let len = symbolic.len_val();
         let flops = factor_flops(&symbolic);
         let l_values = try_zeros(len).ok_or_else(|| {
-            Error::Input(format!(
+            Error::input(InputKind::Limit, format!(
                 "the static solve's factor needs {:.2} GB ({len} nonzeros) and cannot be allocated; \
                  use solver.mode = \"relaxation\", which needs no factor",
                 len as f64 * 8e-9
@@ -335,7 +341,10 @@ impl Factor {
                 .symbolic
                 .factorize_numeric_ldlt_scratch::<f64>(par, Default::default()));
         let mut mem = MemBuffer::try_new(req).map_err(|_| {
-            Error::Input("no memory for the static solve's factorization workspace".into())
+            Error::input(
+                InputKind::Limit,
+                "no memory for the static solve's factorization workspace",
+            )
         })?;
         let stack = MemStack::new(&mut mem);
         // The augmented matrix is indefinite by construction: straight to LDL^T.

@@ -19,6 +19,7 @@
 pub mod factor;
 pub mod tangent;
 
+use crate::InputKind;
 use std::time::Instant;
 
 use nalgebra::{Matrix3, Vector3};
@@ -164,9 +165,12 @@ fn check_supported<M: Material>(model: &Model<M>) -> Result<()> {
         None
     };
     match what {
-        Some(w) => Err(Error::Input(format!(
+        Some(w) => Err(Error::input(
+            InputKind::Unsupported,
+            format!(
             "solver.mode = \"static\" does not handle {w} yet; set solver.mode = \"relaxation\""
-        ))),
+        ),
+        )),
         None => Ok(()),
     }
 }
@@ -285,7 +289,7 @@ pub fn solve<M: Material>(
     check_supported(model)?;
     let free = free_rigid_motions(model);
     if !free.is_empty() {
-        return Err(Error::Input(format!(
+        return Err(Error::input(InputKind::Value, format!(
             "the boundaries leave the body free to move as a rigid body ({}): a static solve has no \
              unique answer; prescribe components that hold these motions (e.g. fix one face, or a \
              node in each direction)",
@@ -294,11 +298,14 @@ pub fn solve<M: Material>(
     }
     let dofs = Dofs::new(&model.constraints.mask);
     if dofs.len == 0 {
-        return Err(Error::Input(format!(
+        return Err(Error::input(
+            InputKind::Value,
+            format!(
             "every degree of freedom of the {} nodes is prescribed by the boundaries: nothing to \
              solve; constrain fewer components",
             model.nodes.len()
-        )));
+        ),
+        ));
     }
     let rows: Vec<crate::solver::LinearConstraint> = model
         .corrector
