@@ -265,7 +265,9 @@ fn invalid_values_are_clear_errors() {
 fn input_errors_carry_their_kind_and_facts() {
     use hytled::InputKind;
     let fault = |e: &hytled::Error| {
-        let f = e.fault().unwrap_or_else(|| panic!("not an input error: {e}"));
+        let f = e
+            .fault()
+            .unwrap_or_else(|| panic!("not an input error: {e}"));
         (f.kind, f.facts.clone())
     };
     // A schema error in a file: the file, the line as written and the key.
@@ -279,7 +281,10 @@ fn input_errors_carry_their_kind_and_facts() {
     assert_eq!(kind, InputKind::Scene);
     assert_eq!(facts.line, Some(line), "{e}");
     assert_eq!(facts.file.as_deref(), Some(Path::new("bad.toml")));
-    assert!(e.to_string().starts_with(&format!("bad.toml:{line}: ")), "{e}");
+    assert!(
+        e.to_string().starts_with(&format!("bad.toml:{line}: ")),
+        "{e}"
+    );
     assert_eq!(facts.key.as_deref(), Some("material.youngs_modulu"), "{e}");
     // A value refused by validation: its key, no line (an override has none).
     let o = ["solver.dt_factor=11".to_string()];
@@ -309,6 +314,9 @@ fn input_errors_carry_their_kind_and_facts() {
     std::fs::remove_dir_all(&dir).ok();
     // The CLI's JSON object and a failed summary carry them too.
     let v = e.to_json();
-    assert_eq!((v["error"].as_str(), v["input_kind"].as_str()), (Some("input"), Some("mesh")));
+    assert_eq!(
+        (v["error"].as_str(), v["input_kind"].as_str()),
+        (Some("input"), Some("mesh"))
+    );
     assert!(v["facts"]["node"].is_null());
 }
