@@ -363,13 +363,76 @@ fn parse_vector(s: &str) -> Option<Vec<f64>> {
     inner.split(',').map(|v| v.trim().parse().ok()).collect()
 }
 
+/// A NRRD image (`.nrrd`, or a `.nhdr` header with its data file beside it): the header's
+/// fields ([`nrrd_header`]), the axes ([`nrrd_axes`]), the voxel-to-world map
+/// ([`nrrd_to_world`]), the sample type ([`nrrd_type`]) and the decoded data ([`nrrd_data`]).
 fn read_nrrd(path: &Path) -> Result<Image> {
     let file = std::fs::File::open(path).map_err(|e| file_error(path, e))?;
     let mut reader = std::io::BufReader::new(file);
-    let mut line = String::new();
+    let h = nrrd_header(&mut reader, path)?;
+    let need = |k: &str| {
+        h.get(k)
+            .ok_or_else(|| file_error(path, format!("the NRRD header has no '{k}' field")))
+    };
+    let NrrdAxes {
+        dimension,
+        lead,
+        dims,
+    } = nrrd_axes(&h, path)?;
+    let components = 1; // nrrd_axes refuses more
+    let to_world = nrrd_to_world(&h, path, dimension, lead)?;
+    let mut image = check_map(path, dims, to_world)?;
+    let kind = need("type")?.to_ascii_lowercase();
+    let (bytes, read) = nrrd_type(&kind, path)?;
+    let big = h
+        .get("endian")
+        .is_some_and(|e| e.eq_ignore_ascii_case("big"));
+    let raw = nrrd_data(&h, path, &mut reader)?;
+    let need_bytes = image.len() * components * bytes;
+    if raw.len() < need_bytes {
+        return Err(file_error(
+            path,
+            format!("it holds {} bytes of data; {dims:?} voxels of {components} {kind} need {need_bytes}", raw.len()),
+        ));
+    }
+    // `byte skip` as pynrrd and Teem read it: bytes before the data (after decompression for
+    // gzip), -1 for "the data are the file's last bytes"; none, the data start at once.
+    let start = match h.get("byte skip").or_else(|| h.get("byteskip")) {
+        None => 0,
+        Some(v) => match v.trim().parse::<i64>() {
+            Ok(-1) => raw.len() - need_bytes,
+            Ok(k) if k >= 0 && (k as usize).saturating_add(need_bytes) <= raw.len() => k as usize,
+            _ => {
+                return Err(file_error(
+                    path,
+                    format!(
+                    "byte skip '{}' is not -1 or a whole number of bytes the data leave room for",
+                    super::clip(v)
+                ),
+                ))
+            }
+        },
+    };
+    for (n, v) in image.values.iter_mut().enumerate() {
+        let at = start + n * components * bytes;
+        *v = read(&raw[at..at + bytes], big);
+    }
+    if let Some(n) = image.values.iter().position(|v| !v.is_finite()) {
+        return Err(file_error(
+            path,
+            format!("voxel {n} holds {}, not a finite number", image.values[n]),
+        ));
+    }
+    Ok(image)
+}
+
+/// The header's fields, lower-case names, up to the blank line that ends it; `reader` is left
+/// at the data.
+fn nrrd_header(reader: &mut impl BufRead, path: &Path) -> Result<NrrdHeader> {
     let mut fields = Vec::new();
     let mut first = true;
     let mut line_no = 0usize;
+    let mut line = String::new();
     loop {
         line.clear();
         let n = reader
@@ -407,7 +470,18 @@ fn read_nrrd(path: &Path) -> Result<Image> {
             ));
         }
     }
-    let h = NrrdHeader { fields };
+    Ok(NrrdHeader { fields })
+}
+
+/// The axes of a scalar 3-D NRRD: its dimension, the leading non-spatial axis count (0 or 1)
+/// and the voxel counts of the three spatial axes.
+struct NrrdAxes {
+    dimension: usize,
+    lead: usize,
+    dims: [usize; 3],
+}
+
+fn nrrd_axes(h: &NrrdHeader, path: &Path) -> Result<NrrdAxes> {
     let need = |k: &str| {
         h.get(k)
             .ok_or_else(|| file_error(path, format!("the NRRD header has no '{k}' field")))
@@ -465,7 +539,22 @@ fn read_nrrd(path: &Path) -> Result<Image> {
         ));
     }
     let dims = [sizes[lead], sizes[lead + 1], sizes[lead + 2]];
-    // Orientation: space directions (one per axis, 'none' for non-spatial) or spacings.
+    Ok(NrrdAxes {
+        dimension,
+        lead,
+        dims,
+    })
+}
+
+/// The map from voxel index to world position (RAS, m): `space directions` and
+/// `space origin` (LPS and LAS turned to RAS, `space units` to metres) or `spacings`.
+fn nrrd_to_world(
+    h: &NrrdHeader,
+    path: &Path,
+    dimension: usize,
+    lead: usize,
+) -> Result<Matrix4<f64>> {
+    // Space directions (one per axis, 'none' for non-spatial) or spacings.
     let space = h.get("space").map(|s| s.to_ascii_lowercase());
     let flip = match space.as_deref() {
         None => [1.0, 1.0, 1.0],
@@ -575,10 +664,12 @@ fn read_nrrd(path: &Path) -> Result<Image> {
             to_world[(a, a)] = unit;
         }
     }
-    let mut image = check_map(path, dims, to_world)?;
-    // The data.
-    let kind = need("type")?.to_ascii_lowercase();
-    let (bytes, read): (usize, Decode) = match kind.as_str() {
+    Ok(to_world)
+}
+
+/// The bytes per sample and the decoder of a NRRD `type`.
+fn nrrd_type(kind: &str, path: &Path) -> Result<(usize, Decode)> {
+    Ok(match kind {
         "signed char" | "int8" | "int8_t" => (1, |b, _| b[0] as i8 as f64),
         "uchar" | "unsigned char" | "uint8" | "uint8_t" => (1, |b, _| b[0] as f64),
         "short" | "short int" | "signed short" | "signed short int" | "int16" | "int16_t" => {
@@ -639,10 +730,15 @@ fn read_nrrd(path: &Path) -> Result<Image> {
                 format!("type '{other}' is not supported (use an integer type, float or double)"),
             ))
         }
+    })
+}
+
+/// The data after the header (or in its `data file`), decoded (`encoding` raw or gzip).
+fn nrrd_data(h: &NrrdHeader, path: &Path, reader: &mut impl Read) -> Result<Vec<u8>> {
+    let need = |k: &str| {
+        h.get(k)
+            .ok_or_else(|| file_error(path, format!("the NRRD header has no '{k}' field")))
     };
-    let big = h
-        .get("endian")
-        .is_some_and(|e| e.eq_ignore_ascii_case("big"));
     let encoding = need("encoding")?.to_ascii_lowercase();
     let mut raw = Vec::new();
     match h.get("data file").or_else(|| h.get("datafile")) {
@@ -683,7 +779,7 @@ fn read_nrrd(path: &Path) -> Result<Image> {
                 .map_err(|e| file_error(path, e))?;
         }
     }
-    let raw = match encoding.as_str() {
+    Ok(match encoding.as_str() {
         "raw" => raw,
         "gzip" | "gz" => {
             let mut out = Vec::new();
@@ -700,43 +796,7 @@ fn read_nrrd(path: &Path) -> Result<Image> {
                 format!("encoding '{other}' is not supported (use raw or gzip)"),
             ))
         }
-    };
-    let need_bytes = image.len() * components * bytes;
-    if raw.len() < need_bytes {
-        return Err(file_error(
-            path,
-            format!("it holds {} bytes of data; {dims:?} voxels of {components} {kind} need {need_bytes}", raw.len()),
-        ));
-    }
-    // `byte skip` as pynrrd and Teem read it: bytes before the data (after decompression for
-    // gzip), -1 for "the data are the file's last bytes"; none, the data start at once.
-    let start = match h.get("byte skip").or_else(|| h.get("byteskip")) {
-        None => 0,
-        Some(v) => match v.trim().parse::<i64>() {
-            Ok(-1) => raw.len() - need_bytes,
-            Ok(k) if k >= 0 && (k as usize).saturating_add(need_bytes) <= raw.len() => k as usize,
-            _ => {
-                return Err(file_error(
-                    path,
-                    format!(
-                    "byte skip '{}' is not -1 or a whole number of bytes the data leave room for",
-                    super::clip(v)
-                ),
-                ))
-            }
-        },
-    };
-    for (n, v) in image.values.iter_mut().enumerate() {
-        let at = start + n * components * bytes;
-        *v = read(&raw[at..at + bytes], big);
-    }
-    if let Some(n) = image.values.iter().position(|v| !v.is_finite()) {
-        return Err(file_error(
-            path,
-            format!("voxel {n} holds {}, not a finite number", image.values[n]),
-        ));
-    }
-    Ok(image)
+    })
 }
 
 /// LPS from RAS (and back): x and y negated.

@@ -1,4 +1,26 @@
-//! Readers and writers: VTU/PVD for ParaView, CSV time histories.
+//! Files in and out. Every reader returns plain data (no scene, no model) and refuses a file it
+//! cannot use with an [`InputKind::Format`] error naming the file (and the line, where the
+//! format has lines); every writer writes atomically where a half-written file would mislead.
+//!
+//! | room | holds | formats |
+//! |---|---|---|
+//! | [`mesh_file`] | reading any volume mesh by extension or `geometry.format`, units, checks | dispatches below |
+//! | [`model`] | [`model::MeshInput`], what every mesh reader produces | |
+//! | [`vtk`] | VTK unstructured grids in, through vtkio | `.vtk` legacy up to 4.2, `.vtu` |
+//! | `vtk_legacy5` | binary legacy VTK 5.x, which vtkio does not read, into vtkio's model | `.vtk` 5.x binary |
+//! | `vtk_xml` | XML VTK rewritten into the one layout vtkio reads reliably (base64 inline) | `.vtu` appended, zlib, UInt32 headers |
+//! | [`msh`] | Gmsh meshes: 4.1 through mshio, 2.2 parsed here | `.msh` |
+//! | [`inp`] | ABAQUS meshes with their sets, parts and assemblies; and the writer | `.inp` |
+//! | [`surface_file`] | closed surfaces for `geometry.surface`, regions and contact | `.stl`, `.obj`, `.vtk`/`.vtp` poly data |
+//! | [`image`] | labelmaps and scalar images in, images and displacement fields out, RAS metres | `.nii`, `.nii.gz`, `.nrrd`, `.nhdr` |
+//! | [`measured`] | measured displacements, by position or node id | `.csv`, text |
+//! | [`vtu`] | the result writer for ParaView, with collections | `.vtu`, `.pvd` |
+//! | [`csv`] | time histories and tables | `.csv` |
+//! | [`plot`] | reaction and energy plots | `.svg` |
+//! | [`out_dir`] | the `--out` folder: claimed, locked, one run, a truthful summary whatever stops it | |
+//!
+//! Third-party parsers (vtkio, mshio, nifti, stl_io) may panic on a malformed file; their calls
+//! go through `catch_quietly`, which turns such a panic into an error without printing it.
 
 use crate::InputKind;
 

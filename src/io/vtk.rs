@@ -919,18 +919,7 @@ fn convert(vtk: vtkio::Vtk, path: &Path) -> Result<MeshInput> {
     }
     let multi = pieces.len() > 1;
 
-    let mut nodes: Vec<Vector3<f64>> = Vec::new();
-    let mut cells: Vec<usize> = Vec::new();
-    let mut element_ids: Vec<u64> = Vec::new();
-    let mut faces: Vec<Vec<usize>> = Vec::new();
-    let mut shape: Option<(ElementShape, usize)> = None;
-    let mut point_sets: BTreeMap<String, ValueSets> = BTreeMap::new();
-    let mut cell_sets: BTreeMap<String, ValueSets> = BTreeMap::new();
-    // Arrays that are not one-component integer arrays in some piece.
-    let mut not_sets: BTreeSet<String> = BTreeSet::new();
-    let mut warnings = Vec::new();
-    let mut cell_offset = 0usize;
-
+    let mut merged = Merged::default();
     for (pi, piece) in pieces.into_iter().enumerate() {
         let at = if multi {
             format!(" (piece {})", pi + 1)
@@ -947,11 +936,42 @@ fn convert(vtk: vtkio::Vtk, path: &Path) -> Result<MeshInput> {
                 ),
             ));
         }
-        let data = loaded(piece, &at, path)?;
+        merged.add_piece(loaded(piece, &at, path)?, &at, path)?;
+    }
+    merged.finish(path)
+}
 
+/// The pieces of an unstructured grid read so far: points, volume cells and boundary faces in
+/// file order, and the integer arrays that may name node, element and face sets.
+#[derive(Default)]
+struct Merged {
+    nodes: Vec<Vector3<f64>>,
+    cells: Vec<usize>,
+    element_ids: Vec<u64>,
+    faces: Vec<Vec<usize>>,
+    /// The volume cells' shape and the first cell that has it.
+    shape: Option<(ElementShape, usize)>,
+    point_sets: BTreeMap<String, ValueSets>,
+    cell_sets: BTreeMap<String, ValueSets>,
+    /// Arrays that are not one-component integer arrays in some piece.
+    not_sets: BTreeSet<String>,
+    warnings: Vec<String>,
+    /// Cells of the pieces before this one.
+    cell_offset: usize,
+}
+
+impl Merged {
+    /// Adds a piece (`at` names it in messages): its points, its cells (volume cells, faces,
+    /// or ignored) and its integer arrays.
+    fn add_piece(
+        &mut self,
+        data: vtkio::model::UnstructuredGridPiece,
+        at: &str,
+        path: &Path,
+    ) -> Result<()> {
         // Points.
-        let coords = coordinates(data.points, &at, path)?;
-        let node_offset = nodes.len();
+        let coords = coordinates(data.points, at, path)?;
+        let node_offset = self.nodes.len();
         let n_points = coords.len() / 3;
         for (i, c) in coords.chunks_exact(3).enumerate() {
             let p = Vector3::new(c[0], c[1], c[2]);
@@ -961,17 +981,78 @@ fn convert(vtk: vtkio::Vtk, path: &Path) -> Result<MeshInput> {
                     format!("point {}{at} has a non-finite coordinate", node_offset + i),
                 ));
             }
-            nodes.push(p);
+            self.nodes.push(p);
         }
 
+        let became = self.add_cells(data.cells, n_points, node_offset, at, path)?;
+        // Data arrays.
+        let (pints, pothers) = arrays(data.data.point);
+        self.not_sets
+            .extend(pothers.into_iter().map(|n| format!("point:{n}")));
+        for (name, vals) in pints {
+            if vals.len() != n_points {
+                self.warnings.push(format!(
+                    "point array '{name}'{at} has {} values for {n_points} points; not used as \
+                     sets",
+                    vals.len()
+                ));
+                self.not_sets.insert(format!("point:{name}"));
+                continue;
+            }
+            let vs = self.point_sets.entry(name).or_default();
+            for (i, v) in vals.into_iter().enumerate() {
+                if v != 0 {
+                    vs.nodes.entry(v).or_default().push(node_offset + i);
+                }
+            }
+        }
+        let (cints, cothers) = arrays(data.data.cell);
+        self.not_sets
+            .extend(cothers.into_iter().map(|n| format!("cell:{n}")));
+        for (name, vals) in cints {
+            if vals.len() != became.len() {
+                self.warnings.push(format!(
+                    "cell array '{name}'{at} has {} values for {} self.cells; not used as sets",
+                    vals.len(),
+                    became.len()
+                ));
+                self.not_sets.insert(format!("cell:{name}"));
+                continue;
+            }
+            let vs = self.cell_sets.entry(name).or_default();
+            for (b, v) in became.iter().zip(vals) {
+                match (b, v) {
+                    (_, 0) | (None, _) => {}
+                    (Some((Role::Volume(_), c)), v) => vs.cells.entry(v).or_default().push(*c),
+                    (Some((_, f)), v) => {
+                        vs.faces.entry(v).or_default().push(self.faces[*f].clone())
+                    }
+                }
+            }
+        }
+        self.cell_offset += became.len();
+        Ok(())
+    }
+
+    /// A piece's cells: volume cells of one shape and boundary faces, others ignored; returns
+    /// what each became (volume cell or face, and its index).
+    fn add_cells(
+        &mut self,
+        cells: vtkio::model::Cells,
+        n_points: usize,
+        node_offset: usize,
+        at: &str,
+        path: &Path,
+    ) -> Result<Vec<Option<(Role, usize)>>> {
+        let cell_offset = self.cell_offset;
         // Cells.
-        let lists = cell_lists(data.cells.cell_verts, &at, path)?;
-        let types = data.cells.types;
+        let lists = cell_lists(cells.cell_verts, at, path)?;
+        let types = cells.types;
         if types.len() != lists.ranges.len() {
             return Err(fail(
                 path,
                 format!(
-                    "{} cells but {} cell types{at}",
+                    "{} self.cells but {} cell types{at}",
                     lists.ranges.len(),
                     types.len()
                 ),
@@ -992,7 +1073,7 @@ fn convert(vtk: vtkio::Vtk, path: &Path) -> Result<MeshInput> {
                     path,
                     format!(
                         "unsupported VTK cell type {} ({name}) at cell {gi}{at}; hytled reads \
-                         VTK_TETRA (10) or VTK_HEXAHEDRON (12) volume cells, with VTK_TRIANGLE \
+                         VTK_TETRA (10) or VTK_HEXAHEDRON (12) volume self.cells, with VTK_TRIANGLE \
                          (5) or VTK_QUAD (9) boundary faces: convert the mesh to linear \
                          tetrahedra or hexahedra",
                         ct as u8
@@ -1036,14 +1117,14 @@ fn convert(vtk: vtkio::Vtk, path: &Path) -> Result<MeshInput> {
                 .collect::<Result<Vec<usize>>>()?;
             match r {
                 Role::Volume(sh) => {
-                    match shape {
-                        None => shape = Some((sh, gi)),
+                    match self.shape {
+                        None => self.shape = Some((sh, gi)),
                         Some((s0, g0)) if s0 != sh => {
                             return Err(fail(
                                 path,
                                 format!(
-                                    "mixed VTK_TETRA and VTK_HEXAHEDRON cells (cell {g0} is a {}, \
-                                     cell {gi}{at} a {}) are not supported; use one element shape",
+                                    "mixed VTK_TETRA and VTK_HEXAHEDRON self.cells (cell {g0} is a {}, \
+                                     cell {gi}{at} a {}) are not supported; use one element self.shape",
                                     if s0 == ElementShape::Tet4 {
                                         "VTK_TETRA"
                                     } else {
@@ -1055,127 +1136,102 @@ fn convert(vtk: vtkio::Vtk, path: &Path) -> Result<MeshInput> {
                         }
                         _ => {}
                     }
-                    became.push(Some((r, element_ids.len())));
-                    cells.extend_from_slice(&idx);
-                    element_ids.push(gi as u64);
+                    became.push(Some((r, self.element_ids.len())));
+                    self.cells.extend_from_slice(&idx);
+                    self.element_ids.push(gi as u64);
                 }
                 Role::Face => {
-                    became.push(Some((r, faces.len())));
-                    faces.push(idx);
+                    became.push(Some((r, self.faces.len())));
+                    self.faces.push(idx);
                 }
                 Role::Ignored => unreachable!(),
             }
         }
 
-        // Data arrays.
-        let (pints, pothers) = arrays(data.data.point);
-        not_sets.extend(pothers.into_iter().map(|n| format!("point:{n}")));
-        for (name, vals) in pints {
-            if vals.len() != n_points {
-                warnings.push(format!(
-                    "point array '{name}'{at} has {} values for {n_points} points; not used as \
-                     sets",
-                    vals.len()
-                ));
-                not_sets.insert(format!("point:{name}"));
-                continue;
-            }
-            let vs = point_sets.entry(name).or_default();
-            for (i, v) in vals.into_iter().enumerate() {
-                if v != 0 {
-                    vs.nodes.entry(v).or_default().push(node_offset + i);
-                }
-            }
-        }
-        let (cints, cothers) = arrays(data.data.cell);
-        not_sets.extend(cothers.into_iter().map(|n| format!("cell:{n}")));
-        for (name, vals) in cints {
-            if vals.len() != became.len() {
-                warnings.push(format!(
-                    "cell array '{name}'{at} has {} values for {} cells; not used as sets",
-                    vals.len(),
-                    became.len()
-                ));
-                not_sets.insert(format!("cell:{name}"));
-                continue;
-            }
-            let vs = cell_sets.entry(name).or_default();
-            for (b, v) in became.iter().zip(vals) {
-                match (b, v) {
-                    (_, 0) | (None, _) => {}
-                    (Some((Role::Volume(_), c)), v) => vs.cells.entry(v).or_default().push(*c),
-                    (Some((_, f)), v) => vs.faces.entry(v).or_default().push(faces[*f].clone()),
-                }
-            }
-        }
-        cell_offset += became.len();
+        Ok(became)
     }
 
-    let Some((shape, _)) = shape else {
-        return Err(fail(
-            path,
-            "no volume cells: the file has no VTK_TETRA (10) or VTK_HEXAHEDRON (12) cells",
-        ));
-    };
-
-    let mut node_sets: BTreeMap<String, Vec<usize>> = BTreeMap::new();
-    let mut element_sets: BTreeMap<String, Vec<usize>> = BTreeMap::new();
-    let mut face_sets: BTreeMap<String, Vec<Vec<usize>>> = BTreeMap::new();
-    for (kind, sets) in [("point", point_sets), ("cell", cell_sets)] {
-        for (name, vs) in sets {
-            if not_sets.contains(&format!("{kind}:{name}")) {
-                continue;
-            }
-            let values = vs.values();
-            if values.len() > MAX_SET_VALUES {
-                warnings.push(format!(
-                    "{kind} array '{name}' has {} distinct values; it is treated as data, not \
-                     as sets (at most {MAX_SET_VALUES})",
-                    values.len()
-                ));
-                continue;
-            }
-            let alias = values.len() == 1;
-            for (v, mut idx) in vs.nodes {
-                idx.sort_unstable();
-                idx.dedup();
-                if alias {
-                    node_sets.insert(name.clone(), idx.clone());
-                }
-                node_sets.insert(format!("{name}={v}"), idx);
-            }
-            for (v, idx) in vs.cells {
-                if alias {
-                    element_sets.insert(name.clone(), idx.clone());
-                }
-                element_sets.insert(format!("{name}={v}"), idx);
-            }
-            for (v, f) in vs.faces {
-                if alias {
-                    face_sets.insert(name.clone(), f.clone());
-                }
-                face_sets.insert(format!("{name}={v}"), f);
-            }
-        }
-    }
-    if !faces.is_empty() {
-        face_sets.insert(FACE_SET.to_string(), faces);
-    }
-
-    let node_ids = (0..nodes.len() as u64).collect();
-    Ok(MeshInput {
-        mesh: Mesh {
+    /// The mesh and its sets: a one-component integer array NAME gives a set `NAME=v` per
+    /// value v (and `NAME` itself when it has one value), of nodes, elements or faces.
+    fn finish(self, path: &Path) -> Result<MeshInput> {
+        let Merged {
             nodes,
-            shape,
             cells,
-        },
-        node_ids,
-        element_ids,
-        node_sets,
-        element_sets,
-        face_sets,
-        warnings,
-    })
+            element_ids,
+            faces,
+            shape,
+            point_sets,
+            cell_sets,
+            not_sets,
+            mut warnings,
+            ..
+        } = self;
+        let Some((shape, _)) = shape else {
+            return Err(fail(
+                path,
+                "no volume cells: the file has no VTK_TETRA (10) or VTK_HEXAHEDRON (12) cells",
+            ));
+        };
+
+        let mut node_sets: BTreeMap<String, Vec<usize>> = BTreeMap::new();
+        let mut element_sets: BTreeMap<String, Vec<usize>> = BTreeMap::new();
+        let mut face_sets: BTreeMap<String, Vec<Vec<usize>>> = BTreeMap::new();
+        for (kind, sets) in [("point", point_sets), ("cell", cell_sets)] {
+            for (name, vs) in sets {
+                if not_sets.contains(&format!("{kind}:{name}")) {
+                    continue;
+                }
+                let values = vs.values();
+                if values.len() > MAX_SET_VALUES {
+                    warnings.push(format!(
+                        "{kind} array '{name}' has {} distinct values; it is treated as data, not \
+                             as sets (at most {MAX_SET_VALUES})",
+                        values.len()
+                    ));
+                    continue;
+                }
+                let alias = values.len() == 1;
+                for (v, mut idx) in vs.nodes {
+                    idx.sort_unstable();
+                    idx.dedup();
+                    if alias {
+                        node_sets.insert(name.clone(), idx.clone());
+                    }
+                    node_sets.insert(format!("{name}={v}"), idx);
+                }
+                for (v, idx) in vs.cells {
+                    if alias {
+                        element_sets.insert(name.clone(), idx.clone());
+                    }
+                    element_sets.insert(format!("{name}={v}"), idx);
+                }
+                for (v, f) in vs.faces {
+                    if alias {
+                        face_sets.insert(name.clone(), f.clone());
+                    }
+                    face_sets.insert(format!("{name}={v}"), f);
+                }
+            }
+        }
+        if !faces.is_empty() {
+            face_sets.insert(FACE_SET.to_string(), faces);
+        }
+
+        let node_ids = (0..nodes.len() as u64).collect();
+        Ok(MeshInput {
+            mesh: Mesh {
+                nodes,
+                shape,
+                cells,
+            },
+            node_ids,
+            element_ids,
+            node_sets,
+            element_sets,
+            face_sets,
+            warnings,
+        })
+    }
 }
 
 #[cfg(test)]

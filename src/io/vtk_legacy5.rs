@@ -268,7 +268,7 @@ pub(crate) fn read(bytes: &[u8], path: &Path) -> Result<vtkio::Vtk> {
         return Err(fail(path, "line 3: expected BINARY"));
     }
     let mut points: Option<IOBuffer> = None;
-    let mut cells: Option<(Vec<u64>, Vec<u64>)> = None;
+    let mut cells: Option<CellArrays> = None;
     let mut types: Option<Vec<CellType>> = None;
     let mut attrs = Attributes::new();
     // Where attribute arrays go (0 dataset field, 1 point data, 2 cell data) and how many
@@ -319,128 +319,14 @@ pub(crate) fn read(bytes: &[u8], path: &Path) -> Result<vtkio::Vtk> {
                     }
                 }
             }
-            "CELLS" => {
-                let n_off = count(w.get(1), &cur, at, line)?;
-                let n_conn = count(w.get(2), &cur, at, line)?;
-                let mut arrays = Vec::with_capacity(2);
-                for (name, n) in [("OFFSETS", n_off), ("CONNECTIVITY", n_conn)] {
-                    let Some((a, l, w)) = cur.keyword_line()? else {
-                        return Err(cur.err(cur.pos, format!("the file ends before {name}")));
-                    };
-                    if !w.first().is_some_and(|h| h.eq_ignore_ascii_case(name)) {
-                        return Err(cur.err(
-                            a,
-                            format!("expected '{name} <type>' after CELLS, found '{}'", clip(l)),
-                        ));
-                    }
-                    let ty = data_type(w.get(1), &cur, a, l)?;
-                    let b = cur.take(ty, n, name, a)?;
-                    let v = indices(ty, b).ok_or_else(|| {
-                        cur.err(a, format!("{name} must hold non-negative integers"))
-                    })?;
-                    arrays.push((a, v));
-                }
-                let (_, conn) = arrays.pop().unwrap_or_default();
-                let (off_at, off) = arrays.pop().unwrap_or_default();
-                // OFFSETS starts at 0, never decreases and ends at the connectivity's length.
-                if n_off > 0 {
-                    if off.first() != Some(&0) {
-                        return Err(cur.err(off_at, "OFFSETS must start at 0"));
-                    }
-                    for (i, p) in off.windows(2).enumerate() {
-                        if p[1] < p[0] {
-                            return Err(cur.err(
-                                off_at,
-                                format!(
-                                    "OFFSETS decrease at entry {} ({} then {})",
-                                    i + 1,
-                                    p[0],
-                                    p[1]
-                                ),
-                            ));
-                        }
-                    }
-                    let last = off.last().copied().unwrap_or(0);
-                    if last != n_conn as u64 {
-                        return Err(cur.err(
-                            off_at,
-                            format!(
-                                "the last OFFSETS entry is {last}, but CONNECTIVITY has {n_conn} \
-                                 entries"
-                            ),
-                        ));
-                    }
-                } else if n_conn > 0 {
-                    return Err(cur.err(at, "CELLS: CONNECTIVITY without OFFSETS"));
-                }
-                cells = Some((conn, off.get(1..).unwrap_or(&[]).to_vec()));
-            }
-            "CELL_TYPES" => {
-                let n = count(w.get(1), &cur, at, line)?;
-                let b = cur.take(Ty::I32, n, "CELL_TYPES", at)?;
-                let mut v = Vec::with_capacity(n);
-                for (i, c) in b.chunks_exact(4).enumerate() {
-                    let t = i32::from_be_bytes([c[0], c[1], c[2], c[3]]);
-                    v.push(cell_type(t).ok_or_else(|| {
-                        fail(
-                            path,
-                            format!(
-                                "unsupported VTK cell type {t} at cell {i}; hytled reads VTK_TETRA \
-                                 (10) or VTK_HEXAHEDRON (12) volume cells, with VTK_TRIANGLE (5) \
-                                 or VTK_QUAD (9) boundary faces"
-                            ),
-                        )
-                    })?);
-                }
-                types = Some(v);
-            }
+            "CELLS" => cells = Some(read_cells(&mut cur, &w, at, line)?),
+            "CELL_TYPES" => types = Some(read_cell_types(&mut cur, &w, at, line)?),
             "POINT_DATA" | "CELL_DATA" => {
                 tuples = count(w.get(1), &cur, at, line)?;
                 target = if kw == "POINT_DATA" { 1 } else { 2 };
             }
             "FIELD" => {
-                let k = count(w.get(2), &cur, at, line)?;
-                let mut data_array = Vec::new();
-                let mut got = 0;
-                while got < k {
-                    let Some((a, l, w)) = cur.keyword_line()? else {
-                        return Err(cur.err(
-                            cur.pos,
-                            format!("the file ends after {got} of the {k} FIELD arrays"),
-                        ));
-                    };
-                    got += 1;
-                    if w.first()
-                        .is_some_and(|h| h.eq_ignore_ascii_case("NULL_ARRAY"))
-                    {
-                        continue;
-                    }
-                    if w.len() != 4 {
-                        return Err(cur.err(
-                            a,
-                            format!(
-                                "FIELD array line '{}': expected 'name components tuples type'",
-                                clip(l)
-                            ),
-                        ));
-                    }
-                    let comps = count(w.get(1), &cur, a, l)?;
-                    let nt = count(w.get(2), &cur, a, l)?;
-                    let ty = data_type(w.get(3), &cur, a, l)?;
-                    let n = comps
-                        .checked_mul(nt)
-                        .ok_or_else(|| cur.err(a, "FIELD array: count too large"))?;
-                    let b = cur.take(ty, n, &format!("FIELD array '{}'", clip(w[0])), a)?;
-                    data_array.push(FieldArray {
-                        name: w[0].to_string(),
-                        elem: u32::try_from(comps).unwrap_or(u32::MAX),
-                        data: buffer(ty, b),
-                    });
-                }
-                let field = Attribute::Field {
-                    name: w.get(1).unwrap_or(&"FieldData").to_string(),
-                    data_array,
-                };
+                let field = read_field(&mut cur, &w, at, line)?;
                 match target {
                     1 => attrs.point.push(field),
                     2 => attrs.cell.push(field),
@@ -460,109 +346,10 @@ pub(crate) fn read(bytes: &[u8], path: &Path) -> Result<vtkio::Vtk> {
                 if target == 0 && kw != "LOOKUP_TABLE" {
                     return Err(cur.err(at, format!("{kw} before POINT_DATA or CELL_DATA")));
                 }
-                let name = w.get(1).unwrap_or(&"").to_string();
-                let (ty, comps, elem) = match kw.as_str() {
-                    "SCALARS" => {
-                        let c = match w.get(3) {
-                            Some(_) => count(w.get(3), &cur, at, line)?,
-                            None => 1,
-                        };
-                        if !(1..=4).contains(&c) {
-                            return Err(cur.err(at, "SCALARS: 1 to 4 components"));
-                        }
-                        let ty = data_type(w.get(2), &cur, at, line)?;
-                        // An optional LOOKUP_TABLE line follows.
-                        let save = cur.pos;
-                        let mut table = None;
-                        match cur.keyword_line()? {
-                            Some((_, _, lw))
-                                if lw
-                                    .first()
-                                    .is_some_and(|h| h.eq_ignore_ascii_case("LOOKUP_TABLE")) =>
-                            {
-                                table = lw.get(1).map(|s| s.to_string());
-                            }
-                            _ => cur.pos = save,
-                        }
-                        (
-                            ty,
-                            c,
-                            ElementType::Scalars {
-                                num_comp: c as u32,
-                                lookup_table: table,
-                            },
-                        )
-                    }
-                    "VECTORS" | "NORMALS" => (
-                        data_type(w.get(2), &cur, at, line)?,
-                        3,
-                        if kw == "VECTORS" {
-                            ElementType::Vectors
-                        } else {
-                            ElementType::Normals
-                        },
-                    ),
-                    "TENSORS" => (
-                        data_type(w.get(2), &cur, at, line)?,
-                        9,
-                        ElementType::Tensors,
-                    ),
-                    "TENSORS6" => (
-                        data_type(w.get(2), &cur, at, line)?,
-                        6,
-                        ElementType::Generic(6),
-                    ),
-                    "TEXTURE_COORDINATES" => {
-                        let d = count(w.get(2), &cur, at, line)?;
-                        if !(1..=3).contains(&d) {
-                            return Err(cur.err(at, "TEXTURE_COORDINATES: 1 to 3 dimensions"));
-                        }
-                        (
-                            data_type(w.get(3), &cur, at, line)?,
-                            d,
-                            ElementType::TCoords(d as u32),
-                        )
-                    }
-                    "COLOR_SCALARS" => {
-                        let c = count(w.get(2), &cur, at, line)?;
-                        (
-                            Ty::U8,
-                            c,
-                            ElementType::ColorScalars(c.min(u32::MAX as usize) as u32),
-                        )
-                    }
-                    "LOOKUP_TABLE" => {
-                        // A table of `size` RGBA colours (unsigned char in binary files).
-                        let size = count(w.get(2), &cur, at, line)?;
-                        let n = size
-                            .checked_mul(4)
-                            .ok_or_else(|| cur.err(at, "LOOKUP_TABLE: count too large"))?;
-                        cur.take(Ty::U8, n, "LOOKUP_TABLE", at)?;
-                        continue;
-                    }
-                    // GLOBAL_IDS / PEDIGREE_IDS name type: one value per tuple.
-                    _ => (
-                        data_type(w.get(2), &cur, at, line)?,
-                        1,
-                        ElementType::Generic(1),
-                    ),
-                };
-                let n = tuples
-                    .checked_mul(comps)
-                    .ok_or_else(|| cur.err(at, format!("{kw}: count too large")))?;
-                let b = cur.take(ty, n, &format!("{kw} {}", clip(&name)), at)?;
-                if matches!(kw.as_str(), "GLOBAL_IDS" | "PEDIGREE_IDS") {
-                    continue;
-                }
-                let a = Attribute::DataArray(DataArray {
-                    name,
-                    elem,
-                    data: buffer(ty, b),
-                });
-                if target == 1 {
-                    attrs.point.push(a);
-                } else {
-                    attrs.cell.push(a);
+                match read_attribute(&mut cur, &kw, &w, at, line, tuples)? {
+                    Some(a) if target == 1 => attrs.point.push(a),
+                    Some(a) => attrs.cell.push(a),
+                    None => {}
                 }
             }
             _ => {
@@ -584,7 +371,10 @@ pub(crate) fn read(bytes: &[u8], path: &Path) -> Result<vtkio::Vtk> {
         ));
     }
     let points = points.ok_or_else(|| fail(path, "no POINTS section"))?;
-    let (connectivity, offsets) = cells.ok_or_else(|| fail(path, "no CELLS section"))?;
+    let CellArrays {
+        connectivity,
+        offsets,
+    } = cells.ok_or_else(|| fail(path, "no CELLS section"))?;
     let types = types.ok_or_else(|| fail(path, "no CELL_TYPES section"))?;
     if types.len() != offsets.len() {
         return Err(fail(
@@ -616,4 +406,247 @@ pub(crate) fn read(bytes: &[u8], path: &Path) -> Result<vtkio::Vtk> {
         },
         file_path: None,
     })
+}
+
+/// A `CELLS` section's arrays: the connectivity and each cell's end in it.
+struct CellArrays {
+    connectivity: Vec<u64>,
+    offsets: Vec<u64>,
+}
+
+/// The `OFFSETS` and `CONNECTIVITY` arrays after a `CELLS n_off n_conn` line (words `w`, at
+/// byte `at`), checked: offsets from 0, never decreasing, ending at the connectivity's length.
+fn read_cells(cur: &mut Cur, w: &[&str], at: usize, line: &str) -> Result<CellArrays> {
+    let n_off = count(w.get(1), cur, at, line)?;
+    let n_conn = count(w.get(2), cur, at, line)?;
+    let mut arrays = Vec::with_capacity(2);
+    for (name, n) in [("OFFSETS", n_off), ("CONNECTIVITY", n_conn)] {
+        let Some((a, l, w)) = cur.keyword_line()? else {
+            return Err(cur.err(cur.pos, format!("the file ends before {name}")));
+        };
+        if !w.first().is_some_and(|h| h.eq_ignore_ascii_case(name)) {
+            return Err(cur.err(
+                a,
+                format!("expected '{name} <type>' after CELLS, found '{}'", clip(l)),
+            ));
+        }
+        let ty = data_type(w.get(1), cur, a, l)?;
+        let b = cur.take(ty, n, name, a)?;
+        let v = indices(ty, b)
+            .ok_or_else(|| cur.err(a, format!("{name} must hold non-negative integers")))?;
+        arrays.push((a, v));
+    }
+    let (_, conn) = arrays.pop().unwrap_or_default();
+    let (off_at, off) = arrays.pop().unwrap_or_default();
+    // OFFSETS starts at 0, never decreases and ends at the connectivity's length.
+    if n_off > 0 {
+        if off.first() != Some(&0) {
+            return Err(cur.err(off_at, "OFFSETS must start at 0"));
+        }
+        for (i, p) in off.windows(2).enumerate() {
+            if p[1] < p[0] {
+                return Err(cur.err(
+                    off_at,
+                    format!(
+                        "OFFSETS decrease at entry {} ({} then {})",
+                        i + 1,
+                        p[0],
+                        p[1]
+                    ),
+                ));
+            }
+        }
+        let last = off.last().copied().unwrap_or(0);
+        if last != n_conn as u64 {
+            return Err(cur.err(
+                off_at,
+                format!(
+                    "the last OFFSETS entry is {last}, but CONNECTIVITY has {n_conn} \
+                     entries"
+                ),
+            ));
+        }
+    } else if n_conn > 0 {
+        return Err(cur.err(at, "CELLS: CONNECTIVITY without OFFSETS"));
+    }
+    Ok(CellArrays {
+        connectivity: conn,
+        offsets: off.get(1..).unwrap_or(&[]).to_vec(),
+    })
+}
+
+/// The cell types after a `CELL_TYPES n` line: big-endian i32, hytled's volume and face cells.
+fn read_cell_types(cur: &mut Cur, w: &[&str], at: usize, line: &str) -> Result<Vec<CellType>> {
+    let path = cur.path;
+    let n = count(w.get(1), cur, at, line)?;
+    let b = cur.take(Ty::I32, n, "CELL_TYPES", at)?;
+    let mut v = Vec::with_capacity(n);
+    for (i, c) in b.chunks_exact(4).enumerate() {
+        let t = i32::from_be_bytes([c[0], c[1], c[2], c[3]]);
+        v.push(cell_type(t).ok_or_else(|| {
+            fail(
+                path,
+                format!(
+                    "unsupported VTK cell type {t} at cell {i}; hytled reads VTK_TETRA \
+                     (10) or VTK_HEXAHEDRON (12) volume cells, with VTK_TRIANGLE (5) \
+                     or VTK_QUAD (9) boundary faces"
+                ),
+            )
+        })?);
+    }
+    Ok(v)
+}
+
+/// The arrays after a `FIELD name k` line, as one field attribute.
+fn read_field(cur: &mut Cur, w: &[&str], at: usize, line: &str) -> Result<Attribute> {
+    let k = count(w.get(2), cur, at, line)?;
+    let mut data_array = Vec::new();
+    let mut got = 0;
+    while got < k {
+        let Some((a, l, w)) = cur.keyword_line()? else {
+            return Err(cur.err(
+                cur.pos,
+                format!("the file ends after {got} of the {k} FIELD arrays"),
+            ));
+        };
+        got += 1;
+        if w.first()
+            .is_some_and(|h| h.eq_ignore_ascii_case("NULL_ARRAY"))
+        {
+            continue;
+        }
+        if w.len() != 4 {
+            return Err(cur.err(
+                a,
+                format!(
+                    "FIELD array line '{}': expected 'name components tuples type'",
+                    clip(l)
+                ),
+            ));
+        }
+        let comps = count(w.get(1), cur, a, l)?;
+        let nt = count(w.get(2), cur, a, l)?;
+        let ty = data_type(w.get(3), cur, a, l)?;
+        let n = comps
+            .checked_mul(nt)
+            .ok_or_else(|| cur.err(a, "FIELD array: count too large"))?;
+        let b = cur.take(ty, n, &format!("FIELD array '{}'", clip(w[0])), a)?;
+        data_array.push(FieldArray {
+            name: w[0].to_string(),
+            elem: u32::try_from(comps).unwrap_or(u32::MAX),
+            data: buffer(ty, b),
+        });
+    }
+    let field = Attribute::Field {
+        name: w.get(1).unwrap_or(&"FieldData").to_string(),
+        data_array,
+    };
+    Ok(field)
+}
+
+/// A point or cell attribute (`SCALARS`, `VECTORS`, ...) of `tuples` tuples after its line;
+/// None for what carries no data hytled keeps (lookup tables, ids).
+fn read_attribute(
+    cur: &mut Cur,
+    kw: &str,
+    w: &[&str],
+    at: usize,
+    line: &str,
+    tuples: usize,
+) -> Result<Option<Attribute>> {
+    let name = w.get(1).unwrap_or(&"").to_string();
+    let (ty, comps, elem) = match kw {
+        "SCALARS" => {
+            let c = match w.get(3) {
+                Some(_) => count(w.get(3), cur, at, line)?,
+                None => 1,
+            };
+            if !(1..=4).contains(&c) {
+                return Err(cur.err(at, "SCALARS: 1 to 4 components"));
+            }
+            let ty = data_type(w.get(2), cur, at, line)?;
+            // An optional LOOKUP_TABLE line follows.
+            let save = cur.pos;
+            let mut table = None;
+            match cur.keyword_line()? {
+                Some((_, _, lw))
+                    if lw
+                        .first()
+                        .is_some_and(|h| h.eq_ignore_ascii_case("LOOKUP_TABLE")) =>
+                {
+                    table = lw.get(1).map(|s| s.to_string());
+                }
+                _ => cur.pos = save,
+            }
+            (
+                ty,
+                c,
+                ElementType::Scalars {
+                    num_comp: c as u32,
+                    lookup_table: table,
+                },
+            )
+        }
+        "VECTORS" | "NORMALS" => (
+            data_type(w.get(2), cur, at, line)?,
+            3,
+            if kw == "VECTORS" {
+                ElementType::Vectors
+            } else {
+                ElementType::Normals
+            },
+        ),
+        "TENSORS" => (data_type(w.get(2), cur, at, line)?, 9, ElementType::Tensors),
+        "TENSORS6" => (
+            data_type(w.get(2), cur, at, line)?,
+            6,
+            ElementType::Generic(6),
+        ),
+        "TEXTURE_COORDINATES" => {
+            let d = count(w.get(2), cur, at, line)?;
+            if !(1..=3).contains(&d) {
+                return Err(cur.err(at, "TEXTURE_COORDINATES: 1 to 3 dimensions"));
+            }
+            (
+                data_type(w.get(3), cur, at, line)?,
+                d,
+                ElementType::TCoords(d as u32),
+            )
+        }
+        "COLOR_SCALARS" => {
+            let c = count(w.get(2), cur, at, line)?;
+            (
+                Ty::U8,
+                c,
+                ElementType::ColorScalars(c.min(u32::MAX as usize) as u32),
+            )
+        }
+        "LOOKUP_TABLE" => {
+            // A table of `size` RGBA colours (unsigned char in binary files).
+            let size = count(w.get(2), cur, at, line)?;
+            let n = size
+                .checked_mul(4)
+                .ok_or_else(|| cur.err(at, "LOOKUP_TABLE: count too large"))?;
+            cur.take(Ty::U8, n, "LOOKUP_TABLE", at)?;
+            return Ok(None);
+        }
+        // GLOBAL_IDS / PEDIGREE_IDS name type: one value per tuple.
+        _ => (
+            data_type(w.get(2), cur, at, line)?,
+            1,
+            ElementType::Generic(1),
+        ),
+    };
+    let n = tuples
+        .checked_mul(comps)
+        .ok_or_else(|| cur.err(at, format!("{kw}: count too large")))?;
+    let b = cur.take(ty, n, &format!("{kw} {}", clip(&name)), at)?;
+    if matches!(kw, "GLOBAL_IDS" | "PEDIGREE_IDS") {
+        return Ok(None);
+    }
+    Ok(Some(Attribute::DataArray(DataArray {
+        name,
+        elem,
+        data: buffer(ty, b),
+    })))
 }
