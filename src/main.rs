@@ -812,8 +812,11 @@ fn mesh(
         mesh.nodes.len(),
         mesh.num_cells()
     );
-    if let Some((a, e)) = hytled::geometry::quality::min_dihedral_angle(&mesh) {
-        println!("min dihedral angle {a:.2} deg (element {e})");
+    if let Some(d) = hytled::geometry::quality::min_dihedral_angle(&mesh) {
+        println!(
+            "min dihedral angle {:.2} deg (element {})",
+            d.degrees, d.element
+        );
     }
     if let Some(paths) = split {
         let (fe_path, cloud_path) = (&paths[0], &paths[1]);

@@ -117,6 +117,15 @@ fn address_space_left(limits: &str, status: &str) -> Option<f64> {
     Some((soft - kib * 1024.0).max(0.0))
 }
 
+/// A mesh's size before it is made, for the memory checks: counts as f64 (a planned count
+/// may pass any integer type) and what it is, for messages.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PlannedMesh {
+    pub nodes: f64,
+    pub elements: f64,
+    pub what: String,
+}
+
 /// Refuses a plan that would hold `need` bytes when that is more than [`SHARE`] of the
 /// available memory: the error says what would take the memory (`what`) and how to lower it
 /// (`fix`).

@@ -140,9 +140,9 @@ fn coupled_tet10_passes_the_patch_test() {
     assert!(worst < 1e-12, "|F - (I + A)| = {worst:e}");
     let vol: f64 = qp.weights.iter().sum();
     assert!((vol - 1e-3).abs() < 1e-12, "volume {vol}");
-    for &(i, _) in &q.edges {
-        assert_eq!(c.regions.node[i], NodeRole::Fe);
-        assert!(c.lumped_volume[i] > 0.0);
+    for e in &q.edges {
+        assert_eq!(c.regions.node[e.node], NodeRole::Fe);
+        assert!(c.lumped_volume[e.node] > 0.0);
     }
 }
 

@@ -82,9 +82,9 @@ pub struct CoupledBuild {
     /// Cell of each quadrature point: FE-layer cells first, then interior cells
     /// (index `fe_mesh.num_cells() + cell`).
     pub owner: Vec<usize>,
-    /// For each cell in `owner`'s numbering, the cell of the input mesh it is (usize::MAX for
+    /// For each cell in `owner`'s numbering, the cell of the input mesh it is (None for
     /// interior cells made from a node cloud).
-    pub source_cell: Vec<usize>,
+    pub source_cell: Vec<Option<usize>>,
     /// Global ids of the MLS nodes (interface + meshless), ascending; `support` indexes them.
     pub mls_nodes: Vec<usize>,
     pub support: Support,
@@ -537,9 +537,10 @@ pub fn build(mesh: Mesh, s: &CoupledSettings) -> Result<CoupledBuild> {
     };
     let fe_mesh = pick(&|r| r != CellRole::Meshless);
     let interior = pick(&|r| r == CellRole::Meshless);
-    let source_cell: Vec<usize> = (0..mesh.num_cells())
+    let source_cell: Vec<Option<usize>> = (0..mesh.num_cells())
         .filter(|&e| regions.cell[e] != CellRole::Meshless)
         .chain((0..mesh.num_cells()).filter(|&e| regions.cell[e] == CellRole::Meshless))
+        .map(Some)
         .collect();
     let fe_roles: Vec<CellRole> = regions
         .cell
@@ -647,7 +648,13 @@ fn assemble(
                 let mut qp =
                     QuadraturePoints::with_capacity(4 * fe_cells.len(), 40 * fe_cells.len());
                 for &e in &fe_cells {
-                    let ids = q.cells[e];
+                    let ids = q.full_cell(e).ok_or_else(|| {
+                        Error::input(
+                            InputKind::Discretization,
+                            format!("coupled: FE-layer cell {e} has an edge without its node"),
+                        )
+                        .element(e)
+                    })?;
                     let x: [Vector3<f64>; 10] = std::array::from_fn(|a| nodes[ids[a]]);
                     let pts = fe::tet10::cell_points(&x, &ids)
                         .map_err(|volume| Error::InvalidElement { element: e, volume })?;
@@ -871,7 +878,8 @@ fn assemble(
         ));
     }
     let source_cell = (0..fe_mesh.num_cells())
-        .chain(std::iter::repeat_n(usize::MAX, interior.num_cells()))
+        .map(Some)
+        .chain(std::iter::repeat_n(None, interior.num_cells()))
         .collect();
     let (fe_grid, interior_grid) = (CellGrid::new(&fe_mesh), CellGrid::new(&interior));
     let mut build = CoupledBuild {

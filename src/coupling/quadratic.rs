@@ -18,17 +18,21 @@ use super::NodeRole;
 use crate::fe::{tet10, tet4};
 use crate::geometry::Mesh;
 
-/// No node on this edge (its shape function folded onto the ends).
-pub const FOLDED: usize = usize::MAX;
-
 /// The edge nodes of a quadratic FE layer.
 #[derive(Debug, Clone)]
 pub struct Quadratic {
-    /// Per FE-layer cell: its ten nodes in VTK order ([`tet10::EDGES`]), [`FOLDED`] for an
-    /// edge between two MLS nodes.
-    pub cells: Vec<[usize; 10]>,
-    /// Edge nodes: (node id, its two end vertices).
-    pub edges: Vec<(usize, [usize; 2])>,
+    /// Per FE-layer cell: its ten nodes in VTK order ([`tet10::EDGES`]), None for an edge
+    /// between two MLS nodes (no node there: its shape function is folded onto the ends).
+    pub cells: Vec<[Option<usize>; 10]>,
+    /// The edge nodes.
+    pub edges: Vec<EdgeNode>,
+}
+
+/// An edge node of a quadratic FE layer and the two vertices its edge joins.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct EdgeNode {
+    pub node: usize,
+    pub ends: [usize; 2],
 }
 
 impl Quadratic {
@@ -44,23 +48,38 @@ impl Quadratic {
         let mut cells = Vec::with_capacity(fe_mesh.num_cells());
         for e in 0..fe_mesh.num_cells() {
             let c = fe_mesh.cell(e);
-            let mut ids = [FOLDED; 10];
-            ids[..4].copy_from_slice(c);
+            let mut ids = [None; 10];
+            for (id, &v) in ids.iter_mut().zip(c) {
+                *id = Some(v);
+            }
             for (k, &(a, b)) in tet10::EDGES.iter().enumerate() {
                 let key = [c[a].min(c[b]), c[a].max(c[b])];
                 if roles[key[0]] != NodeRole::Fe && roles[key[1]] != NodeRole::Fe {
                     continue;
                 }
-                ids[4 + k] = *index.entry(key).or_insert_with(|| {
+                ids[4 + k] = Some(*index.entry(key).or_insert_with(|| {
                     nodes.push(0.5 * (nodes[key[0]] + nodes[key[1]]));
                     roles.push(NodeRole::Fe);
-                    edges.push((nodes.len() - 1, key));
+                    edges.push(EdgeNode {
+                        node: nodes.len() - 1,
+                        ends: key,
+                    });
                     nodes.len() - 1
-                });
+                }));
             }
             cells.push(ids);
         }
         Quadratic { cells, edges }
+    }
+
+    /// The ten nodes of cell `e` when none of its edges is folded.
+    pub fn full_cell(&self, e: usize) -> Option<[usize; 10]> {
+        let c = self.cells.get(e)?;
+        let mut ids = [0; 10];
+        for (id, n) in ids.iter_mut().zip(c) {
+            *id = (*n)?;
+        }
+        Some(ids)
     }
 
     /// Adds to the sorted node list `ids` the edge nodes whose two end vertices it holds
@@ -70,8 +89,8 @@ impl Quadratic {
         ids.extend(
             self.edges
                 .iter()
-                .filter(|(_, [a, b])| set.contains(a) && set.contains(b))
-                .map(|(i, _)| *i),
+                .filter(|e| set.contains(&e.ends[0]) && set.contains(&e.ends[1]))
+                .map(|e| e.node),
         );
         ids.sort_unstable();
         ids.dedup();
@@ -85,8 +104,7 @@ impl Quadratic {
         fold(&ids, &mut n, |acc, v| *acc += v);
         ids.iter()
             .zip(n)
-            .filter(|(&i, _)| i != FOLDED)
-            .map(|(&i, v)| (i, v))
+            .filter_map(|(&i, v)| Some((i?, v)))
             .collect()
     }
 
@@ -100,13 +118,13 @@ impl Quadratic {
         l: [f64; 4],
     ) -> std::result::Result<QuadraticPoint, f64> {
         let ids = self.cells[e];
+        let vertex = |a: usize| nodes[ids[a].unwrap_or_default()];
         // A folded edge's node sits at its middle (straight edges).
-        let x: [Vector3<f64>; 10] = std::array::from_fn(|a| {
-            if a < 4 || ids[a] != FOLDED {
-                nodes[ids[a]]
-            } else {
+        let x: [Vector3<f64>; 10] = std::array::from_fn(|a| match ids[a] {
+            Some(i) => nodes[i],
+            None => {
                 let (p, q) = tet10::EDGES[a - 4];
-                0.5 * (nodes[ids[p]] + nodes[ids[q]])
+                0.5 * (vertex(p) + vertex(q))
             }
         });
         let x4 = [x[0], x[1], x[2], x[3]];
@@ -116,9 +134,9 @@ impl Quadratic {
         fold(&ids, &mut n, |acc, v| *acc += v);
         fold(&ids, &mut d, |acc, v| *acc += v);
         let pos = (0..4).fold(Vector3::zeros(), |a, k| a + x[k] * l[k]);
-        let keep: Vec<usize> = (0..10).filter(|&a| ids[a] != FOLDED).collect();
+        let keep: Vec<usize> = (0..10).filter(|&a| ids[a].is_some()).collect();
         Ok(QuadraticPoint {
-            ids: keep.iter().map(|&a| ids[a]).collect(),
+            ids: keep.iter().filter_map(|&a| ids[a]).collect(),
             n: keep.iter().map(|&a| n[a]).collect(),
             dn: keep.iter().map(|&a| d[a]).collect(),
             position: pos,
@@ -138,12 +156,12 @@ pub struct QuadraticPoint {
 
 /// Adds half of each folded edge's value in `v` to each of its two corners.
 fn fold<T: Copy + std::ops::Mul<f64, Output = T>>(
-    ids: &[usize; 10],
+    ids: &[Option<usize>; 10],
     v: &mut [T; 10],
     add: impl Fn(&mut T, T),
 ) {
     for (k, &(a, b)) in tet10::EDGES.iter().enumerate() {
-        if ids[4 + k] == FOLDED {
+        if ids[4 + k].is_none() {
             let half = v[4 + k] * 0.5;
             add(&mut v[a], half);
             add(&mut v[b], half);

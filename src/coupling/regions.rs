@@ -64,7 +64,7 @@ pub enum FeRegion {
 /// Node depth: 0 on the boundary surface (or, with [`FeRegion::Around`], at its nodes), else
 /// 1 + the smallest depth of a node sharing a cell with it (cell-graph distance); usize::MAX
 /// where no seed is reachable.
-pub fn node_depth(mesh: &Mesh, region: &FeRegion) -> Result<Vec<usize>> {
+fn node_depth(mesh: &Mesh, region: &FeRegion) -> Result<Vec<usize>> {
     let mut depth = vec![usize::MAX; mesh.nodes.len()];
     match region {
         FeRegion::Surface => {

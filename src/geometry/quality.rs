@@ -49,14 +49,21 @@ pub fn tet_dihedral_angles(p: &[Vector3<f64>; 4]) -> [f64; 6] {
     out
 }
 
+/// The smallest dihedral angle of a tet mesh, degrees, and the element that has it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MinDihedral {
+    pub degrees: f64,
+    pub element: usize,
+}
+
 /// Smallest interior dihedral angle (degrees) over all tetrahedra of a Tet4 mesh, and the
 /// element where it occurs. `None` for a hex mesh or a mesh without elements.
 /// A regular tetrahedron has 70.53 degrees everywhere; slivers tend to 0.
-pub fn min_dihedral_angle(mesh: &Mesh) -> Option<(f64, usize)> {
+pub fn min_dihedral_angle(mesh: &Mesh) -> Option<MinDihedral> {
     if mesh.shape != ElementShape::Tet4 {
         return None;
     }
-    let mut best: Option<(f64, usize)> = None;
+    let mut best: Option<MinDihedral> = None;
     for e in 0..mesh.num_cells() {
         let c = mesh.cell(e);
         let p = [
@@ -72,8 +79,11 @@ pub fn min_dihedral_angle(mesh: &Mesh) -> Option<(f64, usize)> {
                 m.min(x)
             }
         });
-        if best.is_none_or(|(b, _)| a < b) {
-            best = Some((a, e));
+        if best.is_none_or(|b| a < b.degrees) {
+            best = Some(MinDihedral {
+                degrees: a,
+                element: e,
+            });
         }
     }
     best
@@ -276,7 +286,10 @@ mod tests {
     fn dihedral_angles_of_known_tets() {
         // Corner tet: three right angles at the edges through the origin, and
         // acos(1/sqrt(3)) = 54.7356 deg at the other three.
-        let (a, e) = min_dihedral_angle(&unit_tet()).unwrap();
+        let MinDihedral {
+            degrees: a,
+            element: e,
+        } = min_dihedral_angle(&unit_tet()).unwrap();
         assert_eq!(e, 0);
         assert!((a - (1.0f64 / 3.0f64.sqrt()).acos().to_degrees()).abs() < 1e-10);
         // Regular tet: acos(1/3) = 70.5288 deg on every edge.

@@ -426,7 +426,7 @@ mod tests {
     use super::*;
     use crate::geometry::quality::{
         boundary_faces, face_area, find_duplicate_nodes, min_dihedral_angle, min_scaled_jacobian,
-        tet_signed_volume,
+        tet_signed_volume, MinDihedral,
     };
     use std::f64::consts::PI;
 
@@ -508,7 +508,7 @@ mod tests {
         assert_eq!(t.nodes.len(), 5 * 4 * 6);
         assert_eq!(t.num_cells(), 360);
         check_mesh(&t, vol, area);
-        let (a, _) = min_dihedral_angle(&t).unwrap();
+        let a = min_dihedral_angle(&t).unwrap().degrees;
         assert!(a > 20.0, "box_tet min dihedral {a}");
     }
 
@@ -591,7 +591,7 @@ mod tests {
             check_mesh(&t, vol, area);
             check_circumference(&t, r, ni, na + 1);
             let (sj, _) = min_scaled_jacobian(&m).unwrap();
-            let (dih, _) = min_dihedral_angle(&t).unwrap();
+            let dih = min_dihedral_angle(&t).unwrap().degrees;
             println!(
                 "cylinder r={r} h={h} n_inner={ni} n_radial={nr} n_axial={na}: \
                  hex min scaled Jacobian {sj:.3}, tet min dihedral {dih:.2} deg"
@@ -602,7 +602,10 @@ mod tests {
     #[test]
     fn cylinder_tet_min_dihedral_above_15_degrees() {
         let t = cylinder_tet(0.05, 0.1, 4, 2, 10).unwrap();
-        let (a, e) = min_dihedral_angle(&t).unwrap();
+        let MinDihedral {
+            degrees: a,
+            element: e,
+        } = min_dihedral_angle(&t).unwrap();
         println!("cylinder_tet(0.05, 0.1, 4, 2, 10): min dihedral {a:.2} deg at element {e}");
         assert!(a > 15.0, "min dihedral {a} deg at element {e}");
     }

@@ -875,7 +875,7 @@ mod tests {
         assert_eq!(find_duplicate_nodes(&m, 1e-9 * d.norm()), None);
         let (lo2, hi2) = m.bounding_box();
         assert_eq!((lo2, hi2), (lo, hi));
-        let (a, _) = min_dihedral_angle(&m).unwrap();
+        let a = min_dihedral_angle(&m).unwrap().degrees;
         println!(
             "tetgen_box(max_volume = V/500, q = 1.5): {} nodes, {} tets, min dihedral {a:.2} deg",
             m.nodes.len(),
@@ -899,7 +899,7 @@ mod tests {
         assert!(((surface(&m) - area) / area).abs() < 1e-10);
         assert!(m.nodes.iter().any(|p| p.x == r && p.y == 0.0 && p.z == 0.0));
         assert!(m.nodes.iter().all(|p| p.x.hypot(p.y) <= r * (1.0 + 1e-12)));
-        let (a, _) = min_dihedral_angle(&m).unwrap();
+        let a = min_dihedral_angle(&m).unwrap().degrees;
         println!(
             "tetgen_cylinder(0.05, 0.1, 32, V/2000, q = 1.4): {} nodes, {} tets, min dihedral \
              {a:.2} deg",
@@ -988,7 +988,7 @@ mod tests {
         }
         assert!(m.nodes.contains(&Vector3::new(0.0, 0.0, BRAIN[2])));
         assert_eq!(find_duplicate_nodes(&m, 1e-9), None);
-        let (a, _) = min_dihedral_angle(&m).unwrap();
+        let a = min_dihedral_angle(&m).unwrap().degrees;
         println!(
             "tetgen_half_ellipsoid(h = {h}): {} nodes, {} tets, volume {:.4} % off exact, \
              min dihedral {a:.2} deg",
@@ -1015,7 +1015,7 @@ mod tests {
                 ((v - exact) / exact).abs() < 0.02,
                 "h = {h}: volume {v} vs {exact}"
             );
-            let (a, _) = min_dihedral_angle(&m).unwrap();
+            let a = min_dihedral_angle(&m).unwrap().degrees;
             let faces = boundary_faces(&m).unwrap();
             let mut surface: Vec<usize> = faces.iter().flatten().cloned().collect();
             surface.sort_unstable();
@@ -1163,7 +1163,7 @@ mod tests {
             far > 2.0 * 0.002,
             "graded: longest edge near the base {far}"
         );
-        let (a, _) = min_dihedral_angle(&m).unwrap();
+        let a = min_dihedral_angle(&m).unwrap().degrees;
         println!(
             "outlined half-ellipsoid: {} nodes, {} tets ({plug_tets} in the plug), {ring} outline \
              nodes, min dihedral {a:.2} deg, edges in the plug from {rim:.2e} m, near the base up \

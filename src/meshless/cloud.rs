@@ -805,23 +805,22 @@ pub fn parse_cloud_sets(text: &str, source: &Path) -> Result<(Vec<Vector3<f64>>,
 }
 
 /// Mesh vertices that at least one cell uses (the default cloud: the vertices of a tet mesh).
-/// Returns the nodes (m, in their mesh order) and the old->new index map (usize::MAX for
-/// dropped). Unused mesh nodes would be nodes without integration points nearby, which only
+/// Returns the nodes (m, in their mesh order) and the old->new index map (None for dropped). Unused mesh nodes would be nodes without integration points nearby, which only
 /// add unknowns with no stiffness (Horton et al. 2010 sect. 3.1 use the tet vertices).
 /// Connectivity entries beyond the node list are ignored rather than panicking; meshes are
 /// checked for them when read.
-pub fn mesh_vertices(mesh: &Mesh) -> (Vec<Vector3<f64>>, Vec<usize>) {
+pub fn mesh_vertices(mesh: &Mesh) -> (Vec<Vector3<f64>>, Vec<Option<usize>>) {
     let mut used = vec![false; mesh.nodes.len()];
     for &i in &mesh.cells {
         if let Some(u) = used.get_mut(i) {
             *u = true;
         }
     }
-    let mut map = vec![usize::MAX; mesh.nodes.len()];
+    let mut map = vec![None; mesh.nodes.len()];
     let mut nodes = Vec::new();
     for (i, p) in mesh.nodes.iter().enumerate() {
         if used[i] {
-            map[i] = nodes.len();
+            map[i] = Some(nodes.len());
             nodes.push(*p);
         }
     }
@@ -1050,7 +1049,7 @@ mod tests {
         };
         let (nodes, map) = mesh_vertices(&mesh);
         assert_eq!(nodes.len(), 4);
-        assert_eq!(map, vec![0, usize::MAX, 1, 2, 3]);
+        assert_eq!(map, vec![Some(0), None, Some(1), Some(2), Some(3)]);
         assert_eq!(nodes[3], Vector3::new(0.0, 0.0, 1.0));
         let full = crate::geometry::shapes::box_tet(
             Vector3::zeros(),
@@ -1060,6 +1059,6 @@ mod tests {
         .unwrap();
         let (nodes, map) = mesh_vertices(&full);
         assert_eq!(nodes.len(), 27);
-        assert!(map.iter().enumerate().all(|(i, &j)| i == j));
+        assert!(map.iter().enumerate().all(|(i, &j)| j == Some(i)));
     }
 }

@@ -29,8 +29,8 @@ pub struct MeshlessBuild {
     pub points: QuadraturePoints,
     /// Integration point positions, m.
     pub positions: Vec<Vector3<f64>>,
-    /// Background tet of each integration point (usize::MAX for grid points).
-    pub owner: Vec<usize>,
+    /// Background tet of each integration point (None for grid points).
+    pub owner: Vec<Option<usize>>,
     pub support: Support,
     pub mls: MlsSettings,
     pub removed_nodes: usize,
@@ -118,21 +118,25 @@ pub struct MeshlessSettings {
 fn patch_groups(
     points: QuadraturePoints,
     positions: Vec<Vector3<f64>>,
-    owner: Vec<usize>,
+    owner: Vec<Option<usize>>,
     level: Vec<u8>,
     background: &Mesh,
     size: usize,
-) -> (QuadraturePoints, Vec<Vector3<f64>>, Vec<usize>, Vec<u8>) {
+) -> (
+    QuadraturePoints,
+    Vec<Vector3<f64>>,
+    Vec<Option<usize>>,
+    Vec<u8>,
+) {
     let tets = background.num_cells();
-    if size <= 1
-        || tets == 0
-        || background.shape != ElementShape::Tet4
-        || owner.iter().any(|&t| t >= tets)
-    {
+    let in_tets: Option<Vec<usize>> = owner.iter().map(|t| t.filter(|&t| t < tets)).collect();
+    let Some(tet_of) =
+        in_tets.filter(|_| size > 1 && tets > 0 && background.shape == ElementShape::Tet4)
+    else {
         return (points, positions, owner, level);
-    }
+    };
     let patch = integration::tet_patches(background, size);
-    let order = integration::patch_point_groups(Some(&patch), &owner);
+    let order = integration::patch_point_groups(Some(&patch), &tet_of);
     let mut qp = QuadraturePoints::with_capacity(points.len(), points.nodes.len());
     let point = |p: usize| {
         let r = points.slots(p);
@@ -181,7 +185,8 @@ fn nodes_and_tets(s: MeshlessSettings) -> Result<(Mesh, String, MeshlessRest)> {
         CloudSource::Mesh { mesh, description } => {
             let mesh = hex_to_tets(mesh);
             let (nodes, map) = cloud::mesh_vertices(&mesh);
-            let cells: Vec<usize> = mesh.cells.iter().map(|&i| map[i]).collect();
+            // Every vertex a cell uses is kept.
+            let cells: Vec<usize> = mesh.cells.iter().filter_map(|&i| map[i]).collect();
             let bg = Mesh {
                 nodes,
                 shape: ElementShape::Tet4,
@@ -273,7 +278,7 @@ pub fn adaptive_tet_points(
 /// integration is judged later, by [`build_points`]), each with at least the nearest rule's
 /// node count (or [`super::support::MIN_NEAREST`]) at [`crate::memory::BYTES_PER_SLOT`].
 pub fn check_build_memory(
-    (nodes, tets, what): (f64, f64, &str),
+    planned: &crate::memory::PlannedMesh,
     integration: &Integration,
     rule: SupportRule,
 ) -> Result<()> {
@@ -281,8 +286,8 @@ pub fn check_build_memory(
         Integration::Tets {
             rule,
             tets_per_point,
-        } => tets * rule.points() as f64 / tets_per_point.max(1.0),
-        Integration::Grid { point_ratio } => nodes * point_ratio,
+        } => planned.elements * rule.points() as f64 / tets_per_point.max(1.0),
+        Integration::Grid { point_ratio } => planned.nodes * point_ratio,
         Integration::Adaptive(_) => return Ok(()),
     };
     let support = match rule {
@@ -292,7 +297,7 @@ pub fn check_build_memory(
     crate::memory::check(
         points * support as f64 * crate::memory::BYTES_PER_SLOT,
         &format!(
-            "the meshless point table (at least {points:.0} integration points x {support} support nodes, on {what})"
+            "the meshless point table (at least {points:.0} integration points x {support} support nodes, on {})", planned.what
         ),
         "use a coarser cloud (discretization.size), fewer integration points (discretization.tet_rule, \
          tets_per_point, point_ratio) or smaller supports (discretization.support_nodes, dilatation)",
@@ -316,15 +321,15 @@ pub fn build(settings: MeshlessSettings, protected: &ProtectedNodes) -> Result<M
         patch,
     } = rest;
     check_build_memory(
-        (
-            background.nodes.len() as f64,
-            background.num_cells() as f64,
-            &format!(
+        &crate::memory::PlannedMesh {
+            nodes: background.nodes.len() as f64,
+            elements: background.num_cells() as f64,
+            what: format!(
                 "{} nodes and {} background tets",
                 background.nodes.len(),
                 background.num_cells()
             ),
-        ),
+        },
         &integration,
         rule,
     )?;
@@ -351,7 +356,12 @@ pub fn build(settings: MeshlessSettings, protected: &ProtectedNodes) -> Result<M
             );
             adaptive_info = Some(info);
             point_level = a.level;
-            (a.positions, a.weights, a.owner, name)
+            (
+                a.positions,
+                a.weights,
+                a.owner.into_iter().map(Some).collect(),
+                name,
+            )
         }
         Integration::Tets {
             rule,
@@ -367,7 +377,7 @@ pub fn build(settings: MeshlessSettings, protected: &ProtectedNodes) -> Result<M
                         p.len(),
                         tets_per_point
                     );
-                    (p, w, o, name)
+                    (p, w, o.into_iter().map(Some).collect(), name)
                 }
                 None => {
                     let name = format!(
@@ -375,7 +385,7 @@ pub fn build(settings: MeshlessSettings, protected: &ProtectedNodes) -> Result<M
                         background.num_cells(),
                         rule.points()
                     );
-                    (p, w, o, name)
+                    (p, w, o.into_iter().map(Some).collect(), name)
                 }
             }
         }
@@ -387,7 +397,7 @@ pub fn build(settings: MeshlessSettings, protected: &ProtectedNodes) -> Result<M
                 )
             })?;
             let (p, w) = integration::grid_points(dom, background.nodes.len(), point_ratio)?;
-            let o = vec![usize::MAX; p.len()];
+            let o = vec![None; p.len()];
             let name = format!("regular grid, {point_ratio} points per node");
             (p, w, o, name)
         }

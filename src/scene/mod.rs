@@ -128,7 +128,7 @@ pub fn from_json(json: &str, base_dir: &Path, overrides: &[String]) -> Result<Sc
 }
 
 /// Parses scene text (see [`load`]); `path` names the source in errors, which are
-/// [`InputKind::Scene`] errors with the file, the line (as written, when the text has it) and
+/// [`crate::InputKind::Scene`] errors with the file, the line (as written, when the text has it) and
 /// the key (when it is known).
 pub fn parse(text: &str, path: &Path, overrides: &[String]) -> Result<Scene> {
     // serde's and toml's messages write an f64 in full (1e300 as 301 digits).

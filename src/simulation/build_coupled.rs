@@ -211,8 +211,7 @@ pub(super) fn prepare_coupled(scene: &Scene) -> Result<Prepared> {
             None
         },
     };
-    let min_dihedral = quality::min_dihedral_angle(&mesh)
-        .map(|(degrees, element)| super::MinDihedral { degrees, element });
+    let min_dihedral = quality::min_dihedral_angle(&mesh);
     let tets = |p: &[Vector3<f64>]| -> Result<Vec<[usize; 4]>> {
         Ok(discretize::delaunay(p)?
             .chunks_exact(4)
@@ -233,7 +232,11 @@ pub(super) fn prepare_coupled(scene: &Scene) -> Result<Prepared> {
     } else if generated {
         // A generated interior: the outer fe_layers of the mesh stay FE, the generator's nodes
         // fill the cavity (those within half a spacing of the inner surface dropped).
-        let (cloud, _, h) = translate::generated_cloud(scene)?;
+        let translate::GeneratedCloud {
+            nodes: cloud,
+            spacing: h,
+            ..
+        } = translate::generated_cloud(scene)?;
         let (shell, _) = coupling::regions::split_inputs(&mesh, d.fe_layers())?;
         coupling::mixed::build(shell, &cloud, 0.5 * h, &settings, &tets).map(|(b, _)| b)
     } else {
@@ -303,13 +306,7 @@ pub(super) fn prepare_coupled(scene: &Scene) -> Result<Prepared> {
         element: build
             .owner
             .iter()
-            .map(|&o| {
-                build
-                    .source_cell
-                    .get(o)
-                    .copied()
-                    .filter(|&c| c != usize::MAX)
-            })
+            .map(|&o| build.source_cell.get(o).copied().flatten())
             .collect(),
     };
     let parts = Parts {

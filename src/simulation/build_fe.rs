@@ -48,8 +48,7 @@ pub(super) fn prepare_fe(scene: &Scene) -> Result<Prepared> {
             .collect(),
         element: (0..points.len()).map(|p| Some(p / per_element)).collect(),
     };
-    let min_dihedral = quality::min_dihedral_angle(&mesh)
-        .map(|(degrees, element)| super::MinDihedral { degrees, element });
+    let min_dihedral = quality::min_dihedral_angle(&mesh);
     let (body, quadratic) = match t10 {
         Some(t) => (t.split(), Some((t, mesh))),
         None => (mesh, None),

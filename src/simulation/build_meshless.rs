@@ -90,7 +90,7 @@ pub(super) fn prepare_meshless(scene: &Scene) -> Result<Prepared> {
         element: build
             .owner
             .iter()
-            .map(|&o| (from_file.is_some() && o != usize::MAX).then_some(o / per_cell))
+            .map(|&o| o.filter(|_| from_file.is_some()).map(|o| o / per_cell))
             .collect(),
     };
     let parts = Parts {

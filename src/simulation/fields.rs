@@ -13,13 +13,17 @@ use crate::quadrature::SparseRow;
 use crate::solver::{Fields, Model};
 use crate::{Error, Result};
 
-/// A frame's points (m), its cells (connectivity, offsets, VTK types) and the cell of each
-/// quadrature point (None: one point per cell, in cell order).
-pub(super) type FrameGeometry<'a> = (
-    &'a [Vector3<f64>],
-    (Vec<usize>, Vec<usize>, Vec<u8>),
-    Option<&'a [usize]>,
-);
+/// A frame's points (m), its cells and where its quadrature points lie.
+pub(super) struct FrameGeometry<'a> {
+    pub points: &'a [Vector3<f64>],
+    pub connectivity: Vec<usize>,
+    pub offsets: Vec<usize>,
+    /// VTK cell types.
+    pub types: Vec<u8>,
+    /// The cell of each quadrature point (None for a point in no cell, a meshless grid
+    /// point); None: the points are the elements', in element order.
+    pub owner: Option<Vec<Option<usize>>>,
+}
 
 /// The fields of one state at the points of the VTU frames ([`ResultPoints::point_fields`]):
 /// reference positions (m), cells as VTK writes them (connectivity, offsets, VTK cell types),
@@ -143,7 +147,7 @@ impl<'a> ResultPoints<'a> {
     /// The frame's points and cells: FE mesh, meshless background tets (or vertices),
     /// coupled FE layer and interior; `owner` maps points to cells (None: one per element).
     pub(super) fn geometry(&self) -> FrameGeometry<'a> {
-        match self.method {
+        let (points, (connectivity, offsets, types), owner) = match self.method {
             Discretization::Meshless { build: m, .. } => {
                 let b = &m.background;
                 let cells = if b.num_cells() == 0 {
@@ -158,16 +162,18 @@ impl<'a> ResultPoints<'a> {
                         vec![b.shape.vtk_type(); b.num_cells()],
                     )
                 };
-                (&b.nodes, cells, Some(&m.owner[..]))
+                (&b.nodes[..], cells, Some(m.owner.clone()))
             }
-            Discretization::Coupled { build: c, .. } => {
-                (&c.nodes, c.vtu_cells(), Some(&c.owner[..]))
-            }
+            Discretization::Coupled { build: c, .. } => (
+                &c.nodes[..],
+                c.vtu_cells(),
+                Some(c.owner.iter().map(|&e| Some(e)).collect()),
+            ),
             Discretization::Fe => {
                 let m = self.mesh;
                 let npc = m.shape.nodes_per_cell();
                 (
-                    &m.nodes,
+                    &m.nodes[..],
                     (
                         m.cells.clone(),
                         (1..=m.num_cells()).map(|e| e * npc).collect(),
@@ -176,6 +182,13 @@ impl<'a> ResultPoints<'a> {
                     None,
                 )
             }
+        };
+        FrameGeometry {
+            points,
+            connectivity,
+            offsets,
+            types,
+            owner,
         }
     }
 
@@ -211,16 +224,16 @@ impl<'a> ResultPoints<'a> {
         }
     }
 
-    /// A state's fields on the frame's points, in memory: what [`Self::write`] writes as
+    /// A state's fields on the frame's points, in memory: what [`super::FrameWriter::write`] writes as
     /// point data, with the frame's cells (the Python `nodal_fields`).
     pub fn point_fields(&self, model: &mut Model<Solid>, u: &[Vector3<f64>]) -> PointFields {
-        let (xs, (connectivity, offsets, types), _) = self.geometry();
+        let g = self.geometry();
         let (disp, fields) = self.at_points(model, u);
         PointFields {
-            points: xs.to_vec(),
-            connectivity,
-            offsets,
-            types,
+            points: g.points.to_vec(),
+            connectivity: g.connectivity,
+            offsets: g.offsets,
+            types: g.types,
             displacement: disp
                 .chunks_exact(3)
                 .map(|c| Vector3::new(c[0], c[1], c[2]))

@@ -105,9 +105,9 @@ pub(super) fn scene_contact(
                     face_edges.insert([a.min(c), a.max(c)]);
                 }
             }
-            for (node, ends) in &q.edges {
-                if face_edges.contains(ends) {
-                    on_face[*node] = true;
+            for e in &q.edges {
+                if face_edges.contains(&e.ends) {
+                    on_face[e.node] = true;
                 }
             }
         }

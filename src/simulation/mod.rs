@@ -25,7 +25,9 @@ use build_coupled::prepare_coupled;
 use build_fe::prepare_fe;
 use build_meshless::prepare_meshless;
 pub use fields::{PointFields, ResultPoints};
-pub use output::{write_outputs, write_results, FrameLabels, FrameWriter};
+pub use output::{
+    write_outputs, write_results, BoundaryNodes, CellMaterial, FrameLabels, FrameWriter,
+};
 pub use session::{Checkpoint, Session, Solution};
 pub use summary::{element_label, method_name, summarize};
 use surface::Discretized;
@@ -165,7 +167,7 @@ pub struct Prepared {
     pub preprocess_seconds: f64,
     /// The volume the geometry gives (m^3) and what gives it, for a labelled image (its
     /// labelled voxels) or a surface file (what it encloses): the mesh's volume is compared
-    /// with it ([`geometry_volume`]).
+    /// with it ([`translate::geometry_volume`]).
     pub source_volume: Option<SourceVolume>,
 }
 
@@ -176,12 +178,7 @@ pub struct RegionPoints {
     pub points: usize,
 }
 
-/// The smallest dihedral angle of a tet mesh, degrees, and the element that has it.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct MinDihedral {
-    pub degrees: f64,
-    pub element: usize,
-}
+pub use crate::geometry::quality::MinDihedral;
 
 /// The volume the geometry gives (m^3) and what gives it (a labelled image's voxels, what a
 /// surface file encloses).
@@ -226,8 +223,8 @@ fn body_mesh(
         }
         None => {
             let kind: crate::fe::ElementKind = scene.discretization.element.into();
-            if let Some((_, cells, what)) = translate::planned_mesh(scene, kind.shape()) {
-                crate::fe::check_model_memory(cells, kind, &what)?;
+            if let Some(planned) = translate::planned_mesh(scene, kind.shape()) {
+                crate::fe::check_model_memory(planned.elements, kind, &planned.what)?;
             }
             build_mesh(scene)?
         }
@@ -456,8 +453,7 @@ pub fn prepare(scene: &Scene) -> Result<Prepared> {
     if let Some(w) = units_warning(scene, &p.model.nodes) {
         p.warnings.push(Warning::new(WarningKind::Input, w));
     }
-    p.source_volume =
-        translate::geometry_volume(scene)?.map(|(volume, of)| SourceVolume { volume, of });
+    p.source_volume = translate::geometry_volume(scene)?;
     if let Some(w) = volume_warning(scene, &p) {
         p.warnings.push(Warning::new(WarningKind::Input, w));
     }

@@ -31,7 +31,7 @@ fn write_integration_points(
     positions: &[Vector3<f64>],
     weights: &[f64],
     levels: &[u8],
-    owner: &[usize],
+    owner: &[Option<usize>],
     format: VtuFormat,
 ) -> Result<()> {
     let n = positions.len();
@@ -40,10 +40,7 @@ fn write_integration_points(
         .map(|p| levels.get(p).map_or(0.0, |&l| l as f64))
         .collect();
     let owner: Vec<f64> = (0..n)
-        .map(|p| match owner.get(p) {
-            Some(&e) if e != usize::MAX => e as f64,
-            _ => -1.0,
-        })
+        .map(|p| owner.get(p).copied().flatten().map_or(-1.0, |e| e as f64))
         .collect();
     let piece = vtu::Piece {
         points: positions,
@@ -157,14 +154,27 @@ fn write_history_plots(dir: &Path, model: &Model<Solid>, out: &RunOutput) -> Res
 /// ParaView users can colour and threshold by them.
 pub struct FrameLabels {
     /// Per boundary: its name and, per model node, whether it holds the node.
-    pub boundaries: Vec<(String, Vec<bool>)>,
-    /// Per quadrature point (discretization order) a cell of the frame's cells it lies in
-    /// and its material index (a point of a split element once per cell of the split);
-    /// empty without regions.
-    pub point_cells: Vec<(usize, u16)>,
+    pub boundaries: Vec<BoundaryNodes>,
+    /// Per quadrature point that lies in a frame cell (discretization order; a point of a
+    /// split element once per cell of the split): the cell and its material. Empty without
+    /// regions; a meshless grid point, in no cell, has none.
+    pub point_cells: Vec<CellMaterial>,
     /// Frame cells per FE element: 8 for tet10 (written as the eight linear tets of
     /// [`crate::fe::tet10::Tet10Mesh::split`], element `e` as cells 8e..8e+7), else 1.
     pub element_cells: usize,
+}
+
+/// A boundary's name and, per model node, whether the boundary holds it.
+pub struct BoundaryNodes {
+    pub name: String,
+    pub holds: Vec<bool>,
+}
+
+/// A frame cell and the material (0 for `[material]`, k for the k-th region) of a point in it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct CellMaterial {
+    pub cell: usize,
+    pub material: u16,
 }
 
 impl FrameLabels {
@@ -176,11 +186,14 @@ impl FrameLabels {
             .boundaries
             .iter()
             .map(|b| {
-                let mut on = vec![false; n];
+                let mut holds = vec![false; n];
                 for &i in &b.nodes {
-                    on[i] = true;
+                    holds[i] = true;
                 }
-                (b.name.clone(), on)
+                BoundaryNodes {
+                    name: b.name.clone(),
+                    holds,
+                }
             })
             .collect();
         let fe = matches!(prep.method, Discretization::Fe);
@@ -196,14 +209,19 @@ impl FrameLabels {
                 Discretization::Meshless { build: m, .. } => m
                     .owner
                     .iter()
-                    .copied()
-                    .zip(prep.point_material.iter().copied())
+                    .zip(&prep.point_material)
+                    .filter_map(|(&cell, &material)| {
+                        Some(CellMaterial {
+                            cell: cell?,
+                            material,
+                        })
+                    })
                     .collect(),
                 Discretization::Coupled { build: c, .. } => c
                     .owner
                     .iter()
-                    .copied()
-                    .zip(prep.point_material.iter().copied())
+                    .zip(&prep.point_material)
+                    .map(|(&cell, &material)| CellMaterial { cell, material })
                     .collect(),
                 Discretization::Fe => {
                     let per_element = element_points(
@@ -216,7 +234,8 @@ impl FrameLabels {
                         .enumerate()
                         .flat_map(|(p, &m)| {
                             let e = p / per_element;
-                            (element_cells * e..element_cells * (e + 1)).map(move |c| (c, m))
+                            (element_cells * e..element_cells * (e + 1))
+                                .map(move |cell| CellMaterial { cell, material: m })
                         })
                         .collect()
                 }
@@ -290,7 +309,9 @@ impl<'a> FrameWriter<'a> {
             std::fs::create_dir_all(&self.dir).map_err(|e| Error::io(&self.dir, e))?;
         }
         let path = self.dir.join(&file);
-        let (xs, (conn, offsets, types), owner) = self.points.geometry();
+        let g = self.points.geometry();
+        let (xs, conn, offsets, types, owner) =
+            (g.points, g.connectivity, g.offsets, g.types, g.owner);
         let ncell = types.len();
         let (disp, at_points) = self.points.at_points(model, u);
         let stretches: Vec<f64> = (0..at_points.len())
@@ -300,7 +321,7 @@ impl<'a> FrameWriter<'a> {
         // cells each take the mean of the element's points).
         let element_cells = self.labels.element_cells.max(1);
         let cells_of = |values: &[f64], width: usize| -> Vec<f64> {
-            let Some(owner) = owner else {
+            let Some(owner) = &owner else {
                 if element_cells == 1 {
                     return values.to_vec();
                 }
@@ -319,8 +340,8 @@ impl<'a> FrameWriter<'a> {
             };
             let mut sum = vec![0.0; ncell * width];
             let mut count = vec![0usize; ncell];
-            for (p, &e) in owner.iter().enumerate() {
-                if e < ncell {
+            for (p, e) in owner.iter().enumerate() {
+                if let Some(e) = e.filter(|&e| e < ncell) {
                     count[e] += 1;
                     for c in 0..width {
                         sum[e * width + c] += values[p * width + c];
@@ -345,9 +366,9 @@ impl<'a> FrameWriter<'a> {
             Vec::new()
         } else {
             let mut r = vec![0.0; ncell];
-            for &(e, m) in &self.labels.point_cells {
-                if let Some(x) = r.get_mut(e) {
-                    *x = m as f64;
+            for c in &self.labels.point_cells {
+                if let Some(x) = r.get_mut(c.cell) {
+                    *x = c.material as f64;
                 }
             }
             r
@@ -358,14 +379,14 @@ impl<'a> FrameWriter<'a> {
             .labels
             .boundaries
             .iter()
-            .map(|(name, on)| {
+            .map(|b| {
                 let v: Vec<f64> = (0..xs.len())
                     .map(|k| match node_of(k) {
-                        Some(i) if on.get(i) == Some(&true) => 1.0,
+                        Some(i) if b.holds.get(i) == Some(&true) => 1.0,
                         _ => 0.0,
                     })
                     .collect();
-                (format!("boundary_{name}"), v)
+                (format!("boundary_{}", b.name), v)
             })
             .collect();
         let mut point_data = vec![
@@ -588,9 +609,9 @@ pub fn write_results(
         // The interior's points are the last ones; their owners are offset by the FE cells.
         let first = c.points.len() - pos.len();
         let fe_cells = c.fe_mesh.num_cells();
-        let owner: Vec<usize> = c.owner[first..]
+        let owner: Vec<Option<usize>> = c.owner[first..]
             .iter()
-            .map(|&e| e.saturating_sub(fe_cells))
+            .map(|&e| Some(e.saturating_sub(fe_cells)))
             .collect();
         write_integration_points(
             &points_file,

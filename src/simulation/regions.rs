@@ -59,7 +59,7 @@ pub(super) fn point_materials(
             }
             _ if r.labels.is_some() => {
                 let labels = r.labels.as_deref().unwrap_or_default();
-                let Some((im, path)) = image.as_ref() else {
+                let Some(super::translate::SceneImage { image: im, path }) = image.as_ref() else {
                     return Err(Error::input(
                         InputKind::Value,
                         format!(

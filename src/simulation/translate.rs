@@ -2,6 +2,7 @@
 //! (built-in shapes, TetGen, mesh files), the material, the meshless and coupled settings and
 //! the integrator's. The only place besides the pipeline itself that reads a [`Scene`].
 
+use crate::memory::PlannedMesh;
 use crate::InputKind;
 use std::path::PathBuf;
 
@@ -49,8 +50,14 @@ pub fn tetgen_meshed(scene: &Scene) -> bool {
         )
 }
 
+/// A scene's labelled image, read, and the file it came from.
+pub struct SceneImage {
+    pub image: crate::io::image::Image,
+    pub path: PathBuf,
+}
+
 /// The scene's labelled image (`geometry.image`), read; None for other geometries.
-pub fn geometry_image(scene: &Scene) -> Result<Option<(crate::io::image::Image, PathBuf)>> {
+pub fn geometry_image(scene: &Scene) -> Result<Option<SceneImage>> {
     match &scene.geometry {
         Geometry::Image { file, .. } => {
             let path = scene_path(scene, file);
@@ -63,7 +70,7 @@ pub fn geometry_image(scene: &Scene) -> Result<Option<(crate::io::image::Image, 
                 image.spacing()[1],
                 image.spacing()[2]
             );
-            Ok(Some((image, path)))
+            Ok(Some(SceneImage { image, path }))
         }
         _ => Ok(None),
     }
@@ -72,27 +79,27 @@ pub fn geometry_image(scene: &Scene) -> Result<Option<(crate::io::image::Image, 
 /// The volume (m^3) the scene's geometry gives, and what gives it: a labelled image's chosen
 /// voxels, or what a surface file encloses; None for built-in shapes and mesh files (their mesh
 /// is the geometry).
-pub fn geometry_volume(scene: &Scene) -> Result<Option<(f64, String)>> {
+pub fn geometry_volume(scene: &Scene) -> Result<Option<super::SourceVolume>> {
     match &scene.geometry {
         Geometry::Image { labels, .. } => {
-            let Some((image, path)) = geometry_image(scene)? else {
+            let Some(SceneImage { image, path }) = geometry_image(scene)? else {
                 return Ok(None);
             };
             let mask = crate::geometry::image_body::tissue_mask(&image, labels);
             let voxel = image.axes().determinant().abs();
             let n = mask.iter().filter(|&&m| m).count();
-            Ok(Some((
-                n as f64 * voxel,
-                format!("the {n} labelled voxels of {}", path.display()),
-            )))
+            Ok(Some(super::SourceVolume {
+                volume: n as f64 * voxel,
+                of: format!("the {n} labelled voxels of {}", path.display()),
+            }))
         }
         Geometry::Surface { file, units } => {
             let path = scene_path(scene, file);
             let surface = crate::io::surface_file::read_surface(&path, *units)?;
-            Ok(Some((
-                surface.volume(),
-                format!("what {} encloses", path.display()),
-            )))
+            Ok(Some(super::SourceVolume {
+                volume: surface.volume(),
+                of: format!("what {} encloses", path.display()),
+            }))
         }
         _ => Ok(None),
     }
@@ -182,7 +189,7 @@ fn with_region_surfaces(
 
 /// The hexahedra of an image's voxels (`body = "voxels"`), split into tets for tet elements.
 fn image_voxel_mesh(scene: &Scene, shape: ElementShape) -> Result<Mesh> {
-    let Some((image, path)) = geometry_image(scene)? else {
+    let Some(SceneImage { image, path }) = geometry_image(scene)? else {
         unreachable!("called for image geometries")
     };
     let Geometry::Image { labels, .. } = &scene.geometry else {
@@ -209,7 +216,7 @@ fn image_voxel_mesh(scene: &Scene, shape: ElementShape) -> Result<Mesh> {
 /// The surface of an image's tissue (`body = "surface"`), for TetGen.
 #[cfg(feature = "tetgen")]
 fn image_surface(scene: &Scene) -> Result<crate::geometry::closed_surface::ClosedSurface> {
-    let Some((image, path)) = geometry_image(scene)? else {
+    let Some(SceneImage { image, path }) = geometry_image(scene)? else {
         unreachable!("called for image geometries")
     };
     let Geometry::Image {
@@ -319,21 +326,29 @@ fn structured_divisions(scene: &Scene) -> Result<Option<[usize; 3]>> {
 /// is, for messages). Exact for a structured mesh; for TetGen at the fewest it is expected to
 /// make ([`tetgen_tets`]; about 6.5 tets a node). None for a mesh file (read, not planned) or
 /// a scene that cannot be meshed so (its error comes from [`build_mesh`]).
-pub fn planned_mesh(scene: &Scene, shape: ElementShape) -> Option<(f64, f64, String)> {
+pub fn planned_mesh(scene: &Scene, shape: ElementShape) -> Option<PlannedMesh> {
     if let Geometry::Mesh { .. } = &scene.geometry {
         return None;
     }
-    if let Some((tets, h)) = tetgen_tets(scene).filter(|_| shape == ElementShape::Tet4) {
-        let what = format!("a TetGen mesh of about {tets:.0} tets or more (edge {h} m)");
-        return Some((tets / 6.5, tets, what));
+    if let Some(TetgenEstimate { tets, edge }) =
+        tetgen_tets(scene).filter(|_| shape == ElementShape::Tet4)
+    {
+        return Some(PlannedMesh {
+            nodes: tets / 6.5,
+            elements: tets,
+            what: format!("a TetGen mesh of about {tets:.0} tets or more (edge {edge} m)"),
+        });
     }
     let div = structured_divisions(scene).ok()??;
     let (nodes, cells) = match &scene.geometry {
         Geometry::Box { .. } => shapes::box_counts(div, shape),
         _ => shapes::cylinder_counts(div, shape),
     };
-    let what = format!("the structured mesh ({nodes:.0} nodes, {cells:.0} elements)");
-    Some((nodes, cells, what))
+    Some(PlannedMesh {
+        nodes,
+        elements: cells,
+        what: format!("the structured mesh ({nodes:.0} nodes, {cells:.0} elements)"),
+    })
 }
 
 fn unreachable_sizing<T>() -> Result<T> {
@@ -371,22 +386,29 @@ fn tetgen_max_volume(h: f64) -> f64 {
     h.powi(3) / (6.0 * 2f64.sqrt())
 }
 
+/// The fewest tets TetGen is expected to make for a scene, and the edge length (m) it meshes
+/// at ([`tetgen_tets`]).
+pub struct TetgenEstimate {
+    pub tets: f64,
+    pub edge: f64,
+}
+
 /// About how many tets TetGen will make for a built-in shape, at the fewest, and the edge
 /// length (m); None when the scene is not meshed by TetGen. No tet exceeds the volume bound,
 /// so the volume over it is the fewest TetGen can make; it made 1.9-2.1x that on cubes (0.1 m
 /// at h = 10 and 5 mm, 0.6 m at 8 mm, 1.5 m at 20 mm) and 2.6-3.9x on the brain (h = 6 and
 /// 3 mm; radius-edge ratio 2 and 20), and this says 1.8x. The builds refuse a model of that
 /// many before TetGen runs (minutes at millions of tets): [`planned_mesh`].
-pub fn tetgen_tets(scene: &Scene) -> Option<(f64, f64)> {
+pub fn tetgen_tets(scene: &Scene) -> Option<TetgenEstimate> {
     if !tetgen_meshed(scene) {
         return None;
     }
     let h = tetgen_edge(scene).ok()?;
     let dom = domain(scene)?;
-    Some((
-        TETGEN_TETS_PER_BOUND * dom.volume() / tetgen_max_volume(h),
-        h,
-    ))
+    Some(TetgenEstimate {
+        tets: TETGEN_TETS_PER_BOUND * dom.volume() / tetgen_max_volume(h),
+        edge: h,
+    })
 }
 
 #[cfg(feature = "tetgen")]
@@ -820,25 +842,31 @@ pub fn support_rule(scene: &Scene) -> SupportRule {
     }
 }
 
-/// The nodes (m) of a generated cloud (`cloud = "lattice"` or `"halton"`) over the scene's
-/// built-in shape, a description of it, and its spacing h (m).
-pub fn generated_cloud(scene: &Scene) -> Result<(Vec<Vector3<f64>>, String, f64)> {
+/// A generated node cloud: its nodes (m), a description for reports and its spacing h (m).
+pub struct GeneratedCloud {
+    pub nodes: Vec<Vector3<f64>>,
+    pub description: String,
+    pub spacing: f64,
+}
+
+/// The generated cloud (`cloud = "lattice"` or `"halton"`) over the scene's built-in shape.
+pub fn generated_cloud(scene: &Scene) -> Result<GeneratedCloud> {
     let d = &scene.discretization;
     let h = spacing(scene)?;
     match d.cloud {
-        CloudKind::Lattice => Ok((
-            cloud::jittered_lattice(
+        CloudKind::Lattice => Ok(GeneratedCloud {
+            nodes: cloud::jittered_lattice(
                 &need_domain(scene, "cloud = 'lattice'")?,
                 h,
                 d.jitter,
                 d.seed,
             )?,
-            format!(
+            description: format!(
                 "lattice h = {h:.4e} m, jitter {}, seed {}",
                 d.jitter, d.seed
             ),
-            h,
-        )),
+            spacing: h,
+        }),
         CloudKind::Halton => {
             let domain = &need_domain(scene, "cloud = 'halton'")?;
             // Fill to saturation (random sequential packing at 0.85 h is about as dense as the
@@ -855,15 +883,15 @@ pub fn generated_cloud(scene: &Scene) -> Result<(Vec<Vector3<f64>>, String, f64)
                 ),
                     )
                 })?;
-            Ok((
+            Ok(GeneratedCloud {
                 nodes,
-                format!(
+                description: format!(
                     "Halton fill, min spacing {:.4e} m, seed {}",
                     d.min_spacing * h,
                     d.seed
                 ),
-                h,
-            ))
+                spacing: h,
+            })
         }
         other => Err(Error::input(
             InputKind::Value,
@@ -915,12 +943,8 @@ pub fn meshless_settings(scene: &Scene) -> Result<MeshlessSettings> {
             if s.discretization.element == ElementName::Hex8 {
                 s.discretization.element = ElementName::Tet4;
             }
-            if let Some((nodes, tets, what)) = planned_mesh(&s, ElementShape::Tet4) {
-                discretize::check_build_memory(
-                    (nodes, tets, &what),
-                    &integration,
-                    support_rule(scene),
-                )?;
+            if let Some(planned) = planned_mesh(&s, ElementShape::Tet4) {
+                discretize::check_build_memory(&planned, &integration, support_rule(scene))?;
             }
             let mesh = build_mesh(&s)?;
             let description = match &scene.geometry {
@@ -957,7 +981,9 @@ pub fn meshless_settings(scene: &Scene) -> Result<MeshlessSettings> {
             CloudSource::Mesh { mesh, description }
         }
         CloudKind::Lattice | CloudKind::Halton => {
-            let (nodes, description, _) = generated_cloud(scene)?;
+            let GeneratedCloud {
+                nodes, description, ..
+            } = generated_cloud(scene)?;
             CloudSource::Nodes { nodes, description }
         }
         CloudKind::File => {

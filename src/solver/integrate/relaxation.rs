@@ -25,8 +25,8 @@ pub(super) struct Relaxation {
     /// The lowest frequency behind the rate in use (rad/s), to set the rate again for a
     /// shorter step.
     omega_in_use: Option<f64>,
-    /// The step of the saved reference state (usize::MAX until the load is fully applied).
-    ref_step: usize,
+    /// The step of the saved reference state (None until the load is fully applied).
+    ref_step: Option<usize>,
     /// Displacements (m) and internal forces (N) at the reference state: the frequency comes
     /// from their changes since.
     u_ref: Vec<Vector3<f64>>,
@@ -53,7 +53,7 @@ impl Relaxation {
             r: (1.0 - 10.0 / load_steps.max(20) as f64).clamp(0.5, 0.999),
             omega_prev: None,
             omega_in_use: None,
-            ref_step: usize::MAX,
+            ref_step: None,
             u_ref: vec![Vector3::zeros(); n],
             f_ref: vec![Vector3::zeros(); n],
             interval: interval.max(1),
@@ -84,7 +84,7 @@ impl Relaxation {
 
     /// Whether [`Self::observe`] at `step` reads the displacements and forces.
     pub(super) fn wants_state(&self, step: usize) -> bool {
-        self.ref_step == usize::MAX || step >= self.ref_step + self.interval
+        self.ref_step.is_none_or(|r| step >= r + self.interval)
     }
 
     /// A step under the full load with displacements `u` (m), internal forces `f` (N), its
@@ -101,7 +101,7 @@ impl Relaxation {
         max_du: f64,
         dt: f64,
     ) {
-        if self.ref_step == usize::MAX {
+        if self.ref_step.is_none() {
             let num: f64 = u.iter().zip(f).map(|(x, y)| x.dot(y)).sum();
             let den: f64 = u.iter().zip(mass).map(|(x, m)| m * x.norm_squared()).sum();
             if num > 0.0 && den > 0.0 && self.omega_in_use.is_none() {
@@ -109,7 +109,7 @@ impl Relaxation {
                 self.omega_in_use = Some((num / den).sqrt());
             }
             self.save(step, u, f);
-        } else if step >= self.ref_step + self.interval {
+        } else if self.ref_step.is_some_and(|r| step >= r + self.interval) {
             let (mut num, mut den) = (0.0, 0.0);
             for i in 0..u.len() {
                 for k in 0..3 {
@@ -156,6 +156,6 @@ impl Relaxation {
     fn save(&mut self, step: usize, u: &[Vector3<f64>], f: &[Vector3<f64>]) {
         self.u_ref.copy_from_slice(u);
         self.f_ref.copy_from_slice(f);
-        self.ref_step = step;
+        self.ref_step = Some(step);
     }
 }
