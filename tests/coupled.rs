@@ -223,7 +223,7 @@ fn condition_on_meshless_nodes_is_imposed_by_correction() {
         p.bc_method().is_some(),
         "the mid-plane condition needs the correction"
     );
-    assert!(p.model.corrector.is_some());
+    assert!(p.model.corrector().is_some());
     let out = hytled::solver::run(&mut p.model, &simulation::settings(&s, false)).unwrap();
     let sum = simulation::summarize(&s, &p, &out, 0.0);
     let f = sum.reactions["top"][2];

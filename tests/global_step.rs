@@ -42,9 +42,9 @@ fn dense_lambda_max(p: &mut simulation::Prepared) -> f64 {
     let (mut fp, mut fm) = (vec![Vector3::zeros(); n], vec![Vector3::zeros(); n]);
     for (c, &(j, l)) in free.iter().enumerate() {
         u[j][l] = h;
-        m.forces.compute(&m.points, &m.slots, &u, &mut fp);
+        m.internal_forces(&u, &mut fp);
         u[j][l] = -h;
-        m.forces.compute(&m.points, &m.slots, &u, &mut fm);
+        m.internal_forces(&u, &mut fm);
         u[j][l] = 0.0;
         for (r, &(i, k)) in free.iter().enumerate() {
             a[(r, c)] = (fp[i][k] - fm[i][k]) / (2.0 * h) / (m.mass()[i] * m.mass()[j]).sqrt();

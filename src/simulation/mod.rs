@@ -167,7 +167,7 @@ pub struct Prepared {
     pub preprocess_seconds: f64,
     /// The volume the geometry gives (m^3) and what gives it, for a labelled image (its
     /// labelled voxels) or a surface file (what it encloses): the mesh's volume is compared
-    /// with it ([`translate::geometry_volume`]).
+    /// with it (`translate::geometry_volume`).
     pub source_volume: Option<SourceVolume>,
 }
 
@@ -340,7 +340,7 @@ fn initial_velocity_warning(scene: &Scene, p: &Prepared) -> Option<String> {
 }
 
 /// A mesh file's body larger than any organ or phantom (bounding-box diagonal over
-/// [`LARGEST_BODY`]): most likely a file in millimetres read as metres (a 100 mm cube becomes
+/// `LARGEST_BODY`): most likely a file in millimetres read as metres (a 100 mm cube becomes
 /// 100 m, its gravity and stiffness scaled to match), issue 41.
 /// Largest relative difference between the model's volume and the volume its labelled image
 /// or surface gives before it is warned of.

@@ -73,7 +73,7 @@ pub trait Corrector: Send {
     }
     /// The conditions the corrector imposes as linear constraints on the nodal parameters, for
     /// the static solve ([`statics`]): one per constrained node and component,
-    /// sum_j w_j u_j[axis] = target (m) at load fraction `tau`. None where the corrector has
+    /// sum_j w_j u_j(axis) = target (m) at load fraction `tau`. None where the corrector has
     /// none to give (the static solve then refuses the model).
     fn linear_constraints(&self, _tau: f64) -> Option<Vec<LinearConstraint>> {
         None
@@ -114,8 +114,8 @@ pub struct Model<M: Material> {
     pub points: QuadraturePoints,
     /// Per point of `points`: its id in the discretization (element or integration point id,
     /// as messages and outputs give it).
-    pub point_ids: Vec<u32>,
-    pub slots: NodeSlots,
+    pub(crate) point_ids: Vec<u32>,
+    pub(crate) slots: NodeSlots,
     /// Lumped nodal masses, kg ([`Self::mass`]; changed only through the methods that keep
     /// `masses_uneven` and `mass_scaled` with them).
     mass: Vec<f64>,
@@ -123,13 +123,13 @@ pub struct Model<M: Material> {
     pub constraints: Constraints,
     pub forces: Forces<M>,
     /// Imposes the boundaries marked in `corrected` (meshless EBCIEM / SEBCIEM).
-    pub corrector: Option<Box<dyn Corrector>>,
+    pub(crate) corrector: Option<Box<dyn Corrector>>,
     /// Per boundary: imposed by `corrector` instead of directly on nodes.
-    pub corrected: Vec<bool>,
+    pub(crate) corrected: Vec<bool>,
     /// Gravity, point forces, tractions and pressures ([`Self::set_loads`]).
     pub loads: Loads,
     /// External nodal forces of the last step, N (empty without loads).
-    pub f_ext: Vec<Vector3<f64>>,
+    pub(crate) f_ext: Vec<Vector3<f64>>,
     /// Frictionless contact with rigid bodies, corrected after each update.
     pub contact: Option<Contact>,
     /// `mass` is not each point's mass split evenly over its nodes (set by
@@ -343,19 +343,26 @@ impl<M: Material> Model<M> {
         Ok(())
     }
 
-    /// Replaces the masses by fictitious ones for dynamic relaxation (mass scaling; Underwood
-    /// 1983): each node's mass proportional to its block-Gershgorin row sum of the reference
-    /// stiffness ([`crate::solver::timestep::gershgorin_rows`]), their total the body's mass.
-    /// Every node then has the same Gershgorin frequency bound, so the small elements of a
-    /// graded mesh no longer set a step that the large ones do not need, and the steady state,
-    /// which does not depend on the masses, is reached in fewer steps (the graded
-    /// indentation benchmark with tet10 elements: 2,377 steps against 17,921). Call after
-    /// [`Self::set_loads`] (gravity keeps the physical masses) and before building
-    /// correctors, which must use the masses of the update. Not for dynamic runs: it changes
-    /// the dynamics.
     /// Lumped nodal masses, kg.
     pub fn mass(&self) -> &[f64] {
         &self.mass
+    }
+
+    /// The internal nodal forces (N) of displacements `u` (m) into `f`: the force kernel over
+    /// the model's points.
+    pub fn internal_forces(&mut self, u: &[Vector3<f64>], f: &mut [Vector3<f64>]) {
+        self.forces.compute(&self.points, &self.slots, u, f);
+    }
+
+    /// Each node's slots in the point table (the gather order of the force kernel).
+    pub fn slots(&self) -> &NodeSlots {
+        &self.slots
+    }
+
+    /// The corrector that imposes the boundaries the model marks as corrected (meshless
+    /// EBCIEM / SEBCIEM), if any.
+    pub fn corrector(&self) -> Option<&dyn Corrector> {
+        self.corrector.as_deref()
     }
 
     /// Whether the masses are not each point's mass split evenly over its nodes (lumped by
@@ -401,6 +408,16 @@ impl<M: Material> Model<M> {
         Ok(())
     }
 
+    /// Replaces the masses by fictitious ones for dynamic relaxation (mass scaling; Underwood
+    /// 1983): each node's mass proportional to its block-Gershgorin row sum of the reference
+    /// stiffness ([`crate::solver::timestep::gershgorin_rows`]), their total the body's mass.
+    /// Every node then has the same Gershgorin frequency bound, so the small elements of a
+    /// graded mesh no longer set a step that the large ones do not need, and the steady state,
+    /// which does not depend on the masses, is reached in fewer steps (the graded
+    /// indentation benchmark with tet10 elements: 2,377 steps against 17,921). Call after
+    /// [`Self::set_loads`] (gravity keeps the physical masses) and before building
+    /// correctors, which must use the masses of the update. Not for dynamic runs: it changes
+    /// the dynamics.
     pub fn scale_masses(&mut self) -> Result<()> {
         let moduli = |p: usize| self.point_moduli(p);
         let rows = timestep::gershgorin_rows(&self.points, &self.slots, &moduli);

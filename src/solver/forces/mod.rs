@@ -98,8 +98,8 @@ fn hourglass_modes(g: &[f64], u: impl Fn(usize) -> Vector3<f64>) -> [Vector3<f64
 /// Internal-force evaluator with its preallocated scratch space (no allocation per call). Its
 /// memory is held in rooms, one per job, each reporting its own bytes
 /// ([`Self::scratch_bytes`] is their sum): the evaluation plan and chunk buffers
-/// ([`plan`]), the average nodal pressure ([`pressure`]), the mean-dilatation groups
-/// ([`groups`]), the per-point energies ([`energy`]).
+/// (`plan`), the average nodal pressure (`pressure`), the mean-dilatation groups
+/// (`groups`), the per-point energies (`energy`).
 pub struct Forces<M: Material> {
     /// The model's materials (one per region); `point_material` says which each point has.
     pub materials: Vec<M>,
@@ -197,8 +197,8 @@ impl<M: Material> Forces<M> {
         }
     }
 
-    /// Heap bytes the evaluator holds: the sum of its rooms' ([`Plan::bytes`],
-    /// [`NodalPressure::bytes`], [`Groups::bytes`], [`Energy::bytes`]) and its own per-point
+    /// Heap bytes the evaluator holds: the sum of its rooms' (`Plan::bytes`,
+    /// `NodalPressure::bytes`, `Groups::bytes`, `Energy::bytes`) and its own per-point
     /// J, material indices and materials. The memory estimate adds these; a buffer added to a
     /// room must be counted in its `bytes` (the test `the_memory_estimate_counts_every_buffer`
     /// measures what the allocator gives).
