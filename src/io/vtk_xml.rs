@@ -498,6 +498,79 @@ pub(crate) fn normalize(bytes: &[u8], path: &Path) -> Result<Option<Vec<u8>>> {
     normalize_capped(bytes, path, cap())
 }
 
+/// Whether an inline binary array must be rewritten for vtkio although nothing is compressed
+/// or appended: vtkio takes a missing header_type as UInt64 (VTK's default is UInt32), so
+/// binary arrays with UInt32 headers are, and so are `types` of `<Cells>` (in `cells`, byte
+/// ranges) that are not UInt8.
+fn inline_needs_rewrite(head: &[u8], cells: &[(usize, usize)], u64_header: bool) -> bool {
+    let mut i = 0;
+    while let Some(r) = find(&head[i..], b"<DataArray") {
+        let s = i + r;
+        let e = head[s..]
+            .iter()
+            .position(|&b| b == b'>')
+            .map_or(head.len(), |p| s + p);
+        let tag = &head[s..e];
+        let in_cells = cells.iter().any(|&(a, b)| s > a && s < b);
+        let binary = attr(tag, b"format") == Some(b"binary");
+        if binary
+            && (!u64_header
+                || (in_cells
+                    && attr(tag, b"Name") == Some(b"types")
+                    && attr(tag, b"type").is_some_and(|t| t != b"UInt8")))
+        {
+            return true;
+        }
+        i = e.max(s + 1);
+    }
+    false
+}
+
+/// Cell types decoded as `ty` (an integer type) as the UInt8 values vtkio reads.
+fn cell_types_u8(ctx: &Ctx, data: &[u8], ty: &str) -> Result<Vec<u8>> {
+    let w = match ty {
+        "Int8" | "Int16" | "UInt16" | "Int32" | "UInt32" | "Int64" | "UInt64" => {
+            type_width(ty).unwrap_or(1)
+        }
+        _ => {
+            return Err(ctx.err(format!(
+                "cell types of type {ty}: an integer type is needed"
+            )))
+        }
+    };
+    let mut v = Vec::with_capacity(data.len() / w);
+    for (i, c) in data.chunks_exact(w).enumerate() {
+        let x = ctx.uint(c);
+        // Signed types: negative values have the top bit set, which is > 255 too.
+        if x > 255 {
+            return Err(ctx.err(format!("cell {i} has type {x}, not a VTK cell type")));
+        }
+        v.push(x as u8);
+    }
+    Ok(v)
+}
+
+/// Writes a `<DataArray>` tag (its format binary, its type `new_ty` where given) and its data
+/// inline: one UInt64 byte count in the file's byte order (`big`), then the bytes, base64.
+fn write_inline(out: &mut Vec<u8>, tag: &[u8], data: &[u8], new_ty: Option<&str>, big: bool) {
+    let mut block = Vec::with_capacity(8 + data.len());
+    let n = data.len() as u64;
+    block.extend_from_slice(&if big {
+        n.to_be_bytes()
+    } else {
+        n.to_le_bytes()
+    });
+    block.extend_from_slice(data);
+    let mut set: Vec<(&str, &str)> = vec![("format", "binary")];
+    if let Some(t) = new_ty {
+        set.push(("type", t));
+    }
+    out.extend_from_slice(&retag(tag, &[b"format", b"offset"], &set));
+    out.push(b'>');
+    out.extend_from_slice(base64(&block).as_bytes());
+    out.extend_from_slice(b"</DataArray>");
+}
+
 /// [`normalize`] with the arrays' decompressed bytes held to `cap`.
 fn normalize_capped(bytes: &[u8], path: &Path, cap: u64) -> Result<Option<Vec<u8>>> {
     let Some(vf) = find(bytes, b"<VTKFile") else {
@@ -562,34 +635,8 @@ fn normalize_capped(bytes: &[u8], path: &Path, cap: u64) -> Result<Option<Vec<u8
         from = e.max(s + 1);
     }
 
-    // Does anything need rewriting? vtkio takes a missing header_type as UInt64 (VTK's
-    // default is UInt32), so binary arrays with UInt32 headers are rewritten too.
     let u64_header = attr(vtag, b"header_type").is_some_and(|v| v == b"UInt64");
-    let mut needed = zlib || appended.is_some();
-    if !needed {
-        let mut i = 0;
-        while let Some(r) = find(&head[i..], b"<DataArray") {
-            let s = i + r;
-            let e = head[s..]
-                .iter()
-                .position(|&b| b == b'>')
-                .map_or(head.len(), |p| s + p);
-            let tag = &head[s..e];
-            let in_cells = cells.iter().any(|&(a, b)| s > a && s < b);
-            let binary = attr(tag, b"format") == Some(b"binary");
-            if binary
-                && (!u64_header
-                    || (in_cells
-                        && attr(tag, b"Name") == Some(b"types")
-                        && attr(tag, b"type").is_some_and(|t| t != b"UInt8")))
-            {
-                needed = true;
-                break;
-            }
-            i = e.max(s + 1);
-        }
-    }
-    if !needed {
+    if !(zlib || appended.is_some() || inline_needs_rewrite(head, &cells, u64_header)) {
         return Ok(None);
     }
 
@@ -682,45 +729,11 @@ fn normalize_capped(bytes: &[u8], path: &Path, cap: u64) -> Result<Option<Vec<u8
         // `types` of <Cells> as UInt8.
         let in_cells = cells.iter().any(|&(a, b)| s > a && s < b);
         let (data, new_ty) = if in_cells && name == "types" && ty != "UInt8" {
-            let w = match ty.as_str() {
-                "Int8" | "Int16" | "UInt16" | "Int32" | "UInt32" | "Int64" | "UInt64" => {
-                    type_width(&ty).unwrap_or(1)
-                }
-                _ => {
-                    return Err(ctx.err(format!(
-                        "cell types of type {ty}: an integer type is needed"
-                    )))
-                }
-            };
-            let mut v = Vec::with_capacity(data.len() / w);
-            for (i, c) in data.chunks_exact(w).enumerate() {
-                let x = ctx.uint(c);
-                // Signed types: negative values have the top bit set, which is > 255 too.
-                if x > 255 {
-                    return Err(ctx.err(format!("cell {i} has type {x}, not a VTK cell type")));
-                }
-                v.push(x as u8);
-            }
-            (v, Some("UInt8"))
+            (cell_types_u8(&ctx, &data, &ty)?, Some("UInt8"))
         } else {
             (data, None)
         };
-        let mut block = Vec::with_capacity(8 + data.len());
-        let n = data.len() as u64;
-        block.extend_from_slice(&if big {
-            n.to_be_bytes()
-        } else {
-            n.to_le_bytes()
-        });
-        block.extend_from_slice(&data);
-        let mut set: Vec<(&str, &str)> = vec![("format", "binary")];
-        if let Some(t) = new_ty {
-            set.push(("type", t));
-        }
-        out.extend_from_slice(&retag(tag, &[b"format", b"offset"], &set));
-        out.push(b'>');
-        out.extend_from_slice(base64(&block).as_bytes());
-        out.extend_from_slice(b"</DataArray>");
+        write_inline(&mut out, tag, &data, new_ty, big);
         if let Some(c) = body_end {
             at = c + b"</DataArray>".len();
         }
