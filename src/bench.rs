@@ -7,7 +7,6 @@
 //! per step (meshless, linear MLS, 8 nearest support nodes, 2 grid integration points per node),
 //! one-point hexahedra on the same nodes, and the coupled discretization.
 
-use crate::InputKind;
 use std::time::Instant;
 
 use nalgebra::Vector3;
@@ -16,7 +15,7 @@ use serde::Serialize;
 use crate::scene::{self, Scene};
 use crate::simulation::{self, Device, Mode};
 
-use crate::{Error, Result};
+use crate::{Error, InputKind, Result};
 
 /// The cylinder scene the default cases start from.
 const CYLINDER: &str = include_str!("../cases/cylinder-compression.toml");

@@ -2,7 +2,6 @@
 //! with `--modes` each steady-state solver (relaxation, static), in one table of what each
 //! costs (wall time, force evaluations) and how close it comes to the scene's references.
 
-use crate::InputKind;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -13,7 +12,7 @@ use crate::io::vtu::VtuFormat;
 use crate::report::Summary;
 use crate::scene;
 use crate::simulation;
-use crate::{Error, Result};
+use crate::{Error, InputKind, Result};
 
 /// Methods `compare` knows, in the default order.
 pub const METHODS: [&str; 3] = ["fe", "coupled", "meshless"];

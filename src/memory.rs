@@ -2,10 +2,9 @@
 //! the machine into an input error naming the setting to change (instead of an abort in the
 //! allocator).
 
-use crate::InputKind;
 use std::path::{Path, PathBuf};
 
-use crate::{Error, Result};
+use crate::{Error, InputKind, Result};
 
 /// Bytes in a GiB.
 pub const GIB: f64 = 1024.0 * 1024.0 * 1024.0;

@@ -1,13 +1,12 @@
 //! Probes: displacement at arbitrary material points, interpolated with the shape functions of
 //! the element that contains the point (FE) or with the meshless shape functions there.
 
-use crate::InputKind;
 use nalgebra::Vector3;
 
 use crate::fe::{hex8, tet4};
 use crate::geometry::cell_grid::CellGrid;
 use crate::geometry::{ElementShape, Mesh};
-use crate::{Error, Result};
+use crate::{Error, InputKind, Result};
 
 /// A material point and the interpolation that gives its displacement from nodal values.
 #[derive(Debug, Clone)]

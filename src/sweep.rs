@@ -4,7 +4,6 @@
 //! Any `--set` path can be varied. A run that fails (invalid value, unstable step, inverted
 //! element, singular support) is a row with its error message; the sweep goes on.
 
-use crate::InputKind;
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -15,7 +14,7 @@ use crate::comparison::run_case;
 use crate::io::plot::{log_log_plot, Series};
 use crate::io::vtu::VtuFormat;
 use crate::report::Summary;
-use crate::{Error, Result};
+use crate::{Error, InputKind, Result};
 
 /// One varied scene key and its values (the text of `--set KEY=VALUE` values).
 #[derive(Debug, Clone, PartialEq)]

@@ -587,6 +587,12 @@ fn _hytled(m: &Bound<'_, PyModule>) -> PyResult<()> {
     for (ty, kind) in &inputs {
         m.add(ty.name()?, ty)?;
         ty.setattr("input_kind", kind.name())?;
+        let class = if *kind == hytled::InputKind::Scene {
+            "scene"
+        } else {
+            "input"
+        };
+        ty.setattr("kind", class)?;
     }
     m.add("InterruptedRun", interrupted_run(py)?)?;
     // Each class carries its CLI kind and exit code, so an error raised without them (an
@@ -614,16 +620,6 @@ fn _hytled(m: &Bound<'_, PyModule>) -> PyResult<()> {
         "signal",
     ] {
         py.get_type::<HytledError>().setattr(fact, py.None())?;
-    }
-    for (ty, kind) in &inputs {
-        ty.setattr(
-            "kind",
-            if *kind == hytled::InputKind::Scene {
-                "scene"
-            } else {
-                "input"
-            },
-        )?;
     }
     interrupted_run(py)?.setattr("kind", "interrupted")?;
     interrupted_run(py)?.setattr("exit_code", 130)?;

@@ -15,13 +15,12 @@
 //! and leaves the tangential components free (frictionless). The force the rigid body applies
 //! is the sum of lambda n over its points; no penalty stiffness enters the stable step.
 
-use crate::InputKind;
 use nalgebra::Vector3;
 use rayon::prelude::*;
 
 use super::LoadCurve;
 use crate::quadrature::SparseRow;
-use crate::{Error, Result};
+use crate::{Error, InputKind, Result};
 
 /// A rigid surface in its reference position; the body stays outside the solid it bounds.
 #[derive(Debug, Clone)]

@@ -1,10 +1,9 @@
 //! Load curves: the factor (of a load's or a prescribed displacement's final value) at a
 //! load fraction tau, built in or tabulated.
 
-use crate::InputKind;
 use std::sync::Arc;
 
-use crate::{Error, Result};
+use crate::{Error, InputKind, Result};
 
 /// Time history of a load or prescribed displacement, as a fraction of its final value, at the
 /// load fraction tau (dynamic: t / load_time; relaxation: load step / load_steps).

@@ -17,13 +17,12 @@
 //! sparse products and one pair of triangular solves. `M^-1 V A^-1` is never formed: it would be
 //! dense N x ne.
 
-use crate::InputKind;
 use faer::sparse::{SparseColMat, Triplet};
 use nalgebra::Vector3;
 
 use super::sparse_lu::{FactorError, SparseLu, LANES};
 
-use crate::{Error, Result};
+use crate::{Error, InputKind, Result};
 
 // `ComponentCorrection::correct_component` addresses node j's component c as f64 number 3 j + c.
 const _: () = assert!(std::mem::size_of::<Vector3<f64>>() == 3 * std::mem::size_of::<f64>());

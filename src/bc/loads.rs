@@ -11,11 +11,10 @@
 //! sect. 4.3). Rows sum to one (partition of unity), so a load's total force is the integral
 //! of the traction whatever the discretization.
 
-use crate::InputKind;
 use nalgebra::Vector3;
 
 use super::LoadCurve;
-use crate::{Error, Result};
+use crate::{Error, InputKind, Result};
 
 use crate::quadrature::SparseRow;
 

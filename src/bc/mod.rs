@@ -9,8 +9,7 @@ pub mod sparse_lu;
 
 pub use curve::{CurveTable, LoadCurve};
 
-use crate::InputKind;
-use crate::{Error, Result};
+use crate::{Error, InputKind, Result};
 
 /// One named boundary: its nodes and, per component, the final prescribed displacement (m)
 /// or `None` where the component is free.

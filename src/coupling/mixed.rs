@@ -2,13 +2,12 @@
 //! inner surface bounds the cavity) and a node cloud that fills the cavity. The interior is
 //! integrated on the Delaunay tets of the interface and cloud nodes that lie in the cavity.
 
-use crate::InputKind;
 use nalgebra::Vector3;
 
 use super::{assemble, CellRole, CoupledBuild, CoupledSettings, NodeRole, Regions};
 use crate::geometry::quality::{boundary_faces, tet_signed_volume};
 use crate::geometry::{ElementShape, Mesh};
-use crate::{Error, Result};
+use crate::{Error, InputKind, Result};
 
 /// Largest accepted relative mismatch between the interior tets' volume and the volume the
 /// FE layer's inner surface encloses.

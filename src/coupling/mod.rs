@@ -14,7 +14,6 @@ pub mod mixed;
 pub mod quadratic;
 pub mod regions;
 
-use crate::InputKind;
 use nalgebra::{Matrix3, Vector3};
 use rayon::prelude::*;
 
@@ -27,7 +26,7 @@ use crate::meshless::points::{build_points, shape_at};
 use crate::meshless::support::{Support, SupportRule};
 use crate::probe::locate_in_grid;
 use crate::quadrature::{PointKind, QuadraturePoints, SparseRow};
-use crate::{Error, Result};
+use crate::{Error, InputKind, Result};
 pub use regions::{CellRole, FeRegion, NodeRole, Regions};
 
 /// Settings of a coupled build.

@@ -3,8 +3,7 @@
 
 use crate::geometry::quality::boundary_faces;
 use crate::geometry::Mesh;
-use crate::InputKind;
-use crate::{Error, Result};
+use crate::{Error, InputKind, Result};
 
 /// What a cell is in the coupled discretization.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

@@ -7,8 +7,7 @@ pub mod tet4;
 
 use crate::geometry::{ElementShape, Mesh};
 use crate::quadrature::{PointKind, QuadraturePoints};
-use crate::InputKind;
-use crate::{Error, Result};
+use crate::{Error, InputKind, Result};
 
 /// Finite-element formulations hytled offers.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

@@ -8,14 +8,13 @@
 //! Node order within an element is VTK's quadratic tetra (type 24): corners 0-3, then the
 //! edges (0,1), (1,2), (0,2), (0,3), (1,3), (2,3).
 
-use crate::InputKind;
 use std::collections::HashMap;
 
 use nalgebra::{Matrix3, Vector3};
 
 use crate::geometry::{ElementShape, Mesh};
 use crate::quadrature::{GroupPoint, QuadraturePoints};
-use crate::{Error, Result};
+use crate::{Error, InputKind, Result};
 
 /// Corner pairs of the six edge nodes 4..9, in VTK's order.
 pub const EDGES: [(usize, usize); 6] = [(0, 1), (1, 2), (0, 2), (0, 3), (1, 3), (2, 3)];

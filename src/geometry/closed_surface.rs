@@ -8,14 +8,13 @@
 //! (the outer piece outward, cavities inward; a piece oriented the other way is turned, not
 //! refused).
 
-use crate::InputKind;
 use std::collections::HashMap;
 
 use nalgebra::Vector3;
 
 use super::select::bounds;
 use super::winding::winding_number;
-use crate::{Error, Result};
+use crate::{Error, InputKind, Result};
 
 /// A checked closed surface: points (m) and outward triangles over them.
 #[derive(Debug, Clone)]

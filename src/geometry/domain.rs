@@ -5,11 +5,10 @@
 //!
 //! Lengths are in metres, volumes in m^3.
 
-use crate::InputKind;
 use nalgebra::{Vector2, Vector3};
 
 use super::shapes::check_box;
-use crate::{Error, Result};
+use crate::{Error, InputKind, Result};
 
 /// A built-in solid shape. Lengths in m.
 #[derive(Debug, Clone, Copy, PartialEq)]

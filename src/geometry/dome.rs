@@ -9,10 +9,9 @@
 //! 10 x 14 mm pit on the brain's 6 mm mesh for a 10 mm indenter) and changes with every mesh,
 //! so the indentation force does not settle under refinement (issue 40).
 
-use crate::InputKind;
 use nalgebra::Vector3;
 
-use crate::{Error, Result};
+use crate::{Error, InputKind, Result};
 
 /// Edge length that grows away from an outline: `size` (m) on it, `size + (growth - 1) d` at
 /// a distance d (m) along the surface, up to the mesh's own size. `growth` is the ratio of

@@ -9,13 +9,12 @@
 //! body). Label-0 (or unchosen) holes inside the body are cavities; pieces of tissue apart from
 //! the largest are dropped (they would float free), and said.
 
-use crate::InputKind;
 use nalgebra::Vector3;
 
 use super::closed_surface::{check_closed_surface, ClosedSurface};
 use super::image::Image;
 use super::{ElementShape, Mesh};
-use crate::{Error, Result};
+use crate::{Error, InputKind, Result};
 
 /// Which voxels are tissue: those whose label is in `labels` (all nonzero labels when empty).
 pub fn tissue_mask(image: &Image, labels: &[i64]) -> Vec<bool> {

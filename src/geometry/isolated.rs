@@ -11,8 +11,7 @@
 //! The child returns its result as two flat arrays through a pipe. On targets without
 //! `fork` the call runs in-process.
 
-use crate::InputKind;
-use crate::{Error, Result};
+use crate::{Error, InputKind, Result};
 
 /// What a child returns: numbers and indices.
 #[derive(Debug, Default, Clone, PartialEq)]

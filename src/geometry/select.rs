@@ -1,10 +1,9 @@
 //! Node selections for boundaries and probes.
 
-use crate::InputKind;
 use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
 
-use crate::{Error, Result};
+use crate::{Error, InputKind, Result};
 
 /// A coordinate axis.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]

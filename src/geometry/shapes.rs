@@ -15,11 +15,10 @@
 //! Nodes are numbered layer by layer: node `k * n2d + i` is cross-section node `i` at height
 //! `z_k`, so a cross-section's `n2d` nodes repeat on `n_axial + 1` layers.
 
-use crate::InputKind;
 use nalgebra::{Vector2, Vector3};
 
 use super::mesh::{check_mesh_memory, ElementShape, Mesh};
-use crate::{Error, Result};
+use crate::{Error, InputKind, Result};
 
 /// Planar quadrilateral mesh: nodes (x, y) and quads counter-clockwise seen from +z.
 struct QuadMesh2 {

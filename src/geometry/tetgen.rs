@@ -18,7 +18,6 @@
 //! points come back unchanged), which keeps tritet's fixed-point formatting of the volume bound
 //! (`%.15f`) accurate for volumes in m^3.
 
-use crate::InputKind;
 use std::sync::Mutex;
 
 use nalgebra::Vector3;
@@ -27,7 +26,7 @@ use tritet::Tetgen;
 use super::dome::{enclosed_volume, zip_rings, EllipseArc};
 use super::mesh::{ElementShape, Mesh};
 use super::quality::tet_signed_volume;
-use crate::{Error, Result};
+use crate::{Error, InputKind, Result};
 
 /// Serializes calls into TetGen (not thread-safe, see tritet's `Tetgen` docs).
 static TETGEN_LOCK: Mutex<()> = Mutex::new(());

@@ -8,12 +8,11 @@
 //! image is I_w(x) = I(x + d(x)) = I(X): the pre-operative image resampled by the transform.
 //! Outside the deformed body d = 0 and I_w = I.
 
-use crate::InputKind;
 use nalgebra::Vector3;
 
 use super::image::Image;
 use super::{ElementShape, Mesh};
-use crate::{Error, Result};
+use crate::{Error, InputKind, Result};
 
 /// The pull-back field d(x) = X - x (m, RAS) at the voxel centres of `grid` for the body
 /// `mesh` (reference positions, m; tetrahedra, or hexahedra split into six tets) displaced by

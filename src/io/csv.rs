@@ -1,11 +1,10 @@
 //! CSV output for time histories and other tables of numbers.
 
-use crate::InputKind;
 use std::io::Write;
 use std::path::Path;
 
 use super::vtu::{write_atomically, write_f64};
-use crate::{Error, Result};
+use crate::{Error, InputKind, Result};
 
 /// Writes a table of numbers as CSV: one header line, then one line per row.
 ///

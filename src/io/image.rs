@@ -13,14 +13,13 @@
 //! with intent VECTOR, the ANTs convention; NRRD: a `vector` axis first, `space:
 //! left-posterior-superior`).
 
-use crate::InputKind;
 use std::io::{BufRead, Read, Write};
 use std::path::Path;
 
 use nalgebra::{Matrix3, Matrix4, Vector3};
 
 use super::file_error;
-use crate::{Error, Result};
+use crate::{Error, InputKind, Result};
 
 pub use crate::geometry::image::Image;
 
@@ -349,6 +348,12 @@ struct NrrdHeader {
 }
 
 impl NrrdHeader {
+    /// A field the format requires; its absence is a format error naming the file.
+    fn need(&self, key: &str, path: &Path) -> Result<&str> {
+        self.get(key)
+            .ok_or_else(|| file_error(path, format!("the NRRD header has no '{key}' field")))
+    }
+
     fn get(&self, key: &str) -> Option<&str> {
         self.fields
             .iter()
@@ -370,10 +375,6 @@ fn read_nrrd(path: &Path) -> Result<Image> {
     let file = std::fs::File::open(path).map_err(|e| file_error(path, e))?;
     let mut reader = std::io::BufReader::new(file);
     let h = nrrd_header(&mut reader, path)?;
-    let need = |k: &str| {
-        h.get(k)
-            .ok_or_else(|| file_error(path, format!("the NRRD header has no '{k}' field")))
-    };
     let NrrdAxes {
         dimension,
         lead,
@@ -382,7 +383,7 @@ fn read_nrrd(path: &Path) -> Result<Image> {
     let components = 1; // nrrd_axes refuses more
     let to_world = nrrd_to_world(&h, path, dimension, lead)?;
     let mut image = check_map(path, dims, to_world)?;
-    let kind = need("type")?.to_ascii_lowercase();
+    let kind = h.need("type", path)?.to_ascii_lowercase();
     let (bytes, read) = nrrd_type(&kind, path)?;
     let big = h
         .get("endian")
@@ -482,14 +483,12 @@ struct NrrdAxes {
 }
 
 fn nrrd_axes(h: &NrrdHeader, path: &Path) -> Result<NrrdAxes> {
-    let need = |k: &str| {
-        h.get(k)
-            .ok_or_else(|| file_error(path, format!("the NRRD header has no '{k}' field")))
-    };
-    let dimension: usize = need("dimension")?
+    let dimension: usize = h
+        .need("dimension", path)?
         .parse()
         .map_err(|_| file_error(path, "dimension is not a whole number"))?;
-    let sizes: Vec<usize> = need("sizes")?
+    let sizes: Vec<usize> = h
+        .need("sizes", path)?
         .split_whitespace()
         .map(|s| s.parse().ok())
         .collect::<Option<Vec<_>>>()
@@ -735,11 +734,7 @@ fn nrrd_type(kind: &str, path: &Path) -> Result<(usize, Decode)> {
 
 /// The data after the header (or in its `data file`), decoded (`encoding` raw or gzip).
 fn nrrd_data(h: &NrrdHeader, path: &Path, reader: &mut impl Read) -> Result<Vec<u8>> {
-    let need = |k: &str| {
-        h.get(k)
-            .ok_or_else(|| file_error(path, format!("the NRRD header has no '{k}' field")))
-    };
-    let encoding = need("encoding")?.to_ascii_lowercase();
+    let encoding = h.need("encoding", path)?.to_ascii_lowercase();
     let mut raw = Vec::new();
     match h.get("data file").or_else(|| h.get("datafile")) {
         Some(f) => {

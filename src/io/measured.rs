@@ -4,12 +4,11 @@
 //! `id, ux, uy, uz`. Metres; comma, semicolon or blank separated; an optional header line and
 //! `#` comments.
 
-use crate::InputKind;
 use std::path::Path;
 
 use nalgebra::Vector3;
 
-use crate::{Error, Result};
+use crate::{Error, InputKind, Result};
 
 /// Where a measured displacement applies.
 #[derive(Debug, Clone, Copy, PartialEq)]

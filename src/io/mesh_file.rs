@@ -1,13 +1,12 @@
 //! Reading any supported mesh file by format, with the scene's unit factor and the checks a
 //! mesh needs before it is used.
 
-use crate::InputKind;
 use std::path::Path;
 
 use serde::{Deserialize, Serialize};
 
 use super::model::MeshInput;
-use crate::{Error, Result};
+use crate::{Error, InputKind, Result};
 
 /// Mesh file formats.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]

@@ -17,12 +17,11 @@
 //!   frames it wrote before it stopped. Whatever a kill, a power cut or a full disk leaves is
 //!   the next run's to remove.
 
-use crate::InputKind;
 use std::fs::File;
 use std::io::{Read, Seek, Write};
 use std::path::{Path, PathBuf};
 
-use crate::{Error, Result};
+use crate::{Error, InputKind, Result};
 
 const MANIFEST: &str = ".hytled-manifest";
 const STAGING: &str = ".hytled-partial";

@@ -1,12 +1,11 @@
 //! Line plots as SVG (plotters, SVG backend: text stays text, so no fonts or system libraries
 //! are needed): reaction force and energies against time, written next to `history.csv`.
 
-use crate::InputKind;
 use std::path::Path;
 
 use plotters::prelude::*;
 
-use crate::{Error, Result};
+use crate::{Error, InputKind, Result};
 
 /// One named curve: (x, y) points.
 pub struct Series<'a> {

@@ -9,14 +9,13 @@
 //! Every file is written to a hidden temporary file in the target directory and renamed into
 //! place once complete, so an interrupted run never leaves a truncated `.vtu` or `.pvd` behind.
 
-use crate::InputKind;
 use std::fs::File;
 use std::io::{self, BufWriter, Write};
 use std::path::{Path, PathBuf};
 
 use nalgebra::Vector3;
 
-use crate::{Error, Result};
+use crate::{Error, InputKind, Result};
 
 /// A named data array attached to points or cells.
 ///

@@ -10,14 +10,13 @@
 //! smooth" function of thesis eq. 5.5, f = (sum_k phi_k,x^2, sum_k phi_k,y^2, sum_k phi_k,z^2):
 //! if it is integrated accurately, the smoother integrands of the internal forces are too.
 
-use crate::InputKind;
 use nalgebra::Vector3;
 use rayon::prelude::*;
 
 use super::integration::{checked_tets, TetRule};
 use crate::geometry::quality::tet_signed_volume;
 use crate::geometry::Mesh;
-use crate::{Error, Result};
+use crate::{Error, InputKind, Result};
 
 /// Most leaves one background cell may be split into: 8^6 = 262,144 (six levels of 8
 /// children, nine of 4, eighteen of 2).

@@ -8,7 +8,6 @@
 //! reach the surface well when nodes lie on it, and essential boundary conditions are applied
 //! at surface nodes. Coordinates are in metres.
 
-use crate::InputKind;
 use std::f64::consts::PI;
 use std::path::Path;
 
@@ -18,7 +17,7 @@ use rand_core::{Rng, SeedableRng};
 
 use crate::geometry::domain::Domain;
 use crate::geometry::Mesh;
-use crate::{Error, Result};
+use crate::{Error, InputKind, Result};
 
 /// Largest cloud the generators build: far beyond what the explicit solver can run, so a
 /// larger count means a spacing given in the wrong unit (mm for m), not a real request.

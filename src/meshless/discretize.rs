@@ -1,7 +1,6 @@
 //! The meshless discretization: nodes, background integration, supports, shape
 //! functions, and removal of nodes that too few supports reach (Horton 2010 sect. 2.5).
 
-use crate::InputKind;
 use nalgebra::Vector3;
 
 use super::adaptive::{self, AdaptiveSettings};
@@ -14,7 +13,7 @@ use crate::geometry::domain::Domain;
 use crate::geometry::{ElementShape, Mesh};
 use crate::quadrature::{QuadraturePoints, SparseRow};
 use crate::report::AdaptiveInfo;
-use crate::{Error, Result};
+use crate::{Error, InputKind, Result};
 
 /// The built meshless discretization of a scene.
 pub struct MeshlessBuild {

@@ -1,7 +1,6 @@
 //! Essential boundary conditions on meshless nodes through the shared integrator: the
 //! EBCIEM / SEBCIEM correction (thesis chapter 4) wrapped as a [`Corrector`].
 
-use crate::InputKind;
 use nalgebra::Vector3;
 use std::sync::atomic::{AtomicBool, Ordering};
 
@@ -11,7 +10,7 @@ use crate::bc::{Boundary, LoadCurve};
 use crate::geometry::quality;
 use crate::quadrature::SparseRow;
 use crate::solver::{keep_warm, Corrector, SharedMut};
-use crate::Result;
+use crate::{InputKind, Result};
 
 /// One component's correction with its prescribed values.
 struct Component {

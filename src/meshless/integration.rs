@@ -5,13 +5,12 @@
 //! tetrahedral mesh with a Gauss-type rule per cell, or a regular grid of cubic cells over the
 //! bounding box with one point per cell.
 
-use crate::InputKind;
 use nalgebra::Vector3;
 
 use crate::geometry::domain::Domain;
 use crate::geometry::quality::tet_signed_volume;
 use crate::geometry::{ElementShape, Mesh};
-use crate::{Error, Result};
+use crate::{Error, InputKind, Result};
 
 /// Largest background grid [`grid_points`] builds; more means a unit error, not a request.
 const MAX_GRID_POINTS: f64 = 20_000_000.0;

@@ -1,13 +1,12 @@
 //! Quadrature points of the meshless discretization and shape-function evaluation with support growth.
 
-use crate::InputKind;
 use nalgebra::Vector3;
 use rayon::prelude::*;
 
 use super::mls::{self, MlsError, MlsSettings};
 use super::support::{Support, SupportRule};
 use crate::quadrature::{PointKind, QuadraturePoints};
-use crate::{Error, Result};
+use crate::{Error, InputKind, Result};
 
 /// Support growth factors tried, in order, when a moment matrix is too ill-conditioned.
 const GROWTH: [f64; 5] = [1.0, 1.25, 1.5, 1.75, 2.0];

@@ -10,13 +10,12 @@
 //!   nearest nodes when there are no tetrahedra); a point's support is every node whose sphere
 //!   covers it (thesis sect. 4.4.3, D = 2; the coupled-cylinder paper uses 1.6).
 
-use crate::InputKind;
 use std::num::NonZero;
 
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use nalgebra::Vector3;
 
-use crate::{Error, Result};
+use crate::{Error, InputKind, Result};
 
 /// How a point's support is chosen.
 #[derive(Debug, Clone, Copy, PartialEq)]

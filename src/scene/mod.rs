@@ -133,7 +133,8 @@ pub fn from_json(json: &str, base_dir: &Path, overrides: &[String]) -> Result<Sc
 pub fn parse(text: &str, path: &Path, overrides: &[String]) -> Result<Scene> {
     // serde's and toml's messages write an f64 in full (1e300 as 301 digits).
     let err = |message: &str| Error::scene(path, short_numbers(message));
-    let bad = |b: Invalid| err(&b.message).key(b.key);
+    // hytled's own checks write their numbers once (error::Num); nothing to shorten.
+    let invalid = |b: Invalid| Error::scene(path, b.message).key(b.key);
     // Deserialise the file as written first, so schema errors carry its line numbers.
     let mut scene: Scene = toml::from_str(text).map_err(|e| {
         let table = toml::from_str::<toml::Table>(text).ok();
@@ -160,7 +161,7 @@ pub fn parse(text: &str, path: &Path, overrides: &[String]) -> Result<Scene> {
             err(&format!("--set {o}: {m}")).key(key)
         })?;
     }
-    check_finite(&toml::Value::Table(value.clone()), "").map_err(bad)?;
+    check_finite(&toml::Value::Table(value.clone()), "").map_err(invalid)?;
     let tets_by_default = surface_element_default(&mut value);
     let written = toml::Value::Table(value.clone());
     if !overrides.is_empty() {
@@ -194,13 +195,12 @@ pub fn parse(text: &str, path: &Path, overrides: &[String]) -> Result<Scene> {
     }
     // serde fills a fixed-size array from the first elements of a longer one: compare.
     if let Ok(typed) = toml::Value::try_from(&scene) {
-        check_lengths(&written, &typed, "").map_err(bad)?;
+        check_lengths(&written, &typed, "").map_err(invalid)?;
     }
     scene.base_dir = path.parent().map(PathBuf::from).unwrap_or_default();
     if scene.name.is_none() {
         scene.name = path.file_stem().map(|s| s.to_string_lossy().into_owned());
     }
-    let invalid = |b: Invalid| Error::scene(path, b.message).key(b.key);
     validate(&scene).map_err(invalid)?;
     resolve_exact(&mut scene).map_err(invalid)?;
     Ok(scene)

@@ -4,7 +4,6 @@
 //! contact, the essential-boundary correction and [`Prepared`]. A new method (an element, a
 //! point kind) gives its parts and a [`Discretized`] view; it copies no pipeline.
 
-use crate::InputKind;
 use std::collections::BTreeMap;
 use std::time::Instant;
 
@@ -23,7 +22,7 @@ use crate::quadrature::QuadraturePoints;
 use crate::report::Warning;
 use crate::scene::{BcMethod, ProbeSpec, Scene};
 use crate::solver::Model;
-use crate::{Error, Result};
+use crate::{Error, InputKind, Result};
 
 use super::surface::{Discretized, QuadraticFe};
 use super::{add_loads_and_contact, hourglass_modulus, regions, select_nodes, translate, Prepared};

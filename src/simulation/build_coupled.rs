@@ -1,7 +1,6 @@
 //! A coupled run's preparation: the FE layer, transition cells and meshless interior, their
 //! points, boundaries, probes and loads.
 
-use crate::InputKind;
 use std::collections::BTreeMap;
 use std::time::Instant;
 
@@ -16,7 +15,7 @@ use crate::meshless::essential::MeshlessCorrector;
 use crate::report::{Warning, WarningKind};
 use crate::scene::{BcMethod, Scene};
 use crate::solver::Model;
-use crate::{coupling, Error, Result};
+use crate::{coupling, Error, InputKind, Result};
 
 use super::build::{assemble, Discretization, Parts};
 use super::surface::Discretized;

@@ -3,15 +3,16 @@
 //! there (meshless and blended nodal values are parameters, not displacements). The VTU
 //! frames, warped images and the Python fields all read them here.
 
-use crate::InputKind;
 use nalgebra::Vector3;
 
 use super::Discretization;
+use std::borrow::Cow;
+
 use crate::geometry::Mesh;
 use crate::material::Solid;
 use crate::quadrature::SparseRow;
 use crate::solver::{Fields, Model};
-use crate::{Error, Result};
+use crate::{Error, InputKind, Result};
 
 /// A frame's points (m), its cells and where its quadrature points lie.
 pub(super) struct FrameGeometry<'a> {
@@ -22,7 +23,8 @@ pub(super) struct FrameGeometry<'a> {
     pub types: Vec<u8>,
     /// The cell of each quadrature point (None for a point in no cell, a meshless grid
     /// point); None: the points are the elements', in element order.
-    pub owner: Option<Vec<Option<usize>>>,
+    /// Borrowed where the method holds it so (meshless), made for coupled cells.
+    pub owner: Option<Cow<'a, [Option<usize>]>>,
 }
 
 /// The fields of one state at the points of the VTU frames ([`ResultPoints::point_fields`]):
@@ -162,12 +164,12 @@ impl<'a> ResultPoints<'a> {
                         vec![b.shape.vtk_type(); b.num_cells()],
                     )
                 };
-                (&b.nodes[..], cells, Some(m.owner.clone()))
+                (&b.nodes[..], cells, Some(Cow::Borrowed(&m.owner[..])))
             }
             Discretization::Coupled { build: c, .. } => (
                 &c.nodes[..],
                 c.vtu_cells(),
-                Some(c.owner.iter().map(|&e| Some(e)).collect()),
+                Some(Cow::Owned(c.owner.iter().map(|&e| Some(e)).collect())),
             ),
             Discretization::Fe => {
                 let m = self.mesh;

@@ -1,6 +1,5 @@
 //! The scene's `[loads]` and `[contact]` on a built discretization.
 
-use crate::InputKind;
 use nalgebra::Vector3;
 
 use super::surface::{Discretized, Surface};
@@ -10,7 +9,7 @@ use crate::bc::loads::{Load, LoadKind};
 use crate::io::model::MeshInput;
 use crate::report::{Warning, WarningKind};
 use crate::scene::Scene;
-use crate::Result;
+use crate::{InputKind, Result};
 
 /// Gravity as it is; point forces on the selected nodes (spread by the rows at their
 /// positions); tractions and pressures on the boundary faces whose corners are all selected.

@@ -1,6 +1,5 @@
 //! `[measured]` displacements matched to surface nodes: the image-driven brain-shift workflow.
 
-use crate::InputKind;
 use nalgebra::Vector3;
 
 use super::{load_curve, scene_path};
@@ -8,7 +7,7 @@ use crate::bc::{Boundary, MeasuredMap};
 use crate::io::measured::{parse_measured, MeasuredAt};
 use crate::io::model::MeshInput;
 use crate::scene::{MeasuredSpec, Scene};
-use crate::{Error, Result};
+use crate::{Error, InputKind, Result};
 
 /// Default matching distance, as a fraction of the body's bounding-box diagonal.
 pub const DEFAULT_TOLERANCE: f64 = 1e-3;

@@ -1,6 +1,5 @@
 //! The pipeline of one run: scene -> mesh -> quadrature points -> model -> solver -> outputs.
 
-use crate::InputKind;
 use std::path::PathBuf;
 use std::time::Instant;
 
@@ -50,7 +49,7 @@ use crate::report::{Summary, Warning, WarningKind};
 use crate::scene::{BcMethod, Component, Geometry, Method, Scene};
 use crate::solver::{self, Model, RunOutput};
 pub use crate::solver::{Device, Mode, Settings};
-use crate::{Error, Result};
+use crate::{Error, InputKind, Result};
 
 /// How to run a scene.
 #[derive(Debug, Clone, Default)]

@@ -3,7 +3,6 @@
 //! points of adaptive runs, the time history (CSV and SVG plots), relaxation records and
 //! `summary.json`. Units SI.
 
-use crate::InputKind;
 use std::path::{Path, PathBuf};
 
 use nalgebra::Vector3;
@@ -16,7 +15,7 @@ use crate::material::Solid;
 use crate::report::Summary;
 use crate::scene::Scene;
 use crate::solver::{Model, RunOutput};
-use crate::{Error, Result};
+use crate::{Error, InputKind, Result};
 
 /// VTU cells making each of `n` points a VTK vertex (type 1), so ParaView draws them:
 /// (connectivity, offsets, types).

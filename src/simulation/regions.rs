@@ -1,13 +1,12 @@
 //! Tissue regions: which material each quadrature point takes.
 
-use crate::InputKind;
 use nalgebra::Vector3;
 
 use crate::io::model::MeshInput;
 use crate::material::{Material, Solid};
 use crate::quadrature::{PointKind, QuadraturePoints};
 use crate::scene::Scene;
-use crate::{Error, Result};
+use crate::{Error, InputKind, Result};
 
 /// Where each quadrature point lies (discretization order): the position tested against a
 /// region's `select` (m) and the mesh-file element it belongs to (for `elements`; None for

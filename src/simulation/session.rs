@@ -24,7 +24,6 @@
 //! # Ok::<(), hytled::Error>(())
 //! ```
 
-use crate::InputKind;
 use std::time::Instant;
 
 use nalgebra::Vector3;
@@ -34,7 +33,7 @@ use crate::material::Solid;
 use crate::report::{Summary, Warning, WarningKind};
 use crate::scene::Scene;
 use crate::solver::{MassState, Mode, Model, RunOutput, Settings, WarmStart};
-use crate::{Error, Result};
+use crate::{Error, InputKind, Result};
 
 /// A prepared scene solved as often as its inputs change.
 pub struct Session {

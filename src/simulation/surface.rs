@@ -3,7 +3,6 @@
 //! (the node itself for FE nodes; shape functions for meshless and blended nodes, which do not
 //! interpolate) and the body's outward boundary faces with the rows at points on them.
 
-use crate::InputKind;
 use nalgebra::Vector3;
 
 use crate::bc::loads::Face;
@@ -13,7 +12,7 @@ use crate::geometry::{quality, Mesh};
 use crate::meshless::discretize::MeshlessBuild;
 use crate::probe::locate_among;
 use crate::quadrature::SparseRow;
-use crate::{Error, Result};
+use crate::{Error, InputKind, Result};
 
 /// A built discretization, seen through what the pipeline shared by the methods needs
 /// (issue 58's build seam): its nodes, the rows that interpolate the displacement at a node or

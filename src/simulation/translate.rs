@@ -3,7 +3,6 @@
 //! the integrator's. The only place besides the pipeline itself that reads a [`Scene`].
 
 use crate::memory::PlannedMesh;
-use crate::InputKind;
 use std::path::PathBuf;
 
 use nalgebra::Vector3;
@@ -25,7 +24,7 @@ use crate::scene::{
     SupportKind,
 };
 use crate::solver::Settings;
-use crate::{Error, Result};
+use crate::{Error, InputKind, Result};
 
 /// The material a scene asks for (`[material]`; regions come on top, see `regions`).
 pub fn material(scene: &Scene) -> Solid {

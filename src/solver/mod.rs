@@ -13,7 +13,6 @@ pub mod statics;
 pub mod timestep;
 mod two_ended;
 
-use crate::InputKind;
 use nalgebra::{Matrix3, Vector3};
 
 use crate::bc::contact::Contact;
@@ -21,7 +20,7 @@ use crate::bc::loads::{Load, Loads};
 use crate::bc::{Boundary, Constraints};
 use crate::material::Material;
 use crate::quadrature::{NodeSlots, QuadraturePoints};
-use crate::Result;
+use crate::{InputKind, Result};
 pub use forces::{Fields, Forces};
 pub use integrate::{
     keep_warm, run, run_streaming, Device, FrameSink, Mode, RunOutput, Settings, StepEstimate,

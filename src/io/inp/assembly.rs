@@ -1,13 +1,12 @@
 //! ABAQUS/CAE's parts, assembly and instances: placed copies merged into one body.
 
-use crate::InputKind;
 use std::collections::{BTreeMap, HashMap, HashSet};
 
 use nalgebra::Vector3;
 
 use crate::geometry::{ElementShape, Mesh};
 use crate::io::model::MeshInput;
-use crate::{Error, Result};
+use crate::{Error, InputKind, Result};
 
 use super::build::{build_input, Body};
 use super::elements::shape_name;

@@ -1,10 +1,9 @@
 //! Lines of a deck with its `*INCLUDE` files flattened in, and keyword lines parsed.
 
-use crate::InputKind;
 use std::borrow::Cow;
 use std::path::{Path, PathBuf};
 
-use crate::{Error, Result};
+use crate::{Error, InputKind, Result};
 
 use super::MAX_INCLUDE_DEPTH;
 

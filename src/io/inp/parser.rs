@@ -1,13 +1,12 @@
 //! The parser state: one body's nodes, elements, sets and surfaces read keyword by keyword.
 
-use crate::InputKind;
 use std::collections::HashMap;
 
 use nalgebra::Vector3;
 
 use crate::geometry::{ElementShape, Mesh};
 use crate::io::model::MeshInput;
-use crate::{Error, Result};
+use crate::{Error, InputKind, Result};
 
 use super::build::{build_input, Body};
 use super::elements::{classify, shape_name, ElemKind};

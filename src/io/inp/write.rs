@@ -1,13 +1,12 @@
 //! The writer: a mesh and its sets as an `.inp` deck.
 
-use crate::InputKind;
 use std::collections::{HashMap, HashSet};
 use std::fmt::Write as _;
 use std::path::Path;
 
 use crate::geometry::ElementShape;
 use crate::io::model::MeshInput;
-use crate::{Error, Result};
+use crate::{Error, InputKind, Result};
 
 use super::elements::shape_name;
 use super::lines::upper;

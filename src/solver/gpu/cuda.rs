@@ -4,7 +4,6 @@
 //! that: it is maintained, needs no CUDA at build time, and compiles the kernels at run time
 //! for whatever GPU is there.
 
-use crate::InputKind;
 use std::ffi::c_void;
 use std::sync::Arc;
 
@@ -12,7 +11,7 @@ use cudarc::driver::{result, sys, CudaContext, CudaFunction, CudaModule};
 use cudarc::nvrtc::{compile_ptx_with_opts, CompileOptions};
 
 use super::{Backend, Kernel, BLOCK};
-use crate::{Error, Result};
+use crate::{Error, InputKind, Result};
 
 /// Device 0 with the kernels loaded.
 pub struct Cuda {

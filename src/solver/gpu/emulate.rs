@@ -5,14 +5,13 @@
 //! the GPU loop bitwise against the CPU path on machines with no GPU; it is far slower than
 //! either and not meant for runs.
 
-use crate::InputKind;
 use std::ffi::c_void;
 use std::path::PathBuf;
 use std::process::Command;
 use std::sync::{Mutex, OnceLock};
 
 use super::{Backend, Kernel, BLOCK};
-use crate::{Error, Result};
+use crate::{Error, InputKind, Result};
 
 const SHIM: &str = r#"
 #include <cmath>

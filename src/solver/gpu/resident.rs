@@ -1,13 +1,12 @@
 //! The run's state on the device and the launches of one step.
 
-use crate::InputKind;
 use std::ffi::c_void;
 
 use nalgebra::Vector3;
 
 use super::{Arg, Backend, Kernel, Tables, BLOCK};
 use crate::memory::Size;
-use crate::{Error, Result};
+use crate::{Error, InputKind, Result};
 
 /// What the host reads back after a step: the smallest J and its point, the largest change
 /// in the step and the largest displacement (m) over the nodes (predict.rs).

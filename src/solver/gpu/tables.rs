@@ -4,8 +4,7 @@ use crate::bc::Constraints;
 use crate::material::Material;
 use crate::quadrature::PointKind;
 use crate::solver::Model;
-use crate::InputKind;
-use crate::{Error, Result};
+use crate::{Error, InputKind, Result};
 
 /// Host copies of everything the kernels read, in their layout: u32 ids, f64 values, vectors
 /// as three consecutive components.

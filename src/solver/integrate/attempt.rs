@@ -1,7 +1,6 @@
 //! One pass of the time loop from the unloaded state at a fixed dt_factor (the caller,
 //! [`super::run`], restarts relaxation with a shorter step after an instability).
 
-use crate::InputKind;
 use std::time::Instant;
 
 use nalgebra::Vector3;
@@ -24,7 +23,7 @@ use crate::solver::forces::NODE_BLOCK;
 use crate::solver::gpu::Resident;
 use crate::solver::spectrum::Lanczos;
 use crate::solver::Model;
-use crate::{Error, Result};
+use crate::{Error, InputKind, Result};
 
 /// The run's wall clock, the time spent in the frame sink (which solve_seconds leaves out),
 /// where an instability stopped the attempt (steps taken, load fraction reached), and the

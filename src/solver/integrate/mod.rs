@@ -11,7 +11,6 @@ mod relaxation;
 mod schedule;
 mod timeline;
 
-use crate::InputKind;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
@@ -21,7 +20,7 @@ use serde::{Deserialize, Serialize};
 use super::timestep::critical_time_step;
 use super::Model;
 use crate::material::Material;
-use crate::{Error, Result};
+use crate::{Error, InputKind, Result};
 use attempt::{attempt, Clock};
 pub use schedule::UPDATE_ALLOWANCE;
 

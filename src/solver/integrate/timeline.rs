@@ -2,8 +2,7 @@
 //! coefficients of each.
 
 use super::{Mode, Settings};
-use crate::InputKind;
-use crate::{Error, Result};
+use crate::{Error, InputKind, Result};
 
 /// Dynamic runs needing more steps than this are refused unless `max_steps` allows them (a
 /// mistyped dt_factor or density would otherwise run for days without a word).

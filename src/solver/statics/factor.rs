@@ -2,7 +2,6 @@
 //! order and symbolic Cholesky factorization built once per model, and numeric factorizations
 //! (faer's supernodal LL^T, LDL^T where the matrix is not positive definite) kept for reuse.
 
-use crate::InputKind;
 use faer::dyn_stack::{MemBuffer, MemStack};
 use faer::linalg::cholesky::ldlt::factor::LdltRegularization;
 use faer::linalg::cholesky::llt::factor::LltRegularization;
@@ -15,7 +14,7 @@ use faer::{Conj, MatMut, Par, Side};
 use nalgebra::Vector3;
 
 use super::tangent::Tangent;
-use crate::{Error, Result};
+use crate::{Error, InputKind, Result};
 
 /// Free-DOF numbering: the free components of every node, node by node.
 #[derive(Debug, Clone)]

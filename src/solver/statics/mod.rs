@@ -19,7 +19,6 @@
 pub mod factor;
 pub mod tangent;
 
-use crate::InputKind;
 use std::time::Instant;
 
 use nalgebra::{Matrix3, Vector3};
@@ -28,7 +27,7 @@ use serde::{Deserialize, Serialize};
 use super::integrate::{FrameSink, HistoryRow, Momentum, RunOutput, Settings, Stage, StepUpdates};
 use super::Model;
 use crate::material::Material;
-use crate::{Error, Result};
+use crate::{Error, InputKind, Result};
 use factor::{Dofs, Factor, Kind};
 pub use tangent::Tangent;
 
