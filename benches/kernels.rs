@@ -75,10 +75,10 @@ fn subset(qp: &QuadraturePoints, keep: impl Fn(PointKind) -> bool) -> Quadrature
 }
 
 fn bench_points(c: &mut Criterion, name: &str, prep: &Prepared, qp: &QuadraturePoints) {
-    let n = prep.model.nodes.len();
+    let n = prep.model.nodes().len();
     let slots = NodeSlots::new(qp, n);
-    let mut forces = Forces::new(prep.model.forces.materials[0], qp, &slots, n);
-    let u = field(&prep.model.nodes);
+    let mut forces = Forces::new(prep.model.forces().materials[0], qp, &slots, n);
+    let u = field(&prep.model.nodes());
     let mut out = vec![Vector3::zeros(); n];
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(1)
@@ -104,14 +104,14 @@ fn bench_points(c: &mut Criterion, name: &str, prep: &Prepared, qp: &QuadratureP
 
 fn kernels(c: &mut Criterion) {
     let hex = prepare(&["discretization.method=fe", "discretization.element=hex8"]);
-    bench_points(c, "hex8+hourglass", &hex, &hex.model.points);
+    bench_points(c, "hex8+hourglass", &hex, &hex.model.points());
     let tet = prepare(&["discretization.method=fe", "discretization.element=tet4"]);
-    bench_points(c, "tet4", &tet, &tet.model.points);
+    bench_points(c, "tet4", &tet, &tet.model.points());
     let anp = prepare(&[
         "discretization.method=fe",
         "discretization.element=tet4-anp",
     ]);
-    bench_points(c, "tet4-anp", &anp, &anp.model.points);
+    bench_points(c, "tet4-anp", &anp, &anp.model.points());
     for k in ["8", "12", "16"] {
         let sn = format!("discretization.support_nodes={k}");
         let m = prepare(&[
@@ -120,10 +120,10 @@ fn kernels(c: &mut Criterion) {
             "discretization.support=nearest",
             &sn,
         ]);
-        bench_points(c, &format!("mls-{k}-nodes"), &m, &m.model.points);
+        bench_points(c, &format!("mls-{k}-nodes"), &m, &m.model.points());
     }
     let cpl = prepare(&["discretization.method=coupled"]);
-    let blended = subset(&cpl.model.points, |k| {
+    let blended = subset(&cpl.model.points(), |k| {
         matches!(k, PointKind::MeanDilatation(_))
     });
     bench_points(c, "blended-transition", &cpl, &blended);
@@ -142,7 +142,7 @@ fn preprocessing(c: &mut Criterion) {
         let points = simulation::prepare(&sc)
             .expect("prepare")
             .model
-            .points
+            .points()
             .len();
         g.throughput(Throughput::Elements(points as u64));
         let pool = rayon::ThreadPoolBuilder::new()

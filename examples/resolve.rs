@@ -16,7 +16,7 @@ fn main() -> hytled::Result<()> {
     let mut session = Session::new(scene)?;
     println!(
         "prepared {} nodes in {:.3} s",
-        session.prepared().model.nodes.len(),
+        session.prepared().model.nodes().len(),
         session.prepare_seconds()
     );
 

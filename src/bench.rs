@@ -239,7 +239,7 @@ fn time_once(
     s.frames = 1;
     s.device = device;
     let out = simulation::solve(&mut prep, &s)?;
-    let points = prep.model.points.len();
+    let points = prep.model.points().len();
     let loop_s = out.solve_seconds - out.device_setup_seconds;
     let per_step = loop_s / out.steps.max(1) as f64;
     let row = BenchRow {
@@ -249,9 +249,9 @@ fn time_once(
             simulation::method_name(&prep),
             simulation::element_label(&case.scene, &prep)
         ),
-        nodes: prep.model.nodes.len(),
+        nodes: prep.model.nodes().len(),
         points,
-        slots: prep.model.points.nodes.len(),
+        slots: prep.model.points().nodes.len(),
         device: out.device.clone(),
         threads,
         preprocess_s,

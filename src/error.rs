@@ -103,13 +103,19 @@ pub struct Fault {
     pub kind: InputKind,
     /// Where.
     pub facts: Facts,
-    /// What is wrong and how to fix it, without the file and line (the facts give them).
+    /// What is wrong and how to fix it, without the file and line (the facts give them)
+    /// unless `placed_in_message`.
     pub message: String,
+    /// The sentence itself names the file and line (set by [`Error::placed`]): the readers of
+    /// line-based text (point clouds, measured displacements, curves, MSH 2.2) say
+    /// `FILE: line N: ...`, a wording their users and tests know, so no prefix is added.
+    pub placed_in_message: bool,
 }
 
 impl std::fmt::Display for Fault {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match (&self.facts.file, self.facts.line) {
+            _ if self.placed_in_message => {}
             (Some(file), Some(line)) => write!(f, "{}:{line}: ", file.display())?,
             (Some(file), None) => write!(f, "{}: ", file.display())?,
             _ => {}
@@ -183,6 +189,7 @@ impl Error {
             kind,
             facts: Facts::default(),
             message: message.into(),
+            placed_in_message: false,
         }))
     }
 
@@ -221,6 +228,22 @@ impl Error {
     /// Sets the 1-based line in the file; with a file the message is prefixed `file:line: `.
     pub fn line(self, line: usize) -> Self {
         self.with(|f| f.line = Some(line))
+    }
+
+    /// Sets the file and line facts of a sentence that already names them (`FILE: line N:`):
+    /// the message is written as it is, with no prefix.
+    pub fn placed(self, file: impl Into<PathBuf>, line: usize) -> Self {
+        let file = file.into();
+        match self.with(|f| {
+            f.file = Some(file);
+            f.line = Some(line);
+        }) {
+            Error::Input(mut f) => {
+                f.placed_in_message = true;
+                Error::Input(f)
+            }
+            other => other,
+        }
     }
 
     /// Sets the node (0-based).
@@ -497,6 +520,15 @@ mod tests {
             .value(0.5);
         let facts = &n.fault().expect("input").facts;
         assert_eq!((facts.node, facts.value), (Some(12), Some(0.5)));
+        // A sentence that names its place keeps its wording and gains the facts.
+        let p =
+            Error::input(InputKind::Format, "pts.csv: line 4: not a number").placed("pts.csv", 4);
+        assert_eq!(p.to_string(), "pts.csv: line 4: not a number");
+        let f = &p.fault().expect("input").facts;
+        assert_eq!(
+            (f.file.as_deref(), f.line),
+            (Some(std::path::Path::new("pts.csv")), Some(4))
+        );
         assert_eq!(
             serde_json::to_value(InputKind::Unsupported).expect("json"),
             InputKind::Unsupported.name()

@@ -461,10 +461,10 @@ fn check(CheckArgs { scene, set }: CheckArgs) -> hytled::Result<u8> {
     println!("{}: valid", scene.display());
     println!(
         "  nodes {}, elements {}, integration points {} (total weight {:.6e} m^3)",
-        prep.model.nodes.len(),
+        prep.model.nodes().len(),
         prep.mesh.num_cells(),
-        prep.model.points.len(),
-        prep.model.points.total_weight()
+        prep.model.points().len(),
+        prep.model.points().total_weight()
     );
     if let Some(m) = prep.meshless() {
         let (mean, min, max) = m.support_statistics();
@@ -496,7 +496,7 @@ fn check(CheckArgs { scene, set }: CheckArgs) -> hytled::Result<u8> {
             c.meshless_points
         );
     }
-    for b in &prep.model.boundaries {
+    for b in prep.model.boundaries() {
         println!("  boundary {:<12} {} nodes", b.name, b.nodes.len());
     }
     for hytled::simulation::RegionPoints {
@@ -506,10 +506,10 @@ fn check(CheckArgs { scene, set }: CheckArgs) -> hytled::Result<u8> {
     {
         println!("  region {name:<14} {count} integration points");
     }
-    for name in prep.model.loads.names() {
+    for name in prep.model.loads().names() {
         println!("  load {name}");
     }
-    if let Some(c) = &prep.model.contact {
+    if let Some(c) = &prep.model.contact() {
         for (b, name) in c.names().enumerate() {
             println!(
                 "  contact {name:<13} {} candidate surface points",

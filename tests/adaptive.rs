@@ -47,8 +47,8 @@ fn cube_row(size: &str, tolerance: f64) -> Row {
     );
     let m = prep.meshless().unwrap();
     let info = m.adaptive.clone().expect("adaptive report");
-    assert_eq!(info.points_after, prep.model.points.len());
-    let w: f64 = prep.model.points.weights.iter().sum();
+    assert_eq!(info.points_after, prep.model.points().len());
+    let w: f64 = prep.model.points().weights.iter().sum();
     assert!((w - 1e-3).abs() < 1e-12 * 1e-3, "weights {w} m^3");
     let a = 1.11574668 - 1.0;
     let (mut sum, mut worst) = (0.0, 0.0f64);

@@ -32,7 +32,7 @@ fn coarse_brain_indentation_converges_and_pushes() {
         let out = solver::run(&mut prep.model, &settings(&scene, false))
             .unwrap_or_else(|e| panic!("{e}"));
         let s = summarize(&scene, &prep, &out, 0.0);
-        let (min_j, _) = prep.model.forces.min_j();
+        let (min_j, _) = prep.model.forces().min_j();
         let r = s.reactions["indenter"];
         println!(
         "brain coarse {extra:?}: {} nodes, {} tets, min dihedral {:.2} deg, {} steps, solve {:.2} s, \
@@ -60,7 +60,7 @@ fn coarse_brain_indentation_converges_and_pushes() {
         );
         let ind = prep
             .model
-            .boundaries
+            .boundaries()
             .iter()
             .find(|b| b.name == "indenter")
             .expect("indenter boundary");
@@ -71,7 +71,7 @@ fn coarse_brain_indentation_converges_and_pushes() {
                 (u.z + 0.005).abs() < 1e-12 && u.x.abs() < 1e-12 && u.y.abs() < 1e-12,
                 "indenter node {i}: {u:?}"
             );
-            let p = prep.model.nodes[i];
+            let p = prep.model.nodes()[i];
             assert!(
                 p.x.hypot(p.y) <= 0.005 + 1e-12 && p.z >= 0.0275 - 1e-12,
                 "{p:?}"
@@ -209,10 +209,10 @@ fn transition_cells_next_to_a_concentrated_drive_take_the_full_rule() {
 fn builtin_brain_indentation_drives_its_plug_and_meets_the_reference() {
     let scene = scene(&[]);
     let mut prep = prepare(&scene).unwrap_or_else(|e| panic!("{e}"));
-    let nodes = prep.model.nodes.clone();
+    let nodes = prep.model.nodes().to_vec();
     let ind = prep
         .model
-        .boundaries
+        .boundaries()
         .iter()
         .find(|b| b.name == "indenter")
         .expect("indenter boundary")

@@ -277,7 +277,7 @@ fn the_brain_indented_by_a_rigid_cylinder() {
         // Every node ends outside the indenter (end face at 28.5 - 5 mm, radius 5 mm).
         let tol = s.contact["indenter"].tolerance;
         let mut on_end = 0;
-        for (i, (x, u)) in prep.model.nodes.iter().zip(&out.u).enumerate() {
+        for (i, (x, u)) in prep.model.nodes().iter().zip(&out.u).enumerate() {
             let p = x + u;
             let inside = p.x.hypot(p.y) < 0.005 - tol && p.z > 0.0235 + tol;
             assert!(
@@ -366,7 +366,7 @@ fn the_brain_shift_scene_runs_from_its_case() {
     }
     let measured = prep
         .model
-        .boundaries
+        .boundaries()
         .iter()
         .find(|b| b.name == "exposed")
         .unwrap();

@@ -1,6 +1,10 @@
 //! Random byte mutations of real sample files fed to every reader, and of the committed scene
 //! files (bytes, and values replaced through `--set`) fed to the scene parser: errors are fine,
 //! panics are not (proptest; 48 cases per test to keep the suite fast, PROPTEST_CASES raises it).
+//! The third-party parsers (vtkio, mshio, stl_io, nifti) run under a last-resort catch with no
+//! panic hook, so these tests also fail when a mutated file reaches a parser's panic (the
+//! reader's error then says "failed on malformed data"): the readers' own checks must stop it
+//! first.
 
 use std::path::{Path, PathBuf};
 
@@ -36,6 +40,71 @@ fn mutate(mut b: Vec<u8>, edits: &[(f64, u8, u8)]) -> Vec<u8> {
     b
 }
 
+/// Fails when a reader's error is a third-party parser's caught panic (`io::guard_parser`).
+fn no_parser_panic<T>(r: hytled::Result<T>, what: &str) -> Result<(), TestCaseError> {
+    if let Err(e) = r {
+        let e = e.to_string();
+        prop_assert!(
+            !e.contains("failed on malformed data"),
+            "{what}: a parser panicked, which the reader's checks must prevent: {e}"
+        );
+    }
+    Ok(())
+}
+
+/// A file in the temporary folder, unique to this process and call.
+fn scratch(ext: &str) -> PathBuf {
+    static N: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
+    let k = N.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    std::env::temp_dir().join(format!("hytled-fuzz-{}-{k}.{ext}", std::process::id()))
+}
+
+/// A tetrahedron's surface as ASCII and as binary STL.
+fn stl_samples() -> [Vec<u8>; 2] {
+    let tris = [
+        [[0.0f32, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]],
+        [[0.0, 0.0, 0.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]],
+        [[0.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
+        [[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, 1.0, 0.0]],
+    ];
+    let mut ascii = String::from("solid t\n");
+    let mut binary = vec![0u8; 80];
+    binary.extend_from_slice(&(tris.len() as u32).to_le_bytes());
+    for t in &tris {
+        ascii.push_str(" facet normal 0 0 0\n  outer loop\n");
+        binary.extend(std::iter::repeat_n(0u8, 12));
+        for v in t {
+            ascii.push_str(&format!("   vertex {} {} {}\n", v[0], v[1], v[2]));
+            v.iter()
+                .for_each(|c| binary.extend_from_slice(&c.to_le_bytes()));
+        }
+        ascii.push_str("  endloop\n endfacet\n");
+        binary.extend_from_slice(&[0, 0]);
+    }
+    ascii.push_str("endsolid t\n");
+    [ascii.into_bytes(), binary]
+}
+
+/// A 4 x 3 x 2 labelmap written as NIfTI-1 by hytled's writer.
+fn nifti_sample() -> &'static [u8] {
+    static BYTES: std::sync::OnceLock<Vec<u8>> = std::sync::OnceLock::new();
+    BYTES.get_or_init(|| {
+        let mut to_world = nalgebra::Matrix4::identity() * 0.002;
+        to_world[(3, 3)] = 1.0;
+        let mut image = hytled::geometry::image::Image::filled([4, 3, 2], to_world, 0.0);
+        image
+            .values
+            .iter_mut()
+            .enumerate()
+            .for_each(|(i, v)| *v = (i % 3) as f64);
+        let p = scratch("nii");
+        hytled::io::image::write_image(&p, &image).unwrap();
+        let b = std::fs::read(&p).unwrap();
+        let _ = std::fs::remove_file(&p);
+        b
+    })
+}
+
 fn edits() -> impl Strategy<Value = Vec<(f64, u8, u8)>> {
     prop::collection::vec((0.0..1.0f64, any::<u8>(), any::<u8>()), 1..8)
 }
@@ -66,7 +135,7 @@ proptest! {
     fn msh_reader_never_panics(e in edits()) {
         for f in ["tests/data/msh/cyl_v22.msh", "tests/data/msh/cyl_v41.msh", "tests/data/msh/cyl_v41_bin.msh"] {
             let b = mutate(data(f), &e);
-            let _ = hytled::io::msh::parse_msh(&b, Path::new("fuzz.msh"));
+            no_parser_panic(hytled::io::msh::parse_msh(&b, Path::new("fuzz.msh")), f)?;
         }
     }
 
@@ -75,6 +144,31 @@ proptest! {
         let text = "x,y,z,set\n0,0,0,1\n0.1,0,0,1\n0,0.1,0,2\n0,0,0.1,2\n0.05,0.05,0.05,3\n";
         let b = mutate(text.as_bytes().to_vec(), &e);
         let _ = hytled::meshless::cloud::parse_cloud(&String::from_utf8_lossy(&b), Path::new("fuzz.csv"));
+    }
+
+    #[test]
+    fn stl_reader_never_panics(e in edits()) {
+        for (k, sample) in stl_samples().into_iter().enumerate() {
+            let p = scratch("stl");
+            std::fs::write(&p, mutate(sample, &e)).unwrap();
+            let r = hytled::io::surface_file::read_surface(&p, 1.0);
+            let _ = std::fs::remove_file(&p);
+            no_parser_panic(r, ["ascii stl", "binary stl"][k])?;
+        }
+    }
+
+    /// The header (the first 352 bytes) mutated: what the nifti crate parses.
+    #[test]
+    fn nifti_reader_never_panics(e in edits()) {
+        let b = nifti_sample().to_vec();
+        let (head, data) = b.split_at(352);
+        let mut b = mutate(head.to_vec(), &e);
+        b.extend_from_slice(data);
+        let p = scratch("nii");
+        std::fs::write(&p, b).unwrap();
+        let r = hytled::io::image::read_image(&p);
+        let _ = std::fs::remove_file(&p);
+        no_parser_panic(r, "nifti")?;
     }
 }
 
@@ -85,7 +179,7 @@ proptest! {
     fn vtk_reader_never_panics(e in edits()) {
         for (f, name) in [("tests/data/vtk/cyl.vtu", "fuzz.vtu"), ("tests/data/vtk/cyl.vtk", "fuzz.vtk"), ("tests/data/vtk/cyl_v51.vtk", "fuzz.vtk"), ("tests/data/vtk/box_hex_b64.vtu", "fuzz.vtu"), ("meshes/cylinder-coarse-tet4.vtu", "fuzz.vtu"), ("tests/data/vtk/box_hex_v51_bin.vtk", "fuzz.vtk"), ("tests/data/vtk/cyl_v51_bin.vtk", "fuzz.vtk"), ("tests/data/vtk/cyl_zlib.vtu", "fuzz.vtu"), ("tests/data/vtk/box_hex_zlib_u64.vtu", "fuzz.vtu"), ("tests/data/vtk/box_hex_meshio_b64.vtu", "fuzz.vtu")] {
             let b = mutate(data(f), &e);
-            let _ = hytled::io::vtk::parse_vtk(&b, Path::new(name));
+            no_parser_panic(hytled::io::vtk::parse_vtk(&b, Path::new(name)), f)?;
         }
     }
 }

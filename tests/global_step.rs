@@ -25,13 +25,13 @@ fn prepared(case: &str, overrides: &[&str]) -> simulation::Prepared {
 /// no start vector, no tridiagonal, a dense symmetric eigensolver).
 fn dense_lambda_max(p: &mut simulation::Prepared) -> f64 {
     let m = &mut p.model;
-    let n = m.nodes.len();
+    let n = m.nodes().len();
     let free: Vec<(usize, usize)> = (0..n)
         .flat_map(|i| (0..3).map(move |k| (i, k)))
-        .filter(|&(i, k)| !m.constraints.mask[i][k])
+        .filter(|&(i, k)| !m.constraints().mask[i][k])
         .collect();
     let size = m
-        .nodes
+        .nodes()
         .iter()
         .fold(0.0f64, |a, x| a.max(x.amax()))
         .max(1e-3);

@@ -152,8 +152,8 @@ fn meshless_on_a_gmsh_mesh_with_physical_groups() {
     )
     .unwrap();
     let prep = hytled::simulation::prepare(&sc).unwrap();
-    assert_eq!(prep.model.nodes.len(), 196);
-    for b in &prep.model.boundaries {
+    assert_eq!(prep.model.nodes().len(), 196);
+    for b in prep.model.boundaries() {
         assert_eq!(b.nodes.len(), 41, "{}", b.name);
     }
     let s = hytled::simulation::run_scene(&sc, &Default::default()).unwrap();
@@ -197,14 +197,14 @@ fn duplicate_nodes_are_reported_and_merged_on_request() {
         "{:?}",
         a.warnings
     );
-    assert_eq!(a.model.nodes.len(), 8);
+    assert_eq!(a.model.nodes().len(), 8);
     let b = prep(&["geometry.merge_duplicates=true".into()]);
     assert!(
         b.warnings.iter().any(|w| w.contains("merged 3 duplicate")),
         "{:?}",
         b.warnings
     );
-    assert_eq!(b.model.nodes.len(), 5);
+    assert_eq!(b.model.nodes().len(), 5);
     let _ = std::fs::remove_dir_all(&dir);
 }
 

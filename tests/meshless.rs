@@ -50,17 +50,17 @@ fn affine_displacement_gives_uniform_deformation_gradient_at_every_point() {
         ov.extend_from_slice(o);
         let prep = prepared("cases/cube-compression.toml", &ov);
         let m = &prep.model;
-        let u: Vec<Vector3<f64>> = m.nodes.iter().map(|x| a * x + b).collect();
+        let u: Vec<Vector3<f64>> = m.nodes().iter().map(|x| a * x + b).collect();
         let want = Matrix3::identity() + a;
         let mut worst = 0.0f64;
-        for p in 0..m.points.len() {
-            let f = deformation_gradient(&m.points, p, &u);
+        for p in 0..m.points().len() {
+            let f = deformation_gradient(&m.points(), p, &u);
             worst = worst.max((f - want).amax());
         }
         assert!(
             worst < 1e-9,
             "{o:?}: largest F error {worst:e} over {} points",
-            m.points.len()
+            m.points().len()
         );
     }
 }
@@ -74,7 +74,7 @@ fn integration_weights_sum_to_the_background_volume() {
             "discretization.divisions=[4,2,8]",
         ],
     );
-    let w = prep.model.points.total_weight();
+    let w = prep.model.points().total_weight();
     let tets: f64 = (0..prep.mesh.num_cells())
         .map(|e| {
             let c = prep.mesh.cell(e);
@@ -111,9 +111,9 @@ fn ebciem_and_sebciem_impose_prescribed_values_and_correction_does_not() {
         let mut prep = prepare(&sc).unwrap();
         let out = run(&mut prep, &sc);
         let mut worst = 0.0f64;
-        for b in &prep.model.boundaries {
+        for b in prep.model.boundaries() {
             for &i in &b.nodes {
-                let x = prep.model.nodes[i];
+                let x = prep.model.nodes()[i];
                 let u = interpolate(&prep, &x, &out.u);
                 for k in 0..3 {
                     if let Some(v) = b.components[k] {
@@ -144,7 +144,7 @@ fn meshless_cube_errors(overrides: &[&str]) -> (f64, Vec<f64>, usize) {
     assert!(out.converged);
     let top = prep.model.reactions(&out.f_int)[prep
         .model
-        .boundaries
+        .boundaries()
         .iter()
         .position(|b| b.name == "top")
         .unwrap()];
@@ -152,14 +152,14 @@ fn meshless_cube_errors(overrides: &[&str]) -> (f64, Vec<f64>, usize) {
     let a = 1.11574668;
     let errs = prep
         .model
-        .nodes
+        .nodes()
         .iter()
         .map(|x| {
             let exact = Vector3::new((a - 1.0) * x.x, (a - 1.0) * x.y, -0.2 * x.z);
             (interpolate(&prep, x, &out.u) - exact).norm()
         })
         .collect();
-    (err_f, errs, prep.model.points.groups.len())
+    (err_f, errs, prep.model.points().groups.len())
 }
 
 #[test]
@@ -287,13 +287,13 @@ history_rows = 10
     let sc = hytled::scene::parse(text, std::path::Path::new("spin.toml"), &[]).unwrap();
     let mut prep = prepare(&sc).unwrap();
     let w = Vector3::new(0.0, 0.0, 2.0 * std::f64::consts::PI);
-    let v0: Vec<Vector3<f64>> = prep.model.nodes.iter().map(|x| w.cross(x)).collect();
+    let v0: Vec<Vector3<f64>> = prep.model.nodes().iter().map(|x| w.cross(x)).collect();
     let mut st = settings(&sc, false);
     st.initial_velocity = Some(v0.clone());
     let m = prep.model.mass().to_vec();
     let l0: Vector3<f64> = prep
         .model
-        .nodes
+        .nodes()
         .iter()
         .zip(&v0)
         .zip(&m)
@@ -302,7 +302,7 @@ history_rows = 10
     let out = solver::run(&mut prep.model, &st).unwrap();
     let l1: Vector3<f64> = (0..m.len())
         .map(|i| {
-            let x = prep.model.nodes[i] + out.u[i];
+            let x = prep.model.nodes()[i] + out.u[i];
             let v = (out.u[i] - out.u_prev[i]) / out.dt;
             x.cross(&v) * m[i]
         })
@@ -586,7 +586,7 @@ fn mesh_file_vertices_serve_as_a_node_cloud() {
             "discretization.size=0.025",
         ],
     );
-    assert_eq!(prep.model.nodes.len(), 125);
+    assert_eq!(prep.model.nodes().len(), 125);
     let _ = std::fs::remove_dir_all(&dir);
 }
 

@@ -195,10 +195,10 @@ fn element_set_regions_reach_every_method() {
         } = &p.regions[0];
         assert_eq!(name, "hard");
         assert!(
-            *count * 2 >= p.model.points.len() * 9 / 10
-                && *count * 2 <= p.model.points.len() * 11 / 10,
+            *count * 2 >= p.model.points().len() * 9 / 10
+                && *count * 2 <= p.model.points().len() * 11 / 10,
             "{count} of {}",
-            p.model.points.len()
+            p.model.points().len()
         );
     }
 }

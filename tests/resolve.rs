@@ -83,13 +83,13 @@ fn node_values_changed_on_the_model_are_taken_by_the_next_solve() {
     let half = solve(&mut prep, &s).unwrap();
     let k = prep
         .model
-        .boundaries
+        .boundaries()
         .iter()
         .position(|b| b.name == "top")
         .unwrap();
     let f_half = prep.model.reactions(&half.f_int)[k].z;
     // Written on the model directly, as a Rust user would.
-    let b = &mut prep.model.boundaries[k];
+    let b = &mut prep.model.boundaries_mut()[k];
     let exact: Vec<[f64; 3]> = b
         .nodes
         .iter()
@@ -278,7 +278,7 @@ fn changes_the_model_cannot_take_are_errors() {
     assert!(e.contains("no [contact]"), "{e}");
 
     // The model's own boundaries: a new selection is refused at the next solve.
-    session.model_mut().boundaries[0].nodes.pop();
+    session.model_mut().boundaries_mut()[0].nodes.pop();
     let e = msg(session
         .solve()
         .err()
@@ -309,7 +309,7 @@ fn changes_the_model_cannot_take_are_errors() {
     let mut prep = prepare(&dynamic).unwrap();
     let mut s = settings(&dynamic, false);
     s.warm_start = Some(hytled::solver::WarmStart {
-        u: vec![nalgebra::Vector3::zeros(); prep.model.nodes.len()],
+        u: vec![nalgebra::Vector3::zeros(); prep.model.nodes().len()],
         omega_min: None,
     });
     let e = msg(solve(&mut prep, &s).unwrap_err());

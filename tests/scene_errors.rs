@@ -298,12 +298,40 @@ fn input_errors_carry_their_kind_and_facts() {
     let e = run_scene(&sc, &RunOptions::default()).expect_err("empty");
     assert_eq!(fault(&e).0, InputKind::Selection, "{e}");
     assert_eq!(e.kind(), "input");
+    assert_eq!(
+        fault(&e).1.key.as_deref(),
+        Some("boundaries.bottom.select"),
+        "{e}"
+    );
     // A mesh file's text: the file and the line.
     let inp = "*NODE\n1, 0, 0, 0\n2, 1, 0, x\n";
     let e = hytled::io::inp::parse_inp(inp, Path::new("m.inp")).expect_err("bad number");
     let (kind, facts) = fault(&e);
     assert_eq!((kind, facts.line), (InputKind::Format, Some(3)), "{e}");
     assert!(e.to_string().starts_with("m.inp:3: "), "{e}");
+    // The line-based readers keep their "FILE: line N:" wording and carry the same facts.
+    let at = |e: &hytled::Error| {
+        let (kind, facts) = fault(e);
+        (kind, facts.file.clone(), facts.line)
+    };
+    let file = |name: &str| Some(std::path::PathBuf::from(name));
+    let e = hytled::meshless::cloud::parse_cloud("0 0 0\n1 0 x\n", Path::new("c.xyz"))
+        .expect_err("cloud");
+    assert_eq!(at(&e), (InputKind::Format, file("c.xyz"), Some(2)), "{e}");
+    assert!(e.to_string().starts_with("c.xyz: line 2: "), "{e}");
+    let e = hytled::io::measured::parse_measured("0,0,0,1,2,3\n0,0,0,1,2\n", Path::new("u.csv"))
+        .expect_err("measured");
+    assert_eq!(at(&e), (InputKind::Format, file("u.csv"), Some(2)), "{e}");
+    let e = hytled::io::msh::parse_msh(
+        b"$MeshFormat\n2.2 1 8\n$EndMeshFormat\n",
+        Path::new("b.msh"),
+    )
+    .expect_err("binary 2.2");
+    assert_eq!(at(&e), (InputKind::Format, file("b.msh"), Some(2)), "{e}");
+    assert!(e.to_string().starts_with("b.msh: line 2: "), "{e}");
+    let vtk = b"# vtk DataFile Version 5.1\nx\nASCII\nDATASET UNSTRUCTURED_GRID\nPOINTS 1 float\n0 0 0\nCELLS 2\n";
+    let e = hytled::io::vtk::parse_vtk(vtk, Path::new("v.vtk")).expect_err("cells");
+    assert_eq!(at(&e), (InputKind::Format, file("v.vtk"), Some(7)), "{e}");
     // A node cloud the meshless method cannot use: the kind, not the text, says so.
     let dir = std::env::temp_dir().join(format!("hytled-kinds-{}", std::process::id()));
     std::fs::create_dir_all(&dir).expect("temp dir");

@@ -79,9 +79,9 @@ fn the_memory_estimate_counts_every_buffer() {
         .unwrap_or_else(|e| panic!("{overrides:?}: {e}"));
         let prep = simulation::prepare(&scene).unwrap();
         let m = &prep.model;
-        let n = m.nodes.len();
-        let (materials, point_material) = (&m.forces.materials, m.forces.point_materials());
-        let (points, slots) = (&m.points, m.slots());
+        let n = m.nodes().len();
+        let (materials, point_material) = (&m.forces().materials, m.forces().point_materials());
+        let (points, slots) = (&m.points(), m.slots());
         let build =
             || Forces::with_materials(materials.clone(), point_material.to_vec(), points, slots, n);
         let (measured, reported) = pool.install(|| {

@@ -521,7 +521,7 @@ fn a_body_that_loses_volume_is_warned_of_with_the_size_that_fixes_it() {
         volume: labelled,
         of,
     } = coarse.source_volume.clone().unwrap();
-    let volume = coarse.model.points.total_weight();
+    let volume = coarse.model.points().total_weight();
     let lost = (labelled - volume) / labelled;
     println!(
         "size 6 mm: {volume:.4e} of {labelled:.4e} m^3 ({of}), {:.1} % lost",
@@ -550,7 +550,7 @@ fn a_body_that_loses_volume_is_warned_of_with_the_size_that_fixes_it() {
     let at = w.split("discretization.size of about ").nth(1).unwrap();
     let size: f64 = at.split(' ').next().unwrap().parse().unwrap();
     let fine = prepare(size);
-    let v = fine.model.points.total_weight();
+    let v = fine.model.points().total_weight();
     println!(
         "size {size:.3e} m: {v:.4e} m^3, {:.2} % lost",
         100.0 * (labelled - v) / labelled
@@ -646,7 +646,7 @@ fn a_body_at_the_image_border_stays_inside_the_image() {
     let prep = hytled::simulation::prepare(&sc).unwrap();
     let far = prep
         .model
-        .nodes
+        .nodes()
         .iter()
         .flat_map(|x| [x.x, x.y, x.z])
         .fold(f64::NEG_INFINITY, f64::max);

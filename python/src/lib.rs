@@ -421,7 +421,7 @@ impl Model {
     /// Reference positions of the model's nodes, m (N, 3).
     #[getter]
     fn nodes<'py>(&self, py: Python<'py>) -> Bound<'py, numpy::PyArray2<f64>> {
-        vec3_array(&self.lock().prepared().model.nodes).into_pyarray(py)
+        vec3_array(&self.lock().prepared().model.nodes()).into_pyarray(py)
     }
 
     /// Warnings of the preparation (messages).
@@ -452,19 +452,19 @@ impl Model {
     fn boundary_names(&self) -> Vec<String> {
         let s = self.lock();
         let m = &s.prepared().model;
-        m.boundaries.iter().map(|b| b.name.clone()).collect()
+        m.boundaries().iter().map(|b| b.name.clone()).collect()
     }
 
     #[getter]
     fn load_names(&self) -> Vec<String> {
-        self.lock().prepared().model.loads.names().to_vec()
+        self.lock().prepared().model.loads().names().to_vec()
     }
 
     #[getter]
     fn tool_names(&self) -> Vec<String> {
         let s = self.lock();
         let m = &s.prepared().model;
-        m.contact
+        m.contact()
             .as_ref()
             .map(|c| c.names().map(String::from).collect())
             .unwrap_or_default()

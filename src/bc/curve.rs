@@ -178,7 +178,8 @@ pub fn parse_curve_csv(text: &str, source: &str) -> Result<Vec<[f64; 2]>> {
                 "{source}: line {}: expected two numbers (time s, factor), found '{shown}'{hint}",
                 i + 1
             ),
-            ));
+            )
+            .line(i + 1));
         }
         out.push([nums[0], nums[1]]);
     }

@@ -194,8 +194,8 @@ fn read_nifti(path: &Path) -> Result<Image> {
             ))
         }
     }
-    let h = super::catch_quietly(|| nifti::NiftiHeader::from_reader(&bytes[..348]))
-        .map_err(|_| file_error(path, "its NIfTI-1 header could not be read"))?
+    let h = super::guard_parser("nifti", || nifti::NiftiHeader::from_reader(&bytes[..348]))
+        .map_err(|e| file_error(path, format!("its NIfTI-1 header could not be read: {e}")))?
         .map_err(|e| file_error(path, format!("its NIfTI-1 header could not be read: {e}")))?;
     let big = h.endianness == nifti::Endianness::Big;
     let ndim = h.dim[0] as usize;
@@ -462,12 +462,10 @@ fn nrrd_header(reader: &mut impl BufRead, path: &Path) -> Result<NrrdHeader> {
         } else if l.contains(":=") {
             continue; // key/value pairs carry no geometry
         } else {
-            return Err(file_error(
+            return Err(super::line_err(
                 path,
-                format!(
-                    "line {line_no}: '{}' is not a NRRD field (\"name: value\")",
-                    super::clip(l)
-                ),
+                line_no,
+                format!("'{}' is not a NRRD field (\"name: value\")", super::clip(l)),
             ));
         }
     }

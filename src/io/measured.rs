@@ -58,7 +58,8 @@ pub fn parse_measured(text: &str, source: &Path) -> Result<Vec<Measured>> {
                 "{name}: line {line}: expected x, y, z, ux, uy, uz (6 numbers) or id, ux, uy, uz \
                  (4), found '{shown}'"
             ),
-            ));
+            )
+            .placed(source, line));
         }
         if *width.get_or_insert(numbers.len()) != numbers.len() {
             return Err(Error::input(
@@ -69,13 +70,15 @@ pub fn parse_measured(text: &str, source: &Path) -> Result<Vec<Measured>> {
                 numbers.len(),
                 width.unwrap_or(0)
             ),
-            ));
+            )
+            .placed(source, line));
         }
         if let Some(v) = numbers.iter().find(|v| !v.is_finite()) {
             return Err(Error::input(
                 InputKind::Format,
                 format!("{name}: line {line}: {v} is not a finite number"),
-            ));
+            )
+            .placed(source, line));
         }
         let (at, u) = if numbers.len() == 6 {
             (
@@ -91,6 +94,7 @@ pub fn parse_measured(text: &str, source: &Path) -> Result<Vec<Measured>> {
                         fields[0]
                     ),
                 )
+                .placed(source, line)
             })?;
             (
                 MeasuredAt::Node(id),

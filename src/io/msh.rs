@@ -31,7 +31,7 @@
 //! Errors name the file and where the problem is (line for 2.2; element/node block, byte
 //! offset and, for ASCII, line for 4.1). No input makes the reader panic: the parts of
 //! `mshio` that can panic on malformed headers are checked first and the parse runs under
-//! `catch_unwind` as a last resort (without printing the panic).
+//! `super::guard_parser` as a last resort (no mutated file in the fuzz tests reaches it).
 
 use std::collections::{BTreeMap, HashMap};
 use std::path::Path;
@@ -39,7 +39,7 @@ use std::path::Path;
 use nalgebra::Vector3;
 
 use super::model::MeshInput;
-use super::{clip, file_error as input_err};
+use super::{clip, file_error as input_err, line_err};
 use crate::geometry::{ElementShape, Mesh};
 use crate::{Error, Result};
 
@@ -58,13 +58,11 @@ pub fn parse_msh(bytes: &[u8], path: &Path) -> Result<MeshInput> {
     match header.version.as_str() {
         "2.2" => {
             if header.file_type != 0 {
-                return Err(input_err(
+                return Err(line_err(
                     path,
-                    format!(
-                        "line {}: binary MSH 2.2 is not supported; save the mesh as ASCII MSH 2.2 \
-                         (Mesh.Binary = 0) or as MSH 4.1 (binary or ASCII)",
-                        header.line
-                    ),
+                    header.line,
+                    "binary MSH 2.2 is not supported; save the mesh as ASCII MSH 2.2 \
+                     (Mesh.Binary = 0) or as MSH 4.1 (binary or ASCII)",
                 ));
             }
             parse_msh22(&String::from_utf8_lossy(bytes), path)
@@ -80,14 +78,18 @@ pub fn parse_msh22(text: &str, path: &Path) -> Result<MeshInput> {
     let text = text.strip_prefix('\u{feff}').unwrap_or(text);
     let mut cur = Cursor::new(text, path, 1);
     let fail = |m: String| input_err(path, m);
+    let fail_at = |line: usize, m: String| line_err(path, line, m);
 
     match cur.next() {
         Some((_, "$MeshFormat")) => {}
         Some((l, other)) => {
-            return Err(fail(format!(
-                "line {l}: expected $MeshFormat, found '{}': not a Gmsh MSH file",
-                clip(other)
-            )))
+            return Err(fail_at(
+                l,
+                format!(
+                    "expected $MeshFormat, found '{}': not a Gmsh MSH file",
+                    clip(other)
+                ),
+            ))
         }
         None => return Err(fail("the file is empty: not a Gmsh MSH file".into())),
     }
@@ -96,18 +98,24 @@ pub fn parse_msh22(text: &str, path: &Path) -> Result<MeshInput> {
         .ok_or_else(|| fail("the file ends inside $MeshFormat; it is truncated".into()))?;
     let f: Vec<&str> = fmt.split_whitespace().collect();
     if f.first().and_then(|v| v.parse::<f64>().ok()) != Some(2.2) {
-        return Err(fail(format!(
-            "line {l}: MSH format version '{}' is not 2.2 (this parser reads ASCII MSH 2.2 only; \
+        return Err(fail_at(
+            l,
+            format!(
+                "MSH format version '{}' is not 2.2 (this parser reads ASCII MSH 2.2 only; \
              use read_msh for 4.1)",
-            clip(f.first().copied().unwrap_or(""))
-        )));
+                clip(f.first().copied().unwrap_or(""))
+            ),
+        ));
     }
     if f.get(1) != Some(&"0") {
-        return Err(fail(format!(
-            "line {l}: MSH 2.2 file type '{}' is not 0 (ASCII); binary MSH 2.2 is not supported: \
+        return Err(fail_at(
+            l,
+            format!(
+                "MSH 2.2 file type '{}' is not 0 (ASCII); binary MSH 2.2 is not supported: \
              save as ASCII (Mesh.Binary = 0) or as MSH 4.1",
-            clip(f.get(1).copied().unwrap_or(""))
-        )));
+                clip(f.get(1).copied().unwrap_or(""))
+            ),
+        ));
     }
     cur.expect_end("$EndMeshFormat", "$MeshFormat", l)?;
 
@@ -119,36 +127,42 @@ pub fn parse_msh22(text: &str, path: &Path) -> Result<MeshInput> {
             "$PhysicalNames" => parse_physical_names(&mut cur, l, &mut raw.names)?,
             "$Nodes" => {
                 if let Some(first) = seen_nodes {
-                    return Err(fail(format!(
-                        "line {l}: a second $Nodes section (the first is at line {first}); \
+                    return Err(fail_at(
+                        l,
+                        format!(
+                            "a second $Nodes section (the first is at line {first}); \
                          hytled reads one"
-                    )));
+                        ),
+                    ));
                 }
                 seen_nodes = Some(l);
                 parse_nodes22(&mut cur, l, &mut raw)?;
             }
             "$Elements" => {
                 if let Some(first) = seen_elements {
-                    return Err(fail(format!(
-                        "line {l}: a second $Elements section (the first is at line {first}); \
+                    return Err(fail_at(
+                        l,
+                        format!(
+                            "a second $Elements section (the first is at line {first}); \
                          hytled reads one"
-                    )));
+                        ),
+                    ));
                 }
                 seen_elements = Some(l);
                 parse_elements22(&mut cur, l, &mut raw)?;
             }
             s if s.starts_with("$End") => {
-                return Err(fail(format!(
-                    "line {l}: '{}' closes a section that was not opened",
-                    clip(s)
-                )))
+                return Err(fail_at(
+                    l,
+                    format!("'{}' closes a section that was not opened", clip(s)),
+                ))
             }
             s if s.starts_with('$') => cur.skip_section(s, l)?,
             s => {
-                return Err(fail(format!(
-                    "line {l}: unexpected text outside any section: '{}'",
-                    clip(s)
-                )))
+                return Err(fail_at(
+                    l,
+                    format!("unexpected text outside any section: '{}'", clip(s)),
+                ))
             }
         }
     }
@@ -475,6 +489,7 @@ struct Header {
 /// `mshio` can handle (it panics on others).
 fn read_header(bytes: &[u8], path: &Path) -> Result<Header> {
     let fail = |m: String| input_err(path, m);
+    let fail_at = |line: usize, m: String| line_err(path, line, m);
     let mut start = 0;
     if bytes.starts_with(&[0xef, 0xbb, 0xbf]) {
         start = 3;
@@ -490,11 +505,14 @@ fn read_header(bytes: &[u8], path: &Path) -> Result<Header> {
         if rest.is_empty() {
             return Err(fail("the file is empty: not a Gmsh MSH file".into()));
         }
-        return Err(fail(format!(
-            "line {line_no}: expected $MeshFormat, found '{}': not a Gmsh MSH file (MSH 1 files, \
+        return Err(fail_at(
+            line_no,
+            format!(
+                "expected $MeshFormat, found '{}': not a Gmsh MSH file (MSH 1 files, \
              which start with $NOD, are not supported; save as MSH 4.1 or 2.2)",
-            clip(first.trim())
-        )));
+                clip(first.trim())
+            ),
+        ));
     }
     let after = &rest[(first_end + 1).min(rest.len())..];
     let second_end = after
@@ -505,46 +523,58 @@ fn read_header(bytes: &[u8], path: &Path) -> Result<Header> {
     let line = line_no + 1;
     let f: Vec<&str> = second.split_whitespace().collect();
     if f.len() < 3 {
-        return Err(fail(format!(
-            "line {line}: the $MeshFormat line '{}' should be 'version file-type data-size'{}",
-            clip(second.trim()),
-            if second_end == after.len() {
-                " (the file ends here: truncated?)"
-            } else {
-                ""
-            }
-        )));
+        return Err(fail_at(
+            line,
+            format!(
+                "the $MeshFormat line '{}' should be 'version file-type data-size'{}",
+                clip(second.trim()),
+                if second_end == after.len() {
+                    " (the file ends here: truncated?)"
+                } else {
+                    ""
+                }
+            ),
+        ));
     }
     let version = match f[0].parse::<f64>() {
         Ok(2.2) => "2.2",
         Ok(4.1) => "4.1",
         _ => {
-            return Err(fail(format!(
-                "line {line}: MSH format version '{}' is not supported; hytled reads MSH 4.1 \
+            return Err(fail_at(
+                line,
+                format!(
+                    "MSH format version '{}' is not supported; hytled reads MSH 4.1 \
                  (ASCII or binary) and MSH 2.2 (ASCII): save with Mesh.MshFileVersion = 4.1 \
                  (gmsh -format msh41)",
-                clip(f[0])
-            )))
+                    clip(f[0])
+                ),
+            ))
         }
     };
     let file_type = match f[1] {
         "0" => 0,
         "1" => 1,
         other => {
-            return Err(fail(format!(
-                "line {line}: MSH file type '{}' is neither 0 (ASCII) nor 1 (binary)",
-                clip(other)
-            )))
+            return Err(fail_at(
+                line,
+                format!(
+                    "MSH file type '{}' is neither 0 (ASCII) nor 1 (binary)",
+                    clip(other)
+                ),
+            ))
         }
     };
     let data_size = match f[2].parse::<usize>() {
         Ok(d) if d == 4 || d == 8 => d,
         Ok(d) if file_type == 0 && (1..=16).contains(&d) => d,
         _ => {
-            return Err(fail(format!(
-                "line {line}: MSH data size '{}' is not supported (Gmsh writes 8)",
-                clip(f[2])
-            )))
+            return Err(fail_at(
+                line,
+                format!(
+                    "MSH data size '{}' is not supported (Gmsh writes 8)",
+                    clip(f[2])
+                ),
+            ))
         }
     };
     Ok(Header {
@@ -595,14 +625,21 @@ impl<'a> Cursor<'a> {
         input_err(self.path, m)
     }
 
+    fn err_at(&self, line: usize, m: String) -> Error {
+        line_err(self.path, line, m)
+    }
+
     /// Requires `end` as the next line (closing `section` opened at `opened`).
     fn expect_end(&mut self, end: &str, section: &str, opened: usize) -> Result<()> {
         match self.next() {
             Some((_, l)) if l == end => Ok(()),
-            Some((l, other)) => Err(self.err(format!(
-                "line {l}: expected {end} to close {section} (line {opened}), found '{}'",
-                clip(other)
-            ))),
+            Some((l, other)) => Err(self.err_at(
+                l,
+                format!(
+                    "expected {end} to close {section} (line {opened}), found '{}'",
+                    clip(other)
+                ),
+            )),
             None => Err(self.err(format!(
                 "missing {end}: the file ends inside {section} (line {opened}); it is truncated"
             ))),
@@ -632,11 +669,14 @@ impl<'a> Cursor<'a> {
             ))
         })?;
         line.parse::<usize>().map_err(|_| {
-            self.err(format!(
-                "line {l}: the {section} count '{}' is not a non-negative integer (non-numeric \
+            self.err_at(
+                l,
+                format!(
+                    "the {section} count '{}' is not a non-negative integer (non-numeric \
                  field or wrong header)",
-                clip(line)
-            ))
+                    clip(line)
+                ),
+            )
         })
     }
 
@@ -655,15 +695,21 @@ impl<'a> Cursor<'a> {
                 "the file ends inside {section} (line {opened}) after {k} of the {n} {what} its \
                  header announces; the file is truncated"
             ))),
-            Some((l, s)) if s == end => Err(self.err(format!(
-                "line {l}: {end} after {k} {what}, but the {section} header (line {opened}) \
+            Some((l, s)) if s == end => Err(self.err_at(
+                l,
+                format!(
+                    "{end} after {k} {what}, but the {section} header (line {opened}) \
                  announces {n}: wrong count in the header"
-            ))),
-            Some((l, s)) if s.starts_with('$') => Err(self.err(format!(
-                "line {l}: '{}' inside {section} (line {opened}) after {k} of {n} {what}; \
+                ),
+            )),
+            Some((l, s)) if s.starts_with('$') => Err(self.err_at(
+                l,
+                format!(
+                    "'{}' inside {section} (line {opened}) after {k} of {n} {what}; \
                  missing {end}?",
-                clip(s)
-            ))),
+                    clip(s)
+                ),
+            )),
             Some(x) => Ok(x),
         }
     }
@@ -679,16 +725,22 @@ impl<'a> Cursor<'a> {
         let end = format!("$End{}", &section[1..]);
         match self.next() {
             Some((_, s)) if s == end => Ok(()),
-            Some((l, s)) if s.starts_with('$') => Err(self.err(format!(
-                "line {l}: expected {end} after the {n} {what} of {section} (line {opened}), \
+            Some((l, s)) if s.starts_with('$') => Err(self.err_at(
+                l,
+                format!(
+                    "expected {end} after the {n} {what} of {section} (line {opened}), \
                  found '{}': missing {end}",
-                clip(s)
-            ))),
-            Some((l, s)) => Err(self.err(format!(
-                "line {l}: expected {end} after the {n} {what} the {section} header (line \
+                    clip(s)
+                ),
+            )),
+            Some((l, s)) => Err(self.err_at(
+                l,
+                format!(
+                    "expected {end} after the {n} {what} the {section} header (line \
                  {opened}) announces, found '{}': wrong count in the header",
-                clip(s)
-            ))),
+                    clip(s)
+                ),
+            )),
             None => Err(self.err(format!(
                 "missing {end}: the file ends after the {n} {what} of {section} (line {opened}); \
                  it is truncated"
@@ -699,10 +751,13 @@ impl<'a> Cursor<'a> {
     /// Parses field `s` (line `l`) as a number, naming `what` on failure.
     fn num<T: std::str::FromStr>(&self, s: &str, what: &str, l: usize) -> Result<T> {
         s.parse::<T>().map_err(|_| {
-            self.err(format!(
-                "line {l}: {what} '{}' is not a valid number (non-numeric field)",
-                clip(s)
-            ))
+            self.err_at(
+                l,
+                format!(
+                    "{what} '{}' is not a valid number (non-numeric field)",
+                    clip(s)
+                ),
+            )
         })
     }
 
@@ -729,17 +784,21 @@ fn parse_physical_names(
         let (dim_s, rest) = split_token(line);
         let (tag_s, rest) = split_token(rest);
         if tag_s.is_empty() {
-            return Err(cur.err(format!(
-                "line {l}: a physical name should be 'dimension tag \"name\"', found '{}'{}",
-                clip(line),
-                cur.truncated_hint()
-            )));
+            return Err(cur.err_at(
+                l,
+                format!(
+                    "a physical name should be 'dimension tag \"name\"', found '{}'{}",
+                    clip(line),
+                    cur.truncated_hint()
+                ),
+            ));
         }
         let dim: u8 = cur.num(dim_s, "physical group dimension", l)?;
         if dim > 3 {
-            return Err(cur.err(format!(
-                "line {l}: physical group dimension {dim} is not 0, 1, 2 or 3"
-            )));
+            return Err(cur.err_at(
+                l,
+                format!("physical group dimension {dim} is not 0, 1, 2 or 3"),
+            ));
         }
         let tag: i64 = cur.num(tag_s, "physical group tag", l)?;
         let rest = rest.trim();
@@ -774,22 +833,25 @@ fn parse_nodes22(cur: &mut Cursor<'_>, opened: usize, raw: &mut Raw) -> Result<(
         let (l, line) = cur.data_line(S, "nodes", opened, k, n)?;
         let f: Vec<&str> = line.split_whitespace().collect();
         if f.len() != 4 {
-            return Err(cur.err(format!(
-                "line {l}: a node line has {} fields, expected 4 (id x y z): '{}'{}",
-                f.len(),
-                clip(line),
-                cur.truncated_hint()
-            )));
+            return Err(cur.err_at(
+                l,
+                format!(
+                    "a node line has {} fields, expected 4 (id x y z): '{}'{}",
+                    f.len(),
+                    clip(line),
+                    cur.truncated_hint()
+                ),
+            ));
         }
         let id: u64 = cur.num(f[0], "node id", l)?;
         let mut p = [0.0f64; 3];
         for (c, s) in p.iter_mut().zip(&f[1..]) {
             *c = cur.num(s, "node coordinate", l)?;
             if !c.is_finite() {
-                return Err(cur.err(format!(
-                    "line {l}: node {id} has a non-finite coordinate '{}'",
-                    clip(s)
-                )));
+                return Err(cur.err_at(
+                    l,
+                    format!("node {id} has a non-finite coordinate '{}'", clip(s)),
+                ));
             }
         }
         raw.nodes
@@ -806,13 +868,16 @@ fn parse_elements22(cur: &mut Cursor<'_>, opened: usize, raw: &mut Raw) -> Resul
         let (l, line) = cur.data_line(S, "elements", opened, k, n)?;
         let f: Vec<&str> = line.split_whitespace().collect();
         if f.len() < 3 {
-            return Err(cur.err(format!(
-                "line {l}: an element line has {} fields, expected 'id type ntags tags... \
+            return Err(cur.err_at(
+                l,
+                format!(
+                    "an element line has {} fields, expected 'id type ntags tags... \
                  nodes...': '{}'{}",
-                f.len(),
-                clip(line),
-                cur.truncated_hint()
-            )));
+                    f.len(),
+                    clip(line),
+                    cur.truncated_hint()
+                ),
+            ));
         }
         let id: u64 = cur.num(f[0], "element id", l)?;
         let t: i64 = cur.num(f[1], "element type", l)?;
@@ -821,12 +886,15 @@ fn parse_elements22(cur: &mut Cursor<'_>, opened: usize, raw: &mut Raw) -> Resul
             classify(t, &format!("at line {l} (element {id})")).map_err(|m| cur.err(m))?;
         let expected = ntags.checked_add(3 + nn);
         if expected != Some(f.len()) {
-            return Err(cur.err(format!(
-                "line {l}: element {id} of type {t} with {ntags} tags needs {} fields, found {}{}",
-                expected.map_or("too many".to_string(), |e| e.to_string()),
-                f.len(),
-                cur.truncated_hint()
-            )));
+            return Err(cur.err_at(
+                l,
+                format!(
+                    "element {id} of type {t} with {ntags} tags needs {} fields, found {}{}",
+                    expected.map_or("too many".to_string(), |e| e.to_string()),
+                    f.len(),
+                    cur.truncated_hint()
+                ),
+            ));
         }
         let mut physical = Vec::new();
         if ntags >= 1 {
@@ -1096,31 +1164,30 @@ fn parse_msh41(bytes: &[u8], header: &Header, path: &Path) -> Result<MeshInput> 
     let file = &bytes[header.start..];
     let (patched, patch) = patch_max_node_tag(file, header);
     let ascii = header.file_type == 0;
-    let parsed = super::catch_quietly(|| {
+    let parsed = super::guard_parser("mshio", || {
         mshio::parse_msh_bytes(&patched)
             .map_err(|e| describe_mshio_error(&e, &patched, file, patch, ascii))
     });
-    let msh =
-        match parsed {
-            Ok(Ok(m)) => m,
-            Ok(Err(m)) => {
-                // Offsets are relative to `$MeshFormat`; shift them for leading blank lines.
-                let m = if header.start > 0 {
-                    format!(
-                        "{m} (offsets counted from $MeshFormat at byte {})",
-                        header.start
-                    )
-                } else {
-                    m
-                };
-                return Err(fail(m));
-            }
-            Err(_) => return Err(fail(
-                "MSH 4.1 parse error: the parser (mshio) failed on malformed data; the file is \
-                 corrupt or not a Gmsh MSH 4.1 file"
-                    .into(),
-            )),
-        };
+    let msh = match parsed {
+        Ok(Ok(m)) => m,
+        Ok(Err(m)) => {
+            // Offsets are relative to `$MeshFormat`; shift them for leading blank lines.
+            let m = if header.start > 0 {
+                format!(
+                    "{m} (offsets counted from $MeshFormat at byte {})",
+                    header.start
+                )
+            } else {
+                m
+            };
+            return Err(fail(m));
+        }
+        Err(e) => {
+            return Err(fail(format!(
+                "MSH 4.1 parse error: {e}, or not a Gmsh MSH 4.1 file"
+            )))
+        }
+    };
 
     let mut raw = Raw::default();
     if let Some((at, data)) = find_section(file, b"$PhysicalNames") {

@@ -109,8 +109,8 @@ fn read_stl(path: &Path) -> Result<Soup> {
     }
     let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
     let mut reader = std::io::BufReader::new(file);
-    let mesh = super::catch_quietly(|| stl_io::read_stl(&mut reader))
-        .map_err(|_| file_error(path, "not a readable STL file"))?
+    let mesh = super::guard_parser("stl_io", || stl_io::read_stl(&mut reader))
+        .map_err(|e| file_error(path, format!("not a readable STL file: {e}")))?
         .map_err(|e| file_error(path, format!("not a readable STL file ({e})")))?;
     let points = mesh
         .vertices

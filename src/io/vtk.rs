@@ -44,8 +44,8 @@
 //!   C names) and read by vtkio.
 //!
 //! No input makes the reader panic: legacy headers are checked against the file size before
-//! parsing, inline arrays without data are refused, and the parse runs under `catch_unwind`
-//! (without printing the panic). Errors name the file and the line or byte
+//! parsing, inline arrays without data are refused, and the parse runs under
+//! `super::guard_parser` as a last resort (no mutated file in the fuzz tests reaches it). Errors name the file and the line or byte
 //! offset where the reader can tell it.
 
 use std::collections::{BTreeMap, BTreeSet};
@@ -56,7 +56,7 @@ use vtkio::model::{Attribute, CellType, DataSet, IOBuffer, Piece, VertexNumbers}
 
 use super::model::MeshInput;
 use super::vtk_xml::find;
-use super::{clip, file_error as fail};
+use super::{clip, file_error as fail, line_err};
 use crate::geometry::{ElementShape, Mesh};
 use crate::{Error, Result};
 
@@ -197,8 +197,8 @@ pub(crate) fn read_polydata_triangles(path: &Path) -> Result<super::surface_file
 
 /// A piece's data, loaded (`at` names the piece in messages).
 fn loaded<P: vtkio::model::PieceData>(piece: Piece<P>, at: &str, path: &Path) -> Result<P> {
-    super::catch_quietly(|| piece.into_loaded_piece_data(None))
-        .map_err(|_| fail(path, format!("piece{at} is malformed")))?
+    super::guard_parser("vtkio", || piece.into_loaded_piece_data(None))
+        .map_err(|e| fail(path, format!("piece{at}: {e}")))?
         .map_err(|e| fail(path, format!("piece{at}: {e}")))
 }
 
@@ -277,7 +277,7 @@ fn import_legacy(bytes: &[u8], path: &Path) -> Result<vtkio::Vtk> {
         }
     }
     check_legacy_counts(bytes, path)?;
-    let parsed = super::catch_quietly(|| vtkio::Vtk::parse_legacy_be(bytes));
+    let parsed = super::guard_parser("vtkio", || vtkio::Vtk::parse_legacy_be(bytes));
     match parsed {
         Ok(Ok(v)) => Ok(v),
         Ok(Err(e)) => Err(fail(
@@ -291,11 +291,7 @@ fn import_legacy(bytes: &[u8], path: &Path) -> Result<vtkio::Vtk> {
                 ),
             },
         )),
-        Err(_) => Err(fail(
-            path,
-            "cannot parse the legacy VTK file: the parser (vtkio) failed on malformed data; the \
-             file is corrupt or truncated",
-        )),
+        Err(e) => Err(fail(path, format!("cannot parse the legacy VTK file: {e}"))),
     }
 }
 
@@ -354,23 +350,22 @@ fn legacy5_to_42(bytes: &[u8], path: &Path) -> Result<String> {
         }
         let counts: Vec<usize> = words.filter_map(|w| w.parse().ok()).collect();
         let [n_off, n_conn] = counts[..] else {
-            return Err(fail(
+            return Err(line_err(
                 path,
-                format!("line {}: expected 'CELLS n_offsets n_connectivity'", ln + 1),
+                ln + 1,
+                "expected 'CELLS n_offsets n_connectivity'",
             ));
         };
         // Read the two arrays: all numbers after their keyword lines.
         let mut read_array = |name: &str, n: usize| -> Result<Vec<usize>> {
-            let (kl, kw) = lines.next().ok_or_else(|| {
-                fail(
-                    path,
-                    format!("line {}: the file ends before {name}", ln + 2),
-                )
-            })?;
+            let (kl, kw) = lines
+                .next()
+                .ok_or_else(|| line_err(path, ln + 2, format!("the file ends before {name}")))?;
             if !kw.trim_start().to_ascii_uppercase().starts_with(name) {
-                return Err(fail(
+                return Err(line_err(
                     path,
-                    format!("line {}: expected {name}, found '{}'", kl + 1, clip(kw)),
+                    kl + 1,
+                    format!("expected {name}, found '{}'", clip(kw)),
                 ));
             }
             let mut v = Vec::with_capacity(n.min(bytes.len()));
@@ -383,9 +378,10 @@ fn legacy5_to_42(bytes: &[u8], path: &Path) -> Result<String> {
                 })?;
                 for w in t.split_whitespace() {
                     v.push(w.parse().map_err(|_| {
-                        fail(
+                        line_err(
                             path,
-                            format!("line {}: '{}' in {name} is not an index", l + 1, clip(w)),
+                            l + 1,
+                            format!("'{}' in {name} is not an index", clip(w)),
                         )
                     })?);
                 }
@@ -537,12 +533,12 @@ fn check_legacy_counts(bytes: &[u8], path: &Path) -> Result<()> {
         let limit = if bits { len.saturating_mul(8) } else { len };
         if let Some(n) = need {
             if n > limit {
-                return Err(fail(
+                return Err(line_err(
                     path,
+                    i + 1,
                     format!(
-                        "line {}: '{}' announces {n} values, more than the file ({} bytes) holds: \
+                        "'{}' announces {n} values, more than the file ({} bytes) holds: \
                          wrong count or corrupt file",
-                        i + 1,
                         clip(text.trim()),
                         bytes.len()
                     ),
@@ -565,7 +561,7 @@ fn import_xml(bytes: &[u8], path: &Path) -> Result<vtkio::Vtk> {
     let bytes: &[u8] = normalized.as_deref().unwrap_or(bytes);
     let fixed = fix_cell_types(bytes, path)?;
     let input: &[u8] = fixed.as_deref().unwrap_or(bytes);
-    let parsed = super::catch_quietly(|| vtkio::Vtk::parse_xml(input));
+    let parsed = super::guard_parser("vtkio", || vtkio::Vtk::parse_xml(input));
     match parsed {
         Ok(Ok(v)) => Ok(v),
         Ok(Err(e)) => {
@@ -582,11 +578,7 @@ fn import_xml(bytes: &[u8], path: &Path) -> Result<vtkio::Vtk> {
                 format!("{place}cannot read the XML VTK file: {e}"),
             ))
         }
-        Err(_) => Err(fail(
-            path,
-            "cannot read the XML VTK file: the parser (vtkio) failed on malformed data; the \
-             file is corrupt or truncated",
-        )),
+        Err(e) => Err(fail(path, format!("cannot read the XML VTK file: {e}"))),
     }
 }
 

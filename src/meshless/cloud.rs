@@ -772,7 +772,8 @@ pub fn parse_cloud_sets(text: &str, source: &Path) -> Result<(Vec<Vector3<f64>>,
             return Err(Error::input(
                 InputKind::Format,
                 format!("{name}: line {line_no}: expected 3 numbers x y z, found '{line}'"),
-            ));
+            )
+            .placed(source, line_no));
         }
         let mut x = [0.0; 3];
         for (v, f) in x.iter_mut().zip(&fields) {
@@ -781,12 +782,14 @@ pub fn parse_cloud_sets(text: &str, source: &Path) -> Result<(Vec<Vector3<f64>>,
                     InputKind::Format,
                     format!("{name}: line {line_no}: expected 3 numbers x y z, found '{f}'"),
                 )
+                .placed(source, line_no)
             })?;
             if !v.is_finite() {
                 return Err(Error::input(
                     InputKind::Format,
                     format!("{name}: line {line_no}: coordinate '{f}' is not finite"),
-                ));
+                )
+                .placed(source, line_no));
             }
         }
         if let Some(label) = fields.get(3).and_then(|f| f.parse::<i64>().ok()) {

@@ -85,6 +85,36 @@ impl Discretization {
     }
 }
 
+/// What the mesh-based builds (fe, coupled) start from: the clock, the scene's mesh file (if
+/// any), the body's mesh (built-in shapes, images and surfaces meshed here), its element, the
+/// material's Lame parameters and the warnings so far.
+pub(super) struct MeshStart {
+    pub t0: Instant,
+    pub input: Option<MeshInput>,
+    pub mesh: Mesh,
+    pub kind: ElementKind,
+    /// The material's Lame parameters (lambda, mu), Pa.
+    pub lame: (f64, f64),
+    pub warnings: Vec<Warning>,
+}
+
+impl MeshStart {
+    pub fn of(scene: &Scene) -> Result<Self> {
+        let t0 = Instant::now();
+        let input = translate::load_mesh_input(scene)?;
+        let mut warnings = Vec::new();
+        let mesh = super::body_mesh(scene, input.as_ref(), &mut warnings)?;
+        Ok(MeshStart {
+            t0,
+            input,
+            mesh,
+            lame: translate::material(scene).lame(),
+            kind: scene.discretization.element.into(),
+            warnings,
+        })
+    }
+}
+
 /// What one method's build gives the shared pipeline.
 pub(super) struct Parts {
     /// The geometry outputs are written on: the FE mesh (tet10: its linear split over all
@@ -200,7 +230,13 @@ fn probes(scene: &Scene, d: Discretized<'_>, input: Option<&MeshInput>) -> Resul
         let what = || format!("probe '{name}'");
         let probe = match spec {
             ProbeSpec::Select(sel) => {
-                let mut ids = select_nodes(sel, d.nodes(), &what(), input)?;
+                let mut ids = select_nodes(
+                    sel,
+                    d.nodes(),
+                    &what(),
+                    &format!("probes.{name}.select"),
+                    input,
+                )?;
                 d.extend_selection(&mut ids);
                 mean_probe(name, &ids, d)?
             }

@@ -2,14 +2,13 @@
 //! points, boundaries, probes and loads.
 
 use std::collections::BTreeMap;
-use std::time::Instant;
 
 use nalgebra::Vector3;
 
 use crate::coupling::{CoupledBuild, NodeRole};
 use crate::fe::ElementKind;
 use crate::geometry::quality;
-use crate::material::{Material, Solid};
+use crate::material::Solid;
 use crate::meshless::discretize;
 use crate::meshless::essential::MeshlessCorrector;
 use crate::report::{Warning, WarningKind};
@@ -17,12 +16,10 @@ use crate::scene::{BcMethod, Scene};
 use crate::solver::Model;
 use crate::{coupling, Error, InputKind, Result};
 
-use super::build::{assemble, Discretization, Parts};
+use super::build::{assemble, Discretization, MeshStart, Parts};
 use super::surface::Discretized;
-use super::translate::{load_mesh_input, material, scene_path};
-use super::{
-    body_mesh, boundaries, centroid, imposition, name_file_element, regions, translate, Prepared,
-};
+use super::translate::scene_path;
+use super::{boundaries, centroid, imposition, name_file_element, regions, translate, Prepared};
 
 /// Warnings for the boundaries that drive a load concentrated on a few nodes
 /// ([`is_concentrated_drive`]) where their transition cells keep one point.
@@ -99,13 +96,14 @@ fn driven_area_share(
 /// of `fe_layers` cells on the boundary and a meshless interior, blended in the transition
 /// cells. Conditions on FE nodes are imposed directly.
 pub(super) fn prepare_coupled(scene: &Scene) -> Result<Prepared> {
-    let t0 = Instant::now();
-    let input = load_mesh_input(scene)?;
-    let mut warnings = Vec::new();
-    let mesh = body_mesh(scene, input.as_ref(), &mut warnings)?;
-    let mat = material(scene);
-    let kind: ElementKind = scene.discretization.element.into();
-    let (lambda, mu) = mat.lame();
+    let MeshStart {
+        t0,
+        input,
+        mesh,
+        kind,
+        lame: (lambda, mu),
+        mut warnings,
+    } = MeshStart::of(scene)?;
     let d = &scene.discretization;
     let mixed = input.is_some() && d.cloud == crate::scene::CloudKind::File;
     let generated = matches!(
@@ -334,7 +332,7 @@ pub(super) fn impose(
     model: &mut Model<Solid>,
     warnings: &mut Vec<Warning>,
 ) -> Result<()> {
-    let bnd = &model.boundaries;
+    let bnd = &model.boundaries();
     let corrected = corrected_boundaries(build, bnd);
     {
         let tris: Vec<[usize; 3]> = if method == BcMethod::Ebciem {

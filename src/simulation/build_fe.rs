@@ -1,28 +1,25 @@
 //! A finite-element run's parts: the mesh (tet10: with its edge nodes), its element points and
 //! their places, and the boundaries.
 
-use std::time::Instant;
-
 use crate::fe::ElementKind;
 use crate::geometry::quality;
-use crate::material::Material;
 use crate::scene::Scene;
 use crate::{fe, Result};
 
-use super::build::{assemble, Discretization, Parts};
+use super::build::{assemble, Discretization, MeshStart, Parts};
 use super::surface::Discretized;
-use super::translate::{load_mesh_input, material};
-use super::{body_mesh, boundaries, centroid, name_file_element, regions, Prepared};
+use super::{boundaries, centroid, name_file_element, regions, Prepared};
 
 /// FE branch of [`super::prepare`].
 pub(super) fn prepare_fe(scene: &Scene) -> Result<Prepared> {
-    let t0 = Instant::now();
-    let input = load_mesh_input(scene)?;
-    let mut warnings = Vec::new();
-    let mesh = body_mesh(scene, input.as_ref(), &mut warnings)?;
-    let mat = material(scene);
-    let kind: ElementKind = scene.discretization.element.into();
-    let (lambda, mu) = mat.lame();
+    let MeshStart {
+        t0,
+        input,
+        mesh,
+        kind,
+        lame: (lambda, mu),
+        warnings,
+    } = MeshStart::of(scene)?;
     let (kappa_hg, modulus) = scene.discretization.hourglass_scale(lambda, mu);
     log::info!(
         "mesh: {} nodes, {} elements; element derivatives",

@@ -46,7 +46,13 @@ pub(super) fn prepare_meshless(scene: &Scene) -> Result<Prepared> {
             let x = match p {
                 ProbeSpec::Select(sel) => {
                     let what = format!("probe '{name}'");
-                    v.extend(select_nodes(sel, nodes, &what, input.as_ref())?);
+                    v.extend(select_nodes(
+                        sel,
+                        nodes,
+                        &what,
+                        &format!("probes.{name}.select"),
+                        input.as_ref(),
+                    )?);
                     continue;
                 }
                 ProbeSpec::Position(x) => Vector3::from(*x),
@@ -119,7 +125,7 @@ pub(super) fn impose(
     warnings: &mut Vec<Warning>,
 ) -> Result<()> {
     let corrected: Vec<bool> = model
-        .boundaries
+        .boundaries()
         .iter()
         .map(|b| method != BcMethod::Correction && b.components.iter().any(|c| c.is_some()))
         .collect();
@@ -127,7 +133,7 @@ pub(super) fn impose(
         return Ok(());
     }
     let (corr, report) =
-        MeshlessCorrector::new(build, &model.boundaries, model.mass(), imposition(method))?;
+        MeshlessCorrector::new(build, &model.boundaries(), model.mass(), imposition(method))?;
     if report.lumped_nodes > 0 {
         warnings.push(Warning::new(WarningKind::Boundary, format!(
             "EBCIEM: {} constrained node(s) lie on no boundary triangle whose vertices are all constrained; \

@@ -23,11 +23,12 @@ pub(super) fn scene_loads(
     let mut out = Vec::new();
     for (name, l) in &scene.loads {
         let what = format!("load '{name}'");
+        let key = format!("loads.{name}.select");
         let curve = load_curve(scene, &l.curve)?;
         let kind = match (l.gravity, l.force, &l.select) {
             (Some(g), _, _) => LoadKind::Gravity(Vector3::from(g)),
             (None, Some(f), Some(sel)) => {
-                let nodes = select_nodes(sel, d.nodes(), &what, input)?;
+                let nodes = select_nodes(sel, d.nodes(), &what, &key, input)?;
                 LoadKind::PointForce {
                     rows: nodes
                         .iter()
@@ -41,7 +42,7 @@ pub(super) fn scene_loads(
                     surface = Some(d.surface()?);
                 }
                 let s = surface.as_ref().expect("built above");
-                let picked = select_nodes(sel, &s.vertices, &what, input)?;
+                let picked = select_nodes(sel, &s.vertices, &what, &key, input)?;
                 let mut on = vec![false; s.vertices.len()];
                 for i in picked {
                     on[i] = true;
@@ -130,7 +131,13 @@ pub(super) fn scene_contact(
         let what = format!("contact '{name}'");
         let mut chosen: Vec<usize> = (0..s.vertices.len()).filter(|&i| on_face[i]).collect();
         if let Some(sel) = &c.select {
-            let picked = select_nodes(sel, &s.vertices, &what, input)?;
+            let picked = select_nodes(
+                sel,
+                &s.vertices,
+                &what,
+                &format!("contact.{name}.select"),
+                input,
+            )?;
             let mut keep = vec![false; s.vertices.len()];
             for i in picked {
                 keep[i] = true;

@@ -29,8 +29,8 @@ pub(super) fn boundary(
     let text = std::fs::read_to_string(&path)
         .map_err(|e| Error::io(format!("{} (measured.{name}.file)", path.display()), e))?;
     let points = parse_measured(&text, &path)?;
-    let where_ = |line: usize| format!("measured '{name}' ({} line {line})", path.display());
-    let points = without_repeats(points, input, &where_)?;
+    let place = Place { name, path: &path };
+    let points = without_repeats(points, input, &place)?;
     let (lo, hi) = crate::geometry::select::bounds(nodes);
     let tolerance = spec
         .tolerance
@@ -56,7 +56,7 @@ pub(super) fn boundary(
     if spec.interpolate {
         let mut xs = Vec::with_capacity(points.len());
         for m in &points {
-            xs.push(position(m, input, &where_)?);
+            xs.push(position(m, input, &place)?);
         }
         let us: Vec<[f64; 3]> = points.iter().map(|m| [m.u.x, m.u.y, m.u.z]).collect();
         let (taken, rows) = interpolated(
@@ -86,7 +86,7 @@ pub(super) fn boundary(
     let mut values = Vec::new();
     let mut rows = Vec::new();
     for (j, m) in points.iter().enumerate() {
-        let x = position(m, input, &where_)?;
+        let x = position(m, input, &place)?;
         xs.push([x.x, x.y, x.z]);
         let nn = tree
             .query(&[x.x, x.y, x.z])
@@ -99,11 +99,10 @@ pub(super) fn boundary(
         let dist = best.distance.sqrt();
         if dist > tolerance {
             let y = nodes[node];
-            return Err(Error::input(InputKind::Value, format!(
-                "{}: the point ({:.6e}, {:.6e}, {:.6e}) m is {sci_dist:.3e} m from the nearest surface \
+            return Err(place.error(InputKind::Value, m.line, format!(
+                "the point ({:.6e}, {:.6e}, {:.6e}) m is {sci_dist:.3e} m from the nearest surface \
                  node ({node}, at ({:.6e}, {:.6e}, {:.6e}) m), beyond the tolerance {sci_tolerance:.3e} m: \
                  check the file's units (m) and frame, or raise measured.{name}.tolerance",
-                where_(m.line),
                 crate::error::Sci(x.x),
                 crate::error::Sci(x.y),
                 crate::error::Sci(x.z),
@@ -113,14 +112,14 @@ pub(super) fn boundary(
         }
         let other = line_of[node];
         if other != 0 {
-            return Err(Error::input(
+            return Err(place.error(
                 InputKind::Value,
+                m.line,
                 format!(
-                "{}: the point takes surface node {node}, which line {other} already took: two \
+                    "the point takes surface node {node}, which line {other} already took: two \
                  measured points closer to each other than to any other node; thin the \
                  measurements or refine the surface",
-                where_(m.line)
-            ),
+                ),
             ));
         }
         line_of[node] = m.line;
@@ -142,20 +141,45 @@ pub(super) fn boundary(
     })
 }
 
+/// Where a measured point was given: its boundary's name and file.
+struct Place<'a> {
+    name: &'a str,
+    path: &'a std::path::Path,
+}
+
+impl Place<'_> {
+    /// "measured 'NAME' (FILE line N)", the start of every message about a point.
+    fn text(&self, line: usize) -> String {
+        format!(
+            "measured '{}' ({} line {line})",
+            self.name,
+            self.path.display()
+        )
+    }
+
+    /// An error about the point on `line`: the sentence after [`Self::text`], with the file,
+    /// line and key (`measured.NAME`) as facts.
+    fn error(&self, kind: InputKind, line: usize, sentence: String) -> Error {
+        Error::input(kind, format!("{}: {sentence}", self.text(line)))
+            .placed(self.path, line)
+            .key(format!("measured.{}", self.name))
+    }
+}
+
 /// The measured points with each position given once: a point repeated with the same
 /// displacement is kept once (and said); one repeated with another displacement is an error
 /// naming both lines (which value holds there is the user's to say, not a blend of the two).
 fn without_repeats(
     points: Vec<crate::io::measured::Measured>,
     input: Option<&MeshInput>,
-    where_: &dyn Fn(usize) -> String,
+    place: &Place,
 ) -> Result<Vec<crate::io::measured::Measured>> {
     let key = |x: Vector3<f64>| x.map(|v| if v == 0.0 { 0u64 } else { v.to_bits() });
     let mut first: std::collections::HashMap<Vector3<u64>, usize> = Default::default();
     let mut kept: Vec<crate::io::measured::Measured> = Vec::with_capacity(points.len());
     let mut repeats = Vec::new();
     for m in points {
-        let x = position(&m, input, where_)?;
+        let x = position(&m, input, place)?;
         match first.get(&key(x)) {
             None => {
                 first.insert(key(x), kept.len());
@@ -163,9 +187,8 @@ fn without_repeats(
             }
             Some(&k) if kept[k].u == m.u => repeats.push((m.line, kept[k].line)),
             Some(&k) => {
-                return Err(Error::input(InputKind::Value, format!(
-                    "{}: the point ({:.6e}, {:.6e}, {:.6e}) m is given again with another displacement                      ({:.6e}, {:.6e}, {:.6e}) m; line {} gives ({:.6e}, {:.6e}, {:.6e}) m there: keep one of them",
-                    where_(m.line),
+                return Err(place.error(InputKind::Value, m.line, format!(
+                    "the point ({:.6e}, {:.6e}, {:.6e}) m is given again with another displacement                      ({:.6e}, {:.6e}, {:.6e}) m; line {} gives ({:.6e}, {:.6e}, {:.6e}) m there: keep one of them",
                     crate::error::Sci(x.x),
                     crate::error::Sci(x.y),
                     crate::error::Sci(x.z),
@@ -182,7 +205,7 @@ fn without_repeats(
     if let Some((line, of)) = repeats.first() {
         log::warn!(
             "{}: {} point(s) repeat an earlier line with the same displacement (line {line} repeats line {of}); each is used once",
-            where_(*line),
+            place.text(*line),
             repeats.len()
         );
     }
@@ -193,25 +216,26 @@ fn without_repeats(
 fn position(
     m: &crate::io::measured::Measured,
     input: Option<&MeshInput>,
-    where_: &dyn Fn(usize) -> String,
+    place: &Place,
 ) -> Result<Vector3<f64>> {
     match m.at {
         MeasuredAt::Position(x) => Ok(x),
         MeasuredAt::Node(id) => {
             let file = input.ok_or_else(|| {
-                Error::input(
+                place.error(
                     InputKind::Value,
+                    m.line,
                     format!(
-                        "{}: node id {id} needs a mesh file (geometry.mesh); give positions \
+                        "node id {id} needs a mesh file (geometry.mesh); give positions \
                      x, y, z, ux, uy, uz instead",
-                        where_(m.line)
                     ),
                 )
             })?;
             let k = file.node_ids.iter().position(|&n| n == id).ok_or_else(|| {
-                Error::input(
+                place.error(
                     InputKind::Selection,
-                    format!("{}: the mesh file has no node {id}", where_(m.line)),
+                    m.line,
+                    format!("the mesh file has no node {id}",),
                 )
             })?;
             Ok(file.mesh.nodes[k])

@@ -64,11 +64,13 @@ pub struct RunOptions {
     pub vtu_format: VtuFormat,
 }
 
-/// Nodes of a selection, with the mesh file's sets available.
+/// Nodes of a selection, with the mesh file's sets available. `what` names it in messages
+/// ("boundary 'top'"); an error has the scene key `key` (`boundaries.top.select`) as a fact.
 fn select_nodes(
     sel: &crate::geometry::select::Selection,
     nodes: &[Vector3<f64>],
     what: &str,
+    key: &str,
     input: Option<&MeshInput>,
 ) -> Result<Vec<usize>> {
     let lookup = |name: &str| -> std::result::Result<Vec<Vector3<f64>>, String> {
@@ -79,7 +81,7 @@ fn select_nodes(
             .collect())
     };
     let sets: Option<&crate::geometry::select::SetLookup> = input.map(|_| &lookup as _);
-    sel.select_with(nodes, what, sets)
+    sel.select_with(nodes, what, sets).map_err(|e| e.key(key))
 }
 
 /// The scene's boundaries with their selected nodes, then its measured displacements matched
@@ -115,7 +117,13 @@ fn boundaries_only(
 ) -> Result<Vec<Boundary>> {
     let mut out = Vec::new();
     for (name, b) in &scene.boundaries {
-        let sel = select_nodes(&b.select, nodes, &format!("boundary '{name}'"), input)?;
+        let sel = select_nodes(
+            &b.select,
+            nodes,
+            &format!("boundary '{name}'"),
+            &format!("boundaries.{name}.select"),
+            input,
+        )?;
         let mut comps = [None; 3];
         for c in &b.fix {
             match c {
@@ -280,9 +288,9 @@ fn add_loads_and_contact(
     // indentation benchmark under the scaled masses (restarts on levels c3 and c5, a failure
     // on c3 with the ramp curve; none with the physical masses), so they keep those unless the
     // scene asks.
-    let all_anp = !model.points.is_empty()
+    let all_anp = !model.points().is_empty()
         && model
-            .points
+            .points()
             .kinds
             .iter()
             .all(|&k| k == crate::quadrature::PointKind::Anp);
@@ -293,7 +301,8 @@ fn add_loads_and_contact(
     if scene.solver.mode == Mode::Relaxation && scale {
         model.scale_masses()?;
     }
-    model.contact = loads::scene_contact(scene, d, input, &model.boundaries, warnings)?;
+    let contact = loads::scene_contact(scene, d, input, model.boundaries(), warnings)?;
+    model.set_contact(contact);
     Ok(())
 }
 
@@ -320,9 +329,9 @@ fn initial_velocity_warning(scene: &Scene, p: &Prepared) -> Option<String> {
         Vector3::from(i.center),
     );
     let mut worst: Option<(f64, &str)> = None;
-    for b in &p.model.boundaries {
+    for b in p.model.boundaries() {
         for &n in &b.nodes {
-            let v0 = v + w.cross(&(p.model.nodes[n] - c));
+            let v0 = v + w.cross(&(p.model.nodes()[n] - c));
             for k in 0..3 {
                 if b.components[k].is_some() && v0[k].abs() > worst.map_or(0.0, |x| x.0) {
                     worst = Some((v0[k].abs(), b.name.as_str()));
@@ -354,7 +363,7 @@ fn volume_warning(scene: &Scene, p: &Prepared) -> Option<String> {
         volume: source,
         of: what,
     } = p.source_volume.as_ref()?;
-    let volume = p.model.points.total_weight();
+    let volume = p.model.points().total_weight();
     let d = (volume - source) / source;
     if !(d.abs() > VOLUME_WARNING) {
         return None;
@@ -449,7 +458,7 @@ pub fn prepare(scene: &Scene) -> Result<Prepared> {
              solver.mode = \"relaxation\"",
         ));
     }
-    if let Some(w) = units_warning(scene, &p.model.nodes) {
+    if let Some(w) = units_warning(scene, &p.model.nodes()) {
         p.warnings.push(Warning::new(WarningKind::Input, w));
     }
     p.source_volume = translate::geometry_volume(scene)?;
@@ -467,9 +476,13 @@ pub fn prepare(scene: &Scene) -> Result<Prepared> {
         ),
         ));
     }
-    let free = crate::bc::free_parts(p.model.nodes.len(), &p.model.points, &p.model.boundaries);
+    let free = crate::bc::free_parts(
+        p.model.nodes().len(),
+        &p.model.points(),
+        &p.model.boundaries(),
+    );
     if let Some(&(count, node)) = free.first() {
-        let x = p.model.nodes[node];
+        let x = p.model.nodes()[node];
         p.warnings.push(Warning::new(WarningKind::Boundary, format!(
             "{} part(s) of the body are held by no boundary (the largest: {count} nodes, node {node} at \
              ({:.4e}, {:.4e}, {:.4e}) m): they can move as rigid bodies, and relaxation cannot settle them \
@@ -502,7 +515,7 @@ const LOCKING_POINTS_PER_DOF: f64 = 3.0;
 /// points per free DOF than [`LOCKING_POINTS_PER_DOF`]. Names the element and the setting to
 /// change (points per constraint as in Hughes, The Finite Element Method, sect. 4.3).
 fn locking_warning(scene: &Scene, p: &Prepared) -> Option<String> {
-    let (ratio, m) = regions::stiffest_ratio(&p.model.forces.materials);
+    let (ratio, m) = regions::stiffest_ratio(&p.model.forces().materials);
     if !(ratio >= LOCKING_KAPPA_OVER_MU) {
         return None;
     }
@@ -530,10 +543,10 @@ fn locking_warning(scene: &Scene, p: &Prepared) -> Option<String> {
     // The coupled table holds its FE and transition points first, the interior's last.
     let (mls_points, free) = match &p.method {
         Discretization::Meshless { .. } => {
-            (volumetric_constraints(&p.model.points, 0), free_dofs(p))
+            (volumetric_constraints(&p.model.points(), 0), free_dofs(p))
         }
         Discretization::Coupled { build: c, .. } => (
-            volumetric_constraints(&p.model.points, c.fe_points + c.transition_points),
+            volumetric_constraints(&p.model.points(), c.fe_points + c.transition_points),
             3 * c.mls_nodes.len(),
         ),
         Discretization::Fe => return None,
@@ -561,7 +574,7 @@ fn volumetric_constraints(q: &crate::quadrature::QuadraturePoints, first: usize)
 
 /// Displacement components not prescribed directly.
 fn free_dofs(p: &Prepared) -> usize {
-    3 * p.model.nodes.len() - p.model.constraints.dofs.len()
+    3 * p.model.nodes().len() - p.model.constraints().dofs.len()
 }
 
 /// Runs a scene end to end and returns its summary; writes outputs when `opts.out` is set.

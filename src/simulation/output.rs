@@ -78,7 +78,7 @@ fn write_history_plots(dir: &Path, model: &Model<Solid>, out: &RunOutput) -> Res
         .into_iter()
         .enumerate()
         .map(|(bi, name)| {
-            let comps = match model.boundaries.get(bi) {
+            let comps = match model.boundaries().get(bi) {
                 Some(b) => (0..3).filter(|&k| b.components[k].is_some()).collect(),
                 None => vec![0, 1, 2],
             };
@@ -179,10 +179,10 @@ pub struct CellMaterial {
 impl FrameLabels {
     /// The labels of a prepared run.
     pub fn of(prep: &Prepared) -> Self {
-        let n = prep.model.nodes.len();
+        let n = prep.model.nodes().len();
         let boundaries = prep
             .model
-            .boundaries
+            .boundaries()
             .iter()
             .map(|b| {
                 let mut holds = vec![false; n];

@@ -104,7 +104,7 @@ impl Session {
     }
 
     /// The model, for changes the setters below do not cover. Boundary values changed on
-    /// `model.boundaries` are taken by the next solve ([`Model::apply_boundary_changes`]).
+    /// `model.boundaries()` are taken by the next solve ([`Model::apply_boundary_changes`]).
     pub fn model_mut(&mut self) -> &mut Model<Solid> {
         &mut self.prep.model
     }
@@ -131,7 +131,7 @@ impl Session {
     }
 
     fn boundary_index(&self, name: &str) -> Result<usize> {
-        let boundaries = &self.prep.model.boundaries;
+        let boundaries = &self.prep.model.boundaries();
         boundaries
             .iter()
             .position(|b| b.name == name)
@@ -154,12 +154,12 @@ impl Session {
 
     fn boundary(&self, name: &str) -> Result<&crate::bc::Boundary> {
         let i = self.boundary_index(name)?;
-        Ok(&self.prep.model.boundaries[i])
+        Ok(&self.prep.model.boundaries()[i])
     }
 
     fn boundary_mut(&mut self, name: &str) -> Result<&mut crate::bc::Boundary> {
         let i = self.boundary_index(name)?;
-        Ok(&mut self.prep.model.boundaries[i])
+        Ok(&mut self.prep.model.boundaries_mut()[i])
     }
 
     /// New final displacement (m) of the components of boundary `name` given as Some; None
@@ -268,27 +268,25 @@ impl Session {
     fn contact(&self, name: &str) -> Result<&crate::bc::contact::Contact> {
         self.prep
             .model
-            .contact
-            .as_ref()
+            .contact()
             .ok_or_else(|| Self::no_contact(name))
     }
 
     fn contact_mut(&mut self, name: &str) -> Result<&mut crate::bc::contact::Contact> {
         self.prep
             .model
-            .contact
-            .as_mut()
+            .contact_mut()
             .ok_or_else(|| Self::no_contact(name))
     }
 
     /// Scales load `[loads.NAME]` by `factor` (1: as in the scene).
     pub fn set_load_factor(&mut self, name: &str, factor: f64) -> Result<()> {
-        self.prep.model.loads.set_factor(name, factor)
+        self.prep.model.loads_mut().set_factor(name, factor)
     }
 
     /// The factor of load `[loads.NAME]`.
     pub fn load_factor(&self, name: &str) -> Result<f64> {
-        self.prep.model.loads.factor(name)
+        self.prep.model.loads().factor(name)
     }
 
     /// Solves with the inputs as they are now. A relaxation starts from the last converged
@@ -352,7 +350,7 @@ impl Session {
 
     /// The rigid bodies' final displacements now, m.
     fn tool_motions(&self) -> Vec<Vector3<f64>> {
-        let Some(c) = &self.prep.model.contact else {
+        let Some(c) = &self.prep.model.contact() else {
             return Vec::new();
         };
         c.names()
@@ -363,7 +361,7 @@ impl Session {
     /// A message where a rigid body moved further than it may jump
     /// ([`crate::bc::contact::Contact::jump_limit`]) since the warm state was relaxed.
     fn tool_jump(&self) -> Option<String> {
-        let c = self.prep.model.contact.as_ref()?;
+        let c = self.prep.model.contact()?;
         let now = self.tool_motions();
         c.names()
             .enumerate()
@@ -394,7 +392,7 @@ impl Session {
     /// meshless correction, which was built with the model's masses.
     fn scales_warm_masses(&self) -> bool {
         let m = &self.prep.model;
-        self.scene.solver.mass_scaling.is_none() && !m.mass_scaled() && m.corrector.is_none()
+        self.scene.solver.mass_scaling.is_none() && !m.mass_scaled() && m.corrector().is_none()
     }
 
     fn run(&mut self, warm: Option<WarmStart>) -> Result<Solution> {
@@ -458,13 +456,13 @@ impl Session {
             method,
             ..
         } = &mut self.prep;
-        if u.len() != model.nodes.len() {
+        if u.len() != model.nodes().len() {
             return Err(Error::input(
                 InputKind::Value,
                 format!(
                     "{} displacements for the model's {} nodes",
                     u.len(),
-                    model.nodes.len()
+                    model.nodes().len()
                 ),
             ));
         }

@@ -41,7 +41,7 @@ fn equilibrium_residual<M: crate::material::Material>(
     f_int: &[nalgebra::Vector3<f64>],
     peak: f64,
 ) -> f64 {
-    let n = f_int.len().min(model.constraints.mask.len());
+    let n = f_int.len().min(model.constraints().mask.len());
     let mut moved = vec![false; n];
     for i in model.corrected_nodes() {
         if let Some(m) = moved.get_mut(i as usize) {
@@ -51,13 +51,13 @@ fn equilibrium_residual<M: crate::material::Material>(
     let (mut residual, mut scale) = (0.0f64, 0.0f64);
     for i in 0..n {
         let fe = model
-            .f_ext
+            .external_forces()
             .get(i)
             .copied()
             .unwrap_or_else(nalgebra::Vector3::zeros);
         for k in 0..3 {
             scale = scale.max(f_int[i][k].abs());
-            if !moved[i] && !model.constraints.mask[i][k] {
+            if !moved[i] && !model.constraints().mask[i][k] {
                 residual = residual.max((f_int[i][k] - fe[k]).abs());
             }
         }
@@ -82,7 +82,7 @@ fn relative(value: f64, scale: f64, floor: f64) -> f64 {
 fn energy_floor(scene: &Scene, model: &crate::solver::Model<crate::material::Solid>) -> f64 {
     use crate::material::Material;
     let mu = scene.material.solid().lame().1;
-    let volume: f64 = model.points.weights.iter().sum();
+    let volume: f64 = model.points().weights.iter().sum();
     1e-12 * mu.abs() * volume.abs()
 }
 
@@ -163,7 +163,7 @@ pub fn summarize(scene: &Scene, prep: &Prepared, out: &RunOutput, total_seconds:
             ),
         ));
     }
-    if let Some(c) = &model.contact {
+    if let Some(c) = &model.contact() {
         if c.worst_penetration() > c.tolerance() {
             warnings.push(Warning::new(
                 WarningKind::Contact,
@@ -267,8 +267,8 @@ pub fn summarize(scene: &Scene, prep: &Prepared, out: &RunOutput, total_seconds:
             Mode::Relaxation => "relaxation".into(),
             Mode::Static => "static".into(),
         },
-        nodes: model.nodes.len(),
-        integration_points: model.points.len(),
+        nodes: model.nodes().len(),
+        integration_points: model.points().len(),
         // The step the run started with (step_updates has the shortest one).
         dt: out.step_updates.dt_initial,
         dt_critical: out.dt_critical,
@@ -300,7 +300,7 @@ pub fn summarize(scene: &Scene, prep: &Prepared, out: &RunOutput, total_seconds:
         },
         reactions,
         contact: model
-            .contact
+            .contact()
             .as_ref()
             .map(|c| {
                 c.names()
@@ -319,10 +319,10 @@ pub fn summarize(scene: &Scene, prep: &Prepared, out: &RunOutput, total_seconds:
             })
             .unwrap_or_default(),
         loads: model
-            .loads
+            .loads()
             .names()
             .iter()
-            .zip(model.loads.totals())
+            .zip(model.loads().totals())
             .map(|(n, t)| (n.clone(), [t.x, t.y, t.z]))
             .collect(),
         probes,
@@ -342,7 +342,7 @@ pub fn summarize(scene: &Scene, prep: &Prepared, out: &RunOutput, total_seconds:
             min_dihedral_deg: prep.min_dihedral.map(|m| m.degrees),
             min_dihedral_element: prep.min_dihedral.map(|m| m.element),
             critical: out.critical,
-            volume: model.points.total_weight(),
+            volume: model.points().total_weight(),
             geometry_volume: prep.source_volume.as_ref().map(|v| v.volume),
             geometry_volume_of: prep.source_volume.as_ref().map(|v| v.of.clone()),
         },

@@ -1040,7 +1040,15 @@ pub(super) fn load_curve(scene: &Scene, name: &str) -> Result<LoadCurve> {
             let path = scene_path(scene, f);
             let named = format!("{} (curves.{name}.file)", path.display());
             let text = std::fs::read_to_string(&path).map_err(|e| Error::io(&named, e))?;
-            crate::bc::curve::parse_curve_csv(&text, &named)?
+            crate::bc::curve::parse_curve_csv(&text, &named).map_err(|e| {
+                let line = e.fault().and_then(|f| f.facts.line);
+                let e = e.key(format!("curves.{name}.file"));
+                // Its sentences name the file already.
+                match line {
+                    Some(l) => e.placed(&path, l),
+                    None => e,
+                }
+            })?
         }
         (None, None) => Vec::new(),
     };

@@ -95,8 +95,6 @@ pub struct LinearConstraint {
     pub boundary: usize,
 }
 
-/// Everything the time loop needs: reference nodes, quadrature points, lumped masses,
-/// constraints and the force evaluator.
 /// A model's lumped masses and their flags, kept to be put back
 /// ([`Model::mass_state`], [`Model::restore_masses`]).
 #[derive(Debug, Clone, PartialEq)]
@@ -106,31 +104,35 @@ pub struct MassState {
     scaled: bool,
 }
 
+/// Everything the time loop needs: reference nodes, quadrature points, lumped masses,
+/// constraints and the force evaluator. Its state is private and changed only through
+/// methods that keep it consistent (masses with their flags, boundaries with the constraints
+/// built on them).
 pub struct Model<M: Material> {
     /// Reference node coordinates, m.
-    pub nodes: Vec<Vector3<f64>>,
+    pub(in crate::solver) nodes: Vec<Vector3<f64>>,
     /// The discretization's points in Morton order ([`order::spatial_order`]).
-    pub points: QuadraturePoints,
+    pub(in crate::solver) points: QuadraturePoints,
     /// Per point of `points`: its id in the discretization (element or integration point id,
     /// as messages and outputs give it).
-    pub(crate) point_ids: Vec<u32>,
-    pub(crate) slots: NodeSlots,
+    pub(in crate::solver) point_ids: Vec<u32>,
+    pub(in crate::solver) slots: NodeSlots,
     /// Lumped nodal masses, kg ([`Self::mass`]; changed only through the methods that keep
     /// `masses_uneven` and `mass_scaled` with them).
     mass: Vec<f64>,
-    pub boundaries: Vec<Boundary>,
-    pub constraints: Constraints,
-    pub forces: Forces<M>,
+    pub(in crate::solver) boundaries: Vec<Boundary>,
+    pub(in crate::solver) constraints: Constraints,
+    pub(in crate::solver) forces: Forces<M>,
     /// Imposes the boundaries marked in `corrected` (meshless EBCIEM / SEBCIEM).
-    pub(crate) corrector: Option<Box<dyn Corrector>>,
+    pub(in crate::solver) corrector: Option<Box<dyn Corrector>>,
     /// Per boundary: imposed by `corrector` instead of directly on nodes.
-    pub(crate) corrected: Vec<bool>,
+    pub(in crate::solver) corrected: Vec<bool>,
     /// Gravity, point forces, tractions and pressures ([`Self::set_loads`]).
-    pub loads: Loads,
+    pub(in crate::solver) loads: Loads,
     /// External nodal forces of the last step, N (empty without loads).
-    pub(crate) f_ext: Vec<Vector3<f64>>,
+    pub(in crate::solver) f_ext: Vec<Vector3<f64>>,
     /// Frictionless contact with rigid bodies, corrected after each update.
-    pub contact: Option<Contact>,
+    pub(in crate::solver) contact: Option<Contact>,
     /// `mass` is not each point's mass split evenly over its nodes (set by
     /// [`Self::set_lumped_masses`] and [`Self::scale_masses`]): the per-point step bounds,
     /// which assume that split, are then not used.
@@ -139,7 +141,7 @@ pub struct Model<M: Material> {
     mass_scaled: bool,
     /// The static solve's tangent pattern, numbering and factorization, kept between solves
     /// ([`statics::solve`]).
-    pub(crate) static_cache: Option<statics::Cache>,
+    pub(in crate::solver) static_cache: Option<statics::Cache>,
     /// What the constraints and the corrector were built on: per boundary, its name, nodes
     /// and prescribed components ([`Self::apply_boundary_changes`]).
     layout: Vec<BoundaryLayout>,
@@ -342,6 +344,64 @@ impl<M: Material> Model<M> {
         Ok(())
     }
 
+    /// Reference node coordinates, m.
+    pub fn nodes(&self) -> &[Vector3<f64>] {
+        &self.nodes
+    }
+
+    /// The discretization's quadrature points, in the model's (Morton) order.
+    pub fn points(&self) -> &QuadraturePoints {
+        &self.points
+    }
+
+    /// The essential boundaries, in the order of the scene and of [`Self::reactions`].
+    pub fn boundaries(&self) -> &[Boundary] {
+        &self.boundaries
+    }
+
+    /// The boundaries, for new values between runs: a boundary's prescribed values,
+    /// `node_values` and `curve` may change; the next run takes them
+    /// ([`Self::apply_boundary_changes`]) and refuses any other change (its name, nodes, which
+    /// components it prescribes) with an error, so the constraints cannot go stale.
+    pub fn boundaries_mut(&mut self) -> &mut [Boundary] {
+        &mut self.boundaries
+    }
+
+    /// The degrees of freedom the time loop prescribes directly.
+    pub fn constraints(&self) -> &Constraints {
+        &self.constraints
+    }
+
+    /// The force evaluator: materials, their points, the kernel's scratch.
+    pub fn forces(&self) -> &Forces<M> {
+        &self.forces
+    }
+
+    /// Gravity, point forces, tractions and pressures ([`Self::set_loads`]).
+    pub fn loads(&self) -> &Loads {
+        &self.loads
+    }
+
+    /// The loads, to scale them between runs ([`Loads::set_factor`]).
+    pub fn loads_mut(&mut self) -> &mut Loads {
+        &mut self.loads
+    }
+
+    /// Frictionless contact with rigid bodies, if the model has any.
+    pub fn contact(&self) -> Option<&Contact> {
+        self.contact.as_ref()
+    }
+
+    /// The rigid bodies, to move them between runs ([`Contact::set_motion`]).
+    pub fn contact_mut(&mut self) -> Option<&mut Contact> {
+        self.contact.as_mut()
+    }
+
+    /// Sets the rigid bodies the body may touch (None: none).
+    pub fn set_contact(&mut self, contact: Option<Contact>) {
+        self.contact = contact;
+    }
+
     /// Lumped nodal masses, kg.
     pub fn mass(&self) -> &[f64] {
         &self.mass
@@ -351,6 +411,12 @@ impl<M: Material> Model<M> {
     /// the model's points.
     pub fn internal_forces(&mut self, u: &[Vector3<f64>], f: &mut [Vector3<f64>]) {
         self.forces.compute(&self.points, &self.slots, u, f);
+    }
+
+    /// The external nodal forces (N) of the last step: gravity, point forces, tractions and
+    /// pressures at their load factors (empty without loads).
+    pub fn external_forces(&self) -> &[Vector3<f64>] {
+        &self.f_ext
     }
 
     /// Each node's slots in the point table (the gather order of the force kernel).
