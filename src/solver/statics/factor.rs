@@ -107,7 +107,7 @@ pub struct Factor {
     symbolic: SymbolicCholesky<usize>,
     l_values: Vec<f64>,
     kind: Option<Kind>,
-    /// The fill-reducing order kept: "amd" or "nested dissection".
+    /// The fill-reducing order kept: "amd", "nested dissection" (geometric) or "metis".
     pub ordering: &'static str,
     /// Multiply-adds of a numeric factorization, sum over the factor's columns of their
     /// nonzeros squared (from the symbolic structure).
@@ -232,11 +232,35 @@ impl Factor {
             &fwd, &inv, n,
         )))?;
         let amd = symbolic_with(SymmetricOrdering::Amd)?;
-        let (symbolic, ordering) = if amd.len_val() < nd.len_val() {
-            (amd, "amd")
-        } else {
-            (nd, "nested dissection")
-        };
+        let mut candidates = vec![(nd, "nested dissection"), (amd, "amd")];
+        if let Some(order) = metis_node_order(k, dofs.index.len()) {
+            let (fwd, inv) = expand_to_dofs(&order, k, dofs);
+            if fwd.len() == n {
+                candidates.push((
+                    symbolic_with(SymmetricOrdering::Custom(faer::perm::PermRef::new_checked(
+                        &fwd, &inv, n,
+                    )))?,
+                    "metis",
+                ));
+            }
+        }
+        for (s, name) in &candidates {
+            log::debug!(
+                "static solve: {name} order, {} factor nonzeros",
+                s.len_val()
+            );
+        }
+        // The smallest factor; the first of equals.
+        let (symbolic, ordering) = candidates
+            .into_iter()
+            .reduce(|best, c| {
+                if c.0.len_val() < best.0.len_val() {
+                    c
+                } else {
+                    best
+                }
+            })
+            .expect("two candidates at least");
         let len = symbolic.len_val();
         let flops = factor_flops(&symbolic);
         let l_values = try_zeros(len).ok_or_else(|| {
@@ -471,6 +495,11 @@ const LEAF: usize = 24;
 /// numbered after both halves, recursively down to leaves of [`LEAF`] nodes; each node's free
 /// DOFs follow each other. Returns (new -> old, old -> new).
 fn dof_order(k: &Tangent, dofs: &Dofs, nodes: &[Vector3<f64>]) -> (Vec<usize>, Vec<usize>) {
+    expand_to_dofs(&geometric_node_order(k, nodes), k, dofs)
+}
+
+/// The nodes in geometric nested-dissection order ([`dof_order`]).
+fn geometric_node_order(k: &Tangent, nodes: &[Vector3<f64>]) -> Vec<u32> {
     let n = nodes.len();
     let mut order: Vec<u32> = Vec::with_capacity(n);
     let mut part = vec![u32::MAX; n];
@@ -542,6 +571,55 @@ fn dof_order(k: &Tangent, dofs: &Dofs, nodes: &[Vector3<f64>]) -> (Vec<usize>, V
         work.push(Work::Split(b));
         work.push(Work::Split(a));
     }
+    order
+}
+
+/// The nodes in METIS's multilevel nested-dissection order of the tangent's node graph
+/// (METIS_NodeND; Karypis and Kumar 1998, SIAM J. Sci. Comput. 20(1)): separators found by
+/// graph coarsening and refinement rather than by coordinates. Deterministic (METIS's fixed
+/// seed). None where METIS refuses the graph.
+fn metis_node_order(k: &Tangent, n: usize) -> Option<Vec<u32>> {
+    use metis_sys::idx_t;
+    let mut xadj: Vec<idx_t> = Vec::with_capacity(n + 1);
+    let mut adjncy: Vec<idx_t> = Vec::with_capacity(k.cols.len());
+    xadj.push(0);
+    for i in 0..n {
+        for &j in &k.cols[k.offsets[i]..k.offsets[i + 1]] {
+            if j as usize != i {
+                adjncy.push(idx_t::try_from(j).ok()?);
+            }
+        }
+        xadj.push(idx_t::try_from(adjncy.len()).ok()?);
+    }
+    let mut nvtxs = idx_t::try_from(n).ok()?;
+    if nvtxs == 0 {
+        return Some(Vec::new());
+    }
+    let mut options = [0 as idx_t; metis_sys::METIS_NOPTIONS as usize];
+    let (mut perm, mut iperm) = (vec![0 as idx_t; n], vec![0 as idx_t; n]);
+    // SAFETY: the arrays are METIS's CSR graph of nvtxs vertices (xadj nvtxs + 1 offsets into
+    // adjncy, every entry a vertex below nvtxs), options holds METIS_NOPTIONS entries, perm
+    // and iperm nvtxs each; a null vwgt means unit weights. METIS keeps no pointer.
+    let ok = unsafe {
+        metis_sys::METIS_SetDefaultOptions(options.as_mut_ptr());
+        metis_sys::METIS_NodeND(
+            &mut nvtxs,
+            xadj.as_mut_ptr(),
+            adjncy.as_mut_ptr(),
+            std::ptr::null_mut(),
+            options.as_mut_ptr(),
+            perm.as_mut_ptr(),
+            iperm.as_mut_ptr(),
+        )
+    } == metis_sys::rstatus_et_METIS_OK;
+    // perm[new] = old.
+    ok.then(|| perm.iter().map(|&p| p as u32).collect())
+}
+
+/// (new -> old, old -> new) of the free DOFs and the split units' unknowns for nodes in
+/// `order`: each node's free DOFs follow each other, then its units.
+fn expand_to_dofs(order: &[u32], k: &Tangent, dofs: &Dofs) -> (Vec<usize>, Vec<usize>) {
+    let n = dofs.index.len();
     // A split unit's unknown follows its node's DOFs: it joins only that node's neighbours,
     // which the dissection keeps on the node's side or in its separator.
     let units = k.pressure_units();
@@ -550,7 +628,7 @@ fn dof_order(k: &Tangent, dofs: &Dofs, nodes: &[Vector3<f64>]) -> (Vec<usize>, V
         at_node[k.unit_key(u)].push((dofs.len + i) as u32);
     }
     let mut fwd = Vec::with_capacity(dofs.len + units.len());
-    for &i in &order {
+    for &i in order {
         for c in 0..3 {
             let d = dofs.index[i as usize][c];
             if d != u32::MAX {
@@ -633,5 +711,35 @@ mod tests {
             assert!(d < 1e-8 * scale, "nu {nu}: {d:e} of {scale:e}");
             assert!(fill[1] < fill[0]);
         }
+    }
+
+    /// METIS's order is a permutation of the nodes, the same on every call, and expands to
+    /// every free DOF and split unit once; the factor keeps the order with the fewest nonzeros.
+    #[test]
+    fn the_metis_order_is_a_deterministic_permutation_of_every_unknown() {
+        let mesh = box_tet(Vector3::zeros(), Vector3::new(0.04, 0.03, 0.05), [8, 6, 10]).unwrap();
+        let mat = Solid::NeoHookean(NeoHookean::from_young_poisson(3000.0, 0.49, 1000.0));
+        let qp = element_points(&mesh, ElementKind::Tet4Anp, 0.05, 1e4).unwrap();
+        let model = Model::new(mesh.nodes.clone(), qp, mat, Vec::new()).unwrap();
+        let n = model.nodes.len();
+        let mask: Vec<[bool; 3]> = model.nodes.iter().map(|x| [x.z == 0.0; 3]).collect();
+        let dofs = Dofs::new(&mask);
+        let k = Tangent::new(&model, &[], true);
+        let order = metis_node_order(&k, n).expect("METIS orders a mesh graph");
+        assert_eq!(metis_node_order(&k, n), Some(order.clone()));
+        let mut seen = vec![false; n];
+        order.iter().for_each(|&i| seen[i as usize] = true);
+        assert!(order.len() == n && seen.iter().all(|&s| s));
+        let (fwd, inv) = expand_to_dofs(&order, &k, &dofs);
+        let unknowns = dofs.len + k.pressure_units().len();
+        assert_eq!(fwd.len(), unknowns);
+        assert!(fwd.iter().enumerate().all(|(new, &old)| inv[old] == new));
+        let f = Factor::new(&k, &dofs, &model.nodes).unwrap();
+        println!(
+            "factor: {} order, {} nonzeros",
+            f.ordering,
+            f.factor_nonzeros()
+        );
+        assert!(["amd", "nested dissection", "metis"].contains(&f.ordering));
     }
 }
