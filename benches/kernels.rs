@@ -78,7 +78,7 @@ fn bench_points(c: &mut Criterion, name: &str, prep: &Prepared, qp: &QuadratureP
     let n = prep.model.nodes().len();
     let slots = NodeSlots::new(qp, n);
     let mut forces = Forces::new(prep.model.forces().materials[0], qp, &slots, n);
-    let u = field(&prep.model.nodes());
+    let u = field(prep.model.nodes());
     let mut out = vec![Vector3::zeros(); n];
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(1)
@@ -104,14 +104,14 @@ fn bench_points(c: &mut Criterion, name: &str, prep: &Prepared, qp: &QuadratureP
 
 fn kernels(c: &mut Criterion) {
     let hex = prepare(&["discretization.method=fe", "discretization.element=hex8"]);
-    bench_points(c, "hex8+hourglass", &hex, &hex.model.points());
+    bench_points(c, "hex8+hourglass", &hex, hex.model.points());
     let tet = prepare(&["discretization.method=fe", "discretization.element=tet4"]);
-    bench_points(c, "tet4", &tet, &tet.model.points());
+    bench_points(c, "tet4", &tet, tet.model.points());
     let anp = prepare(&[
         "discretization.method=fe",
         "discretization.element=tet4-anp",
     ]);
-    bench_points(c, "tet4-anp", &anp, &anp.model.points());
+    bench_points(c, "tet4-anp", &anp, anp.model.points());
     for k in ["8", "12", "16"] {
         let sn = format!("discretization.support_nodes={k}");
         let m = prepare(&[
@@ -120,10 +120,10 @@ fn kernels(c: &mut Criterion) {
             "discretization.support=nearest",
             &sn,
         ]);
-        bench_points(c, &format!("mls-{k}-nodes"), &m, &m.model.points());
+        bench_points(c, &format!("mls-{k}-nodes"), &m, m.model.points());
     }
     let cpl = prepare(&["discretization.method=coupled"]);
-    let blended = subset(&cpl.model.points(), |k| {
+    let blended = subset(cpl.model.points(), |k| {
         matches!(k, PointKind::MeanDilatation(_))
     });
     bench_points(c, "blended-transition", &cpl, &blended);

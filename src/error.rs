@@ -107,7 +107,8 @@ pub struct Fault {
     /// unless `placed_in_message`.
     pub message: String,
     /// The sentence itself names the file and line (set by [`Error::placed`]): the readers of
-    /// line-based text (point clouds, measured displacements, curves, MSH 2.2) say
+    /// line-based text (point clouds, measured displacements, curves, MSH 2.2, NRRD headers,
+    /// legacy VTK) say
     /// `FILE: line N: ...`, a wording their users and tests know, so no prefix is added.
     pub placed_in_message: bool,
 }
@@ -232,18 +233,13 @@ impl Error {
 
     /// Sets the file and line facts of a sentence that already names them (`FILE: line N:`):
     /// the message is written as it is, with no prefix.
-    pub fn placed(self, file: impl Into<PathBuf>, line: usize) -> Self {
-        let file = file.into();
-        match self.with(|f| {
-            f.file = Some(file);
-            f.line = Some(line);
-        }) {
-            Error::Input(mut f) => {
-                f.placed_in_message = true;
-                Error::Input(f)
-            }
-            other => other,
+    pub fn placed(mut self, file: impl Into<PathBuf>, line: usize) -> Self {
+        if let Error::Input(f) = &mut self {
+            f.facts.file = Some(file.into());
+            f.facts.line = Some(line);
+            f.placed_in_message = true;
         }
+        self
     }
 
     /// Sets the node (0-based).

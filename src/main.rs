@@ -509,7 +509,7 @@ fn check(CheckArgs { scene, set }: CheckArgs) -> hytled::Result<u8> {
     for name in prep.model.loads().names() {
         println!("  load {name}");
     }
-    if let Some(c) = &prep.model.contact() {
+    if let Some(c) = prep.model.contact() {
         for (b, name) in c.names().enumerate() {
             println!(
                 "  contact {name:<13} {} candidate surface points",

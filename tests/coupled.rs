@@ -37,7 +37,7 @@ fn patch_test_uniform_gradient_everywhere() {
         let a = Matrix3::new(0.01, -0.02, 0.03, 0.015, -0.01, 0.005, -0.02, 0.01, 0.02);
         let b = Vector3::new(1e-3, -2e-3, 3e-3);
         let u: Vec<Vector3<f64>> = p.model.nodes().iter().map(|x| a * x + b).collect();
-        let qp = &p.model.points();
+        let qp = p.model.points();
         let mut worst: f64 = 0.0;
         for q in 0..qp.len() {
             let f = deformation_gradient(qp, q, &u);

@@ -129,7 +129,7 @@ fn coupled_tet10_passes_the_patch_test() {
     assert!(!q.edges.is_empty() && c.transition_points > 0 && c.meshless_points > 0);
     let a = Matrix3::new(0.01, -0.02, 0.03, 0.015, -0.01, 0.005, -0.02, 0.01, 0.02);
     let u: Vec<Vector3<f64>> = p.model.nodes().iter().map(|x| a * x).collect();
-    let qp = &p.model.points();
+    let qp = p.model.points();
     let worst = (0..qp.len())
         .map(|k| {
             (deformation_gradient(qp, k, &u) - Matrix3::identity() - a)

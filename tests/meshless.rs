@@ -54,7 +54,7 @@ fn affine_displacement_gives_uniform_deformation_gradient_at_every_point() {
         let want = Matrix3::identity() + a;
         let mut worst = 0.0f64;
         for p in 0..m.points().len() {
-            let f = deformation_gradient(&m.points(), p, &u);
+            let f = deformation_gradient(m.points(), p, &u);
             worst = worst.max((f - want).amax());
         }
         assert!(

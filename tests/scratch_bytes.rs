@@ -81,7 +81,7 @@ fn the_memory_estimate_counts_every_buffer() {
         let m = &prep.model;
         let n = m.nodes().len();
         let (materials, point_material) = (&m.forces().materials, m.forces().point_materials());
-        let (points, slots) = (&m.points(), m.slots());
+        let (points, slots) = (m.points(), m.slots());
         let build =
             || Forces::with_materials(materials.clone(), point_material.to_vec(), points, slots, n);
         let (measured, reported) = pool.install(|| {

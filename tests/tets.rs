@@ -72,7 +72,7 @@ fn coupled_tet_defaults_put_fe_at_the_essential_faces_only() {
     // Patch test through FE, transition and meshless points.
     let a = Matrix3::new(0.01, -0.02, 0.03, 0.015, -0.01, 0.005, -0.02, 0.01, 0.02);
     let u: Vec<Vector3<f64>> = p.model.nodes().iter().map(|x| a * x).collect();
-    let qp = &p.model.points();
+    let qp = p.model.points();
     let worst = (0..qp.len())
         .map(|q| {
             (deformation_gradient(qp, q, &u) - Matrix3::identity() - a)
@@ -366,7 +366,7 @@ fn anp_step_estimate_is_safe_under_compression_and_not_loose() {
         let (dt, _) = hytled::solver::integrate::stable_step(&p.model);
         let moduli = |q: usize| p.model.point_moduli(q);
         let (per_point, _) =
-            hytled::solver::timestep::critical_time_step(&p.model.points(), &moduli);
+            hytled::solver::timestep::critical_time_step(p.model.points(), &moduli);
         println!("{case}: ANP estimate {dt:e} s, per-point bound {per_point:e} s");
         assert!(dt > 1.4 * per_point, "{dt} vs {per_point}");
     }

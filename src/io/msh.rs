@@ -78,12 +78,12 @@ pub fn parse_msh22(text: &str, path: &Path) -> Result<MeshInput> {
     let text = text.strip_prefix('\u{feff}').unwrap_or(text);
     let mut cur = Cursor::new(text, path, 1);
     let fail = |m: String| input_err(path, m);
-    let fail_at = |line: usize, m: String| line_err(path, line, m);
 
     match cur.next() {
         Some((_, "$MeshFormat")) => {}
         Some((l, other)) => {
-            return Err(fail_at(
+            return Err(line_err(
+                path,
                 l,
                 format!(
                     "expected $MeshFormat, found '{}': not a Gmsh MSH file",
@@ -98,7 +98,8 @@ pub fn parse_msh22(text: &str, path: &Path) -> Result<MeshInput> {
         .ok_or_else(|| fail("the file ends inside $MeshFormat; it is truncated".into()))?;
     let f: Vec<&str> = fmt.split_whitespace().collect();
     if f.first().and_then(|v| v.parse::<f64>().ok()) != Some(2.2) {
-        return Err(fail_at(
+        return Err(line_err(
+            path,
             l,
             format!(
                 "MSH format version '{}' is not 2.2 (this parser reads ASCII MSH 2.2 only; \
@@ -108,7 +109,8 @@ pub fn parse_msh22(text: &str, path: &Path) -> Result<MeshInput> {
         ));
     }
     if f.get(1) != Some(&"0") {
-        return Err(fail_at(
+        return Err(line_err(
+            path,
             l,
             format!(
                 "MSH 2.2 file type '{}' is not 0 (ASCII); binary MSH 2.2 is not supported: \
@@ -127,7 +129,8 @@ pub fn parse_msh22(text: &str, path: &Path) -> Result<MeshInput> {
             "$PhysicalNames" => parse_physical_names(&mut cur, l, &mut raw.names)?,
             "$Nodes" => {
                 if let Some(first) = seen_nodes {
-                    return Err(fail_at(
+                    return Err(line_err(
+                        path,
                         l,
                         format!(
                             "a second $Nodes section (the first is at line {first}); \
@@ -140,7 +143,8 @@ pub fn parse_msh22(text: &str, path: &Path) -> Result<MeshInput> {
             }
             "$Elements" => {
                 if let Some(first) = seen_elements {
-                    return Err(fail_at(
+                    return Err(line_err(
+                        path,
                         l,
                         format!(
                             "a second $Elements section (the first is at line {first}); \
@@ -152,14 +156,16 @@ pub fn parse_msh22(text: &str, path: &Path) -> Result<MeshInput> {
                 parse_elements22(&mut cur, l, &mut raw)?;
             }
             s if s.starts_with("$End") => {
-                return Err(fail_at(
+                return Err(line_err(
+                    path,
                     l,
                     format!("'{}' closes a section that was not opened", clip(s)),
                 ))
             }
             s if s.starts_with('$') => cur.skip_section(s, l)?,
             s => {
-                return Err(fail_at(
+                return Err(line_err(
+                    path,
                     l,
                     format!("unexpected text outside any section: '{}'", clip(s)),
                 ))
@@ -489,7 +495,6 @@ struct Header {
 /// `mshio` can handle (it panics on others).
 fn read_header(bytes: &[u8], path: &Path) -> Result<Header> {
     let fail = |m: String| input_err(path, m);
-    let fail_at = |line: usize, m: String| line_err(path, line, m);
     let mut start = 0;
     if bytes.starts_with(&[0xef, 0xbb, 0xbf]) {
         start = 3;
@@ -505,7 +510,8 @@ fn read_header(bytes: &[u8], path: &Path) -> Result<Header> {
         if rest.is_empty() {
             return Err(fail("the file is empty: not a Gmsh MSH file".into()));
         }
-        return Err(fail_at(
+        return Err(line_err(
+            path,
             line_no,
             format!(
                 "expected $MeshFormat, found '{}': not a Gmsh MSH file (MSH 1 files, \
@@ -523,7 +529,8 @@ fn read_header(bytes: &[u8], path: &Path) -> Result<Header> {
     let line = line_no + 1;
     let f: Vec<&str> = second.split_whitespace().collect();
     if f.len() < 3 {
-        return Err(fail_at(
+        return Err(line_err(
+            path,
             line,
             format!(
                 "the $MeshFormat line '{}' should be 'version file-type data-size'{}",
@@ -540,7 +547,8 @@ fn read_header(bytes: &[u8], path: &Path) -> Result<Header> {
         Ok(2.2) => "2.2",
         Ok(4.1) => "4.1",
         _ => {
-            return Err(fail_at(
+            return Err(line_err(
+                path,
                 line,
                 format!(
                     "MSH format version '{}' is not supported; hytled reads MSH 4.1 \
@@ -555,7 +563,8 @@ fn read_header(bytes: &[u8], path: &Path) -> Result<Header> {
         "0" => 0,
         "1" => 1,
         other => {
-            return Err(fail_at(
+            return Err(line_err(
+                path,
                 line,
                 format!(
                     "MSH file type '{}' is neither 0 (ASCII) nor 1 (binary)",
@@ -568,7 +577,8 @@ fn read_header(bytes: &[u8], path: &Path) -> Result<Header> {
         Ok(d) if d == 4 || d == 8 => d,
         Ok(d) if file_type == 0 && (1..=16).contains(&d) => d,
         _ => {
-            return Err(fail_at(
+            return Err(line_err(
+                path,
                 line,
                 format!(
                     "MSH data size '{}' is not supported (Gmsh writes 8)",

@@ -332,7 +332,7 @@ pub(super) fn impose(
     model: &mut Model<Solid>,
     warnings: &mut Vec<Warning>,
 ) -> Result<()> {
-    let bnd = &model.boundaries();
+    let bnd = model.boundaries();
     let corrected = corrected_boundaries(build, bnd);
     {
         let tris: Vec<[usize; 3]> = if method == BcMethod::Ebciem {

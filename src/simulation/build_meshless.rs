@@ -133,7 +133,7 @@ pub(super) fn impose(
         return Ok(());
     }
     let (corr, report) =
-        MeshlessCorrector::new(build, &model.boundaries(), model.mass(), imposition(method))?;
+        MeshlessCorrector::new(build, model.boundaries(), model.mass(), imposition(method))?;
     if report.lumped_nodes > 0 {
         warnings.push(Warning::new(WarningKind::Boundary, format!(
             "EBCIEM: {} constrained node(s) lie on no boundary triangle whose vertices are all constrained; \

@@ -458,7 +458,7 @@ pub fn prepare(scene: &Scene) -> Result<Prepared> {
              solver.mode = \"relaxation\"",
         ));
     }
-    if let Some(w) = units_warning(scene, &p.model.nodes()) {
+    if let Some(w) = units_warning(scene, p.model.nodes()) {
         p.warnings.push(Warning::new(WarningKind::Input, w));
     }
     p.source_volume = translate::geometry_volume(scene)?;
@@ -478,8 +478,8 @@ pub fn prepare(scene: &Scene) -> Result<Prepared> {
     }
     let free = crate::bc::free_parts(
         p.model.nodes().len(),
-        &p.model.points(),
-        &p.model.boundaries(),
+        p.model.points(),
+        p.model.boundaries(),
     );
     if let Some(&(count, node)) = free.first() {
         let x = p.model.nodes()[node];
@@ -543,10 +543,10 @@ fn locking_warning(scene: &Scene, p: &Prepared) -> Option<String> {
     // The coupled table holds its FE and transition points first, the interior's last.
     let (mls_points, free) = match &p.method {
         Discretization::Meshless { .. } => {
-            (volumetric_constraints(&p.model.points(), 0), free_dofs(p))
+            (volumetric_constraints(p.model.points(), 0), free_dofs(p))
         }
         Discretization::Coupled { build: c, .. } => (
-            volumetric_constraints(&p.model.points(), c.fe_points + c.transition_points),
+            volumetric_constraints(p.model.points(), c.fe_points + c.transition_points),
             3 * c.mls_nodes.len(),
         ),
         Discretization::Fe => return None,

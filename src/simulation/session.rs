@@ -131,7 +131,7 @@ impl Session {
     }
 
     fn boundary_index(&self, name: &str) -> Result<usize> {
-        let boundaries = &self.prep.model.boundaries();
+        let boundaries = self.prep.model.boundaries();
         boundaries
             .iter()
             .position(|b| b.name == name)
@@ -350,7 +350,7 @@ impl Session {
 
     /// The rigid bodies' final displacements now, m.
     fn tool_motions(&self) -> Vec<Vector3<f64>> {
-        let Some(c) = &self.prep.model.contact() else {
+        let Some(c) = self.prep.model.contact() else {
             return Vec::new();
         };
         c.names()

@@ -163,7 +163,7 @@ pub fn summarize(scene: &Scene, prep: &Prepared, out: &RunOutput, total_seconds:
             ),
         ));
     }
-    if let Some(c) = &model.contact() {
+    if let Some(c) = model.contact() {
         if c.worst_penetration() > c.tolerance() {
             warnings.push(Warning::new(
                 WarningKind::Contact,

@@ -232,35 +232,20 @@ impl Factor {
             &fwd, &inv, n,
         )))?;
         let amd = symbolic_with(SymmetricOrdering::Amd)?;
-        let mut candidates = vec![(nd, "nested dissection"), (amd, "amd")];
+        // The smallest factor of the three orders; the first of equals.
+        let (mut symbolic, mut ordering) = (nd, "nested dissection");
+        if amd.len_val() < symbolic.len_val() {
+            (symbolic, ordering) = (amd, "amd");
+        }
         if let Some(order) = metis_node_order(k, dofs.index.len()) {
             let (fwd, inv) = expand_to_dofs(&order, k, dofs);
-            if fwd.len() == n {
-                candidates.push((
-                    symbolic_with(SymmetricOrdering::Custom(faer::perm::PermRef::new_checked(
-                        &fwd, &inv, n,
-                    )))?,
-                    "metis",
-                ));
+            let metis = symbolic_with(SymmetricOrdering::Custom(
+                faer::perm::PermRef::new_checked(&fwd, &inv, n),
+            ))?;
+            if metis.len_val() < symbolic.len_val() {
+                (symbolic, ordering) = (metis, "metis");
             }
         }
-        for (s, name) in &candidates {
-            log::debug!(
-                "static solve: {name} order, {} factor nonzeros",
-                s.len_val()
-            );
-        }
-        // The smallest factor; the first of equals.
-        let (symbolic, ordering) = candidates
-            .into_iter()
-            .reduce(|best, c| {
-                if c.0.len_val() < best.0.len_val() {
-                    c
-                } else {
-                    best
-                }
-            })
-            .expect("two candidates at least");
         let len = symbolic.len_val();
         let flops = factor_flops(&symbolic);
         let l_values = try_zeros(len).ok_or_else(|| {
