@@ -216,63 +216,59 @@ fn a_load_that_cannot_converge_stops_at_the_last_equilibrium() {
 }
 
 /// Meshless essential boundaries are linear constraints on the nodal parameters (the shape
-/// functions at each constrained node), imposed exactly by an augmented Lagrangian with the
-/// constraint forces distributed by the shape functions: the answer of SEBCIEM relaxation, for
-/// either bc_method (EBCIEM's boundary-integral distribution is relaxation's alone, warned of),
-/// within 0.2 % of the exact cube, with linear and quadratic bases.
+/// functions at each constrained node), imposed exactly: an augmented Lagrangian whose
+/// multipliers are spread as the bc_method spreads its boundary force (SEBCIEM by the shape
+/// functions, EBCIEM by its boundary-integral columns, updated by GMRES on Phi K^-1 V). Each
+/// reaches the steady state of its own relaxation, with linear and quadratic (MMLS) bases;
+/// EBCIEM's answer differs from SEBCIEM's (thesis: 0.07 % against 0.18 % off the exact
+/// lateral stretch with the linear basis), so the two are told apart.
 #[test]
 fn meshless_essential_boundaries_are_imposed_exactly() {
-    let st = run_case(
-        "cases/cube-compression.toml",
-        &[
-            "solver.mode=static",
-            "discretization.method=meshless",
-            "discretization.bc_method=sebciem",
-        ],
-    );
-    let rx = run_case(
-        "cases/cube-compression.toml",
-        &[
-            "discretization.method=meshless",
-            "discretization.bc_method=sebciem",
-        ],
-    );
-    let (a, b) = (
-        st.probes["corner"].displacement,
-        rx.probes["corner"].displacement,
-    );
-    let (fa, fb) = (st.reactions["top"][2], rx.reactions["top"][2]);
-    println!(
-        "meshless sebciem: static {a:?} m, {fa} N ({} evaluations); relaxation {b:?} m, {fb} N ({})",
-        st.force_evaluations, rx.force_evaluations
-    );
-    assert!(st.converged);
-    for k in 0..3 {
-        assert!((a[k] - b[k]).abs() < 1e-7, "{a:?} {b:?}");
-    }
-    assert!((fa - fb).abs() < 1e-5 * fb.abs(), "{fa} {fb}");
-    // The prescribed top is met exactly (to the tolerance) at the corner node.
-    assert!((a[2] + 0.02).abs() < 1e-7, "{a:?}");
-    for basis in ["linear", "quadratic"] {
-        let s = run_case(
+    let mut corner = Vec::new();
+    for (bc, basis) in [
+        ("sebciem", "linear"),
+        ("ebciem", "linear"),
+        ("ebciem", "quadratic"),
+    ] {
+        let set = [
+            "discretization.method=meshless".to_string(),
+            format!("discretization.bc_method={bc}"),
+            format!("discretization.basis={basis}"),
+        ];
+        let set: Vec<&str> = set.iter().map(String::as_str).collect();
+        let st = run_case(
             "cases/cube-compression.toml",
-            &[
-                "solver.mode=static",
-                "discretization.method=meshless",
-                &format!("discretization.basis={basis}"),
-            ],
+            &[&["solver.mode=static"], &set[..]].concat(),
         );
-        assert!(s.converged, "{basis}");
+        let rx = run_case("cases/cube-compression.toml", &set);
+        let (a, b) = (
+            st.probes["corner"].displacement,
+            rx.probes["corner"].displacement,
+        );
+        let (fa, fb) = (st.reactions["top"][2], rx.reactions["top"][2]);
+        let multiplier = st.statics.as_ref().map_or(0, |r| r.multiplier_iterations);
+        println!(
+            "meshless {bc} {basis}: static {a:?} m, {fa} N ({} evaluations, {multiplier} GMRES \
+             products); relaxation {b:?} m, {fb} N ({})",
+            st.force_evaluations, rx.force_evaluations
+        );
+        assert!(st.converged, "{bc} {basis}");
+        assert!(st.warnings.is_empty(), "{bc} {basis}: {:?}", st.warnings);
+        for k in 0..3 {
+            assert!((a[k] - b[k]).abs() < 1e-8, "{bc} {basis}: {a:?} {b:?}");
+        }
+        assert!((fa - fb).abs() < 1e-5 * fb.abs(), "{bc} {basis}: {fa} {fb}");
+        // The prescribed top is met at the corner node to a hundredth of the tolerance.
+        assert!((a[2] + 0.02).abs() < 1e-9, "{bc} {basis}: {a:?}");
+        assert_eq!(multiplier > 0, bc == "ebciem", "{bc} {basis}");
         assert!(
-            rel_err(&s, "top_force") < 2e-3 && rel_err(&s, "lateral") < 5e-3,
-            "{basis}"
+            rel_err(&st, "top_force") < 2e-3 && rel_err(&st, "lateral") < 5e-3,
+            "{bc} {basis}"
         );
-        assert!(
-            s.warnings.iter().any(|w| w.contains("as SEBCIEM does")),
-            "{basis}: {:?}",
-            s.warnings
-        );
+        corner.push(a[0]);
     }
+    // SEBCIEM and EBCIEM (linear basis) end 1.3e-5 m apart, 100 times the tolerance.
+    assert!((corner[0] - corner[1]).abs() > 1e-6, "{corner:?}");
 }
 
 /// A re-solve of a model keeps its pattern, numbering and symbolic factorization: the warm

@@ -445,6 +445,23 @@ impl ComponentCorrection {
             .collect()
     }
 
+    /// Column `k` of V: (node, V_jk) carrying constrained node `k`'s boundary force
+    /// (dimensionless for SEBCIEM, m^2 for EBCIEM, eq. 4.12).
+    pub fn v_column(&self, k: usize) -> Vec<(u32, f64)> {
+        let r = self.v.range(k);
+        self.v.idx[r.clone()]
+            .iter()
+            .copied()
+            .zip(self.v.val[r].iter().copied())
+            .collect()
+    }
+
+    /// Whether V is Phi^T (SEBCIEM, eq. 4.30): the constraint forces are spread by the shape
+    /// functions themselves.
+    pub fn is_lumped(&self) -> bool {
+        self.phi == self.v
+    }
+
     /// The constrained node ids, in the order of the rows of Phi and the columns of V.
     pub fn nodes(&self) -> &[usize] {
         &self.nodes

@@ -520,6 +520,7 @@ impl Corrector for MeshlessCorrector {
             for (k, &(b, _)) in c.sources.iter().enumerate() {
                 out.push(crate::solver::LinearConstraint {
                     row: c.corr.phi_row(k),
+                    spread: (!c.corr.is_lumped()).then(|| c.corr.v_column(k)),
                     axis: c.corr.component(),
                     target: c.amplitude[k] * c.curve[k].value(tau),
                     boundary: b,

@@ -448,16 +448,6 @@ pub fn prepare(scene: &Scene) -> Result<Prepared> {
     if let Some(w) = initial_velocity_warning(scene, &p) {
         p.warnings.push(Warning::new(WarningKind::Boundary, w));
     }
-    if scene.solver.mode == Mode::Static && p.bc_method() == Some(BcMethod::Ebciem) {
-        p.warnings.push(Warning::new(
-            WarningKind::Boundary,
-            "solver.mode = \"static\" imposes the meshless essential boundaries exactly at their \
-             nodes with constraint forces distributed by the shape functions, as SEBCIEM does: the \
-             answer is bc_method = \"sebciem\"'s (the exact cube: lateral stretch 0.18 % off \
-             against EBCIEM relaxation's 0.07 %); for EBCIEM's boundary-integral distribution use \
-             solver.mode = \"relaxation\"",
-        ));
-    }
     if let Some(w) = units_warning(scene, p.model.nodes()) {
         p.warnings.push(Warning::new(WarningKind::Input, w));
     }

@@ -87,6 +87,10 @@ pub trait Corrector: Send {
 pub struct LinearConstraint {
     /// (node, weight) pairs: the shape functions at a constrained point.
     pub row: Vec<(u32, f64)>,
+    /// (node, weight) pairs that carry the constraint's multiplier as nodal force: EBCIEM's
+    /// boundary-force column of V (m^2, thesis eq. 4.12); `None`: the row itself (SEBCIEM,
+    /// V = Phi^T, eq. 4.30).
+    pub spread: Option<Vec<(u32, f64)>>,
     /// The displacement component it prescribes (0 x, 1 y, 2 z).
     pub axis: usize,
     /// The prescribed value, m.
