@@ -180,9 +180,17 @@ struct SweepArgs {
     /// Write sweep.csv, sweep.md, sweep.json, error_vs_time.svg and error_vs_spacing.svg.
     #[arg(long)]
     out: Option<PathBuf>,
-    /// Also write every run's full outputs (VTU, history, summary) to DIR/runs/NNN.
+    /// Also write every run's full outputs (VTU, history) to DIR/runs/<id>, where <id> is a
+    /// hash of the run's overrides; its summary.json and row.json go there always.
     #[arg(long)]
     keep_outputs: bool,
+    /// Keep the runs DIR (--out) already holds and run only the missing and failed ones.
+    #[arg(long)]
+    resume: bool,
+    /// Run N scenes at once, each on its share of the threads (peak memory is then not
+    /// measured per run).
+    #[arg(long, default_value_t = 1, value_name = "N")]
+    jobs: usize,
     /// Print the rows as a JSON array instead of the table.
     #[arg(long)]
     json: bool,
@@ -701,6 +709,8 @@ fn sweep(
         repeat,
         out,
         keep_outputs,
+        resume,
+        jobs,
         json,
         threads,
         vtu_format,
@@ -720,6 +730,18 @@ fn sweep(
         return Err(hytled::Error::input(
             InputKind::Value,
             "--keep-outputs needs --out DIR to write the runs to",
+        ));
+    }
+    if resume && out.is_none() {
+        return Err(hytled::Error::input(
+            InputKind::Value,
+            "--resume needs --out DIR, the folder of the sweep to go on with",
+        ));
+    }
+    if jobs == 0 {
+        return Err(hytled::Error::input(
+            InputKind::Value,
+            "--jobs 0: give at least 1 run at a time",
         ));
     }
     let varies = vary
@@ -743,6 +765,8 @@ fn sweep(
         keep_outputs,
         vtu_format: vtu_format.into(),
         progress: true,
+        resume,
+        jobs,
     };
     let rows = hytled::sweep::run_sweep(&scene, &set, &varies, &opts)?;
     if json {

@@ -2,14 +2,14 @@
 
 use std::collections::BTreeMap;
 
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use crate::solver::integrate::RelaxationRecord;
 
 /// What a warning is about. Callers (the Python package, re-solves, sweeps) tell warnings
 /// apart by their kind, never by their text; summary.json lists the kinds beside the messages
 /// (`warning_kinds`, in the same order).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum WarningKind {
     /// The input: a mesh file's content and quality, its units, the model's volume against
@@ -109,6 +109,33 @@ impl Serialize for Warnings {
     }
 }
 
+impl<'de> Deserialize<'de> for Warnings {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        #[derive(Deserialize)]
+        struct Parts {
+            #[serde(default)]
+            warnings: Vec<String>,
+            #[serde(default)]
+            warning_kinds: Vec<WarningKind>,
+        }
+        let p = Parts::deserialize(d)?;
+        if p.warnings.len() != p.warning_kinds.len() {
+            return Err(serde::de::Error::custom(format!(
+                "{} warnings but {} warning_kinds",
+                p.warnings.len(),
+                p.warning_kinds.len()
+            )));
+        }
+        Ok(Warnings(
+            p.warnings
+                .into_iter()
+                .zip(p.warning_kinds)
+                .map(|(m, k)| Warning::new(k, m))
+                .collect(),
+        ))
+    }
+}
+
 impl std::ops::Deref for Warnings {
     type Target = Vec<Warning>;
     fn deref(&self) -> &Vec<Warning> {
@@ -131,7 +158,7 @@ impl std::ops::DerefMut for Warnings {
 }
 
 /// Wall-clock times, s.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct WallSeconds {
     pub preprocess: f64,
     pub solve: f64,
@@ -139,14 +166,14 @@ pub struct WallSeconds {
 }
 
 /// A probe's result, m.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct ProbeResult {
     pub position: [f64; 3],
     pub displacement: [f64; 3],
 }
 
 /// Energies at the end of the run, J.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct Energy {
     pub external_work: f64,
     pub strain_energy: f64,
@@ -155,7 +182,7 @@ pub struct Energy {
     pub peak_external_work: f64,
     /// Work done against the mass-proportional damping (`solver.damping`) in a dynamic run, J;
     /// absent without damping.
-    #[serde(skip_serializing_if = "Option::is_none")]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub damping_dissipation: Option<f64>,
     /// |W_ext + K_0 - (U + K + D)| / max(|W_ext + K_0|, peak |W_ext| + K_0), with K_0 the
     /// initial kinetic energy and D the damping's dissipation: the peak scales it when a load
@@ -164,24 +191,24 @@ pub struct Energy {
 }
 
 /// A computed value against a reference.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct Comparison {
     pub quantity: String,
     pub value: f64,
     pub computed: f64,
     pub relative_error: f64,
     /// The load fraction compared at (a relaxation load stage; absent: the end).
-    #[serde(skip_serializing_if = "Option::is_none")]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub at: Option<f64>,
     /// Relative distance from the computed value to the reference's band (0 inside it).
-    #[serde(skip_serializing_if = "Option::is_none")]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub band_error: Option<f64>,
-    #[serde(skip_serializing_if = "Option::is_none")]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub source: Option<String>,
 }
 
 /// Reactions and probes at one relaxation load stage (`references.NAME.at`).
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct StageResult {
     /// Load fraction held.
     pub load: f64,
@@ -192,13 +219,13 @@ pub struct StageResult {
 }
 
 /// Mesh facts that bear on accuracy and the stable step.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct MeshInfo {
     pub elements: usize,
     /// Smallest dihedral angle of a tet mesh, degrees, and the element that has it.
-    #[serde(skip_serializing_if = "Option::is_none")]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub min_dihedral_deg: Option<f64>,
-    #[serde(skip_serializing_if = "Option::is_none")]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub min_dihedral_element: Option<usize>,
     /// What sets the critical step: the per-point bound at a point or the nodal bound at a node.
     pub critical: crate::solver::integrate::Critical,
@@ -206,15 +233,15 @@ pub struct MeshInfo {
     pub volume: f64,
     /// The volume the geometry gives, m^3: a labelled image's chosen voxels, or what a surface
     /// file encloses (a difference over 2 % from `volume` is warned of).
-    #[serde(skip_serializing_if = "Option::is_none")]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub geometry_volume: Option<f64>,
     /// What gives `geometry_volume`.
-    #[serde(skip_serializing_if = "Option::is_none")]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub geometry_volume_of: Option<String>,
 }
 
 /// Support sizes of the meshless integration points: nodes per point.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct SupportNodes {
     pub mean: f64,
     pub min: usize,
@@ -222,7 +249,7 @@ pub struct SupportNodes {
 }
 
 /// A rigid contact body at the end of a run.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct ContactInfo {
     /// Surface points it pressed at the last step.
     pub points_in_contact: usize,
@@ -233,7 +260,7 @@ pub struct ContactInfo {
 }
 
 /// How the meshless discretization was made.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct MeshlessInfo {
     pub cloud: String,
     pub integration: String,
@@ -243,12 +270,12 @@ pub struct MeshlessInfo {
     /// null for a mesh file, which has no shape to compare with.
     pub exact_volume: Option<f64>,
     /// What adaptive integration did (`integration = "adaptive"` only).
-    #[serde(skip_serializing_if = "Option::is_none")]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub adaptive: Option<AdaptiveInfo>,
 }
 
 /// What adaptive integration (thesis chapter 5) did to the background tets' points.
-#[derive(Debug, Clone, Serialize, PartialEq)]
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
 pub struct AdaptiveInfo {
     /// Relative tolerance on the less-smooth integrand per cell.
     pub tolerance: f64,
@@ -281,7 +308,7 @@ impl AdaptiveInfo {
 }
 
 /// How the coupled FE + meshless discretization was made.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct CoupledInfo {
     pub fe_layers: usize,
     /// Cells: pure FE (TLED kernels), transition (blended), meshless interior.
@@ -298,12 +325,12 @@ pub struct CoupledInfo {
     pub meshless_points: usize,
     /// Transition cells on the full rule near a load concentrated on a few driven nodes,
     /// where `transition_rule = "interior"` would give them one point.
-    #[serde(skip_serializing_if = "is_zero")]
+    #[serde(default, skip_serializing_if = "is_zero")]
     pub full_rule_cells: usize,
     pub basis: String,
     pub support_rule: String,
     /// What adaptive integration of the interior tets did (`integration = "adaptive"` only).
-    #[serde(skip_serializing_if = "Option::is_none")]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub adaptive: Option<AdaptiveInfo>,
 }
 
@@ -337,10 +364,10 @@ pub fn reaction_columns(first: Option<&Summary>, boundaries: &[String]) -> Vec<(
 }
 
 /// Everything a run reports. Units: SI (m, kg, s, N, Pa, J).
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct Summary {
     pub scene: String,
-    pub units: &'static str,
+    pub units: String,
     pub method: String,
     pub element: String,
     pub mode: String,
@@ -356,29 +383,29 @@ pub struct Summary {
     pub force_evaluations: usize,
     /// Static solve: load steps, Newton and linear iterations, factorizations, factor memory
     /// and the residual history (None in the other modes).
-    #[serde(rename = "static", skip_serializing_if = "Option::is_none")]
+    #[serde(rename = "static", default, skip_serializing_if = "Option::is_none")]
     pub statics: Option<crate::solver::statics::StaticReport>,
     /// Relaxation: steps of the attempts abandoned after an instability (`solver.retries`;
     /// their time is in `wall_seconds.solve`).
-    #[serde(skip_serializing_if = "is_zero")]
+    #[serde(default, skip_serializing_if = "is_zero")]
     pub failed_steps: usize,
     /// Relaxation: restarts after an instability (`solver.retries`).
-    #[serde(skip_serializing_if = "is_zero")]
+    #[serde(default, skip_serializing_if = "is_zero")]
     pub restarts: usize,
     /// Estimates of the critical step at the deformed state (`solver.step_update`; relaxation
     /// only after a restart); `dt` above is the step the run started with.
-    #[serde(skip_serializing_if = "Option::is_none")]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub step_updates: Option<crate::solver::integrate::StepUpdates>,
     /// Relaxation: pseudo-steps over which the load was applied.
-    #[serde(skip_serializing_if = "Option::is_none")]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub load_steps: Option<usize>,
     /// Dynamic runs: linear and angular momentum at the start and the end.
-    #[serde(skip_serializing_if = "Option::is_none")]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub momentum: Option<crate::solver::integrate::Momentum>,
     pub simulated_time: f64,
     /// `"completed"` (dynamic run to its end), `"converged"` (relaxation) or `"not converged"`
     /// (relaxation stopped by `solver.max_steps`; `hytled run` exits with code 4).
-    pub status: &'static str,
+    pub status: String,
     pub converged: bool,
     /// Relaxation: the largest out-of-balance force |F_int - F_ext| at a free DOF at the end,
     /// relative to the largest nodal force component |F_int| at the end or at any recorded row (nodes a corrector or contact
@@ -386,7 +413,7 @@ pub struct Summary {
     /// committed cases end at 2e-8 to 1.2e-5 (brain-shift, the largest); the cube stopped
     /// after 100 / 400 of its 747 steps, at 0.12 / 1.6e-3. Absent for dynamic runs, whose
     /// residual is the inertia.
-    #[serde(skip_serializing_if = "Option::is_none")]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub equilibrium_residual: Option<f64>,
     pub threads: usize,
     /// Where the time loop ran: "cpu", or the GPU's name.
@@ -395,34 +422,34 @@ pub struct Summary {
     pub reactions: BTreeMap<String, [f64; 3]>,
     /// Rigid contact bodies: points in contact at the end and the deepest penetration any
     /// step left (their forces are among `reactions`).
-    #[serde(skip_serializing_if = "BTreeMap::is_empty")]
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
     pub contact: BTreeMap<String, ContactInfo>,
     /// Total force of each load at the end of the run, N (`[loads.NAME]`).
-    #[serde(skip_serializing_if = "BTreeMap::is_empty")]
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
     pub loads: BTreeMap<String, [f64; 3]>,
     pub probes: BTreeMap<String, ProbeResult>,
     /// Relaxation load stages (the `at` of the references) before the full load.
-    #[serde(skip_serializing_if = "Vec::is_empty")]
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub stages: Vec<StageResult>,
     pub energy: Energy,
     pub reference: BTreeMap<String, Comparison>,
     pub mesh: MeshInfo,
     /// Meshless runs: nodes per support (mean/min/max).
-    #[serde(skip_serializing_if = "Option::is_none")]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub support_nodes: Option<SupportNodes>,
     /// Meshless runs: nodes removed because fewer than two integration points reach them.
-    #[serde(skip_serializing_if = "Option::is_none")]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub removed_nodes: Option<usize>,
     /// Meshless runs: ebciem, sebciem or correction.
-    #[serde(skip_serializing_if = "Option::is_none")]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub bc_method: Option<String>,
-    #[serde(skip_serializing_if = "Option::is_none")]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub meshless: Option<MeshlessInfo>,
-    #[serde(skip_serializing_if = "Option::is_none")]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub coupled: Option<CoupledInfo>,
     #[serde(flatten)]
     pub warnings: Warnings,
-    #[serde(skip_serializing_if = "Vec::is_empty")]
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub relaxation: Vec<RelaxationRecord>,
 }
 

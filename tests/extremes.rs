@@ -626,7 +626,9 @@ fn relaxation_reports_how_far_from_equilibrium_it_stopped() {
     assert_eq!(hytled::report::row_status(None, Some(&done)), "ok");
     let row = |s: &hytled::report::Summary| hytled::sweep::SweepRow {
         run: 1,
+        id: String::new(),
         values: Default::default(),
+        overrides: Vec::new(),
         summary: Some(s.clone()),
         error: None,
         peak_memory_mib: None,

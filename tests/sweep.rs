@@ -320,3 +320,89 @@ fn a_sweep_over_the_mode_shows_relaxation_and_static_side_by_side() {
         .collect();
     assert_eq!(cells, [evals[0].to_string(), evals[1].to_string()]);
 }
+
+/// Each run leaves `runs/<id>/row.json` and `summary.json` (id: the SHA-256 of its
+/// overrides); `resume` reruns only the runs whose folder is missing or whose row failed, and
+/// keeps the others' rows as they were; `jobs = 2` gives the serial sweep's numbers bitwise.
+#[test]
+fn a_resumed_or_parallel_sweep_gives_the_serial_rows() {
+    let dir = std::env::temp_dir().join(format!("hytled-sweep-resume-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let varies = [
+        vary("discretization.element=hex8,tet4"),
+        vary("discretization.size=0.05,0.025"),
+    ];
+    let opts = SweepOptions {
+        out: Some(dir.clone()),
+        ..Default::default()
+    };
+    let serial = sweep::run_sweep(Path::new(CUBE), &[], &varies, &opts).unwrap();
+    assert_eq!(serial.len(), 4);
+    let reaction = |r: &sweep::SweepRow| r.summary.as_ref().unwrap().reactions["top"];
+    for r in &serial {
+        assert_eq!(r.id, sweep::runs::run_id(&r.overrides));
+        let d = sweep::runs::run_dir(&dir, &r.id);
+        assert!(d.join("row.json").is_file() && d.join("summary.json").is_file());
+    }
+    // Run 2's folder is lost, run 3 failed: only those two run again.
+    let gone = sweep::runs::run_dir(&dir, &serial[1].id);
+    std::fs::remove_dir_all(&gone).unwrap();
+    let failed = sweep::runs::run_dir(&dir, &serial[2].id).join("row.json");
+    let mut row: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&failed).unwrap()).unwrap();
+    row["error"] = "killed".into();
+    row.as_object_mut().unwrap().remove("summary");
+    std::fs::write(&failed, row.to_string()).unwrap();
+    let kept = |k: usize| {
+        std::fs::read_to_string(sweep::runs::run_dir(&dir, &serial[k].id).join("row.json")).unwrap()
+    };
+    let (first, last) = (kept(0), kept(3));
+    let resumed = sweep::run_sweep(
+        Path::new(CUBE),
+        &[],
+        &varies,
+        &SweepOptions {
+            resume: true,
+            ..opts.clone()
+        },
+    )
+    .unwrap();
+    assert_eq!(resumed.len(), 4);
+    assert_eq!(
+        (kept(0), kept(3)),
+        (first, last),
+        "finished runs were run again"
+    );
+    for (a, b) in serial.iter().zip(&resumed) {
+        assert_eq!((a.run, &a.id), (b.run, &b.id));
+        assert!(b.error.is_none(), "{:?}", b.error);
+        assert_eq!(reaction(a), reaction(b));
+    }
+    let table = std::fs::read_to_string(dir.join("sweep.csv")).unwrap();
+    assert_eq!(table.lines().count(), 5, "{table}");
+    assert!(!table.contains("killed"), "{table}");
+
+    let par_dir = dir.join("parallel");
+    let parallel = sweep::run_sweep(
+        Path::new(CUBE),
+        &[],
+        &varies,
+        &SweepOptions {
+            out: Some(par_dir.clone()),
+            jobs: 2,
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    assert_eq!(parallel.len(), 4);
+    for (a, b) in serial.iter().zip(&parallel) {
+        assert_eq!((a.run, &a.id), (b.run, &b.id));
+        assert_eq!(reaction(a), reaction(b));
+        assert_eq!(
+            a.summary.as_ref().unwrap().probes["corner"].displacement,
+            b.summary.as_ref().unwrap().probes["corner"].displacement
+        );
+        assert!(b.peak_memory_mib.is_none());
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -259,7 +259,7 @@ pub fn summarize(scene: &Scene, prep: &Prepared, out: &RunOutput, total_seconds:
     let w = out.external_work;
     Summary {
         scene: scene.name.clone().unwrap_or_default(),
-        units: "SI: m, kg, s, N, Pa, J",
+        units: "SI: m, kg, s, N, Pa, J".into(),
         method: method_name(prep).into(),
         element: element_label(scene, prep),
         mode: match scene.solver.mode {
@@ -288,7 +288,8 @@ pub fn summarize(scene: &Scene, prep: &Prepared, out: &RunOutput, total_seconds:
             (false, _) => "completed",
             (true, true) => "converged",
             (true, false) => "not converged",
-        },
+        }
+        .into(),
         converged,
         equilibrium_residual,
         threads: rayon::current_num_threads(),

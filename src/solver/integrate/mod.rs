@@ -182,7 +182,7 @@ impl Default for Settings {
 }
 
 /// One row of the time history.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct HistoryRow {
     pub step: usize,
     /// Simulated (dynamic) or pseudo (relaxation) time, s.
@@ -209,7 +209,7 @@ pub struct Stage {
 }
 
 /// One record of the dynamic-relaxation parameters.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct RelaxationRecord {
     pub step: usize,
     /// Estimated lowest circular frequency, rad/s.
@@ -343,7 +343,7 @@ impl Momentum {
 }
 
 /// The bound that sets the critical step (see [`super::timestep`]).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Critical {
     /// The per-point bound, at this quadrature point.

@@ -94,7 +94,7 @@ const SUBSTEP_TOLERANCE: f64 = 1e-3;
 const CHEAP_CONTRACTION: f64 = 0.5;
 
 /// One Newton iteration of the residual history.
-#[derive(Debug, Clone, Copy, Serialize)]
+#[derive(Debug, Clone, Copy, Serialize, Deserialize)]
 pub struct ResidualRow {
     /// Load fraction of the step.
     pub load: f64,
@@ -107,7 +107,7 @@ pub struct ResidualRow {
 }
 
 /// What a static solve did ([`RunOutput::statics`]; summary.json `static`).
-#[derive(Debug, Clone, Default, Serialize)]
+#[derive(Debug, Clone, Default, Serialize, Deserialize)]
 pub struct StaticReport {
     pub variant: String,
     /// Load steps converged, and cuts (halvings) of steps that did not.

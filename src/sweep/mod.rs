@@ -2,15 +2,18 @@
 //! run cost against how close it came to the scene's references (the speed/accuracy trade).
 //!
 //! Any `--set` path can be varied. A run that fails (invalid value, unstable step, inverted
-//! element, singular support) is a row with its error message; the sweep goes on.
+//! element, singular support) is a row with its error message; the sweep goes on. Each run
+//! is a unit of work with a stable id ([`runs`]): on disk before the next starts, resumable,
+//! run N at a time (`--jobs`).
+
+pub mod runs;
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
-use crate::comparison::run_case;
 use crate::io::plot::{log_log_plot, Series};
 use crate::io::vtu::VtuFormat;
 use crate::report::Summary;
@@ -150,11 +153,17 @@ pub struct SweepOptions {
     /// Run each combination this many times and keep the fastest (results are deterministic;
     /// only the wall times differ).
     pub repeat: usize,
-    /// Also write each run's full outputs (VTU, CSV, summary) to DIR/runs/NNN.
+    /// Also write each run's full outputs (VTU, CSV) to DIR/runs/<id> (its summary and row
+    /// are written there always).
     pub keep_outputs: bool,
     pub vtu_format: VtuFormat,
     /// A progress bar over runs (stderr).
     pub progress: bool,
+    /// Keep the rows `out` already holds for runs that finished ([`runs::finished`]) and run
+    /// only the missing and failed ones.
+    pub resume: bool,
+    /// Runs at once, each on its share of the threads (at least 1).
+    pub jobs: usize,
 }
 
 impl Default for SweepOptions {
@@ -166,21 +175,30 @@ impl Default for SweepOptions {
             keep_outputs: false,
             vtu_format: VtuFormat::default(),
             progress: false,
+            resume: false,
+            jobs: 1,
         }
     }
 }
 
 /// One run of the sweep: the varied values and the run's summary, or the error that stopped it.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct SweepRow {
     /// 1-based run number (the order of `combinations`).
     pub run: usize,
+    /// The run's stable id ([`runs::run_id`]): its folder is `runs/<id>`.
+    #[serde(default)]
+    pub id: String,
     pub values: BTreeMap<String, String>,
+    /// Every override of the run (the sweep's fixed ones, then the varied ones).
+    #[serde(default)]
+    pub overrides: Vec<String>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub summary: Option<Summary>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub error: Option<String>,
-    /// Peak resident memory of the run, MiB (Linux).
+    /// Peak resident memory of the run, MiB (Linux; `None` where runs share a process,
+    /// `--jobs` above 1).
     pub peak_memory_mib: Option<f64>,
     /// Runs of this combination; the summary's wall times are the fastest one's.
     pub repeats: usize,
@@ -276,71 +294,43 @@ pub fn run_sweep(
             ));
         }
     }
-    let combos = combinations(varies);
-    let bar = progress_bar(combos.len(), opts.progress);
-    let mut rows = Vec::with_capacity(combos.len());
-    for (k, combo) in combos.iter().enumerate() {
-        let label = combo
+    let planned = runs::plan(overrides, varies, &opts.presets);
+    let total = planned.len();
+    let mut rows: Vec<SweepRow> = Vec::with_capacity(total);
+    let mut todo: Vec<runs::Planned> = Vec::new();
+    for p in planned {
+        match opts.out.as_deref().filter(|_| opts.resume) {
+            Some(out) => match runs::finished(out, &p) {
+                Some(row) => rows.push(row),
+                None => todo.push(p),
+            },
+            None => todo.push(p),
+        }
+    }
+    if opts.resume && opts.progress {
+        eprintln!(
+            "sweep: resuming: {} of {total} runs finished before, {} to run",
+            rows.len(),
+            todo.len()
+        );
+    }
+    let bar = progress_bar(total, opts.progress);
+    bar.inc(rows.len() as u64);
+    let record = |row: SweepRow, seconds: f64, rows: &mut Vec<SweepRow>| -> Result<()> {
+        let label = row
+            .values
             .iter()
             .map(|(key, v)| format!("{key}={v}"))
             .collect::<Vec<_>>()
             .join(" ");
-        bar.set_message(label.clone());
-        let t0 = Instant::now();
-        let mut o = overrides.to_vec();
-        o.extend(assignments(combo, &opts.presets));
-        let out_dir = opts
-            .out
-            .as_ref()
-            .filter(|_| opts.keep_outputs)
-            .map(|d| d.join("runs").join(format!("{:03}", k + 1)));
-        let mut best: Option<Summary> = None;
-        let mut error = None;
-        let mut peak = None;
-        for r in 0..opts.repeat.max(1) {
-            let dir = out_dir.as_deref().filter(|_| r == 0);
-            // The sweep's own bar shows where it is.
-            let (result, p) = run_case(scene_path, &o, dir, opts.vtu_format, None);
-            peak = match (peak, p) {
-                (Some(a), Some(b)) => Some(f64::max(a, b)),
-                (a, b) => a.or(b),
-            };
-            match result {
-                Ok(run) => {
-                    let faster = best
-                        .as_ref()
-                        .is_none_or(|b| run.summary.wall_seconds.total < b.wall_seconds.total);
-                    if faster {
-                        best = Some(run.summary);
-                    }
-                }
-                // Ctrl-C stops the sweep, not only its current run.
-                Err(e @ Error::Interrupted { .. }) => return Err(e),
-                Err(e) => {
-                    error = Some(e.to_string());
-                    break;
-                }
-            }
-        }
-        let row = SweepRow {
-            run: k + 1,
-            values: combo.iter().cloned().collect(),
-            summary: if error.is_none() { best } else { None },
-            error,
-            peak_memory_mib: peak,
-            repeats: opts.repeat.max(1),
-            pareto: false,
-        };
         let line = format!(
-            "run {}/{} {label}: {} in {:.1} s",
-            k + 1,
-            combos.len(),
+            "run {}/{total} {label}: {} in {seconds:.1} s",
+            row.run,
             match (&row.error, row.error_vs_reference()) {
                 (Some(e), _) => format!("FAILED ({e})"),
                 (None, Some(x)) => format!("error {} %", percent(x)),
                 (None, None) => "done".into(),
             },
-            t0.elapsed().as_secs_f64()
         );
         if opts.progress {
             if bar.is_hidden() {
@@ -351,23 +341,107 @@ pub fn run_sweep(
         }
         bar.inc(1);
         rows.push(row);
-        // Rewritten after every run, so a sweep that is stopped keeps the runs it finished.
+        rows.sort_by_key(|r| r.run);
+        // Rewritten (atomically) after every run, so a sweep that is stopped keeps a
+        // truthful table of the runs it finished.
         if let Some(dir) = &opts.out {
             let mut so_far = rows.clone();
             mark_pareto(&mut so_far);
-            write_outputs(
-                dir,
-                scene_path,
-                varies,
-                &opts.presets,
-                &so_far,
-                combos.len(),
-            )?;
+            write_outputs(dir, scene_path, varies, &opts.presets, &so_far, total)?;
         }
+        Ok(())
+    };
+    if let (Some(dir), false) = (&opts.out, rows.is_empty()) {
+        let mut so_far = rows.clone();
+        mark_pareto(&mut so_far);
+        write_outputs(dir, scene_path, varies, &opts.presets, &so_far, total)?;
+    }
+    let jobs = opts.jobs.clamp(1, todo.len().max(1));
+    if jobs == 1 {
+        for p in &todo {
+            bar.set_message(
+                p.values
+                    .iter()
+                    .map(|(k, v)| format!("{k}={v}"))
+                    .collect::<Vec<_>>()
+                    .join(" "),
+            );
+            let t0 = Instant::now();
+            let row = runs::execute(scene_path, p, opts, true)?;
+            record(row, t0.elapsed().as_secs_f64(), &mut rows)?;
+        }
+    } else {
+        parallel(scene_path, todo, opts, jobs, |row, t| {
+            record(row, t, &mut rows)
+        })?;
     }
     bar.finish_and_clear();
     mark_pareto(&mut rows);
     Ok(rows)
+}
+
+/// Runs `todo` `jobs` at a time, each job on its own pool of its share of the threads; the
+/// rows are handed to `done` (on this thread) as they finish. The first interrupt or write
+/// failure stops the handing out of runs; the runs under way finish.
+fn parallel(
+    scene_path: &Path,
+    todo: Vec<runs::Planned>,
+    opts: &SweepOptions,
+    jobs: usize,
+    mut done: impl FnMut(SweepRow, f64) -> Result<()>,
+) -> Result<()> {
+    use std::sync::atomic::{AtomicBool, Ordering};
+    use std::sync::{mpsc, Mutex};
+    let threads = (rayon::current_num_threads() / jobs).max(1);
+    let queue = Mutex::new(std::collections::VecDeque::from(todo));
+    let stop = AtomicBool::new(false);
+    let (tx, rx) = mpsc::channel::<(Result<SweepRow>, f64)>();
+    let mut first_err = None;
+    std::thread::scope(|scope| {
+        for _ in 0..jobs {
+            let tx = tx.clone();
+            let (queue, stop) = (&queue, &stop);
+            scope.spawn(move || {
+                let pool = match rayon::ThreadPoolBuilder::new().num_threads(threads).build() {
+                    Ok(p) => p,
+                    Err(e) => {
+                        let _ = tx.send((
+                            Err(Error::input(
+                                InputKind::Value,
+                                format!("sweep --jobs: cannot start a thread pool: {e}"),
+                            )),
+                            0.0,
+                        ));
+                        return;
+                    }
+                };
+                loop {
+                    if stop.load(Ordering::Relaxed) {
+                        return;
+                    }
+                    let next = queue.lock().ok().and_then(|mut q| q.pop_front());
+                    let Some(p) = next else { return };
+                    let t0 = Instant::now();
+                    let row = pool.install(|| runs::execute(scene_path, &p, opts, false));
+                    if tx.send((row, t0.elapsed().as_secs_f64())).is_err() {
+                        return;
+                    }
+                }
+            });
+        }
+        drop(tx);
+        for (row, seconds) in rx {
+            let r = row.and_then(|row| done(row, seconds));
+            if let Err(e) = r {
+                stop.store(true, Ordering::Relaxed);
+                first_err.get_or_insert(e);
+            }
+        }
+    });
+    match first_err {
+        Some(e) => Err(e),
+        None => Ok(()),
+    }
 }
 
 fn progress_bar(n: usize, show: bool) -> indicatif::ProgressBar {
@@ -856,8 +930,7 @@ pub fn write_outputs(
     for r in &body {
         csv += &(r.iter().map(|c| quote(c)).collect::<Vec<_>>().join(",") + "\n");
     }
-    let p = dir.join("sweep.csv");
-    std::fs::write(&p, csv).map_err(|e| Error::io(&p, e))?;
+    runs::write_atomic(&dir.join("sweep.csv"), &csv)?;
     let vary_args: Vec<String> = varies
         .iter()
         .filter(|v| v.key != PRESET)
@@ -883,12 +956,10 @@ pub fn write_outputs(
         vary_args.join(" "),
         table(varies, rows)
     );
-    let p = dir.join("sweep.md");
-    std::fs::write(&p, md).map_err(|e| Error::io(&p, e))?;
-    let p = dir.join("sweep.json");
+    runs::write_atomic(&dir.join("sweep.md"), &md)?;
     let json = serde_json::to_string_pretty(rows)
         .map_err(|e| Error::input(InputKind::Value, format!("cannot serialise the sweep: {e}")))?;
-    std::fs::write(&p, json).map_err(|e| Error::io(&p, e))?;
+    runs::write_atomic(&dir.join("sweep.json"), &json)?;
 
     let curves = curves(rows);
     if curves.is_empty() {
@@ -959,7 +1030,9 @@ mod tests {
         let varies = vec![parse_vary("solver.dt_factor=0.5,0.9").unwrap()];
         let row = SweepRow {
             run: 1,
+            id: "0".into(),
             values: [("solver.dt_factor".to_string(), "0.5".to_string())].into(),
+            overrides: vec!["solver.dt_factor=0.5".into()],
             summary: None,
             error: Some("unstable".into()),
             peak_memory_mib: None,
