@@ -406,3 +406,47 @@ fn a_resumed_or_parallel_sweep_gives_the_serial_rows() {
     }
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// `hytled sweep --jobs 2` then `--resume` on the same folder: the second runs nothing and
+/// says so; `--resume` without `--out` and `--jobs 0` are input errors (exit 2).
+#[test]
+fn the_cli_sweep_resumes_and_refuses_what_it_cannot_do() {
+    use std::process::Command;
+    let dir = std::env::temp_dir().join(format!("hytled-sweep-cli-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let sweep = |extra: &[&str]| {
+        Command::new(env!("CARGO_BIN_EXE_hytled"))
+            .args(["sweep", CUBE, "--vary", "discretization.size=0.05,0.025"])
+            .args(extra)
+            .output()
+            .unwrap()
+    };
+    let d = dir.to_str().unwrap();
+    let first = sweep(&["--out", d, "--jobs", "2"]);
+    assert!(
+        first.status.success(),
+        "{}",
+        String::from_utf8_lossy(&first.stderr)
+    );
+    assert_eq!(std::fs::read_dir(dir.join("runs")).unwrap().count(), 2);
+    let again = sweep(&["--out", d, "--resume"]);
+    let stderr = String::from_utf8_lossy(&again.stderr);
+    assert!(again.status.success(), "{stderr}");
+    assert!(
+        stderr.contains("resuming: 2 of 2 runs finished before, 0 to run"),
+        "{stderr}"
+    );
+    for (args, says) in [
+        (&["--resume"][..], "--resume needs --out"),
+        (&["--jobs", "0"][..], "--jobs 0"),
+    ] {
+        let out = sweep(args);
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{stderr}");
+        assert!(
+            stderr.contains(says) && !stderr.contains("panicked"),
+            "{stderr}"
+        );
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -40,9 +40,13 @@ from ._hytled import (
     UnsupportedError,
 )
 
+from ._sweep import Sweep, sweep  # noqa: E402  (after the compiled part it wraps)
+
 __version__ = _hytled.__version__
 __all__ = [
     "read_image",
+    "sweep",
+    "Sweep",
     "Scene",
     "Model",
     "Result",

@@ -554,12 +554,111 @@ fn read_image<'py>(
     Ok((values.into_pyarray(py), affine.into_pyarray(py)))
 }
 
+/// The dimensions and runs of a sweep as JSON (`{"dimensions": [...], "runs": [...]}`), the
+/// CLI's `hytled sweep` product: `vary` as `KEY.PATH=V1,V2,...`, `presets` as
+/// `NAME=KEY.PATH=V;...`, `set` the fixed overrides.
+#[pyfunction]
+fn sweep_plan(
+    scene: PathBuf,
+    vary: Vec<String>,
+    presets: Vec<String>,
+    set: Vec<String>,
+) -> PyResult<String> {
+    let varies = vary
+        .iter()
+        .map(|v| hytled::sweep::parse_vary(v))
+        .collect::<hytled::Result<Vec<_>>>()
+        .map_err(to_py)?;
+    let presets = parse_presets(&presets)?;
+    let (dims, runs) = hytled::sweep::prepare(&scene, &set, &varies, &presets).map_err(to_py)?;
+    serde_json::to_string(&serde_json::json!({ "dimensions": dims, "runs": runs }))
+        .map_err(|e| HytledError::new_err(e.to_string()))
+}
+
+fn parse_presets(presets: &[String]) -> PyResult<std::collections::BTreeMap<String, Vec<String>>> {
+    let mut out = std::collections::BTreeMap::new();
+    for p in presets {
+        let (name, sets) = hytled::sweep::parse_preset(p).map_err(to_py)?;
+        if out.insert(name.clone(), sets).is_some() {
+            return Err(to_py(hytled::Error::input(
+                hytled::InputKind::Value,
+                format!("preset {name} is given twice"),
+            )));
+        }
+    }
+    Ok(out)
+}
+
+/// Runs one planned run (JSON of `sweep_plan`'s `runs`) on `threads` threads, writing its
+/// row and summary under `out/runs/<id>` when `out` is given; the row as JSON. A failed run
+/// is a row with its error; the GIL is released meanwhile.
+#[pyfunction]
+#[pyo3(signature = (scene, planned, out=None, keep_outputs=false, repeat=1, threads=None))]
+fn sweep_run(
+    py: Python<'_>,
+    scene: PathBuf,
+    planned: &str,
+    out: Option<PathBuf>,
+    keep_outputs: bool,
+    repeat: usize,
+    threads: Option<usize>,
+) -> PyResult<String> {
+    let p: hytled::sweep::runs::Planned =
+        serde_json::from_str(planned).map_err(|e| HytledError::new_err(e.to_string()))?;
+    let opts = hytled::sweep::SweepOptions {
+        out,
+        keep_outputs,
+        repeat,
+        ..Default::default()
+    };
+    let row = py
+        .detach(|| hytled::sweep::runs::execute_on(&scene, &p, &opts, threads, true))
+        .map_err(to_py)?;
+    serde_json_string(&row)
+}
+
+/// The rows a sweep in `out` finished before (JSON list), for `planned` (JSON list of runs):
+/// those a resumed sweep keeps.
+#[pyfunction]
+fn sweep_finished(out: PathBuf, planned: &str) -> PyResult<String> {
+    let runs: Vec<hytled::sweep::runs::Planned> =
+        serde_json::from_str(planned).map_err(|e| HytledError::new_err(e.to_string()))?;
+    let rows: Vec<hytled::sweep::SweepRow> = runs
+        .iter()
+        .filter_map(|p| hytled::sweep::runs::finished(&out, p))
+        .collect();
+    serde_json_string(&rows)
+}
+
+/// Rewrites the sweep's table (sweep.csv, sweep.md, sweep.json, the plots) in `out`,
+/// atomically, from the rows so far (JSON list) of `planned` runs.
+#[pyfunction]
+fn sweep_table(
+    out: PathBuf,
+    scene: PathBuf,
+    dimensions: &str,
+    presets: Vec<String>,
+    rows: &str,
+    planned: usize,
+) -> PyResult<()> {
+    let dims: Vec<hytled::sweep::Vary> =
+        serde_json::from_str(dimensions).map_err(|e| HytledError::new_err(e.to_string()))?;
+    let rows: Vec<hytled::sweep::SweepRow> =
+        serde_json::from_str(rows).map_err(|e| HytledError::new_err(e.to_string()))?;
+    let presets = parse_presets(&presets)?;
+    hytled::sweep::write_table(&out, &scene, &dims, &presets, &rows, planned).map_err(to_py)
+}
+
 #[pymodule]
 fn _hytled(m: &Bound<'_, PyModule>) -> PyResult<()> {
     let py = m.py();
     m.add_class::<Scene>()?;
     m.add_class::<Model>()?;
     m.add_function(wrap_pyfunction!(read_image, m)?)?;
+    m.add_function(wrap_pyfunction!(sweep_plan, m)?)?;
+    m.add_function(wrap_pyfunction!(sweep_run, m)?)?;
+    m.add_function(wrap_pyfunction!(sweep_finished, m)?)?;
+    m.add_function(wrap_pyfunction!(sweep_table, m)?)?;
     m.add("HytledError", py.get_type::<HytledError>())?;
     m.add("SceneError", py.get_type::<SceneError>())?;
     m.add("InputError", py.get_type::<InputError>())?;

@@ -20,7 +20,7 @@ use crate::report::Summary;
 use crate::{Error, InputKind, Result};
 
 /// One varied scene key and its values (the text of `--set KEY=VALUE` values).
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Vary {
     pub key: String,
     pub values: Vec<String>,
@@ -254,15 +254,16 @@ impl SweepRow {
     }
 }
 
-/// Runs every combination of `varies` on `scene_path` (after `overrides`). Fails early only
-/// when a varied key is unusable with every one of its values (e.g. a misspelt key).
-pub fn run_sweep(
+/// The sweep's dimensions (presets first) and its runs, after checking that every varied
+/// key gives a valid scene with at least one of its values (a misspelt key fails here, not
+/// as a table of failed rows).
+pub fn prepare(
     scene_path: &Path,
     overrides: &[String],
     varies: &[Vary],
-    opts: &SweepOptions,
-) -> Result<Vec<SweepRow>> {
-    let all = dimensions(varies, &opts.presets);
+    presets: &BTreeMap<String, Vec<String>>,
+) -> Result<(Vec<Vary>, Vec<runs::Planned>)> {
+    let all = dimensions(varies, presets);
     let varies = &all[..];
     if varies.is_empty() {
         return Err(Error::input(
@@ -274,7 +275,7 @@ pub fn run_sweep(
         let mut first_err = None;
         let ok = v.values.iter().any(|x| {
             let mut o = overrides.to_vec();
-            o.extend(assignments(&[(v.key.clone(), x.clone())], &opts.presets));
+            o.extend(assignments(&[(v.key.clone(), x.clone())], presets));
             match crate::scene::load(scene_path, &o) {
                 Ok(_) => true,
                 Err(e) => {
@@ -294,7 +295,36 @@ pub fn run_sweep(
             ));
         }
     }
-    let planned = runs::plan(overrides, varies, &opts.presets);
+    let planned = runs::plan(overrides, varies, presets);
+    Ok((all, planned))
+}
+
+/// Writes the table of `rows` (sorted by run, the Pareto front marked) to `dir`
+/// ([`write_outputs`]).
+pub fn write_table(
+    dir: &Path,
+    scene_path: &Path,
+    varies: &[Vary],
+    presets: &BTreeMap<String, Vec<String>>,
+    rows: &[SweepRow],
+    planned: usize,
+) -> Result<()> {
+    let mut rows = rows.to_vec();
+    rows.sort_by_key(|r| r.run);
+    mark_pareto(&mut rows);
+    write_outputs(dir, scene_path, varies, presets, &rows, planned)
+}
+
+/// Runs every combination of `varies` on `scene_path` (after `overrides`). Fails early only
+/// when a varied key is unusable with every one of its values (e.g. a misspelt key).
+pub fn run_sweep(
+    scene_path: &Path,
+    overrides: &[String],
+    varies: &[Vary],
+    opts: &SweepOptions,
+) -> Result<Vec<SweepRow>> {
+    let (all, planned) = prepare(scene_path, overrides, varies, &opts.presets)?;
+    let varies = &all[..];
     let total = planned.len();
     let mut rows: Vec<SweepRow> = Vec::with_capacity(total);
     let mut todo: Vec<runs::Planned> = Vec::new();

@@ -160,6 +160,32 @@ pub fn execute(
     Ok(row)
 }
 
+/// [`execute`] on a pool of `threads` threads of its own (`None`: the current pool), for a
+/// worker that runs one run at a time beside others on the same machine.
+pub fn execute_on(
+    scene_path: &Path,
+    p: &Planned,
+    opts: &SweepOptions,
+    threads: Option<usize>,
+    measure_memory: bool,
+) -> Result<SweepRow> {
+    match threads {
+        None => execute(scene_path, p, opts, measure_memory),
+        Some(t) => {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(t.max(1))
+                .build()
+                .map_err(|e| {
+                    Error::input(
+                        InputKind::Value,
+                        format!("sweep: cannot start {t} threads: {e}"),
+                    )
+                })?;
+            pool.install(|| execute(scene_path, p, opts, measure_memory))
+        }
+    }
+}
+
 fn to_json<T: Serialize>(v: &T) -> Result<String> {
     serde_json::to_string_pretty(v)
         .map_err(|e| Error::input(InputKind::Value, format!("cannot serialise the sweep: {e}")))
