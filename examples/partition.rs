@@ -132,7 +132,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             }
             println!(
                 "| {} | {n} | {ne} | {p} | {} | {:.2} % | {ghosts} | {} | {} | {neighbours} |",
-                path.file_name().map_or_else(String::new, |f| f.to_string_lossy().into()),
+                path.file_name()
+                    .map_or_else(String::new, |f| f.to_string_lossy().into()),
                 owned.iter().max().copied().unwrap_or(0),
                 100.0 * (computed as f64 / ne as f64 - 1.0),
                 ghosts * 24,

@@ -375,16 +375,12 @@ pub fn run_sweep(
         // Rewritten (atomically) after every run, so a sweep that is stopped keeps a
         // truthful table of the runs it finished.
         if let Some(dir) = &opts.out {
-            let mut so_far = rows.clone();
-            mark_pareto(&mut so_far);
-            write_outputs(dir, scene_path, varies, &opts.presets, &so_far, total)?;
+            write_table(dir, scene_path, varies, &opts.presets, rows, total)?;
         }
         Ok(())
     };
     if let (Some(dir), false) = (&opts.out, rows.is_empty()) {
-        let mut so_far = rows.clone();
-        mark_pareto(&mut so_far);
-        write_outputs(dir, scene_path, varies, &opts.presets, &so_far, total)?;
+        write_table(dir, scene_path, varies, &opts.presets, &rows, total)?;
     }
     let jobs = opts.jobs.clamp(1, todo.len().max(1));
     if jobs == 1 {
