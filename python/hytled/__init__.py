@@ -40,13 +40,14 @@ from ._hytled import (
     UnsupportedError,
 )
 
-from ._sweep import Sweep, sweep  # noqa: E402  (after the compiled part it wraps)
+from ._sweep import RayExecutor, Sweep, sweep  # noqa: E402  (after the compiled part it wraps)
 
 __version__ = _hytled.__version__
 __all__ = [
     "read_image",
     "sweep",
     "Sweep",
+    "RayExecutor",
     "Scene",
     "Model",
     "Result",

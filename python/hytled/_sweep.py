@@ -322,6 +322,22 @@ class Sweep:
         )
 
 
+class RayExecutor(cf.Executor):
+    """Ray as a ``concurrent.futures.Executor`` for :func:`sweep`: each run a Ray task (its
+    ``ObjectRef.future()``). Call ``ray.init(...)`` first; ``options`` go to ``ray.remote``
+    (e.g. ``num_cpus=4`` per run, then pass ``threads=4`` to the sweep). Ray itself retries a
+    task whose worker died (its ``max_retries``, default 3) before the sweep sees the loss."""
+
+    def __init__(self, **options: Any) -> None:
+        self._options = options
+
+    def submit(self, fn, /, *args, **kwargs):  # type: ignore[override]
+        import ray
+
+        remote = ray.remote(**self._options)(fn) if self._options else ray.remote(fn)
+        return remote.remote(*args, **kwargs).future()
+
+
 def sweep(
     scene: PathLike,
     vary: Union[None, Mapping[str, Sequence[Any]], Sequence[str]] = None,
@@ -349,7 +365,7 @@ def sweep(
     - ``executor``: any ``concurrent.futures.Executor``: ``None`` starts a local pool of
       ``jobs`` spawned processes (default: one per core, each run on ``cores / jobs``
       threads); ``dask.distributed.Client(...).get_executor()`` runs on a Dask cluster (and
-      so on SLURM or PBS through dask-jobqueue). Workers need the hytled package and the
+      so on SLURM or PBS through dask-jobqueue); :class:`RayExecutor` runs on Ray. Workers need the hytled package and the
       scene's files at the same paths.
     - ``out``: the sweep's folder: ``runs/<id>/`` per run (``row.json``, ``summary.json``,
       with ``keep_outputs`` every output; ``<id>`` is the first 16 hex digits of the SHA-256

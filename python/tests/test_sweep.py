@@ -160,3 +160,16 @@ def test_a_run_that_kills_its_worker_twice_is_a_failed_row(tmp_path):
     assert other["status"] == "converged"
     # The table says what happened; a resumed sweep runs the failed run again.
     assert "lost 2 times" in open(os.path.join(tmp_path, "sweep.csv")).read()
+
+
+def test_ray_runs_the_sweep_through_its_futures(serial, tmp_path):
+    ray = pytest.importorskip("ray")
+    rows, _ = serial
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+    try:
+        got = list(hytled.sweep(CUBE, vary=VARY, executor=hytled.RayExecutor(), threads=1, out=tmp_path))
+    finally:
+        ray.shutdown()
+    assert sorted(r["run"] for r in got) == [1, 2, 3, 4]
+    for r in got:
+        assert numbers(r) == numbers(rows[r["run"]])
