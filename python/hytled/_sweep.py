@@ -365,8 +365,8 @@ def sweep(
     - ``executor``: any ``concurrent.futures.Executor``: ``None`` starts a local pool of
       ``jobs`` spawned processes (default: one per core, each run on ``cores / jobs``
       threads); ``dask.distributed.Client(...).get_executor()`` runs on a Dask cluster (and
-      so on SLURM or PBS through dask-jobqueue); :class:`RayExecutor` runs on Ray. Workers need the hytled package and the
-      scene's files at the same paths.
+      so on SLURM or PBS through dask-jobqueue); :class:`RayExecutor` runs on Ray. Workers
+      need the hytled package and the scene's files at the same paths.
     - ``out``: the sweep's folder: ``runs/<id>/`` per run (``row.json``, ``summary.json``,
       with ``keep_outputs`` every output; ``<id>`` is the first 16 hex digits of the SHA-256
       of the run's overrides, one per line) and the table (``sweep.csv``, ``sweep.md``,
