@@ -211,7 +211,6 @@ class Sweep:
             self._executor = executor
             self._threads = threads
             self._window = max(1, jobs or 2 * cores)
-        self._done = False
         self._resume = resume
         self._iter = self._generate()
 
@@ -305,7 +304,6 @@ class Sweep:
                         )
                     yield self._record(raw, attempts[p["id"]], False)
         finally:
-            self._done = True
             for fut in running:
                 fut.cancel()
             if self._own:

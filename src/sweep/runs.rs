@@ -191,25 +191,16 @@ fn to_json<T: Serialize>(v: &T) -> Result<String> {
         .map_err(|e| Error::input(InputKind::Value, format!("cannot serialise the sweep: {e}")))
 }
 
-/// Writes `path` whole or not at all: a temporary file beside it, synced, then renamed over
-/// it, so a sweep stopped at any moment leaves each file either as it was or complete.
+/// Writes `path` whole or not at all ([`crate::io::vtu::write_atomically`]: a temporary file
+/// beside it, renamed over it), synced first, so a sweep stopped at any moment leaves each
+/// file either as it was or complete.
 pub fn write_atomic(path: &Path, text: &str) -> Result<()> {
     use std::io::Write;
-    let name = path
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_default();
-    let tmp = path.with_file_name(format!(".{name}.{}.tmp", std::process::id()));
-    let write = || -> std::io::Result<()> {
-        let mut f = std::fs::File::create(&tmp)?;
-        f.write_all(text.as_bytes())?;
-        f.sync_all()
-    };
-    if let Err(e) = write() {
-        let _ = std::fs::remove_file(&tmp);
-        return Err(Error::io(path, e));
-    }
-    std::fs::rename(&tmp, path).map_err(|e| Error::io(path, e))
+    crate::io::vtu::write_atomically(path, |w| {
+        w.write_all(text.as_bytes())?;
+        w.flush()?;
+        w.get_ref().sync_all()
+    })
 }
 
 #[cfg(test)]
