@@ -61,8 +61,14 @@ impl Variant {
 
 /// CG iterations after which the kept factor is replaced by one of the current tangent.
 pub const CG_LIMIT: usize = 40;
-/// CG stops when the residual of the linear system is this fraction of its right-hand side.
+/// CG stops when the residual of the linear system is at most this fraction of its
+/// right-hand side.
 const CG_TOLERANCE: f64 = 1e-4;
+/// ... and at most this fraction, less where the Newton iterations already contract fast:
+/// the forcing term eta = 0.9 (r_k / r_k-1)^2 of Eisenstat and Walker (1996, choice 2), kept
+/// within [CG_TOLERANCE, ETA_MAX]. An early iteration's direction need not be exact to the
+/// fourth digit where the residual is still of the order of the load.
+const ETA_MAX: f64 = 0.1;
 /// How many times more multiply-adds per second a factorization does than a CG iteration.
 const FACTOR_EFFICIENCY: f64 = 9.0;
 /// Newton iterations per load step before the step is cut.
@@ -811,7 +817,7 @@ impl<'a, M: Material> Newton<'a, M> {
 
     /// K_ff x = b for the free DOFs (b in, x out), by the variant's rule; the tangent is
     /// assembled at the current u by the caller where the variant needs it.
-    fn linear_solve(&mut self, b: &mut [f64]) -> Result<()> {
+    fn linear_solve(&mut self, b: &mut [f64], eta: f64) -> Result<()> {
         let t0 = Instant::now();
         let variant = self.s.static_variant;
         let have = self.c.factor.kind().is_some();
@@ -825,7 +831,7 @@ impl<'a, M: Material> Newton<'a, M> {
             self.c.factor.solve(b);
         } else if variant == Variant::Modified {
             self.c.factor.solve(b);
-        } else if !self.pcg(b) {
+        } else if !self.pcg(b, eta) {
             self.refactor()?;
             self.c.factor.solve(b);
         }
@@ -845,7 +851,7 @@ impl<'a, M: Material> Newton<'a, M> {
     /// replaced by the solution. False (b unchanged) when CG does not reach
     /// [`CG_TOLERANCE`] within [`CG_LIMIT`] iterations or meets a direction of non-positive
     /// curvature.
-    fn pcg(&mut self, b: &mut [f64]) -> bool {
+    fn pcg(&mut self, b: &mut [f64], eta: f64) -> bool {
         let n = b.len();
         let dot = |x: &[f64], y: &[f64]| x.iter().zip(y).map(|(a, b)| a * b).sum::<f64>();
         let bnorm = dot(b, b).sqrt();
@@ -884,7 +890,7 @@ impl<'a, M: Material> Newton<'a, M> {
                 x[i] += alpha * p[i];
                 r[i] -= alpha * q[i];
             }
-            if dot(&r, &r).sqrt() <= CG_TOLERANCE * bnorm {
+            if dot(&r, &r).sqrt() <= eta * bnorm {
                 b.copy_from_slice(&x);
                 done = true;
                 break;
@@ -1088,7 +1094,7 @@ impl<'a, M: Material> Newton<'a, M> {
             if cheap {
                 self.kept_solve(&mut rhs);
             } else {
-                self.linear_solve(&mut rhs)?;
+                self.linear_solve(&mut rhs, CG_TOLERANCE)?;
             }
             self.c.dofs.scatter(&rhs, &mut self.t0);
             for i in 0..n {
@@ -1181,7 +1187,8 @@ impl<'a, M: Material> Newton<'a, M> {
             if cheap_step {
                 self.kept_solve(&mut rhs);
             } else {
-                self.linear_solve(&mut rhs)?;
+                let eta = (0.9 * (r / r_prev).powi(2)).clamp(CG_TOLERANCE, ETA_MAX);
+                self.linear_solve(&mut rhs, eta)?;
             }
             let du = rhs.clone();
             // Line search on g(a) = du . r(u + a du): zero at the minimum along du.
@@ -1206,7 +1213,11 @@ impl<'a, M: Material> Newton<'a, M> {
                     cheap = false;
                     continue 'newton;
                 }
-                if tries > 8 {
+                // Early in a load step, a direction that inverts an element until cut below a
+                // tenth says the step is too long: cut it now rather than after three
+                // iterations of crawling (brain-indentation: five failed load steps took 8 s
+                // of 18.8).
+                if tries > 8 || (tries > 3 && it <= 2 && tau1 > tau0) {
                     self.report.newton_iterations += it;
                     return Ok(false);
                 }
