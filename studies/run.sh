@@ -239,10 +239,11 @@ brain-compressible() {
 # docs/reference.md SfePy force at 1-5 mm through load stages). fe tet4-anp and tet10, the coupled
 # method with its tet4-anp layer (the unstructured-tet defaults: one layer around the essential
 # boundaries, linear MLS), with a quadratic layer, and with a quadratic layer and the MMLS
-# interior, on levels c1-c4; fe tet4-anp alone on c5.
+# interior, on levels c1-c4; fe tet4-anp alone on c5. These studies are of relaxation (the
+# case is static by default since issue 57).
 BI='../meshes/brain-indentation'
 indentation() {
-  sweep cases/brain-indentation-benchmark.toml --preset "$FE_ANP" \
+  sweep cases/brain-indentation-benchmark.toml --set solver.mode=relaxation --preset "$FE_ANP" \
     --preset 'fe-tet10=discretization.method=fe;discretization.element=tet10' \
     --preset 'coupled-tet4-anp=discretization.method=coupled;discretization.element=tet4-anp' \
     --preset 'coupled-tet10=discretization.method=coupled;discretization.element=tet10' \
@@ -255,13 +256,13 @@ indentation() {
 # cylinders (Gmsh series) both ways.
 PATCH1='discretization.mean_dilatation_patch=1'
 indentation-patches() {
-  sweep cases/brain-indentation-benchmark.toml \
+  sweep cases/brain-indentation-benchmark.toml --set solver.mode=relaxation \
     --preset 'coupled=discretization.method=coupled;discretization.element=tet4-anp' \
     --preset "coupled-patch1=discretization.method=coupled;discretization.element=tet4-anp;$PATCH1" \
     --preset 'coupled-surface=discretization.method=coupled;discretization.element=tet4-anp;discretization.fe_region=surface;discretization.fe_layers=2' \
     --vary "geometry.mesh=$BI-c2.msh,$BI-c3.msh,$BI-c4.msh,$BI-c5.msh" \
     --out studies/indentation-patches/levels
-  sweep cases/brain-indentation-benchmark.toml \
+  sweep cases/brain-indentation-benchmark.toml --set solver.mode=relaxation \
     --set discretization.method=coupled --set discretization.element=tet4-anp \
     --set "geometry.mesh=$BI-c4.msh" --vary discretization.mean_dilatation_patch=1,4,6,8,12,16 \
     --out studies/indentation-patches/size
@@ -303,13 +304,13 @@ meshless-patches() {
     sweep "cases/cylinder-$c.toml" --set discretization.method=meshless \
       --vary discretization.mean_dilatation_patch=1,8 --out "studies/meshless-patches/cylinder-$c"
   done
-  sweep cases/brain-indentation-benchmark.toml --set discretization.method=meshless \
+  sweep cases/brain-indentation-benchmark.toml --set solver.mode=relaxation --set discretization.method=meshless \
     --set discretization.element=tet4-anp --vary discretization.mean_dilatation_patch=1,8 \
     --vary "geometry.mesh=$BI-c2.msh,$BI-c3.msh,$BI-c4.msh" \
     --out studies/meshless-patches/indentation
 }
 indentation-fine() {
-  sweep cases/brain-indentation-benchmark.toml --preset "$FE_ANP" \
+  sweep cases/brain-indentation-benchmark.toml --set solver.mode=relaxation --preset "$FE_ANP" \
     --vary "geometry.mesh=$BI-c5.msh" --out studies/indentation-fine
 }
 # Issue 40, built-in shapes honour their loads: the TetGen half-ellipsoid with the plug (or the
