@@ -86,6 +86,41 @@ impl RigidShape {
         }
     }
 
+    /// The depth of `x` below the end face of a cylinder whose outward normal is `n` (within
+    /// 0.9 of it), where `x` lies within the cylinder's radius: None for any other shape, face
+    /// or place.
+    fn end_depth(
+        &self,
+        x: &Vector3<f64>,
+        d: &Vector3<f64>,
+        n: &Vector3<f64>,
+    ) -> Option<(f64, Vector3<f64>)> {
+        let RigidShape::Cylinder {
+            center,
+            axis,
+            radius,
+            min,
+            max,
+            edge_radius,
+        } = self
+        else {
+            return None;
+        };
+        let e = *edge_radius;
+        let r = x - center - d;
+        let s = r.dot(axis);
+        if (r - axis * s).norm() >= radius - e {
+            return None;
+        }
+        if n.dot(axis) > 0.9 {
+            max.map(|m| (m - s, *axis))
+        } else if n.dot(axis) < -0.9 {
+            min.map(|m| (s - m, -axis))
+        } else {
+            None
+        }
+    }
+
     /// Signed depth of `x` (m) in the solid displaced by `d` (m): positive inside, minus the
     /// distance to the surface outside; with the outward unit normal of the nearest surface.
     pub fn signed_depth(&self, x: &Vector3<f64>, d: &Vector3<f64>) -> (f64, Vector3<f64>) {
@@ -398,6 +433,31 @@ impl Contact {
         self.bodies[b]
             .shape
             .signed_depth(&x, &self.body_displacement(b, tau))
+    }
+
+    /// [`Contact::depth_of`], keeping a point on the face of a flat-ended tool whose push
+    /// direction `hint` it had in contact at the last equilibrium (static solve).
+    pub fn depth_of_hinted(
+        &self,
+        b: usize,
+        p: &ContactPoint,
+        u: &[Vector3<f64>],
+        tau: f64,
+        hint: Option<Vector3<f64>>,
+    ) -> (f64, Vector3<f64>) {
+        let x = p
+            .row
+            .iter()
+            .fold(p.x, |acc, &(j, f)| acc + u[j as usize] * f);
+        let d = self.body_displacement(b, tau);
+        let shape = &self.bodies[b].shape;
+        let plain = shape.signed_depth(&x, &d);
+        match (shape, hint) {
+            (RigidShape::Cylinder { .. }, Some(h)) if plain.1.dot(&h) < 0.9 => {
+                shape.end_depth(&x, &d, &h).unwrap_or(plain)
+            }
+            _ => plain,
+        }
     }
 
     /// Takes the state a static solve ended in: each body's force on the body (N), its points

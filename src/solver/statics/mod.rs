@@ -368,6 +368,7 @@ pub fn solve<M: Material>(
     }
     st.t_lambda = vec![0.0; st.touch.len()];
     st.t_state = vec![(0.0, Vector3::zeros(), 0.0); st.touch.len()];
+    st.t_hint = vec![None; st.touch.len()];
     let mut result = st.run(&mut sink);
     if result.is_ok() && s.refresh_factor && st.converged && !st.kept_contracting {
         st.assemble();
@@ -386,6 +387,9 @@ struct Newton<'a, M: Material> {
     start: Instant,
     u: Vec<Vector3<f64>>,
     f: Vec<Vector3<f64>>,
+    /// The internal forces alone where `f` also holds constraint or contact forces (empty
+    /// otherwise): the work done on the body is theirs.
+    f_int: Vec<Vector3<f64>>,
     fe: Vec<Vector3<f64>>,
     /// Scratch nodal vectors.
     t0: Vec<Vector3<f64>>,
@@ -425,6 +429,10 @@ struct Newton<'a, M: Material> {
     t_lambda: Vec<f64>,
     t_penalty: Vec<f64>,
     t_state: Vec<(f64, Vector3<f64>, f64)>,
+    /// Per candidate point, the push direction it had in contact at the last equilibrium: a
+    /// Newton step may carry a point under a flat punch deeper than its distance to the
+    /// punch's side, which would push it out sideways onto another branch.
+    t_hint: Vec<Option<Vector3<f64>>>,
     tau_now: f64,
     /// The last load step ended on modified-Newton steps with the kept factor that still
     /// contracted ([`CHEAP_CONTRACTION`]).
@@ -455,6 +463,7 @@ impl<'a, M: Material> Newton<'a, M> {
             start,
             u,
             f: vec![Vector3::zeros(); n],
+            f_int: Vec::new(),
             fe: vec![Vector3::zeros(); n],
             t0: vec![Vector3::zeros(); n],
             t1: vec![Vector3::zeros(); n],
@@ -483,6 +492,7 @@ impl<'a, M: Material> Newton<'a, M> {
             t_lambda: Vec::new(),
             t_penalty: Vec::new(),
             t_state: Vec::new(),
+            t_hint: Vec::new(),
             tau_now: 0.0,
             kept_contracting: false,
         }
@@ -494,6 +504,9 @@ impl<'a, M: Material> Newton<'a, M> {
         let m = &mut *self.model;
         m.forces.compute(&m.points, &m.slots, &self.u, &mut self.f);
         self.force_evaluations += 1;
+        if !self.rows.is_empty() || m.contact.is_some() {
+            self.f_int.clone_from(&self.f);
+        }
         self.fe.iter_mut().for_each(|x| *x = Vector3::zeros());
         m.loads.apply(&self.u, tau, &mut self.fe);
         self.min_j = m.forces.min_j();
@@ -524,7 +537,7 @@ impl<'a, M: Material> Newton<'a, M> {
         self.tau_now = tau;
         if let Some(ct) = self.model.contact.as_ref() {
             use rayon::prelude::*;
-            let (u, touch) = (&self.u, &self.touch);
+            let (u, touch, hint) = (&self.u, &self.touch, &self.t_hint);
             let (lam, pen) = (&self.t_lambda, &self.t_penalty);
             self.t_state
                 .par_iter_mut()
@@ -532,7 +545,13 @@ impl<'a, M: Material> Newton<'a, M> {
                 .with_min_len(256)
                 .for_each(|(k, st)| {
                     let (b, i) = (touch[k].0 as usize, touch[k].1 as usize);
-                    let (depth, n) = ct.depth_of(b, &ct.points_of(b)[i], u, tau);
+                    let (depth, n) = ct.depth_of_hinted(
+                        b,
+                        &ct.points_of(b)[i],
+                        u,
+                        tau,
+                        hint.get(k).copied().flatten(),
+                    );
                     let g = (lam[k] + pen.get(k).copied().unwrap_or(0.0) * depth).max(0.0);
                     *st = (depth, n, g);
                 });
@@ -960,6 +979,9 @@ impl<'a, M: Material> Newton<'a, M> {
                         }
                         tau = next;
                         cuts_in_row = 0;
+                        for (h, st) in self.t_hint.iter_mut().zip(&self.t_state) {
+                            *h = (st.2 > 0.0).then_some(st.1);
+                        }
                         self.report.load_steps += 1;
                         self.report.load_reached = tau;
                         self.record_row(tau);
@@ -1378,14 +1400,21 @@ impl<'a, M: Material> Newton<'a, M> {
     fn record_row(&mut self, tau: f64) {
         let m = &mut *self.model;
         let se = m.forces.strain_energy(&m.points, &m.slots, &self.u);
+        // The work done on the body equals its internal forces' at equilibrium, whatever
+        // applies them (loads, prescribed values, constraints, contact).
+        let f_int = if self.f_int.is_empty() {
+            &self.f
+        } else {
+            &self.f_int
+        };
         if let Some((u0, f0)) = &self.work_state {
             let mut w = 0.0;
             for i in 0..self.u.len() {
-                w += 0.5 * (f0[i] + self.f[i]).dot(&(self.u[i] - u0[i]));
+                w += 0.5 * (f0[i] + f_int[i]).dot(&(self.u[i] - u0[i]));
             }
             self.external_work += w;
         }
-        self.work_state = Some((self.u.clone(), self.f.clone()));
+        self.work_state = Some((self.u.clone(), f_int.clone()));
         if !m.f_ext.is_empty() {
             m.f_ext.clone_from(&self.fe);
         }
