@@ -867,9 +867,9 @@ impl<'a, M: Material> Newton<'a, M> {
     }
 
     /// Conjugate gradients on the current tangent, preconditioned by the kept factor; b is
-    /// replaced by the solution. False (b unchanged) when CG does not reach
-    /// [`CG_TOLERANCE`] within [`CG_LIMIT`] iterations or meets a direction of non-positive
-    /// curvature.
+    /// replaced by the solution. False (b unchanged) when CG does not reach the relative
+    /// residual `eta` (the forcing term, [`ETA_MAX`]) within its limit of iterations (at most
+    /// [`CG_LIMIT`]) or meets a direction of non-positive curvature.
     fn pcg(&mut self, b: &mut [f64], eta: f64) -> bool {
         let n = b.len();
         let dot = |x: &[f64], y: &[f64]| x.iter().zip(y).map(|(a, b)| a * b).sum::<f64>();
@@ -1533,7 +1533,7 @@ const CONSTRAINT_SHARE: f64 = 1e-2;
 
 /// The Lagrange interpolation weights of the points `at` evaluated at `t`: the polynomial
 /// through the points, of degree one less than their number.
-fn lagrange_weights(at: impl Iterator<Item = f64> + Clone, t: f64) -> Vec<f64> {
+fn lagrange_weights(at: impl Iterator<Item = f64>, t: f64) -> Vec<f64> {
     let xs: Vec<f64> = at.collect();
     (0..xs.len())
         .map(|i| {
@@ -1553,4 +1553,26 @@ fn violation(lc: &crate::solver::LinearConstraint, u: &[Vector3<f64>]) -> f64 {
         .map(|&(j, w)| w * u[j as usize][lc.axis])
         .sum::<f64>()
         - lc.target
+}
+
+#[cfg(test)]
+mod tests {
+    use super::lagrange_weights;
+
+    /// The predictor's weights reproduce any parabola through three unequally spaced load
+    /// fractions at a fraction beyond them, and a line through two; they sum to one.
+    #[test]
+    fn the_predictor_extrapolates_a_parabola_exactly() {
+        let p = |t: f64| 0.3 - 1.7 * t + 2.9 * t * t;
+        let at = [0.1, 0.25, 0.32];
+        let w = lagrange_weights(at.iter().copied(), 0.41);
+        let got: f64 = at.iter().zip(&w).map(|(t, w)| w * p(*t)).sum();
+        assert!((got - p(0.41)).abs() < 1e-14, "{got} {}", p(0.41));
+        assert!((w.iter().sum::<f64>() - 1.0).abs() < 1e-14);
+        let w = lagrange_weights([0.2, 0.4].into_iter(), 0.5);
+        assert!(
+            (w[0] + 0.5).abs() < 1e-15 && (w[1] - 1.5).abs() < 1e-15,
+            "{w:?}"
+        );
+    }
 }
