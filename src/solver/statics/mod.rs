@@ -1236,7 +1236,7 @@ impl<'a, M: Material> Newton<'a, M> {
                     continue 'newton;
                 }
                 // Early in a load step, a direction that still inverts an element when cut
-                // to a sixteenth says the step is too long: cut the step now rather than
+                // to an eighth says the step is too long: cut the step now rather than
                 // after three iterations of crawling (brain-indentation: five failed load
                 // steps took 8 s of 18.8).
                 if tries > 8 || (tries > 3 && it <= 2 && tau1 > tau0) {
