@@ -86,44 +86,22 @@ impl RigidShape {
         }
     }
 
-    /// The depth of `x` below the end face of a cylinder whose outward normal is `n` (within
-    /// 0.9 of it), where `x` lies within the cylinder's radius: None for any other shape, face
-    /// or place.
-    fn end_depth(
-        &self,
-        x: &Vector3<f64>,
-        d: &Vector3<f64>,
-        n: &Vector3<f64>,
-    ) -> Option<(f64, Vector3<f64>)> {
-        let RigidShape::Cylinder {
-            center,
-            axis,
-            radius,
-            min,
-            max,
-            edge_radius,
-        } = self
-        else {
-            return None;
-        };
-        let e = *edge_radius;
-        let r = x - center - d;
-        let s = r.dot(axis);
-        if (r - axis * s).norm() >= radius - e {
-            return None;
-        }
-        if n.dot(axis) > 0.9 {
-            max.map(|m| (m - s, *axis))
-        } else if n.dot(axis) < -0.9 {
-            min.map(|m| (s - m, -axis))
-        } else {
-            None
-        }
-    }
-
     /// Signed depth of `x` (m) in the solid displaced by `d` (m): positive inside, minus the
     /// distance to the surface outside; with the outward unit normal of the nearest surface.
     pub fn signed_depth(&self, x: &Vector3<f64>, d: &Vector3<f64>) -> (f64, Vector3<f64>) {
+        self.signed_depth_hinted(x, d, None)
+    }
+
+    /// [`RigidShape::signed_depth`], but a point within a flat-ended cylinder's radius whose
+    /// push direction `hint` (from the last equilibrium) is within 0.9 of an end's normal
+    /// stays on that end, however deep: a static Newton step can carry a point under a punch
+    /// deeper than its distance to the side wall, which would push it out sideways.
+    pub fn signed_depth_hinted(
+        &self,
+        x: &Vector3<f64>,
+        d: &Vector3<f64>,
+        hint: Option<Vector3<f64>>,
+    ) -> (f64, Vector3<f64>) {
         match self {
             RigidShape::Plane { point, normal } => (-(x - point - d).dot(normal), *normal),
             RigidShape::Surface(tool) => tool.contact_depth(&(x - d)),
@@ -161,6 +139,15 @@ impl RigidShape {
                 };
                 // Depths to the side and the nearer end (negative: beyond it).
                 let side = radius - dist;
+                if let Some(h) = hint.filter(|_| side > 0.0) {
+                    let a = h.dot(axis);
+                    if a > 0.9 && hi.is_finite() {
+                        return (hi - s + e, *axis);
+                    }
+                    if a < -0.9 && lo.is_finite() {
+                        return (s - lo + e, -axis);
+                    }
+                }
                 let (end, end_n) = if s - lo < hi - s {
                     (s - lo, -axis)
                 } else {
@@ -426,17 +413,11 @@ impl Contact {
         u: &[Vector3<f64>],
         tau: f64,
     ) -> (f64, Vector3<f64>) {
-        let x = p
-            .row
-            .iter()
-            .fold(p.x, |acc, &(j, f)| acc + u[j as usize] * f);
-        self.bodies[b]
-            .shape
-            .signed_depth(&x, &self.body_displacement(b, tau))
+        self.depth_of_hinted(b, p, u, tau, None)
     }
 
-    /// [`Contact::depth_of`], keeping a point on the face of a flat-ended tool whose push
-    /// direction `hint` it had in contact at the last equilibrium (static solve).
+    /// [`Contact::depth_of`] with the point's push direction at the last equilibrium
+    /// ([`RigidShape::signed_depth_hinted`]; static solve).
     pub fn depth_of_hinted(
         &self,
         b: usize,
@@ -449,15 +430,9 @@ impl Contact {
             .row
             .iter()
             .fold(p.x, |acc, &(j, f)| acc + u[j as usize] * f);
-        let d = self.body_displacement(b, tau);
-        let shape = &self.bodies[b].shape;
-        let plain = shape.signed_depth(&x, &d);
-        match (shape, hint) {
-            (RigidShape::Cylinder { .. }, Some(h)) if plain.1.dot(&h) < 0.9 => {
-                shape.end_depth(&x, &d, &h).unwrap_or(plain)
-            }
-            _ => plain,
-        }
+        self.bodies[b]
+            .shape
+            .signed_depth_hinted(&x, &self.body_displacement(b, tau), hint)
     }
 
     /// Takes the state a static solve ended in: each body's force on the body (N), its points
