@@ -192,17 +192,24 @@ fn measured_ids_and_errors() {
 fn a_tool_pressing_measured_nodes_is_refused_naming_both() {
     let dir = folder("conflict");
     std::fs::write(dir.join("top.csv"), exact_top(4, 0.0)).unwrap();
-    let e = run(
-        &dir,
-        "top.csv",
-        &["contact.plate={ shape = \"plane\", point = [0.0, 0.0, 0.1], normal = [0.0, 0.0, -1.0], motion = [0.0, 0.0, -0.03] }"],
-    )
-    .unwrap_err()
-    .to_string();
-    assert!(
-        e.contains("contact 'plate'") && e.contains("'top'") && e.contains("prescribes that node"),
-        "{e}"
-    );
+    for mode in ["solver.mode=relaxation", "solver.mode=static"] {
+        let e = run(
+            &dir,
+            "top.csv",
+            &[
+                "contact.plate={ shape = \"plane\", point = [0.0, 0.0, 0.1], normal = [0.0, 0.0, -1.0], motion = [0.0, 0.0, -0.03] }",
+                mode,
+            ],
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(
+            e.contains("contact 'plate'")
+                && e.contains("'top'")
+                && e.contains("prescribes that node"),
+            "{mode}: {e}"
+        );
+    }
 }
 
 /// Issue 42, measured displacements interpolated: the exact field sampled on grids that share

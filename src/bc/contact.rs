@@ -212,6 +212,28 @@ pub struct Conflict {
 /// than this share of the push (0 for a finite-element node prescribed along the normal).
 const HELD_SHARE: f64 = 1e-6;
 
+impl ContactPoint {
+    /// Whether the boundary conditions hold this point against a push along `n` (unit): the
+    /// components its nodes may move along (`fixed`, per node, true where prescribed) carry
+    /// less than `share` of it, weighting each node by its shape function squared, or a
+    /// boundary prescribes the point itself along it. The static solve's form of the test
+    /// relaxation's correction makes with the masses and [`HELD_SHARE`] ([`Conflict`]).
+    pub fn held_along(&self, n: &Vector3<f64>, fixed: &[[bool; 3]], share: f64) -> bool {
+        let (mut den, mut full) = (0.0, 0.0);
+        for &(j, f) in &self.row {
+            let free: f64 = (0..3)
+                .filter(|&c| !fixed.get(j as usize).is_some_and(|m| m[c]))
+                .map(|c| n[c] * n[c])
+                .sum();
+            den += f * f * free;
+            full += f * f;
+        }
+        let free_at_point: f64 = (0..3).filter(|&c| !self.held[c]).map(|c| n[c] * n[c]).sum();
+        let held_here = self.held.iter().any(|&h| h) && !(free_at_point > share);
+        held_here || !(den > share * full)
+    }
+}
+
 /// The deformable body's closed surface, as [`Contact::check_tunnelled`] deforms it.
 #[derive(Debug)]
 pub struct BodySurface {

@@ -93,7 +93,7 @@ pub(super) fn attempt<M: Material>(
 
 /// The error of a rigid body pushing into nodes the boundary conditions prescribe: which body,
 /// where, which boundaries hold the node, and what to do.
-fn contact_conflict<M: Material>(
+pub(in crate::solver) fn contact_conflict<M: Material>(
     model: &Model<M>,
     c: &crate::bc::contact::Conflict,
     step: usize,

@@ -4,6 +4,7 @@
 //! at the end of each step.
 
 mod attempt;
+pub(in crate::solver) use attempt::contact_conflict;
 mod energy;
 mod predict;
 mod record;
