@@ -122,6 +122,19 @@ fn an_overflowing_wave_speed_names_the_material() {
             err.contains("wave speed") && err.contains("is inf m/s") && err.contains("[material]"),
             "{method}: {err}"
         );
+        // Issue 57: the static solve says so too (it said "the tangent stiffness is singular").
+        let sc = cube_scene(&[
+            &format!("discretization.method={method}"),
+            "material.youngs_modulus=1e308",
+            "solver.mode=static",
+        ]);
+        let err = run_scene(&sc, &RunOptions::default())
+            .expect_err(method)
+            .to_string();
+        assert!(
+            err.contains("lambda + 2 mu") && err.contains("inf Pa") && err.contains("[material]"),
+            "static {method}: {err}"
+        );
     }
 }
 

@@ -188,8 +188,32 @@ impl Cache {
     }
 }
 
+/// Moduli far out of range (E = 1e308 Pa) overflow the tangent: the factorization then met a
+/// zero pivot ("the tangent stiffness is singular"), which named neither the cause nor the
+/// keys. The static form of relaxation's wave-speed check, which also reads the density.
+fn check_moduli<M: Material>(model: &Model<M>) -> Result<()> {
+    for m in &model.forces.materials {
+        let (lambda, mu) = m.lame();
+        let p = lambda + 2.0 * mu;
+        if !(p.is_finite() && p > 0.0 && mu.is_finite() && mu > 0.0 && p < 1e30) {
+            return Err(Error::input(
+                InputKind::Value,
+                format!(
+                    "the dilatational modulus lambda + 2 mu of a material is {} Pa (mu {} Pa): the \
+                     static solve's tangent cannot hold it; check the moduli (Pa) of [material] and \
+                     [regions] (soft tissue: about 1e3-1e5 Pa)",
+                    crate::error::Sci(p),
+                    crate::error::Sci(mu)
+                ),
+            ));
+        }
+    }
+    Ok(())
+}
+
 /// Refuses what the static solve does not handle yet, saying what to use instead.
 fn check_supported<M: Material>(model: &Model<M>) -> Result<()> {
+    check_moduli(model)?;
     let what = if model
         .corrector
         .as_ref()
