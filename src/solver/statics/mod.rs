@@ -1307,8 +1307,8 @@ impl<'a, M: Material> Newton<'a, M> {
             }
             trail.push(r);
             // As relaxation's correction refuses it at the first penetration: a sphere pushed
-            // through a fixed face otherwise ends on a branch where the held node slid 22 mm
-            // sideways out of it.
+            // through a fixed face otherwise converged with the held node outside it, a slide
+            // of about 22 mm at that depth.
             if let Some(e) = self.contact_conflict(tau1) {
                 return Err(e);
             }
