@@ -765,18 +765,48 @@ impl<'a, M: Material> Newton<'a, M> {
         self.t_state.iter().map(|&(d, _, _)| d).fold(0.0, f64::max)
     }
 
+    /// A force the tissue carries, N: the largest shear modulus times the squared mean node
+    /// spacing (the cube root of the bounding box's volume per node).
+    fn force_scale(&self) -> f64 {
+        let m = &*self.model;
+        let mu = m
+            .forces
+            .materials
+            .iter()
+            .map(|x| x.lame().1)
+            .fold(0.0, f64::max);
+        let (lo, hi) = m.nodes.iter().fold(
+            (
+                Vector3::repeat(f64::INFINITY),
+                Vector3::repeat(f64::NEG_INFINITY),
+            ),
+            |(lo, hi), x| (lo.inf(x), hi.sup(x)),
+        );
+        let e = hi - lo;
+        let h = (e.x * e.y * e.z / m.nodes.len().max(1) as f64).cbrt();
+        mu * h * h
+    }
+
     /// Hands the contact's end state (forces per body, points in contact) to the model.
     fn contact_state(&mut self) {
         let worst = self.worst_penetration();
+        let scale = self.force_scale();
         let Some(ct) = self.model.contact.as_mut() else {
             return;
         };
         let mut forces = vec![Vector3::zeros(); ct.len()];
         let mut count = vec![0usize; ct.len()];
+        // A point counts as in contact where its force is more than rounding against the
+        // forces the tissue carries (its shear modulus over the mean node spacing squared): a
+        // ball driven through the cube in one step ended with 1e-14 N on a point it grazed,
+        // which hid that it pressed nothing.
+        let floor = 1e-9 * scale;
         for (k, &(b, _)) in self.touch.iter().enumerate() {
             let (_, n, g) = self.t_state[k];
             if g > 0.0 {
                 forces[b as usize] += n * g;
+            }
+            if g > floor {
                 count[b as usize] += 1;
             }
         }
