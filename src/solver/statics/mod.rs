@@ -725,8 +725,8 @@ impl<'a, M: Material> Newton<'a, M> {
     }
 
     /// The longest load step (a load fraction) over which no rigid surface read from a file
-    /// travels more than half the body's mean node spacing (the cube root of its bounding
-    /// box's volume per node); 1 without one. Such a surface has a far side: put at its final
+    /// travels more than half the body's mean node spacing ([`Self::mean_spacing`]); 1
+    /// without one. Such a surface has a far side: put at its final
     /// place in one step it can end nearer that side than the one it should press. A plate
     /// 30 mm thick driven 20 mm onto the meshless cube met the cube's top 10 mm from its upper
     /// face and pushed it up through the plate (+1.85 N against -7.63 N). Analytic tools are
@@ -744,16 +744,7 @@ impl<'a, M: Material> Newton<'a, M> {
                 speed = speed.max(step * SAMPLES as f64);
             }
         }
-        let nodes = &self.model.nodes;
-        let (lo, hi) = nodes.iter().fold(
-            (
-                Vector3::repeat(f64::INFINITY),
-                Vector3::repeat(f64::NEG_INFINITY),
-            ),
-            |(lo, hi), x| (lo.inf(x), hi.sup(x)),
-        );
-        let extent = hi - lo;
-        let spacing = (extent.x * extent.y * extent.z / nodes.len().max(1) as f64).cbrt();
+        let spacing = self.mean_spacing();
         if !(speed > 0.0 && spacing > 0.0) {
             return 1.0;
         }
@@ -766,16 +757,23 @@ impl<'a, M: Material> Newton<'a, M> {
     }
 
     /// A force the tissue carries, N: the largest shear modulus times the squared mean node
-    /// spacing (the cube root of the bounding box's volume per node).
+    /// spacing ([`Self::mean_spacing`]).
     fn force_scale(&self) -> f64 {
-        let m = &*self.model;
-        let mu = m
+        let mu = self
+            .model
             .forces
             .materials
             .iter()
             .map(|x| x.lame().1)
             .fold(0.0, f64::max);
-        let (lo, hi) = m.nodes.iter().fold(
+        let h = self.mean_spacing();
+        mu * h * h
+    }
+
+    /// The body's mean node spacing, m: the cube root of its bounding box's volume per node.
+    fn mean_spacing(&self) -> f64 {
+        let nodes = &self.model.nodes;
+        let (lo, hi) = nodes.iter().fold(
             (
                 Vector3::repeat(f64::INFINITY),
                 Vector3::repeat(f64::NEG_INFINITY),
@@ -783,8 +781,7 @@ impl<'a, M: Material> Newton<'a, M> {
             |(lo, hi), x| (lo.inf(x), hi.sup(x)),
         );
         let e = hi - lo;
-        let h = (e.x * e.y * e.z / m.nodes.len().max(1) as f64).cbrt();
-        mu * h * h
+        (e.x * e.y * e.z / nodes.len().max(1) as f64).cbrt()
     }
 
     /// Hands the contact's end state (forces per body, points in contact) to the model.
@@ -797,7 +794,7 @@ impl<'a, M: Material> Newton<'a, M> {
         let mut forces = vec![Vector3::zeros(); ct.len()];
         let mut count = vec![0usize; ct.len()];
         // A point counts as in contact where its force is more than rounding against the
-        // forces the tissue carries (its shear modulus over the mean node spacing squared): a
+        // forces the tissue carries (its shear modulus times the mean node spacing squared): a
         // ball driven through the cube in one step ended with 1e-14 N on a point it grazed,
         // which hid that it pressed nothing.
         let floor = 1e-9 * scale;
