@@ -213,6 +213,14 @@ pub struct Conflict {
 const HELD_SHARE: f64 = 1e-6;
 
 impl ContactPoint {
+    /// The node of its row with the largest weight (the one a conflict names).
+    pub fn main_node(&self) -> u32 {
+        self.row
+            .iter()
+            .max_by(|a, b| a.1.abs().total_cmp(&b.1.abs()))
+            .map_or(0, |r| r.0)
+    }
+
     /// Whether the boundary conditions hold this point against a push along `n` (unit): the
     /// components its nodes may move along (`fixed`, per node, true where prescribed) carry
     /// less than `share` of it, weighting each node by its shape function squared, or a
@@ -762,11 +770,7 @@ impl Contact {
                     let held_here = p.held.iter().any(|&h| h) && !(free_at_point > HELD_SHARE);
                     let blocked = !(den > HELD_SHARE * full);
                     if (held_here || blocked) && depth > self.tolerance && self.conflict.is_none() {
-                        let node = p
-                            .row
-                            .iter()
-                            .max_by(|a, b| a.1.abs().total_cmp(&b.1.abs()))
-                            .map_or(0, |r| r.0);
+                        let node = p.main_node();
                         self.conflict = Some(Conflict {
                             body: b,
                             x: p.x,

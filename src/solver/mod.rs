@@ -209,6 +209,16 @@ fn check_boundary_values(b: &Boundary) -> Result<()> {
 }
 
 impl<M: Material> Model<M> {
+    /// Where point `p` (Morton order) is, as messages give it: the centroid of its supporting
+    /// nodes in the reference configuration, m.
+    pub(in crate::solver) fn point_centroid(&self, p: usize) -> Vector3<f64> {
+        let sl = self.points.slots(p);
+        let count = sl.len().max(1) as f64;
+        sl.map(|k| self.nodes[self.points.nodes[k] as usize])
+            .sum::<Vector3<f64>>()
+            / count
+    }
+
     /// Assembles the model; the points are stored in Morton order (see [`order`]). Masses: each point's mass rho w is split evenly among its support
     /// nodes (for FE elements this is the usual element-mass lumping). A node that carries no
     /// mass is an error naming it.

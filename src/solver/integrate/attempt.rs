@@ -586,13 +586,7 @@ impl<'a, M: Material> Pass<'a, M> {
             return Ok(());
         }
         let model = &*self.model;
-        // Where: the centroid of the point's supporting nodes (reference configuration).
-        let sl = model.points.slots(p_min);
-        let near = sl
-            .clone()
-            .map(|k| model.nodes[model.points.nodes[k] as usize])
-            .sum::<Vector3<f64>>()
-            / sl.len().max(1) as f64;
+        let near = model.point_centroid(p_min);
         let id = model.point_ids[p_min];
         let (step, t, dt, crit) = (
             self.step,

@@ -631,12 +631,7 @@ impl<'a, M: Material> Newton<'a, M> {
         if p >= m.point_ids.len() {
             return format!("{j:.3}");
         }
-        let sl = m.points.slots(p);
-        let count = sl.len().max(1) as f64;
-        let near = sl
-            .map(|k| m.nodes[m.points.nodes[k] as usize])
-            .sum::<Vector3<f64>>()
-            / count;
+        let near = m.point_centroid(p);
         format!(
             "{j:.3} at integration point {} near ({:.4e}, {:.4e}, {:.4e}) m",
             m.point_ids[p], near.x, near.y, near.z
@@ -709,11 +704,7 @@ impl<'a, M: Material> Newton<'a, M> {
             body: b,
             x: p.x,
             depth,
-            node: p
-                .row
-                .iter()
-                .max_by(|a, b| a.1.abs().total_cmp(&b.1.abs()))
-                .map_or(0, |r| r.0),
+            node: p.main_node(),
             normal: n,
         };
         Some(crate::solver::integrate::contact_conflict(
