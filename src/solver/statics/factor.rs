@@ -341,7 +341,13 @@ impl Factor {
             ),
             &self.values,
         );
-        let par = Par::rayon(0);
+        // Sequential: faer's parallel kernels split some products by the thread count (a
+        // matrix-vector product sums one partial per thread) and choose their code path from
+        // it and the cache sizes, so a parallel factor could differ in the last bits between
+        // thread counts (CI saw brain-shift's static solve do so). On this 2-core machine the
+        // 12 factorizations of the indentation benchmark took 3.05 s sequential and 3.04 s
+        // on both threads.
+        let par = Par::Seq;
         let req = self
             .symbolic
             .factorize_numeric_llt_scratch::<f64>(par, Default::default())
