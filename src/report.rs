@@ -568,12 +568,20 @@ impl Summary {
         if let Some(st) = &self.statics {
             let _ = writeln!(
                 s,
-                "static solve     {}: {} load steps ({} cuts), {} Newton iterations, {} CG iterations, \
+                "static solve     {}: {} load steps ({} cuts{}), {} Newton iterations, {} CG iterations, \
                  {} assemblies, {} kept-factor steps, {} factorizations of {} DOFs ({:.1} MB factor, {:.2} s), \
                  {} force evaluations",
                 st.variant,
                 st.load_steps,
                 st.cuts,
+                if st.shifted_retries > 0 {
+                    format!(
+                        ", {} stalled steps retried shifted, {} converged",
+                        st.shifted_retries, st.shifted_converged
+                    )
+                } else {
+                    String::new()
+                },
                 st.newton_iterations,
                 st.linear_iterations,
                 st.assemblies,
