@@ -337,8 +337,8 @@ fn a_warm_static_resolve_matches_a_cold_one() {
 }
 
 /// The static solve gives bitwise the same answer for any thread count (the tangent is
-/// gathered row by row; the factorization and solves are faer's, whose order of operations
-/// does not depend on the threads).
+/// gathered row by row; faer factors and solves sequentially: its parallel kernels split some
+/// sums by the thread count, and CI once saw this test fail with them).
 #[test]
 fn the_static_solve_is_the_same_for_any_thread_count() {
     let run = |threads: usize| {
@@ -379,4 +379,44 @@ fn the_static_solve_is_the_same_for_any_thread_count() {
         one.output.u == three.output.u,
         "1 and 3 threads differ by up to {largest:e} m"
     );
+}
+
+/// A warm static solve through the low-level API (`simulation::solve` with
+/// `Settings::warm_start`) whose one step at the full load does not converge solves again from
+/// the unloaded state and says so, as `Session` does (it was an error): the benchmark's c1,
+/// whose cold solve cuts its first load step, warm-started from the unloaded state gives the
+/// cold answer.
+#[test]
+fn a_warm_static_solve_that_does_not_converge_goes_on_from_the_unloaded_state() {
+    use hytled::simulation::{prepare, settings, solve};
+    let scene = hytled::scene::load(
+        &path("cases/brain-indentation-benchmark.toml"),
+        &["geometry.mesh=../meshes/brain-indentation-c1.msh".into()],
+    )
+    .unwrap();
+    let mut prep = prepare(&scene).unwrap();
+    let cold = solve(&mut prep, &settings(&scene, false)).unwrap();
+    let mut s = settings(&scene, false);
+    s.warm_start = Some(hytled::solver::WarmStart {
+        u: vec![nalgebra::Vector3::zeros(); prep.model.nodes().len()],
+        omega_min: None,
+    });
+    let warm = solve(&mut prep, &s).unwrap();
+    let d = warm
+        .u
+        .iter()
+        .zip(&cold.u)
+        .map(|(a, b)| (a - b).amax())
+        .fold(0.0, f64::max);
+    println!(
+        "c1: cold {} force evaluations; warm from zero {} ({:?}); |u_warm - u_cold| {d:.3e} m",
+        cold.force_evaluations, warm.force_evaluations, warm.notes
+    );
+    assert!(cold.converged && warm.converged);
+    assert!(warm
+        .notes
+        .iter()
+        .any(|n| n.contains("warm start from the last equilibrium failed")));
+    assert!(d <= scene.solver.tolerance, "{d:e}");
+    assert_eq!(warm.stages.len(), cold.stages.len());
 }

@@ -1129,9 +1129,38 @@ impl<'a, M: Material> Newton<'a, M> {
         done
     }
 
-    /// The run: load steps to each stage and to the full load.
+    /// The run: from a warm start one step at the full load, and where that does not converge
+    /// (a change too large to take from there) the load steps from the unloaded state, said in
+    /// the notes, as [`crate::simulation::Session`] does for relaxation; otherwise load steps
+    /// to each stage and to the full load.
     fn run(&mut self, sink: &mut Option<&mut FrameSink<'_, M>>) -> Result<()> {
-        let warm = self.s.warm_start.is_some();
+        if self.s.warm_start.is_none() {
+            return self.run_from(false, sink);
+        }
+        match self.run_from(true, sink) {
+            Err(Error::Unstable(msg)) => {
+                self.notes.push(format!(
+                    "static solve: the warm start from the last equilibrium failed ({msg}); \
+                     solved from the unloaded state"
+                ));
+                self.u.iter_mut().for_each(|x| *x = Vector3::zeros());
+                self.lambda.iter_mut().for_each(|x| *x = 0.0);
+                self.t_lambda.iter_mut().for_each(|x| *x = 0.0);
+                self.t_hint.iter_mut().for_each(|x| *x = None);
+                self.path.clear();
+                self.shifted = false;
+                self.history.clear();
+                self.work_state = None;
+                self.external_work = 0.0;
+                self.peak_work = 0.0;
+                self.run_from(false, sink)
+            }
+            r => r,
+        }
+    }
+
+    /// Load steps from the unloaded state, or (`warm`) one step at the full load.
+    fn run_from(&mut self, warm: bool, sink: &mut Option<&mut FrameSink<'_, M>>) -> Result<()> {
         let mut tau = if warm { 1.0 } else { 0.0 };
         self.forces(tau);
         self.peak_force = self.residual_norm().1;
@@ -1200,11 +1229,18 @@ impl<'a, M: Material> Newton<'a, M> {
                         if self.stalled && !self.shifted && cuts_in_row >= SHIFT_AFTER_CUTS {
                             self.shifted = true;
                             self.report.shifted_retries += 1;
-                            // A warm start's one step at the full load is retried as well.
                             first = warm;
                             continue;
                         }
                         self.shifted = false;
+                        // A warm start's one step has no shorter span to cut to (before
+                        // this test came first, the stop rule reported it as the last
+                        // equilibrium at 100 % of the load, not converged).
+                        if warm {
+                            return Err(Error::Unstable(
+                                "its one step at the full load did not converge".into(),
+                            ));
+                        }
                         self.report.cuts += 1;
                         cuts_in_row += 1;
                         if let Some(why) = give_up(cuts_in_row, next - tau) {
@@ -1225,11 +1261,6 @@ impl<'a, M: Material> Newton<'a, M> {
                             ));
                             self.converged = false;
                             return Ok(());
-                        }
-                        if warm {
-                            return Err(Error::Unstable(
-                                "the warm-started static step did not converge".into(),
-                            ));
                         }
                         failed_span = failed_span.min(next - tau);
                         dtau = (next - tau) * 0.5;
