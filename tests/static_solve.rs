@@ -337,8 +337,8 @@ fn a_warm_static_resolve_matches_a_cold_one() {
 }
 
 /// The static solve gives bitwise the same answer for any thread count (the tangent is
-/// gathered row by row; faer factors and solves sequentially: its parallel kernels split some
-/// sums by the thread count, and CI once saw this test fail with them).
+/// gathered row by row; METIS orders one graph at a time in the process, and faer factors and
+/// solves sequentially). CI saw it fail when other tests' METIS calls ran at the same time.
 #[test]
 fn the_static_solve_is_the_same_for_any_thread_count() {
     let run = |threads: usize| {

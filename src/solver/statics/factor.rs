@@ -341,12 +341,11 @@ impl Factor {
             ),
             &self.values,
         );
-        // Sequential: faer's parallel kernels split some products by the thread count (a
-        // matrix-vector product sums one partial per thread) and choose their code path from
-        // it and the cache sizes, so a parallel factor could differ in the last bits between
-        // thread counts (CI saw brain-shift's static solve do so). On this 2-core machine the
-        // 12 factorizations of the indentation benchmark took 3.05 s sequential and 3.04 s
-        // on both threads.
+        // Sequential: faer's parallel matrix-vector product (a supernode one column wide
+        // over at least 65,536 entries) sums one partial per thread, so a parallel factor of a
+        // large model could differ in the last bits between thread counts. On this 2-core
+        // machine the 12 factorizations of the indentation benchmark took 3.05 s sequential
+        // and 3.04 s on both threads.
         let par = Par::Seq;
         let req = self
             .symbolic
@@ -565,10 +564,17 @@ fn geometric_node_order(k: &Tangent, nodes: &[Vector3<f64>]) -> Vec<u32> {
     order
 }
 
+/// One METIS call at a time in the process: METIS draws its random numbers from one state for
+/// the whole process (GKlib's generator, reseeded at every call), so orders computed at the
+/// same time on several threads interleaved their draws and differed from run to run: 39 of
+/// 40 in `the_metis_order_is_the_same_while_other_threads_order`, and brain-shift's static
+/// answer on 1 and 3 threads in CI, where other tests of the binary ordered at the same time.
+static METIS_LOCK: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
 /// The nodes in METIS's multilevel nested-dissection order of the tangent's node graph
 /// (METIS_NodeND; Karypis and Kumar 1998, SIAM J. Sci. Comput. 20(1)): separators found by
 /// graph coarsening and refinement rather than by coordinates. Deterministic (METIS's fixed
-/// seed). None where METIS refuses the graph.
+/// seed, one call at a time: [`METIS_LOCK`]). None where METIS refuses the graph.
 fn metis_node_order(k: &Tangent, n: usize) -> Option<Vec<u32>> {
     use metis_sys::idx_t;
     let mut xadj: Vec<idx_t> = Vec::with_capacity(n + 1);
@@ -591,6 +597,9 @@ fn metis_node_order(k: &Tangent, n: usize) -> Option<Vec<u32>> {
     // SAFETY: the arrays are METIS's CSR graph of nvtxs vertices (xadj nvtxs + 1 offsets into
     // adjncy, every entry a vertex below nvtxs), options holds METIS_NOPTIONS entries, perm
     // and iperm nvtxs each; a null vwgt means unit weights. METIS keeps no pointer.
+    // A panic elsewhere while holding the lock leaves METIS's state as a call left it, which
+    // the next call reseeds: the poisoned lock is taken all the same.
+    let _one_at_a_time = METIS_LOCK.lock().unwrap_or_else(|e| e.into_inner());
     let ok = unsafe {
         metis_sys::METIS_SetDefaultOptions(options.as_mut_ptr());
         metis_sys::METIS_NodeND(
@@ -732,5 +741,32 @@ mod tests {
             f.factor_nonzeros()
         );
         assert!(["amd", "nested dissection", "metis"].contains(&f.ordering));
+    }
+
+    /// METIS's order is the same when other threads order graphs at the same time (its random
+    /// numbers are one state for the whole process; two static solves at once, as the tests
+    /// of one binary or the runs of a sweep, drew from it in turn and got other orders).
+    #[test]
+    fn the_metis_order_is_the_same_while_other_threads_order() {
+        let mesh = box_tet(Vector3::zeros(), Vector3::new(0.04, 0.03, 0.05), [8, 6, 10]).unwrap();
+        let mat = Solid::NeoHookean(NeoHookean::from_young_poisson(3000.0, 0.49, 1000.0));
+        let qp = element_points(&mesh, ElementKind::Tet4Anp, 0.05, 1e4).unwrap();
+        let model = Model::new(mesh.nodes.clone(), qp, mat, Vec::new()).unwrap();
+        let n = model.nodes.len();
+        let k = Tangent::new(&model, &[], true);
+        let alone = metis_node_order(&k, n).expect("METIS orders a mesh graph");
+        let differ = std::thread::scope(|scope| {
+            let runs: Vec<_> = (0..4)
+                .map(|_| {
+                    scope.spawn(|| {
+                        (0..10)
+                            .filter(|_| metis_node_order(&k, n).as_ref() != Some(&alone))
+                            .count()
+                    })
+                })
+                .collect();
+            runs.into_iter().map(|r| r.join().unwrap()).sum::<usize>()
+        });
+        assert_eq!(differ, 0, "{differ} of 40 orders differed");
     }
 }
