@@ -713,14 +713,19 @@ mod tests {
         }
     }
 
+    /// A tet4-anp box, 8 x 6 x 10 cells over 40 x 30 x 50 mm, nearly incompressible.
+    fn anp_box() -> Model<Solid> {
+        let mesh = box_tet(Vector3::zeros(), Vector3::new(0.04, 0.03, 0.05), [8, 6, 10]).unwrap();
+        let mat = Solid::NeoHookean(NeoHookean::from_young_poisson(3000.0, 0.49, 1000.0));
+        let qp = element_points(&mesh, ElementKind::Tet4Anp, 0.05, 1e4).unwrap();
+        Model::new(mesh.nodes, qp, mat, Vec::new()).unwrap()
+    }
+
     /// METIS's order is a permutation of the nodes, the same on every call, and expands to
     /// every free DOF and split unit once; the factor keeps the order with the fewest nonzeros.
     #[test]
     fn the_metis_order_is_a_deterministic_permutation_of_every_unknown() {
-        let mesh = box_tet(Vector3::zeros(), Vector3::new(0.04, 0.03, 0.05), [8, 6, 10]).unwrap();
-        let mat = Solid::NeoHookean(NeoHookean::from_young_poisson(3000.0, 0.49, 1000.0));
-        let qp = element_points(&mesh, ElementKind::Tet4Anp, 0.05, 1e4).unwrap();
-        let model = Model::new(mesh.nodes.clone(), qp, mat, Vec::new()).unwrap();
+        let model = anp_box();
         let n = model.nodes.len();
         let mask: Vec<[bool; 3]> = model.nodes.iter().map(|x| [x.z == 0.0; 3]).collect();
         let dofs = Dofs::new(&mask);
@@ -748,10 +753,7 @@ mod tests {
     /// of one binary or the runs of a sweep, drew from it in turn and got other orders).
     #[test]
     fn the_metis_order_is_the_same_while_other_threads_order() {
-        let mesh = box_tet(Vector3::zeros(), Vector3::new(0.04, 0.03, 0.05), [8, 6, 10]).unwrap();
-        let mat = Solid::NeoHookean(NeoHookean::from_young_poisson(3000.0, 0.49, 1000.0));
-        let qp = element_points(&mesh, ElementKind::Tet4Anp, 0.05, 1e4).unwrap();
-        let model = Model::new(mesh.nodes.clone(), qp, mat, Vec::new()).unwrap();
+        let model = anp_box();
         let n = model.nodes.len();
         let k = Tangent::new(&model, &[], true);
         let alone = metis_node_order(&k, n).expect("METIS orders a mesh graph");
