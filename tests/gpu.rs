@@ -115,11 +115,7 @@ fn same(a: &[Vector3<f64>], b: &[Vector3<f64>]) -> bool {
 /// The largest difference between two fields relative to the larger's largest component.
 fn worst(a: &[Vector3<f64>], b: &[Vector3<f64>]) -> f64 {
     let scale = a.iter().map(|v| v.amax()).fold(0.0, f64::max).max(1e-300);
-    a.iter()
-        .zip(b)
-        .map(|(x, y)| (x - y).amax())
-        .fold(0.0, f64::max)
-        / scale
+    largest_difference(a, b) / scale
 }
 
 /// Runs `case` on the CPU and on `device`; returns the differences found (empty: bitwise the

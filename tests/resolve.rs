@@ -5,7 +5,7 @@
 //! the model cannot take are errors.
 
 mod common;
-use common::path;
+use common::{largest_difference, path};
 
 use std::path::PathBuf;
 
@@ -62,13 +62,6 @@ fn measured_cube(name: &str, scale: f64, extra: &[&str]) -> hytled::scene::Scene
     ];
     o.extend(extra.iter().map(|s| s.to_string()));
     hytled::scene::load(&file, &o).unwrap_or_else(|e| panic!("{e}"))
-}
-
-fn largest_difference(a: &[nalgebra::Vector3<f64>], b: &[nalgebra::Vector3<f64>]) -> f64 {
-    a.iter()
-        .zip(b)
-        .map(|(x, y)| (x - y).amax())
-        .fold(0.0, f64::max)
 }
 
 /// The silent failure: through `prepare` and `solve`, new `node_values` on the

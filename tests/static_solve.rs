@@ -296,13 +296,7 @@ fn a_warm_static_resolve_matches_a_cold_one() {
     session.set_measured("exposed", &u).unwrap();
     let warm = session.solve().unwrap();
     let cold = session.solve_cold().unwrap();
-    let d = warm
-        .output
-        .u
-        .iter()
-        .zip(&cold.output.u)
-        .map(|(a, b)| (a - b).amax())
-        .fold(0.0, f64::max);
+    let d = largest_difference(&warm.output.u, &cold.output.u);
     let sym = |s: &hytled::simulation::Solution| {
         s.summary
             .statics
@@ -357,13 +351,7 @@ fn the_static_solve_is_the_same_for_any_thread_count() {
     };
     let (one, three) = (run(1), run(3));
     assert!(one.summary.converged);
-    let largest = one
-        .output
-        .u
-        .iter()
-        .zip(&three.output.u)
-        .map(|(a, b)| (a - b).amax())
-        .fold(0.0, f64::max);
+    let largest = largest_difference(&one.output.u, &three.output.u);
     assert_eq!(
         (
             one.summary.force_evaluations,
@@ -402,12 +390,7 @@ fn a_warm_static_solve_that_does_not_converge_goes_on_from_the_unloaded_state() 
         omega_min: None,
     });
     let warm = solve(&mut prep, &s).unwrap();
-    let d = warm
-        .u
-        .iter()
-        .zip(&cold.u)
-        .map(|(a, b)| (a - b).amax())
-        .fold(0.0, f64::max);
+    let d = largest_difference(&warm.u, &cold.u);
     println!(
         "c1: cold {} force evaluations; warm from zero {} ({:?}); |u_warm - u_cold| {d:.3e} m",
         cold.force_evaluations, warm.force_evaluations, warm.notes

@@ -7,6 +7,14 @@ use hytled::report::Summary;
 use hytled::scene::Scene;
 use hytled::simulation::{run_scene, RunOptions};
 
+/// The largest difference of any component between two fields, m.
+pub fn largest_difference(a: &[nalgebra::Vector3<f64>], b: &[nalgebra::Vector3<f64>]) -> f64 {
+    a.iter()
+        .zip(b)
+        .map(|(x, y)| (x - y).amax())
+        .fold(0.0, f64::max)
+}
+
 /// Path of a file in the crate.
 pub fn path(rel: &str) -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join(rel)
