@@ -1229,7 +1229,6 @@ impl<'a, M: Material> Newton<'a, M> {
                         if self.stalled && !self.shifted && cuts_in_row >= SHIFT_AFTER_CUTS {
                             self.shifted = true;
                             self.report.shifted_retries += 1;
-                            first = warm;
                             continue;
                         }
                         self.shifted = false;
