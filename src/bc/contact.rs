@@ -647,6 +647,14 @@ impl Contact {
             })
     }
 
+    /// The curves of the bodies that move.
+    pub fn motion_curves(&self) -> impl Iterator<Item = &LoadCurve> {
+        self.bodies
+            .iter()
+            .filter(|b| b.motion != Vector3::zeros())
+            .map(|b| &b.curve)
+    }
+
     /// Each body's displacement at load fraction `tau`, m.
     pub fn body_displacement(&self, b: usize, tau: f64) -> Vector3<f64> {
         let body = &self.bodies[b];

@@ -70,6 +70,46 @@ impl LoadCurve {
     }
 }
 
+impl LoadCurve {
+    /// The curve starts at 0, never falls and ends above 0 (smooth, ramp, a rising table;
+    /// not constant, there and back, nor a table that falls or starts loaded): its factor
+    /// over its factor at 1 is then a load fraction that only grows with tau.
+    pub fn is_rising(&self) -> bool {
+        match self {
+            LoadCurve::Smooth | LoadCurve::Ramp => true,
+            LoadCurve::Constant | LoadCurve::SmoothReturn => false,
+            LoadCurve::Table(t) => {
+                self.value(0.0) == 0.0
+                    && self.value(1.0) > 0.0
+                    && t.factor.windows(2).all(|w| w[1] >= w[0])
+            }
+        }
+    }
+
+    /// The smallest load fraction tau in [0, 1] at which the curve
+    /// reaches `share` of its factor at 1 (bisection to rounding; 0 and 1 at the ends):
+    /// the inverse of a rising curve ([`Self::is_rising`]).
+    pub fn fraction_at(&self, share: f64) -> f64 {
+        if !(share > 0.0) {
+            return 0.0;
+        }
+        if share >= 1.0 {
+            return 1.0;
+        }
+        let goal = share * self.value(1.0);
+        let (mut lo, mut hi) = (0.0f64, 1.0f64);
+        for _ in 0..64 {
+            let mid = 0.5 * (lo + hi);
+            if self.value(mid) < goal {
+                lo = mid;
+            } else {
+                hi = mid;
+            }
+        }
+        hi
+    }
+}
+
 /// A tabulated curve: factors at increasing load fractions, linear between them.
 #[derive(Debug, Clone, PartialEq)]
 pub struct CurveTable {
@@ -189,6 +229,41 @@ pub fn parse_curve_csv(text: &str, source: &str) -> Result<Vec<[f64; 2]>> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A rising curve's inverse gives back the share it was asked for (the static solve's
+    /// load steps along the smooth curve); curves that start loaded or fall are not rising.
+    #[test]
+    fn a_rising_curve_is_inverted_to_rounding() {
+        let table = |pts: &[[f64; 2]]| {
+            LoadCurve::Table(Arc::new(CurveTable::from_times(pts, 1.0, "t").unwrap()))
+        };
+        let rises = table(&[[0.0, 0.0], [0.5, 2.0], [0.7, 2.0], [1.0, 4.0]]);
+        for c in [LoadCurve::Smooth, LoadCurve::Ramp, rises.clone()] {
+            assert!(c.is_rising(), "{c:?}");
+            for k in 0..=20 {
+                let share = k as f64 / 20.0;
+                let tau = c.fraction_at(share);
+                assert!((0.0..=1.0).contains(&tau));
+                let back = c.value(tau) / c.value(1.0);
+                assert!(
+                    (back - share).abs() < 1e-12,
+                    "{c:?} {share} -> {tau} -> {back}"
+                );
+            }
+        }
+        // The smooth curve's middle: 10 t^3 - 15 t^4 + 6 t^5 = 1/2 at t = 1/2.
+        assert!((LoadCurve::Smooth.fraction_at(0.5) - 0.5).abs() < 1e-15);
+        // On a flat part the first load fraction that reaches it: 2 of 4 at 0.5.
+        assert!((rises.fraction_at(0.5) - 0.5).abs() < 1e-12);
+        for c in [
+            LoadCurve::Constant,
+            LoadCurve::SmoothReturn,
+            table(&[[0.0, 0.2], [1.0, 1.0]]),
+            table(&[[0.0, 0.0], [0.5, 1.0], [1.0, 0.5]]),
+        ] {
+            assert!(!c.is_rising(), "{c:?}");
+        }
+    }
 
     /// The factor range bounds every value the curve takes (sampled densely), and is reached.
     #[test]

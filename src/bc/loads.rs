@@ -382,6 +382,11 @@ impl Loads {
         &self.names
     }
 
+    /// Each load's curve, in the order of [`Self::names`].
+    pub fn curves(&self) -> &[LoadCurve] {
+        &self.curves
+    }
+
     /// Each load's total force at the last [`Self::apply`], N.
     pub fn totals(&self) -> &[Vector3<f64>] {
         &self.totals

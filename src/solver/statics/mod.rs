@@ -27,6 +27,7 @@ use serde::{Deserialize, Serialize};
 
 use super::integrate::{FrameSink, HistoryRow, Momentum, RunOutput, Settings, Stage, StepUpdates};
 use super::Model;
+use crate::bc::LoadCurve;
 use crate::material::Material;
 use crate::{Error, InputKind, Result};
 use factor::{Dofs, Factor, Kind};
@@ -147,7 +148,7 @@ const CHEAP_CONTRACTION: f64 = 0.5;
 /// One Newton iteration of the residual history.
 #[derive(Debug, Clone, Copy, Serialize, Deserialize)]
 pub struct ResidualRow {
-    /// Load fraction of the step.
+    /// The share of the final load at the step's end ([`StaticReport::load_reached`]).
     pub load: f64,
     /// Iteration within the load step (0: after the predictor).
     pub iteration: usize,
@@ -190,7 +191,9 @@ pub struct StaticReport {
     pub factor_seconds: f64,
     pub assembly_seconds: f64,
     pub solve_seconds: f64,
-    /// The last load fraction reached at equilibrium.
+    /// The share of the final load reached at equilibrium: the load fraction, or where every
+    /// changing input follows one rising curve, that curve's factor there (the solve steps
+    /// in it).
     pub load_reached: f64,
     pub residual_history: Vec<ResidualRow>,
 }
@@ -512,7 +515,13 @@ struct Newton<'a, M: Material> {
     /// Newton step may carry a point under a flat punch deeper than its distance to the
     /// punch's side, which would push it out sideways onto another branch.
     t_hint: Vec<Option<Vector3<f64>>>,
+    /// Per candidate point, whether it pushed at the last tangent.
+    t_pushing: Vec<bool>,
     tau_now: f64,
+    /// The curve every changing input follows, where they share one that rises and is not
+    /// the ramp ([`path_curve`]): the load steps are then taken in its factor, the share of
+    /// the final load, and mapped back to load fractions.
+    path_curve: Option<LoadCurve>,
     /// The last load step ended on modified-Newton steps with the kept factor that still
     /// contracted ([`CHEAP_CONTRACTION`]).
     kept_contracting: bool,
@@ -535,6 +544,7 @@ impl<'a, M: Material> Newton<'a, M> {
             symbolic_seconds: c.factor.symbolic_seconds,
             ..Default::default()
         };
+        let path_curve = path_curve(model);
         Newton {
             model,
             s,
@@ -574,8 +584,28 @@ impl<'a, M: Material> Newton<'a, M> {
             t_penalty: Vec::new(),
             t_state: Vec::new(),
             t_hint: Vec::new(),
+            t_pushing: Vec::new(),
             tau_now: 0.0,
+            path_curve,
             kept_contracting: false,
+        }
+    }
+
+    /// The load fraction tau (the curves' argument) at which the loads reach the share
+    /// `lam` of their final values along the path ([`Self::path_curve`]); `lam` itself
+    /// without one.
+    fn tau_of(&self, lam: f64) -> f64 {
+        match &self.path_curve {
+            Some(c) => c.fraction_at(lam),
+            None => lam,
+        }
+    }
+
+    /// The share of the final load at load fraction `tau` (the inverse of [`Self::tau_of`]).
+    fn lam_of(&self, tau: f64) -> f64 {
+        match &self.path_curve {
+            Some(c) => (c.value(tau) / c.value(1.0)).clamp(0.0, 1.0),
+            None => tau,
         }
     }
 
@@ -757,7 +787,10 @@ impl<'a, M: Material> Newton<'a, M> {
         let mut speed = 0.0f64;
         for b in (0..ct.len()).filter(|&b| ct.is_surface(b)) {
             for k in 1..=SAMPLES {
-                let (t0, t1) = ((k - 1) as f64 / SAMPLES as f64, k as f64 / SAMPLES as f64);
+                let (t0, t1) = (
+                    self.tau_of((k - 1) as f64 / SAMPLES as f64),
+                    self.tau_of(k as f64 / SAMPLES as f64),
+                );
                 let step = (ct.body_displacement(b, t1) - ct.body_displacement(b, t0)).norm();
                 speed = speed.max(step * SAMPLES as f64);
             }
@@ -1014,7 +1047,22 @@ impl<'a, M: Material> Newton<'a, M> {
             }
             self.add_contact_stiffness();
         }
-        if self.shifted {
+        // Where the contact's active set changed since the last tangent, this one is
+        // shifted too: the penalty's kink makes the tangent of one set a poor model across
+        // the change, and the points let go can slide along a near-singular direction (the
+        // coupled tet cube under a plate, stepped along the smooth curve: 119 -> 82 -> 103
+        // points pushing from one iteration to the next, and updates of 5 mm for a plate
+        // 0.6 mm down, until the step shrank below the shortest). A settled set (every
+        // point of the fe cube pushing from the first iteration) keeps Newton's tangent.
+        let flipped = if self.touch.is_empty() {
+            false
+        } else {
+            let now: Vec<bool> = self.t_state.iter().map(|s| s.2 > 0.0).collect();
+            let changed = now != self.t_pushing;
+            self.t_pushing = now;
+            changed
+        };
+        if self.shifted || flipped {
             let r = self
                 .report
                 .residual_history
@@ -1160,21 +1208,26 @@ impl<'a, M: Material> Newton<'a, M> {
     }
 
     /// Load steps from the unloaded state, or (`warm`) one step at the full load.
+    /// The loop runs in the share of the final load (`lam`, [`Self::tau_of`]); the loads,
+    /// the stages, the history and the frames take load fractions.
     fn run_from(&mut self, warm: bool, sink: &mut Option<&mut FrameSink<'_, M>>) -> Result<()> {
         let mut tau = if warm { 1.0 } else { 0.0 };
-        self.forces(tau);
+        self.forces(self.tau_of(tau));
         self.peak_force = self.residual_norm().1;
-        self.record_row(tau);
+        self.record_row(self.tau_of(tau));
         if !warm {
             self.frame(0.0, sink)?;
         }
-        let mut targets: Vec<f64> = self
+        // Stages in the load's share, each kept with its load fraction.
+        let stages: Vec<(f64, f64)> = self
             .s
             .stages
             .iter()
             .copied()
             .filter(|&l| l > 0.0 && l < 1.0 && !warm)
+            .map(|l| (self.lam_of(l), l))
             .collect();
+        let mut targets: Vec<f64> = stages.iter().map(|s| s.0).collect();
         targets.push(1.0);
         if !warm {
             self.path = vec![(tau, self.u.clone())];
@@ -1221,7 +1274,7 @@ impl<'a, M: Material> Newton<'a, M> {
                         }
                         self.report.load_steps += 1;
                         self.report.load_reached = tau;
-                        self.record_row(tau);
+                        self.record_row(self.tau_of(tau));
                         self.progress(tau);
                     }
                     false => {
@@ -1243,7 +1296,7 @@ impl<'a, M: Material> Newton<'a, M> {
                         self.report.cuts += 1;
                         cuts_in_row += 1;
                         if let Some(why) = give_up(cuts_in_row, next - tau) {
-                            self.forces(tau);
+                            self.forces(self.tau_of(tau));
                             let (r, scale) = self.residual_norm();
                             self.notes.push(format!(
                                 "static solve: a load step of {:.2e} of the load from {:.4} % did not converge \
@@ -1272,8 +1325,12 @@ impl<'a, M: Material> Newton<'a, M> {
                 }
             }
             if target < 1.0 {
-                self.stage(target)?;
-                self.frame(target, sink)?;
+                let at = stages
+                    .iter()
+                    .find(|s| s.0 == target)
+                    .map_or(target, |s| s.1);
+                self.stage(at)?;
+                self.frame(at, sink)?;
             }
         }
         self.converged = true;
@@ -1281,11 +1338,12 @@ impl<'a, M: Material> Newton<'a, M> {
         Ok(())
     }
 
-    /// One load step from `tau0` to `tau1` (equal for a warm start): the predictor, then
+    /// One load step from the load's share `lam0` to `lam1` (equal for a warm start): the predictor, then
     /// Newton iterations with a line search. Ok(false) when it does not converge (the caller
     /// restores u and cuts the step).
-    fn load_step(&mut self, tau0: f64, tau1: f64) -> Result<bool> {
+    fn load_step(&mut self, lam0: f64, lam1: f64) -> Result<bool> {
         self.stalled = false;
+        let tau1 = self.tau_of(lam1);
         let n = self.u.len();
         self.set_targets(tau1);
         if (!self.rows.is_empty() && self.penalty.is_empty())
@@ -1316,8 +1374,8 @@ impl<'a, M: Material> Newton<'a, M> {
         let u0 = self.u.clone();
         let mut last_update = 0.0f64;
         let mut predicted = false;
-        if tau1 > tau0 && self.path.len() >= 2 {
-            let w = lagrange_weights(self.path.iter().map(|p| p.0), tau1);
+        if lam1 > lam0 && self.path.len() >= 2 {
+            let w = lagrange_weights(self.path.iter().map(|p| p.0), lam1);
             for i in 0..n {
                 for c in 0..3 {
                     self.u[i][c] = if self.model.constraints.mask[i][c] {
@@ -1384,7 +1442,7 @@ impl<'a, M: Material> Newton<'a, M> {
         }
         let (r0, scale0) = self.residual_norm();
         self.peak_force = self.peak_force.max(scale0);
-        self.push_residual(tau1, 0, r0, scale0, last_update);
+        self.push_residual(lam1, 0, r0, scale0, last_update);
         let mut r_prev = r0;
         let mut trail = vec![r0];
         // Newton iterations count from the last multiplier update: the rounds converge
@@ -1507,7 +1565,7 @@ impl<'a, M: Material> Newton<'a, M> {
                 // to an eighth says the step is too long: cut the step now rather than
                 // after three iterations of crawling (brain-indentation: five failed load
                 // steps took 8 s of 18.8).
-                if tries > 8 || (tries > 3 && it <= 2 && tau1 > tau0) {
+                if tries > 8 || (tries > 3 && it <= 2 && lam1 > lam0) {
                     self.report.newton_iterations += it;
                     return Ok(false);
                 }
@@ -1532,7 +1590,7 @@ impl<'a, M: Material> Newton<'a, M> {
                 );
             }
             let (r_new, scale_new) = self.residual_norm();
-            self.push_residual(tau1, it, r_new, scale_new, last_update);
+            self.push_residual(lam1, it, r_new, scale_new, last_update);
             if cheap_step && r_new > CHEAP_CONTRACTION * r {
                 cheap = false;
                 if r_new > r {
@@ -1772,7 +1830,7 @@ impl<'a, M: Material> Newton<'a, M> {
             critical: super::integrate::Critical::Node(0),
             steps: self.report.newton_iterations,
             load_steps: Some(self.report.load_steps),
-            simulated_time: self.report.load_reached,
+            simulated_time: self.tau_of(self.report.load_reached),
             converged: self.converged,
             history: std::mem::take(&mut self.history),
             relaxation: Vec::new(),
@@ -1795,6 +1853,34 @@ impl<'a, M: Material> Newton<'a, M> {
             statics: Some(std::mem::take(&mut self.report)),
         }
     }
+}
+
+/// The curve the static solve steps along: the one every changing input (a boundary with
+/// a prescribed value other than 0, a load, a moving rigid body) follows, where they share
+/// one that rises from 0 ([`LoadCurve::is_rising`]) other than the ramp. The static answer
+/// at the full load does not depend on the path, but the steps do: equal steps in the load
+/// fraction along the smooth curve are 1.9x the mean share of the load at mid-path and next
+/// to none at its ends, and the load path extrapolated over them ran ahead of the tissue (the
+/// meshless cube under a plate read from a file: the predictor at 75 % of the load put the
+/// cube's top 6 mm below the plate, which the next Newton update carried up past the middle
+/// of the plate).
+fn path_curve<M: Material>(model: &Model<M>) -> Option<LoadCurve> {
+    let moving = |b: &crate::bc::Boundary| {
+        b.components.iter().flatten().any(|&v| v != 0.0)
+            || b.node_values
+                .as_ref()
+                .is_some_and(|v| v.iter().flatten().any(|&x| x != 0.0))
+    };
+    let mut curves = model
+        .boundaries
+        .iter()
+        .filter(|b| moving(b))
+        .map(|b| &b.curve)
+        .chain(model.loads.curves())
+        .chain(model.contact.iter().flat_map(|c| c.motion_curves()));
+    let first = curves.next()?;
+    (first.is_rising() && *first != LoadCurve::Ramp && curves.all(|c| c == first))
+        .then(|| first.clone())
 }
 
 /// The share of `solver.tolerance` (m) below which the linear constraints count as met.
