@@ -596,11 +596,12 @@ fn relaxation_reports_how_far_from_equilibrium_it_stopped() {
     // The exact cube relaxes in 747 steps to a free-node residual of 7e-8 of the largest nodal
     // force; stopped at 400 steps it is 1.6e-3 from equilibrium (its reaction 0.42 % off):
     // the summary says so and warns. Dynamic runs have no such residual (it is the inertia).
-    let done = run(CUBE, &[]).unwrap();
+    let relax = "solver.mode=relaxation";
+    let done = run(CUBE, &[relax]).unwrap();
     let r = done
         .equilibrium_residual
         .expect("relaxation reports its residual");
-    let cut = run(CUBE, &["solver.max_steps=400"]).unwrap();
+    let cut = run(CUBE, &[relax, "solver.max_steps=400"]).unwrap();
     let rc = cut.equilibrium_residual.unwrap();
     println!("converged {r:.2e}, stopped at 400 steps {rc:.2e}");
     assert!(done.converged && r < 1e-6, "{r}");

@@ -421,6 +421,7 @@ fn met_criterion_far_from_equilibrium_is_not_converged() {
         .unwrap()
     };
     let s = run(&[
+        "solver.mode=relaxation",
         "discretization.size=0.025",
         "solver.tolerance=1",
         "solver.load_steps=10",
@@ -435,6 +436,10 @@ fn met_criterion_far_from_equilibrium_is_not_converged() {
         "{:?}",
         s.warnings
     );
-    let s = run(&["discretization.size=0.025", "solver.load_steps=10"]);
+    let s = run(&[
+        "solver.mode=relaxation",
+        "discretization.size=0.025",
+        "solver.load_steps=10",
+    ]);
     assert_eq!(s.status, "converged");
 }

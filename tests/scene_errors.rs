@@ -47,7 +47,7 @@ fn override_errors_name_the_key_path() {
     // A --set value of the wrong shape has no source line to point at: the key path says where.
     // A key taking a name given a number lists the names (serde said "unit variant"), in the
     // file as through --set.
-    let in_file = cube_text().replace("mode = \"relaxation\"", "mode = 1");
+    let in_file = cube_text().replace("mode = \"static\"", "mode = 1");
     for (text, set, wants) in [
         (
             None,

@@ -15,7 +15,7 @@
 //! and leaves the tangential components free (frictionless). The force the rigid body applies
 //! is the sum of lambda n over its points; no penalty stiffness enters the stable step.
 
-use nalgebra::Vector3;
+use nalgebra::{Matrix3, Vector3};
 use rayon::prelude::*;
 
 use super::LoadCurve;
@@ -463,6 +463,37 @@ impl Contact {
         self.bodies[b]
             .shape
             .signed_depth_hinted(&x, &self.body_displacement(b, tau), hint)
+    }
+
+    /// The derivative of the push direction of point `p` (as [`Contact::depth_of_hinted`]
+    /// gives it) with respect to the point's position, 1/m, by central differences of 1e-7 m:
+    /// the normal's turning, which the static solve's contact tangent takes times the force.
+    /// A sphere's is (I - n n^T) / r; a plane's and a flat end's 0; a surface from a file
+    /// that of its interpolated normal.
+    pub fn normal_gradient(
+        &self,
+        b: usize,
+        p: &ContactPoint,
+        u: &[Vector3<f64>],
+        tau: f64,
+        hint: Option<Vector3<f64>>,
+    ) -> Matrix3<f64> {
+        const H: f64 = 1e-7;
+        let x = p
+            .row
+            .iter()
+            .fold(p.x, |acc, &(j, f)| acc + u[j as usize] * f);
+        let d = self.body_displacement(b, tau);
+        let shape = &self.bodies[b].shape;
+        let mut g = Matrix3::zeros();
+        for i in 0..3 {
+            let mut e = Vector3::zeros();
+            e[i] = H;
+            let up = shape.signed_depth_hinted(&(x + e), &d, hint).1;
+            let down = shape.signed_depth_hinted(&(x - e), &d, hint).1;
+            g.set_column(i, &((up - down) / (2.0 * H)));
+        }
+        g
     }
 
     /// Takes the state a static solve ended in: each body's force on the body (N), its points

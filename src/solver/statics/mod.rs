@@ -719,7 +719,14 @@ impl<'a, M: Material> Newton<'a, M> {
             .collect();
     }
 
-    /// The active points' penalty stiffness k w_a w_b n n^T (the normal's turning left out).
+    /// The active points' stiffness w_a w_b (k n n^T - g sym(dn/dx)): the penalty along the
+    /// normal, and the normal's turning under the point's force g ([`Contact::normal_gradient`],
+    /// symmetrized as the factorization needs). Without the turning, a node of the 25 mm cube
+    /// pressed by a 20 mm ball 24 mm down, sliding around it under 0.9 N (its turning 45 N/m
+    /// against about 75 N/m of tissue), crept by 4e-5 m per Newton iteration and the solve stopped
+    /// at 91 % of the load.
+    ///
+    /// [`Contact::normal_gradient`]: crate::bc::contact::Contact::normal_gradient
     fn add_contact_stiffness(&mut self) {
         let Some(ct) = self.model.contact.as_ref() else {
             return;
@@ -729,8 +736,16 @@ impl<'a, M: Material> Newton<'a, M> {
             if !(g > 0.0) {
                 continue;
             }
-            let nn = n * n.transpose() * self.t_penalty[k];
-            let row = &ct.points_of(b as usize)[i as usize].row;
+            let p = &ct.points_of(b as usize)[i as usize];
+            let turn = ct.normal_gradient(
+                b as usize,
+                p,
+                &self.u,
+                self.tau_now,
+                self.t_hint.get(k).copied().flatten(),
+            );
+            let nn = n * n.transpose() * self.t_penalty[k] - (turn + turn.transpose()) * (0.5 * g);
+            let row = &p.row;
             for &(a, wa) in row {
                 for &(c, wc) in row {
                     self.c
