@@ -276,6 +276,7 @@ fn gpu_without_a_gpu_is_an_input_error_before_the_preprocessing() {
             "gpu",
             "--json",
         ])
+        .args(["--set", "solver.mode=relaxation"])
         .args(["--set", "discretization.method=meshless"])
         .args(["--set", "discretization.size=0.0028"])
         .current_dir(path("."))

@@ -1451,6 +1451,7 @@ impl<'a, M: Material> Newton<'a, M> {
                 .map(|v| v.amax())
                 .fold(0.0, f64::max);
             let j = self.forces(tau1);
+            log::debug!("    linear predictor: min J {j:.4}");
             if !(j > 0.0) {
                 return Ok(false);
             }
