@@ -213,6 +213,13 @@ pub struct Conflict {
 const HELD_SHARE: f64 = 1e-6;
 
 impl ContactPoint {
+    /// Its position at nodal displacements `u`, m: x + the row's weighted displacements.
+    pub fn position(&self, u: &[Vector3<f64>]) -> Vector3<f64> {
+        self.row
+            .iter()
+            .fold(self.x, |acc, &(j, f)| acc + u[j as usize] * f)
+    }
+
     /// The node of its row with the largest weight (the one a conflict names).
     pub fn main_node(&self) -> u32 {
         self.row
@@ -456,10 +463,7 @@ impl Contact {
         tau: f64,
         hint: Option<Vector3<f64>>,
     ) -> (f64, Vector3<f64>) {
-        let x = p
-            .row
-            .iter()
-            .fold(p.x, |acc, &(j, f)| acc + u[j as usize] * f);
+        let x = p.position(u);
         self.bodies[b]
             .shape
             .signed_depth_hinted(&x, &self.body_displacement(b, tau), hint)
@@ -479,10 +483,7 @@ impl Contact {
         hint: Option<Vector3<f64>>,
     ) -> Matrix3<f64> {
         const H: f64 = 1e-7;
-        let x = p
-            .row
-            .iter()
-            .fold(p.x, |acc, &(j, f)| acc + u[j as usize] * f);
+        let x = p.position(u);
         let d = self.body_displacement(b, tau);
         let shape = &self.bodies[b].shape;
         let mut g = Matrix3::zeros();
@@ -727,11 +728,7 @@ impl Contact {
         for &j in &self.touched {
             self.nodal[j as usize] = Vector3::zeros();
         }
-        let position = |p: &ContactPoint, u: &[Vector3<f64>]| {
-            p.row
-                .iter()
-                .fold(p.x, |acc, &(j, f)| acc + u[j as usize] * f)
-        };
+        let position = |p: &ContactPoint, u: &[Vector3<f64>]| p.position(u);
         let mut worst = 0.0f64;
         for b in 0..self.bodies.len() {
             let d = self.body_displacement(b, tau);
