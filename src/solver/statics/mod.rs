@@ -1475,6 +1475,14 @@ impl<'a, M: Material> Newton<'a, M> {
         // 3.6e-8, 5.5e-9, ...) and used up the step's iterations at 25 in all.
         let (mut round_start, mut rounds) = (0, 0);
         'newton: for it in 1.. {
+            // Ctrl-C within a Newton iteration, not only between load steps: the exact cube
+            // at 5 mm solves in one load step of over a second (the Python test's 1.3 s).
+            crate::interrupt::check(|| {
+                format!(
+                    "in the static solve at {:.1} % of the load, Newton iteration {it}",
+                    100.0 * lam1
+                )
+            })?;
             self.last_iterations = it;
             let (r, scale) = self.residual_norm();
             if !r.is_finite() {
