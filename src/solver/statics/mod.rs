@@ -1075,9 +1075,13 @@ impl<'a, M: Material> Newton<'a, M> {
         let flipped = if self.touch.is_empty() {
             false
         } else {
-            let now: Vec<bool> = self.t_state.iter().map(|s| s.2 > 0.0).collect();
-            let changed = now != self.t_pushing;
-            self.t_pushing = now;
+            let n = self.t_state.len();
+            let mut changed = self.t_pushing.len() != n;
+            self.t_pushing.resize(n, false);
+            for (was, st) in self.t_pushing.iter_mut().zip(&self.t_state) {
+                changed |= *was != (st.2 > 0.0);
+                *was = st.2 > 0.0;
+            }
             changed
         };
         if self.shifted || flipped {
