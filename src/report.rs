@@ -569,7 +569,7 @@ impl Summary {
             let _ = writeln!(
                 s,
                 "static solve     {}: {} load steps ({} cuts{}), {} Newton iterations, {} CG iterations, \
-                 {} assemblies, {} kept-factor steps, {} factorizations of {} DOFs ({:.1} MB factor, {:.2} s), \
+                 {} assemblies, {} kept-factor steps, {} factorizations ({} in single precision) of {} DOFs ({:.1} MB factor, {:.2} s), \
                  {} force evaluations",
                 st.variant,
                 st.load_steps,
@@ -587,6 +587,7 @@ impl Summary {
                 st.assemblies,
                 st.kept_solves,
                 st.factorizations,
+                st.single_factorizations,
                 st.dofs,
                 st.factor_bytes as f64 / 1e6,
                 st.factor_seconds,
@@ -730,7 +731,7 @@ impl Summary {
         let balance = match (e.balance_error, self.load_steps.is_some()) {
             (Some(b), _) => format!(", balance error {:.4} %", 100.0 * b),
             (None, true) if self.statics.is_some() => {
-                ", the work by trapezoids over the load steps".into()
+                ", the work of the internal forces along the load path (parabolas through the equilibria; Simpson for one load step)".into()
             }
             // Relaxation's damping takes the rest of the external work: no balance to check.
             (None, true) => ", the difference is what relaxation's damping absorbed".into(),

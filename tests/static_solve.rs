@@ -264,12 +264,18 @@ fn meshless_essential_boundaries_are_imposed_exactly() {
         // The prescribed top is met at the corner node to a hundredth of the tolerance.
         assert!((a[2] + 0.02).abs() < 1e-9, "{bc} {basis}: {a:?}");
         assert_eq!(multiplier > 0, bc == "ebciem", "{bc} {basis}");
-        // The work done on the body, one trapezoid from the unloaded state: half the top's
-        // force times its 20 mm (the constraint forces' share was left out, ~1e-15 J).
-        let w = st.energy.external_work;
+        // The work done on the body (the constraint forces' share was once left out, ~1e-15
+        // J) against the strain energy: one load step, so Simpson's rule on the straight
+        // segment, whose error over the 20 % compression is about 0.3 % (the trapezoid's, half
+        // the force times 20 mm, 9 %).
+        let (w, se) = (st.energy.external_work, st.energy.strain_energy);
+        println!(
+            "{bc} {basis}: work {w} J, strain energy {se} J, trapezoid {} J",
+            0.5 * fa.abs() * 0.02
+        );
         assert!(
-            (w - 0.5 * fa.abs() * 0.02).abs() < 1e-3 * w.abs(),
-            "{bc} {basis}: work {w} J, force {fa} N"
+            (w - se).abs() < 5e-3 * se && (0.5 * fa.abs() * 0.02 - se).abs() > 5e-2 * se,
+            "{bc} {basis}: work {w} J, strain energy {se} J, force {fa} N"
         );
         assert!(
             rel_err(&st, "top_force") < 2e-3 && rel_err(&st, "lateral") < 5e-3,

@@ -106,6 +106,9 @@ const SHIFT: f64 = 1.0;
 const SHIFT_AFTER_CUTS: usize = 2;
 /// Cuts in a row (each halving the load step) before the solve gives up.
 const MAX_CUTS: usize = 12;
+/// A load step's first Newton step shorter than this (from the line search), its residual
+/// still half the largest force, cuts the step at once.
+const EARLY_CUT_ALPHA: f64 = 0.25;
 /// A point pressed into a rigid body is held against the push (an error naming the contact and
 /// the boundary) when the components its nodes may move along carry less than this share of
 /// the push. Relaxation's correction tests at the first touch, where a prescribed component
@@ -175,6 +178,10 @@ pub struct StaticReport {
     pub multiplier_iterations: usize,
     pub assemblies: usize,
     pub factorizations: usize,
+    /// Of the factorizations, those in single precision (mixed precision: refined by CG on
+    /// the double-precision tangent).
+    #[serde(default)]
+    pub single_factorizations: usize,
     /// Modified-Newton steps solved with a kept factor, no assembly (Newton-Krylov).
     pub kept_solves: usize,
     /// Load steps tried again with the diagonal shift after they did not converge
@@ -213,6 +220,11 @@ impl Cache {
     /// Bytes held.
     pub fn bytes(&self, points: usize) -> usize {
         self.tangent.bytes(points) + self.factor.bytes()
+    }
+
+    /// Bytes held at the most, over the factorizations made.
+    pub fn peak_bytes(&self, points: usize) -> usize {
+        self.tangent.bytes(points) + self.factor.bytes().max(self.factor.peak_bytes)
     }
 }
 
@@ -434,6 +446,8 @@ pub fn solve<M: Material>(
         }
     };
     c.factor.factorizations = 0;
+    c.factor.single_factorizations = 0;
+    c.factor.peak_bytes = c.factor.bytes();
     c.factor.factor_seconds = 0.0;
     let mut st = Newton::new(model, s, &mut c, start);
     st.rows = rows;
@@ -451,7 +465,7 @@ pub fn solve<M: Material>(
     let mut result = st.run(&mut sink);
     if result.is_ok() && s.refresh_factor && st.converged && !st.kept_contracting {
         st.assemble();
-        result = st.refactor().map(|_| ());
+        result = st.refactor(false).map(|_| ());
     }
     let out = result.map(|()| st.finish());
     *cache = Some(c);
@@ -485,6 +499,15 @@ struct Newton<'a, M: Material> {
     min_j: (f64, usize),
     /// The kept factor is of a tangent this many assemblies old (Modified: refactor policy).
     fresh: bool,
+    /// CG's last iterate where it did not converge ([`Self::pcg`]).
+    cg_partial: Vec<f64>,
+    /// The tangent held is of a state given up (a rejected load step's), not near u.
+    tangent_stale: bool,
+    /// So is the kept factor: neither a modified-Newton step nor a preconditioner from it.
+    factor_stale: bool,
+    /// Factorizations made up to the end of the load step's predictor (a factor of its
+    /// start): one made after it is of a state a rejected step gives up.
+    predictor_factorizations: usize,
     /// Newton iterations of the last load step.
     last_iterations: usize,
     /// The load step under way is a retry with the diagonal shift ([`SHIFT`]).
@@ -497,8 +520,11 @@ struct Newton<'a, M: Material> {
     loose: bool,
     /// The last (at most three) converged states on the load path: (load fraction, u).
     path: Vec<(f64, Vec<Vector3<f64>>)>,
-    /// (u, F_int) at the last history row, for the work's trapezoids.
-    work_state: Option<(Vec<Vector3<f64>>, Vec<Vector3<f64>>)>,
+    /// (chord length along the path, u, F_int) at the last (at most three) history rows, for
+    /// the work's quadrature ([`work_on_parabola`]); and the work of the first interval as
+    /// taken by a trapezoid, until a third row lets the parabola take it.
+    work_state: Vec<(f64, Vec<Vector3<f64>>, Vec<Vector3<f64>>)>,
+    first_trapezoid: Option<f64>,
     peak_work: f64,
     sink_seconds: f64,
     last_progress: Instant,
@@ -575,7 +601,8 @@ impl<'a, M: Material> Newton<'a, M> {
             last_iterations: 0,
             loose: false,
             path: Vec::new(),
-            work_state: None,
+            work_state: Vec::new(),
+            first_trapezoid: None,
             peak_work: 0.0,
             sink_seconds: 0.0,
             last_progress: Instant::now(),
@@ -591,6 +618,10 @@ impl<'a, M: Material> Newton<'a, M> {
             tau_now: 0.0,
             path_curve,
             kept_contracting: false,
+            cg_partial: Vec::new(),
+            tangent_stale: false,
+            factor_stale: false,
+            predictor_factorizations: 0,
         }
     }
 
@@ -1050,6 +1081,7 @@ impl<'a, M: Material> Newton<'a, M> {
     fn assemble(&mut self) {
         let t0 = Instant::now();
         self.c.tangent.assemble(self.model, &self.u);
+        self.tangent_stale = false;
         if !self.rows.is_empty() {
             self.set_penalties();
             self.add_constraint_stiffness();
@@ -1101,10 +1133,26 @@ impl<'a, M: Material> Newton<'a, M> {
         self.report.assembly_seconds += t0.elapsed().as_secs_f64();
     }
 
-    fn refactor(&mut self) -> Result<Kind> {
-        let k = self.c.factor.factor(&self.c.tangent)?;
+    fn refactor(&mut self, double: bool) -> Result<Kind> {
+        let k = self.c.factor.factor(&self.c.tangent, double)?;
         self.fresh = true;
+        self.factor_stale = false;
         Ok(k)
+    }
+
+    /// K_ff x = b to the relative residual `eta` with a factor of the current tangent just
+    /// made: a single-precision factor's solve refined by conjugate gradients, and where they
+    /// do not reach `eta` (a condition number near 1e7, where single precision's rounding
+    /// is felt), the tangent factored again in double precision and solved directly.
+    fn fresh_solve(&mut self, b: &mut [f64], eta: f64) -> Result<()> {
+        if self.c.factor.is_single() {
+            if self.pcg(b, eta, true) {
+                return Ok(());
+            }
+            self.refactor(true)?;
+        }
+        self.c.factor.solve(b);
+        Ok(())
     }
 
     /// K_ff x = b for the free DOFs (b in, x out), by the variant's rule; the tangent is
@@ -1115,17 +1163,19 @@ impl<'a, M: Material> Newton<'a, M> {
         let have = self.c.factor.kind().is_some();
         let direct = match variant {
             Variant::Newton => true,
-            Variant::Modified => !have,
-            Variant::NewtonKrylov => !have || self.c.factor.kind() == Some(Kind::Ldlt),
+            Variant::Modified => !have || self.factor_stale,
+            Variant::NewtonKrylov => {
+                !have || self.factor_stale || self.c.factor.kind() == Some(Kind::Ldlt)
+            }
         };
         if direct {
-            self.refactor()?;
-            self.c.factor.solve(b);
+            self.refactor(false)?;
+            self.fresh_solve(b, eta)?;
         } else if variant == Variant::Modified {
             self.c.factor.solve(b);
-        } else if !self.pcg(b, eta) {
-            self.refactor()?;
-            self.c.factor.solve(b);
+        } else if !self.pcg(b, eta, false) {
+            self.refactor(false)?;
+            self.fresh_solve(b, eta)?;
         }
         self.report.solve_seconds += t0.elapsed().as_secs_f64();
         Ok(())
@@ -1142,8 +1192,10 @@ impl<'a, M: Material> Newton<'a, M> {
     /// Conjugate gradients on the current tangent, preconditioned by the kept factor; b is
     /// replaced by the solution. False (b unchanged) when CG does not reach the relative
     /// residual `eta` (the forcing term, [`ETA_MAX`]) within its limit of iterations (at most
-    /// [`CG_LIMIT`]) or meets a direction of non-positive curvature.
-    fn pcg(&mut self, b: &mut [f64], eta: f64) -> bool {
+    /// [`CG_LIMIT`]; `fresh`: the factor is of this tangent, and failing costs a factorization
+    /// in double precision, so the limit is CG_LIMIT) or meets a direction of non-positive
+    /// curvature.
+    fn pcg(&mut self, b: &mut [f64], eta: f64, fresh: bool) -> bool {
         let n = b.len();
         let dot = |x: &[f64], y: &[f64]| x.iter().zip(y).map(|(a, b)| a * b).sum::<f64>();
         let bnorm = dot(b, b).sqrt();
@@ -1164,8 +1216,11 @@ impl<'a, M: Material> Newton<'a, M> {
         // per second (measured 7.8-9.6 on tet4-anp, tet10 and Ogden cases, 2 threads).
         let per_cg =
             4.0 * self.c.factor.factor_nonzeros() as f64 + 18.0 * self.c.tangent.blocks() as f64;
-        let limit =
-            ((self.c.factor.flops / FACTOR_EFFICIENCY / per_cg) as usize).clamp(4, CG_LIMIT);
+        let limit = if fresh {
+            CG_LIMIT
+        } else {
+            ((self.c.factor.flops / FACTOR_EFFICIENCY / per_cg) as usize).clamp(4, CG_LIMIT)
+        };
         let mut done = false;
         for _ in 0..limit {
             self.c.dofs.scatter(&p, &mut self.t0);
@@ -1196,6 +1251,9 @@ impl<'a, M: Material> Newton<'a, M> {
                 p[i] = z[i] + beta * p[i];
             }
         }
+        if !done {
+            self.cg_partial = x;
+        }
         done
     }
 
@@ -1214,13 +1272,16 @@ impl<'a, M: Material> Newton<'a, M> {
                      solved from the unloaded state"
                 ));
                 self.u.iter_mut().for_each(|x| *x = Vector3::zeros());
+                self.tangent_stale = true;
+                self.factor_stale = true;
                 self.lambda.iter_mut().for_each(|x| *x = 0.0);
                 self.t_lambda.iter_mut().for_each(|x| *x = 0.0);
                 self.t_hint.iter_mut().for_each(|x| *x = None);
                 self.path.clear();
                 self.shifted = false;
                 self.history.clear();
-                self.work_state = None;
+                self.work_state.clear();
+                self.first_trapezoid = None;
                 self.external_work = 0.0;
                 self.peak_work = 0.0;
                 self.run_from(false, sink)
@@ -1235,6 +1296,7 @@ impl<'a, M: Material> Newton<'a, M> {
     fn run_from(&mut self, warm: bool, sink: &mut Option<&mut FrameSink<'_, M>>) -> Result<()> {
         let mut tau = if warm { 1.0 } else { 0.0 };
         self.forces(self.tau_of(tau));
+        self.keep_faces();
         self.peak_force = self.residual_norm().1;
         self.record_row(self.tau_of(tau));
         if !warm {
@@ -1296,9 +1358,7 @@ impl<'a, M: Material> Newton<'a, M> {
                         }
                         tau = next;
                         cuts_in_row = 0;
-                        for (h, st) in self.t_hint.iter_mut().zip(&self.t_state) {
-                            *h = (st.2 > 0.0).then_some(st.1);
-                        }
+                        self.keep_faces();
                         self.report.load_steps += 1;
                         self.report.load_reached = tau;
                         self.record_row(self.tau_of(tau));
@@ -1306,6 +1366,9 @@ impl<'a, M: Material> Newton<'a, M> {
                     }
                     false => {
                         self.u = saved;
+                        self.tangent_stale = true;
+                        self.factor_stale |=
+                            self.c.factor.factorizations != self.predictor_factorizations;
                         self.peak_force = saved_peak;
                         if self.stalled && !self.shifted && cuts_in_row >= SHIFT_AFTER_CUTS {
                             self.shifted = true;
@@ -1402,6 +1465,7 @@ impl<'a, M: Material> Newton<'a, M> {
         let u0 = self.u.clone();
         let mut last_update = 0.0f64;
         let mut predicted = false;
+        self.predictor_factorizations = self.c.factor.factorizations;
         if lam1 > lam0 && self.path.len() >= 2 {
             let w = lagrange_weights(self.path.iter().map(|p| p.0), lam1);
             for i in 0..n {
@@ -1426,6 +1490,7 @@ impl<'a, M: Material> Newton<'a, M> {
         // CHEAP_CONTRACTION ends them for this load step (brain-shift's warm re-solve: 0.61 s
         // with a tangent per iteration).
         let mut cheap = self.s.static_variant == Variant::NewtonKrylov
+            && !self.factor_stale
             && self.c.factor.kind().is_some_and(|k| k != Kind::Ldlt);
         let mut rhs = vec![0.0; self.c.dofs.len];
         if !predicted {
@@ -1433,10 +1498,13 @@ impl<'a, M: Material> Newton<'a, M> {
             for i in 0..n {
                 self.t0[i] = self.fe[i] - self.f[i];
             }
-            let need_tangent = !cheap
-                && (moved
-                    || self.s.static_variant != Variant::Modified
-                    || self.c.factor.kind().is_none());
+            // K_fp du_p from the tangent here, not from the last one assembled where that is
+            // a rejected step's (after a cut: the predictor from it inverted cylinder-mixed's
+            // elements at 1/16 of the load that its own tangent took whole).
+            let need_tangent = (moved && self.tangent_stale)
+                || (!cheap
+                    && (self.s.static_variant != Variant::Modified
+                        || self.c.factor.kind().is_none()));
             if need_tangent {
                 self.assemble();
             }
@@ -1469,6 +1537,7 @@ impl<'a, M: Material> Newton<'a, M> {
                 return Ok(false);
             }
         }
+        self.predictor_factorizations = self.c.factor.factorizations;
         let (r0, scale0) = self.residual_norm();
         self.peak_force = self.peak_force.max(scale0);
         self.push_residual(lam1, 0, r0, scale0, last_update);
@@ -1478,6 +1547,7 @@ impl<'a, M: Material> Newton<'a, M> {
         // linearly (the meshless cube under a plate: the residual after each 2.2e-5, 7.4e-6,
         // 3.6e-8, 5.5e-9, ...) and used up the step's iterations at 25 in all.
         let (mut round_start, mut rounds) = (0, 0);
+        let mut probe = true;
         'newton: for it in 1.. {
             // Ctrl-C within a Newton iteration, not only between load steps: the exact cube
             // at 5 mm solves in one load step of over a second (the Python test's 1.3 s).
@@ -1559,7 +1629,7 @@ impl<'a, M: Material> Newton<'a, M> {
                     }
                     if !self.fresh {
                         self.assemble();
-                        self.refactor()?;
+                        self.refactor(false)?;
                     }
                 }
                 _ => self.assemble(),
@@ -1569,10 +1639,30 @@ impl<'a, M: Material> Newton<'a, M> {
             }
             self.c.dofs.gather(&self.t0, &mut rhs);
             let r_free = rhs.clone();
+            let eta = (0.9 * (r / r_prev).powi(2)).clamp(CG_TOLERANCE, ETA_MAX);
+            // The first iteration of a load step with the kept factor of its start: where CG
+            // does not converge with it, its last iterate is tried before a new factor, so
+            // that a step the early cut rejects keeps the start's factor for the shorter
+            // retry's predictor (cylinder-mixed: 3 factorizations of 480 MB to 1).
+            let mut probing = false;
             if cheap_step {
                 self.kept_solve(&mut rhs);
+            } else if it == 1
+                && lam1 > lam0
+                && probe
+                && self.s.static_variant == Variant::NewtonKrylov
+                && self.c.factor.kind() == Some(Kind::Llt)
+            {
+                let t0 = Instant::now();
+                let mut x = rhs.clone();
+                if self.pcg(&mut x, eta, false) {
+                    rhs = x;
+                } else {
+                    rhs = std::mem::take(&mut self.cg_partial);
+                    probing = true;
+                }
+                self.report.solve_seconds += t0.elapsed().as_secs_f64();
             } else {
-                let eta = (0.9 * (r / r_prev).powi(2)).clamp(CG_TOLERANCE, ETA_MAX);
                 self.linear_solve(&mut rhs, eta)?;
             }
             let du = rhs.clone();
@@ -1608,9 +1698,20 @@ impl<'a, M: Material> Newton<'a, M> {
                 }
                 alpha *= 0.5;
             }
+            if probing && !(g0 > 0.0) {
+                // CG's iterate is no descent direction: the full solve instead.
+                self.undo(&base, tau1, &mut trail);
+                probe = false;
+                continue 'newton;
+            }
             if g0 > 0.0 {
                 match self.line_search(&base, &du, g0, alpha, tau1) {
                     Some(a) => alpha = a,
+                    None if probing => {
+                        self.undo(&base, tau1, &mut trail);
+                        probe = false;
+                        continue 'newton;
+                    }
                     None => {
                         self.report.newton_iterations += it;
                         self.stalled = true;
@@ -1628,6 +1729,24 @@ impl<'a, M: Material> Newton<'a, M> {
             }
             let (r_new, scale_new) = self.residual_norm();
             self.push_residual(lam1, it, r_new, scale_new, last_update);
+            // A first Newton iteration of a load step (with the current tangent, not the
+            // kept factor's modified step) that the line search cut to a short step and that
+            // left the residual as large as the largest force says the step is too long: cut
+            // it now, before more factorizations (cylinder-mixed's full-load first step: 4
+            // factorizations of 480 MB over 3 iterations, steps 0.06-0.13).
+            if it == 1
+                && lam1 > lam0
+                && !cheap_step
+                && alpha < EARLY_CUT_ALPHA
+                && r_new > 0.5 * scale_new
+            {
+                log::debug!(
+                    "    early cut: step {alpha:.3e}, residual {:.3e}",
+                    r_new / scale_new
+                );
+                self.report.newton_iterations += it;
+                return Ok(false);
+            }
             if cheap_step && r_new > CHEAP_CONTRACTION * r {
                 cheap = false;
                 if r_new > r {
@@ -1644,6 +1763,18 @@ impl<'a, M: Material> Newton<'a, M> {
             r_prev = r;
         }
         Ok(false)
+    }
+
+    /// Every contact point keeps, for the next load step, the push direction it has at this
+    /// equilibrium: a point pressing keeps the face it presses, and one not yet touching the
+    /// face it is nearest to, which it will enter through (a flat punch's end, for a point
+    /// beneath it). Measured afresh after a long step, a point carried under the end deeper
+    /// than its distance to the side wall was pushed out sideways: the brain under the punch
+    /// took two load steps and settled at 42.2 mN against relaxation's 58.87 mN.
+    fn keep_faces(&mut self) {
+        for (h, st) in self.t_hint.iter_mut().zip(&self.t_state) {
+            *h = Some(st.1);
+        }
     }
 
     /// Back to `base` (the iteration's start) at load fraction `tau`, its residual taken off
@@ -1771,14 +1902,47 @@ impl<'a, M: Material> Newton<'a, M> {
         } else {
             &self.f_int
         };
-        if let Some((u0, f0)) = &self.work_state {
-            let mut w = 0.0;
-            for i in 0..self.u.len() {
-                w += 0.5 * (f0[i] + f_int[i]).dot(&(self.u[i] - u0[i]));
-            }
-            self.external_work += w;
+        // The work of F_int along the path through the rows, parametrised by its chord
+        // length: F_int and u interpolated by the parabola through the last three rows, their
+        // product integrated exactly over the newest interval; the first interval by a
+        // trapezoid until a third row comes, then by the parabola too (the earlier rows'
+        // work corrected). The trapezoids over the brain's two load steps under the punch
+        // gave 1.0 % more work than strain energy.
+        let chord = self.work_state.last().map_or(0.0, |(t, u0, _)| {
+            t + u0
+                .iter()
+                .zip(&self.u)
+                .map(|(a, b)| (b - a).norm_squared())
+                .sum::<f64>()
+                .sqrt()
+        });
+        if self.work_state.len() == 3 {
+            self.work_state.remove(0);
         }
-        self.work_state = Some((self.u.clone(), f_int.clone()));
+        self.work_state.push((chord, self.u.clone(), f_int.clone()));
+        let ws = &self.work_state;
+        match ws.len() {
+            2 if ws[1].0 > ws[0].0 => {
+                let w: f64 = (0..self.u.len())
+                    .map(|i| 0.5 * (ws[0].2[i] + ws[1].2[i]).dot(&(ws[1].1[i] - ws[0].1[i])))
+                    .sum();
+                self.first_trapezoid = Some(w);
+                self.external_work += w;
+            }
+            3 if ws[2].0 > ws[1].0 && ws[1].0 > ws[0].0 => {
+                self.external_work += work_on_parabola(ws, 1);
+                if let Some(trap) = self.first_trapezoid.take() {
+                    let fix = work_on_parabola(ws, 0) - trap;
+                    self.external_work += fix;
+                    // The rows from the end of the first interval on.
+                    let n = self.history.len();
+                    for h in &mut self.history[n - 1..] {
+                        h.external_work += fix;
+                    }
+                }
+            }
+            _ => {}
+        }
         if !m.f_ext.is_empty() {
             m.f_ext.clone_from(&self.fe);
         }
@@ -1845,15 +2009,57 @@ impl<'a, M: Material> Newton<'a, M> {
         }
     }
 
+    /// A path of one interval (one load step) has no third state for the parabola of
+    /// [`Self::record_row`]: its work by Simpson's rule on the straight segment instead (F_int
+    /// is the gradient of the strain energy, so any path between the two gives the same), the
+    /// forces at its midpoint evaluated, then those at u again for what reads them after.
+    /// The exact cube's one load step: the trapezoid gave 9 % more work than strain energy.
+    fn simpson_work(&mut self) {
+        let (Some(trap), 2) = (self.first_trapezoid, self.work_state.len()) else {
+            return;
+        };
+        let ws = &self.work_state;
+        let mid: Vec<Vector3<f64>> = ws[0]
+            .1
+            .iter()
+            .zip(&ws[1].1)
+            .map(|(a, b)| 0.5 * (a + b))
+            .collect();
+        let m = &mut *self.model;
+        let mut f_mid = vec![Vector3::zeros(); mid.len()];
+        m.forces.compute(&m.points, &m.slots, &mid, &mut f_mid);
+        let valid = m.forces.min_j().0 > 0.0;
+        let mut at_u = vec![Vector3::zeros(); mid.len()];
+        m.forces.compute(&m.points, &m.slots, &self.u, &mut at_u);
+        self.force_evaluations += 2;
+        if !valid {
+            return;
+        }
+        let w: f64 = (0..mid.len())
+            .map(|i| {
+                (ws[0].2[i] + 4.0 * f_mid[i] + ws[1].2[i]).dot(&(ws[1].1[i] - ws[0].1[i])) / 6.0
+            })
+            .sum();
+        let fix = w - trap;
+        self.first_trapezoid = None;
+        self.external_work += fix;
+        if let Some(h) = self.history.last_mut() {
+            h.external_work += fix;
+        }
+    }
+
     /// The run's output.
     fn finish(&mut self) -> RunOutput {
         self.constraint_reactions();
         self.contact_state();
+        self.simpson_work();
         let m = &mut *self.model;
         if !m.f_ext.is_empty() {
             m.f_ext.clone_from(&self.fe);
         }
         self.report.factorizations = self.c.factor.factorizations;
+        self.report.single_factorizations = self.c.factor.single_factorizations;
+        self.report.factor_bytes = self.c.peak_bytes(self.model.points.len());
         self.report.factor_seconds = self.c.factor.factor_seconds;
         let strain_energy = self.history.last().map_or(0.0, |h| h.strain_energy);
         RunOutput {
@@ -1922,6 +2128,50 @@ fn path_curve<M: Material>(model: &Model<M>) -> Option<LoadCurve> {
 
 /// The share of `solver.tolerance` (m) below which the linear constraints count as met.
 const CONSTRAINT_SHARE: f64 = 1e-2;
+
+/// The work of F along the path through three states (t_k, u_k, F_k) (t the chord length)
+/// over the interval [t_m, t_m+1]: the integral of F(t) . u'(t) with F and u the parabolas
+/// through the three, exact by two Gauss points (the integrand is a cubic).
+fn work_on_parabola(ws: &[(f64, Vec<Vector3<f64>>, Vec<Vector3<f64>>)], m: usize) -> f64 {
+    let t = [ws[0].0, ws[1].0, ws[2].0];
+    let basis = |x: f64| -> ([f64; 3], [f64; 3]) {
+        let mut l = [0.0; 3];
+        let mut dl = [0.0; 3];
+        for k in 0..3 {
+            let (i, j) = ((k + 1) % 3, (k + 2) % 3);
+            let den = (t[k] - t[i]) * (t[k] - t[j]);
+            l[k] = (x - t[i]) * (x - t[j]) / den;
+            dl[k] = (2.0 * x - t[i] - t[j]) / den;
+        }
+        (l, dl)
+    };
+    let (a, b) = (t[m], t[m + 1]);
+    let g = 0.5 / 3f64.sqrt();
+    let mut weights = [[0.0; 3]; 3];
+    for x in [0.5 - g, 0.5 + g] {
+        let (l, dl) = basis(a + x * (b - a));
+        for j in 0..3 {
+            for k in 0..3 {
+                weights[j][k] += 0.5 * (b - a) * l[j] * dl[k];
+            }
+        }
+    }
+    let mut w = 0.0;
+    for j in 0..3 {
+        for k in 0..3 {
+            if weights[j][k] != 0.0 {
+                w += weights[j][k]
+                    * ws[j]
+                        .2
+                        .iter()
+                        .zip(&ws[k].1)
+                        .map(|(f, u)| f.dot(u))
+                        .sum::<f64>();
+            }
+        }
+    }
+    w
+}
 
 /// The Lagrange interpolation weights of the points `at` evaluated at `t`: the polynomial
 /// through the points, of degree one less than their number.
