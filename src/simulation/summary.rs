@@ -129,7 +129,7 @@ pub fn summarize(scene: &Scene, prep: &Prepared, out: &RunOutput, total_seconds:
             WarningKind::Solve,
             format!(
                 "equilibrium: the largest out-of-balance force at a free node is {r:.2e} of the \
-             largest nodal force at the end of this relaxation (more than {:.0e}): the \
+             largest nodal force at the end of this run (more than {:.0e}): the \
              displacements are not at equilibrium to the digits shown; lower solver.tolerance \
              or raise solver.max_steps",
                 crate::report::RESIDUAL_WARNING
