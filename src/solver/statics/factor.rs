@@ -348,16 +348,7 @@ impl Factor {
             // -1 / D; a unit without volumetric stiffness is decoupled (-1 / D huge).
             self.values[at[3 * g.len()] as usize] = if d > 0.0 { -1.0 / d } else { -1e150 };
         }
-        let a = SparseColMatRef::new(
-            SymbolicSparseColMatRef::new_checked(
-                self.n,
-                self.n,
-                &self.col_ptr,
-                None,
-                &self.row_idx,
-            ),
-            &self.values,
-        );
+        let a = SparseColMatRef::new(pattern(self.n, &self.col_ptr, &self.row_idx), &self.values);
         // Sequential: faer's parallel matrix-vector product (a supernode one column wide
         // over at least 65,536 entries) sums one partial per thread, so a parallel factor of a
         // large model could differ in the last bits between thread counts. On this 2-core
@@ -397,16 +388,8 @@ impl Factor {
                 .iter()
                 .map(|&v| (v as f32).max(f32::MIN))
                 .collect();
-            let a = SparseColMatRef::new(
-                SymbolicSparseColMatRef::new_checked(
-                    self.n,
-                    self.n,
-                    &self.col_ptr,
-                    None,
-                    &self.row_idx,
-                ),
-                &single[..],
-            );
+            let a =
+                SparseColMatRef::new(pattern(self.n, &self.col_ptr, &self.row_idx), &single[..]);
             let ok = if augmented {
                 self.symbolic
                     .factorize_numeric_ldlt(
@@ -592,6 +575,15 @@ fn factor_flops(s: &SymbolicCholesky<usize>) -> f64 {
             .map(|w| ((w[1] - w[0]) as f64).powi(2))
             .sum(),
     }
+}
+
+/// The pattern of the upper triangle of an n x n matrix in compressed columns.
+fn pattern<'a>(
+    n: usize,
+    col_ptr: &'a [usize],
+    row_idx: &'a [usize],
+) -> SymbolicSparseColMatRef<'a, usize> {
+    SymbolicSparseColMatRef::new_checked(n, n, col_ptr, None, row_idx)
 }
 
 /// The error where a factor of `len` nonzeros of `bytes` each cannot be allocated.
@@ -790,65 +782,76 @@ mod tests {
     use crate::material::{NeoHookean, Solid};
     use crate::solver::Model;
 
-    /// The single-precision factor (mixed precision) of a positive definite K_ff: LL^T in half
-    /// the bytes of the double one, its solve within the rounding of single precision times
-    /// the condition number (a preconditioner that CG refines), where the double one's is
-    /// within 1e-9; near incompressibility too.
+    /// A tet4-anp box of Poisson's ratio `nu` (8 x 6 x 10 cells over 40 x 30 x 50 mm, its
+    /// base held) at the displacement `at` of each node, its free DOFs and a right-hand side.
+    fn box_at(
+        nu: f64,
+        at: impl Fn(&Vector3<f64>) -> Vector3<f64>,
+    ) -> (Model<Solid>, Vec<Vector3<f64>>, Dofs, Vec<f64>) {
+        let mesh = box_tet(Vector3::zeros(), Vector3::new(0.04, 0.03, 0.05), [8, 6, 10]).unwrap();
+        let mat = Solid::NeoHookean(NeoHookean::from_young_poisson(3000.0, nu, 1000.0));
+        let qp = element_points(&mesh, ElementKind::Tet4Anp, 0.05, 1e4).unwrap();
+        let model = Model::new(mesh.nodes.clone(), qp, mat, Vec::new()).unwrap();
+        let u = model.nodes.iter().map(at).collect();
+        let mask: Vec<[bool; 3]> = model.nodes.iter().map(|x| [x.z == 0.0; 3]).collect();
+        let dofs = Dofs::new(&mask);
+        let b = (0..dofs.len)
+            .map(|i| ((i * 37 % 11) as f64) - 5.0)
+            .collect();
+        (model, u, dofs, b)
+    }
+
+    /// K x - b on the free DOFs, through the tangent's own product.
+    fn residual(k: &Tangent, dofs: &Dofs, x: &[f64], b: &[f64]) -> Vec<f64> {
+        let n = dofs.index.len();
+        let (mut xs, mut kx) = (vec![Vector3::zeros(); n], vec![Vector3::zeros(); n]);
+        dofs.scatter(x, &mut xs);
+        k.multiply(&xs, &mut kx);
+        let mut r = vec![0.0; dofs.len];
+        dofs.gather(&kx, &mut r);
+        r.iter().zip(b).map(|(a, c)| a - c).collect()
+    }
+
+    /// The single-precision factor (mixed precision), of the assembled K_ff (LL^T) and of the
+    /// augmented matrix (LDL^T): half the bytes of the double one, its solve within the
+    /// rounding of single precision times the condition number (a preconditioner that CG
+    /// refines), where the double one's is within 1e-9; near incompressibility too.
     #[test]
     fn the_single_precision_factor_solves_to_its_rounding_in_half_the_memory() {
-        let (lo, hi) = (Vector3::zeros(), Vector3::new(0.04, 0.03, 0.05));
         for nu in [0.45, 0.4999] {
-            let mesh = box_tet(lo, hi, [8, 6, 10]).unwrap();
-            let mat = Solid::NeoHookean(NeoHookean::from_young_poisson(3000.0, nu, 1000.0));
-            let qp = element_points(&mesh, ElementKind::Tet4Anp, 0.05, 1e4).unwrap();
-            let model = Model::new(mesh.nodes.clone(), qp, mat, Vec::new()).unwrap();
-            let n = model.nodes.len();
-            let u: Vec<Vector3<f64>> = model
-                .nodes
-                .iter()
-                .map(|x| Vector3::new(0.02 * x.z, 0.0, 0.0))
-                .collect();
-            let mask: Vec<[bool; 3]> = model.nodes.iter().map(|x| [x.z == 0.0; 3]).collect();
-            let dofs = Dofs::new(&mask);
-            let b: Vec<f64> = (0..dofs.len)
-                .map(|i| ((i * 37 % 11) as f64) - 5.0)
-                .collect();
-            // (Simple shear: where the volume changes, nu = 0.4999's pressure makes the
-            // tangent of this state, not an equilibrium, indefinite from 0.2 % compression.)
-            let mut k = Tangent::new(&model, &[], false);
-            k.assemble(&model, &u);
-            let mut f = Factor::new(&k, &dofs, &model.nodes).unwrap();
-            let mut errors = Vec::new();
-            let mut bytes = Vec::new();
-            for double in [true, false] {
-                assert_eq!(f.factor(&k, double).unwrap(), Kind::Llt);
-                assert_eq!(f.is_single(), !double);
-                bytes.push(f.l_values.len() * 8 + f.l_single.len() * 4);
-                let mut x = b.clone();
-                f.solve(&mut x);
-                let (mut xs, mut kx) = (vec![Vector3::zeros(); n], vec![Vector3::zeros(); n]);
-                dofs.scatter(&x, &mut xs);
-                k.multiply(&xs, &mut kx);
-                let mut r = vec![0.0; dofs.len];
-                dofs.gather(&kx, &mut r);
-                let norm = |v: &mut dyn Iterator<Item = f64>| v.map(|a| a * a).sum::<f64>().sqrt();
-                errors.push(
-                    norm(&mut r.iter().zip(&b).map(|(a, c)| a - c)) / norm(&mut b.iter().copied()),
+            // Simple shear: where the volume changes, nu = 0.4999's pressure makes the
+            // tangent of this state, not an equilibrium, indefinite from 0.2 % compression.
+            let (model, u, dofs, b) = box_at(nu, |x| Vector3::new(0.02 * x.z, 0.0, 0.0));
+            for split in [false, true] {
+                let mut k = Tangent::new(&model, &[], split);
+                k.assemble(&model, &u);
+                let mut f = Factor::new(&k, &dofs, &model.nodes).unwrap();
+                let kind = if split { Kind::Augmented } else { Kind::Llt };
+                let mut errors = Vec::new();
+                let mut bytes = Vec::new();
+                for double in [true, false] {
+                    assert_eq!(f.factor(&k, double).unwrap(), kind);
+                    assert_eq!(f.is_single(), !double);
+                    bytes.push(f.l_values.len() * 8 + f.l_single.len() * 4);
+                    let mut x = b.clone();
+                    f.solve(&mut x);
+                    let norm = |v: &[f64]| v.iter().map(|a| a * a).sum::<f64>().sqrt();
+                    errors.push(norm(&residual(&k, &dofs, &x, &b)) / norm(&b));
+                }
+                println!(
+                    "nu {nu} split {split}: relative residual double {:.2e}, single {:.2e}; \
+                     bytes {bytes:?}",
+                    errors[0], errors[1]
                 );
+                assert!(errors[0] < 1e-9, "nu {nu}: double {:e}", errors[0]);
+                assert!(
+                    errors[1] < 1e-2 && errors[1] > errors[0],
+                    "nu {nu}: single {:e}",
+                    errors[1]
+                );
+                assert_eq!(2 * bytes[1], bytes[0], "nu {nu}");
+                assert_eq!((f.factorizations, f.single_factorizations), (2, 1));
             }
-            println!(
-                "nu {nu}: relative residual double {:.2e}, single {:.2e}; bytes {bytes:?}",
-                errors[0], errors[1]
-            );
-            assert!(errors[0] < 1e-9, "nu {nu}: double {:e}", errors[0]);
-            assert!(
-                errors[1] < 1e-2 && errors[1] > errors[0],
-                "nu {nu}: single {:e}",
-                errors[1]
-            );
-            assert_eq!(2 * bytes[1], bytes[0], "nu {nu}");
-            assert_eq!(f.factorizations, 2);
-            assert_eq!(f.single_factorizations, 1);
         }
     }
 
@@ -857,23 +860,9 @@ mod tests {
     /// factor of fewer nonzeros.
     #[test]
     fn the_augmented_factor_solves_the_tangent_with_less_fill() {
-        let (lo, hi) = (Vector3::zeros(), Vector3::new(0.04, 0.03, 0.05));
         for nu in [0.45, 0.4999] {
-            let mesh = box_tet(lo, hi, [8, 6, 10]).unwrap();
-            let mat = Solid::NeoHookean(NeoHookean::from_young_poisson(3000.0, nu, 1000.0));
-            let qp = element_points(&mesh, ElementKind::Tet4Anp, 0.05, 1e4).unwrap();
-            let model = Model::new(mesh.nodes.clone(), qp, mat, Vec::new()).unwrap();
-            let n = model.nodes.len();
-            let u: Vec<Vector3<f64>> = model
-                .nodes
-                .iter()
-                .map(|x| Vector3::new(0.1 * x.z, 0.05 * x.x, -0.2 * x.z))
-                .collect();
-            let mask: Vec<[bool; 3]> = model.nodes.iter().map(|x| [x.z == 0.0; 3]).collect();
-            let dofs = Dofs::new(&mask);
-            let b: Vec<f64> = (0..dofs.len)
-                .map(|i| ((i * 37 % 11) as f64) - 5.0)
-                .collect();
+            let (model, u, dofs, b) =
+                box_at(nu, |x| Vector3::new(0.1 * x.z, 0.05 * x.x, -0.2 * x.z));
             let mut solved = Vec::new();
             let mut fill = Vec::new();
             for split in [false, true] {
@@ -884,17 +873,9 @@ mod tests {
                 assert_eq!(kind == Kind::Augmented, split);
                 let mut x = b.clone();
                 f.solve(&mut x);
-                // K x against b through the tangent's own product.
-                let (mut xs, mut kx) = (vec![Vector3::zeros(); n], vec![Vector3::zeros(); n]);
-                dofs.scatter(&x, &mut xs);
-                k.multiply(&xs, &mut kx);
-                let mut r = vec![0.0; dofs.len];
-                dofs.gather(&kx, &mut r);
-                let err = r
+                let err = residual(&k, &dofs, &x, &b)
                     .iter()
-                    .zip(&b)
-                    .map(|(a, c)| (a - c).abs())
-                    .fold(0.0, f64::max);
+                    .fold(0.0f64, |m, a| m.max(a.abs()));
                 assert!(err < 1e-8 * 5.0, "nu {nu} split {split}: |Kx - b| {err:e}");
                 solved.push(x);
                 fill.push(f.factor_nonzeros());
