@@ -569,7 +569,7 @@ impl Summary {
             let _ = writeln!(
                 s,
                 "static solve     {}: {} load steps ({} cuts{}), {} Newton iterations, {} CG iterations, \
-                 {} assemblies, {} kept-factor steps, {} factorizations ({} in single precision) of {} DOFs ({:.1} MB factor, {:.2} s), \
+                 {} assemblies, {} kept-factor steps, {} factorizations ({} in single precision{}) of {} DOFs ({:.1} MB factor, {:.2} s), \
                  {} force evaluations",
                 st.variant,
                 st.load_steps,
@@ -588,6 +588,14 @@ impl Summary {
                 st.kept_solves,
                 st.factorizations,
                 st.single_factorizations,
+                if st.modified_factorizations > 0 {
+                    format!(
+                        ", {} of a tangent not positive definite",
+                        st.modified_factorizations
+                    )
+                } else {
+                    String::new()
+                },
                 st.dofs,
                 st.factor_bytes as f64 / 1e6,
                 st.factor_seconds,

@@ -186,7 +186,10 @@ fn a_body_free_to_move_is_refused_naming_the_motions() {
 }
 
 /// A load no equilibrium can carry (the cube pressed through its own height) ends with the last
-/// equilibrium reached, not converged, the load fraction named; no NaN.
+/// equilibrium reached, not converged, the load fraction named; no NaN. Since the factor of a
+/// tangent not positive definite is made so (2026-11-30), the solve stops where the tangents
+/// beyond its last equilibrium turn indefinite (48.8 % of the load, 58.5 mm of the 100 mm
+/// cube, 3 negative pivots): before, LDL^T's directions climbed on to 83.2 % with J = 0.13.
 #[test]
 fn a_load_that_cannot_converge_stops_at_the_last_equilibrium() {
     let s = run_case(
@@ -207,7 +210,7 @@ fn a_load_that_cannot_converge_stops_at_the_last_equilibrium() {
     println!("{note}");
     let st = s.statics.as_ref().unwrap();
     assert!(
-        st.load_reached > 0.5 && st.load_reached < 1.0,
+        st.load_reached > 0.4 && st.load_reached < 1.0,
         "{}",
         st.load_reached
     );

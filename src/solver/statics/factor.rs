@@ -78,8 +78,13 @@ impl Dofs {
 pub enum Kind {
     /// LL^T: the matrix was positive definite.
     Llt,
-    /// LDL^T without pivoting: it was not (a tangent past a limit point, or buckling).
+    /// LDL^T with every pivot positive: K_ff is positive definite (single precision did not
+    /// find it so).
     Ldlt,
+    /// L |D| L^T of an LDL^T with a pivot not positive: K_ff is not positive definite (a
+    /// tangent past a limit point, or buckling, or far from equilibrium); its solves give
+    /// directions of descent ([`Factor::make_definite`]), not K^-1.
+    Modified,
     /// LDL^T of the augmented matrix [K_b G; G^T -D^-1] of a tangent with split
     /// average-nodal-pressure units (K = K_b + G D G^T, one extra unknown per pressure node):
     /// quasi-definite where K_b is positive definite, so that any symmetric order factors
@@ -112,6 +117,10 @@ pub struct Factor {
     /// the augmented matrix), same
     /// structure; allocated at its first use.
     l_single: Vec<f32>,
+    /// Pivots of the last double-precision LDL^T changed to make it positive definite
+    /// ([`Kind::Modified`]): the tangent's eigenvalues not positive, by Sylvester's law of
+    /// inertia (and any positive one under MODIFIED_FLOOR of the largest pivot).
+    pub negative_pivots: usize,
     /// Whether the last factor is the single-precision one.
     single: bool,
     kind: Option<Kind>,
@@ -120,9 +129,11 @@ pub struct Factor {
     /// Multiply-adds of a numeric factorization, sum over the factor's columns of their
     /// nonzeros squared (from the symbolic structure).
     pub flops: f64,
-    /// Numeric factorizations made, and of them those in single precision.
+    /// Numeric factorizations made, of them those in single precision, and those of a
+    /// tangent not positive definite made so ([`Kind::Modified`]).
     pub factorizations: usize,
     pub single_factorizations: usize,
+    pub modified_factorizations: usize,
     /// The most bytes held ([`Self::bytes`]) after any factorization.
     pub peak_bytes: usize,
     /// Wall seconds spent in the symbolic analysis and the numeric factorizations.
@@ -224,8 +235,7 @@ impl Factor {
         // Both orders' symbolic analyses take a fraction of a factorization; the one with the
         // smaller factor is kept (nested dissection: 8.4 against 11.3 million nonzeros on the
         // hex8 cylinder; AMD: 4.6 against 5.9 on brain-shift's tet4-anp).
-        let (fwd, inv) = dof_order(k, dofs, coords);
-        let symbolic_with = |how| {
+        let symbolic_with = |how: SymmetricOrdering<'_, usize>| {
             factorize_symbolic_cholesky(
                 pattern,
                 Side::Upper,
@@ -239,20 +249,32 @@ impl Factor {
                 )
             })
         };
-        let nd = symbolic_with(SymmetricOrdering::Custom(faer::perm::PermRef::new_checked(
-            &fwd, &inv, n,
-        )))?;
-        let amd = symbolic_with(SymmetricOrdering::Amd)?;
+        // The three analyses are independent: on the threads at once (each result is the
+        // same on any count; c3's took 0.07, 0.10 and 0.20 s one after another).
+        let custom = |(fwd, inv): (Vec<usize>, Vec<usize>)| {
+            symbolic_with(SymmetricOrdering::Custom(faer::perm::PermRef::new_checked(
+                &fwd, &inv, n,
+            )))
+        };
+        let (nd, (amd, metis)) = rayon::join(
+            || custom(dof_order(k, dofs, coords)),
+            || {
+                rayon::join(
+                    || symbolic_with(SymmetricOrdering::Amd),
+                    || {
+                        metis_node_order(k, dofs.index.len())
+                            .map(|order| custom(expand_to_dofs(&order, k, dofs)))
+                    },
+                )
+            },
+        );
         // The smallest factor of the three orders; the first of equals.
-        let (mut symbolic, mut ordering) = (nd, "nested dissection");
+        let (mut symbolic, mut ordering) = (nd?, "nested dissection");
+        let amd = amd?;
         if amd.len_val() < symbolic.len_val() {
             (symbolic, ordering) = (amd, "amd");
         }
-        if let Some(order) = metis_node_order(k, dofs.index.len()) {
-            let (fwd, inv) = expand_to_dofs(&order, k, dofs);
-            let metis = symbolic_with(SymmetricOrdering::Custom(
-                faer::perm::PermRef::new_checked(&fwd, &inv, n),
-            ))?;
+        if let Some(metis) = metis.transpose()? {
             if metis.len_val() < symbolic.len_val() {
                 (symbolic, ordering) = (metis, "metis");
             }
@@ -270,12 +292,14 @@ impl Factor {
             symbolic,
             l_values: Vec::new(),
             l_single: Vec::new(),
+            negative_pivots: 0,
             single: false,
             kind: None,
             ordering,
             flops,
             factorizations: 0,
             single_factorizations: 0,
+            modified_factorizations: 0,
             peak_bytes: 0,
             symbolic_seconds: t0.elapsed().as_secs_f64(),
             factor_seconds: 0.0,
@@ -324,6 +348,65 @@ impl Factor {
     /// (or its factor is not finite), and LDL^T when it is not. Errors when it is singular.
     pub fn factor(&mut self, k: &Tangent, double: bool) -> Result<Kind> {
         let t0 = std::time::Instant::now();
+        self.take_values(k);
+        if !double {
+            if let Some(kind) = self.factor_single()? {
+                self.factor_seconds += t0.elapsed().as_secs_f64();
+                return Ok(kind);
+            }
+        }
+        let augmented = self.n > self.dofs;
+        let a = SparseColMatRef::new(pattern(self.n, &self.col_ptr, &self.row_idx), &self.values);
+        let par = Par::Seq;
+        let mut mem = self.workspace()?;
+        let stack = MemStack::new(&mut mem);
+        self.single = false;
+        self.l_single = Vec::new();
+        if self.l_values.is_empty() {
+            let len = self.symbolic.len_val();
+            self.l_values = try_zeros(len).ok_or_else(|| no_memory(len, 8))?;
+        }
+        // LDL^T straight away: the augmented matrix is indefinite by construction, and K_ff
+        // where single precision found it not positive definite most often is (brain-indentation:
+        // double-precision LL^T failed after it at every such tangent), which LDL^T's pivots
+        // tell without another factorization.
+        self.symbolic
+            .factorize_numeric_ldlt(
+                &mut self.l_values,
+                a,
+                Side::Upper,
+                LdltRegularization::default(),
+                par,
+                stack,
+                Default::default(),
+            )
+            .map_err(|e| Error::Unstable(format!("the tangent stiffness is singular ({e:?})")))?;
+        let kind = if augmented {
+            Kind::Augmented
+        } else {
+            self.negative_pivots = self.make_definite();
+            if self.negative_pivots == 0 {
+                Kind::Ldlt
+            } else {
+                self.modified_factorizations += 1;
+                Kind::Modified
+            }
+        };
+        if self.l_values.iter().any(|v| !v.is_finite()) {
+            self.kind = None;
+            return Err(Error::Unstable(
+                "the tangent stiffness is singular: its factorization is not finite".into(),
+            ));
+        }
+        self.kind = Some(kind);
+        self.peak_bytes = self.peak_bytes.max(self.bytes());
+        self.factorizations += 1;
+        self.factor_seconds += t0.elapsed().as_secs_f64();
+        Ok(kind)
+    }
+
+    /// K_ff's values (and the augmented matrix's) from the assembled tangent.
+    fn take_values(&mut self, k: &Tangent) {
         self.values.iter_mut().for_each(|v| *v = 0.0);
         for (e, s) in self.scatter.iter().enumerate() {
             let b = &k.values[e];
@@ -333,7 +416,6 @@ impl Factor {
                 }
             }
         }
-        let augmented = self.n > self.dofs;
         for (i, u) in k.pressure_units().enumerate() {
             let (_, g, d) = k.unit(u);
             let at =
@@ -348,7 +430,10 @@ impl Factor {
             // -1 / D; a unit without volumetric stiffness is decoupled (-1 / D huge).
             self.values[at[3 * g.len()] as usize] = if d > 0.0 { -1.0 / d } else { -1e150 };
         }
-        let a = SparseColMatRef::new(pattern(self.n, &self.col_ptr, &self.row_idx), &self.values);
+    }
+
+    /// The factorization's workspace, for either precision and either kind.
+    fn workspace(&self) -> Result<MemBuffer> {
         // Sequential: faer's parallel matrix-vector product (a supernode one column wide
         // over at least 65,536 entries) sums one partial per thread, so a parallel factor of a
         // large model could differ in the last bits between thread counts. On this 2-core
@@ -361,101 +446,45 @@ impl Factor {
             .or(self
                 .symbolic
                 .factorize_numeric_ldlt_scratch::<f64>(par, Default::default()));
-        let mut mem = MemBuffer::try_new(req).map_err(|_| {
+        MemBuffer::try_new(req).map_err(|_| {
             Error::input(
                 InputKind::Limit,
                 "no memory for the static solve's factorization workspace",
             )
-        })?;
+        })
+    }
+
+    /// The values taken factored in single precision: LL^T, the augmented matrix LDL^T.
+    /// None where that fails (not positive definite, or a factor not finite).
+    fn factor_single(&mut self) -> Result<Option<Kind>> {
+        let augmented = self.n > self.dofs;
+        let par = Par::Seq;
+        let mut mem = self.workspace()?;
         let stack = MemStack::new(&mut mem);
         // Single precision first: on the indentation benchmark's c3 (tet10, 30,039 DOFs) its
         // factorization took 0.18 s against 0.26 s, a pair of triangular solves 8 ms against
         // 20 ms (they stream the factor from memory), and half the factor's memory; the
         // augmented matrix of the coupled brain-contact (22,923 DOFs): 6 factorizations in
         // 11.4 s against 23.6 s, the static solve 44.6 s against 85.4 s.
-        if !double {
-            if self.l_single.is_empty() {
-                let len = self.symbolic.len_val();
-                let mut v = Vec::new();
-                v.try_reserve_exact(len).map_err(|_| no_memory(len, 4))?;
-                v.resize(len, 0.0f32);
-                self.l_single = v;
-            }
-            // -1 / D of a unit without volumetric stiffness (-1e150) is beyond single
-            // precision: the most negative finite value keeps it decoupled.
-            let single: Vec<f32> = self
-                .values
-                .iter()
-                .map(|&v| (v as f32).max(f32::MIN))
-                .collect();
-            let a =
-                SparseColMatRef::new(pattern(self.n, &self.col_ptr, &self.row_idx), &single[..]);
-            let ok = if augmented {
-                self.symbolic
-                    .factorize_numeric_ldlt(
-                        &mut self.l_single,
-                        a,
-                        Side::Upper,
-                        LdltRegularization::default(),
-                        par,
-                        &mut *stack,
-                        Default::default(),
-                    )
-                    .is_ok()
-            } else {
-                self.symbolic
-                    .factorize_numeric_llt(
-                        &mut self.l_single,
-                        a,
-                        Side::Upper,
-                        LltRegularization::default(),
-                        par,
-                        &mut *stack,
-                        Default::default(),
-                    )
-                    .is_ok()
-            };
-            if ok && self.l_single.iter().all(|v| v.is_finite()) {
-                // One factor held at a time: the other precision's is given back.
-                self.l_values = Vec::new();
-                let kind = if augmented {
-                    Kind::Augmented
-                } else {
-                    Kind::Llt
-                };
-                self.kind = Some(kind);
-                self.single = true;
-                self.factorizations += 1;
-                self.single_factorizations += 1;
-                self.peak_bytes = self.peak_bytes.max(self.bytes());
-                self.factor_seconds += t0.elapsed().as_secs_f64();
-                return Ok(kind);
-            }
-        }
-        self.single = false;
-        self.l_single = Vec::new();
-        if self.l_values.is_empty() {
+        if self.l_single.is_empty() {
             let len = self.symbolic.len_val();
-            self.l_values = try_zeros(len).ok_or_else(|| no_memory(len, 8))?;
+            let mut v = Vec::new();
+            v.try_reserve_exact(len).map_err(|_| no_memory(len, 4))?;
+            v.resize(len, 0.0f32);
+            self.l_single = v;
         }
-        // The augmented matrix is indefinite by construction: straight to LDL^T.
-        let llt = (!augmented).then(|| {
-            self.symbolic.factorize_numeric_llt(
-                &mut self.l_values,
-                a,
-                Side::Upper,
-                LltRegularization::default(),
-                par,
-                &mut *stack,
-                Default::default(),
-            )
-        });
-        let kind = if llt.is_some_and(|r| r.is_ok()) {
-            Kind::Llt
-        } else {
+        // -1 / D of a unit without volumetric stiffness (-1e150) is beyond single
+        // precision: the most negative finite value keeps it decoupled.
+        let single: Vec<f32> = self
+            .values
+            .iter()
+            .map(|&v| (v as f32).max(f32::MIN))
+            .collect();
+        let a = SparseColMatRef::new(pattern(self.n, &self.col_ptr, &self.row_idx), &single[..]);
+        let ok = if augmented {
             self.symbolic
                 .factorize_numeric_ldlt(
-                    &mut self.l_values,
+                    &mut self.l_single,
                     a,
                     Side::Upper,
                     LdltRegularization::default(),
@@ -463,26 +492,71 @@ impl Factor {
                     stack,
                     Default::default(),
                 )
-                .map_err(|e| {
-                    Error::Unstable(format!("the tangent stiffness is singular ({e:?})"))
-                })?;
-            if augmented {
-                Kind::Augmented
-            } else {
-                Kind::Ldlt
-            }
+                .is_ok()
+        } else {
+            self.symbolic
+                .factorize_numeric_llt(
+                    &mut self.l_single,
+                    a,
+                    Side::Upper,
+                    LltRegularization::default(),
+                    par,
+                    stack,
+                    Default::default(),
+                )
+                .is_ok()
         };
-        if self.l_values.iter().any(|v| !v.is_finite()) {
-            self.kind = None;
-            return Err(Error::Unstable(
-                "the tangent stiffness is singular: its factorization is not finite".into(),
-            ));
+        if !(ok && self.l_single.iter().all(|v| v.is_finite())) {
+            return Ok(None);
         }
+        // One factor held at a time: the other precision's is given back.
+        self.l_values = Vec::new();
+        let kind = if augmented {
+            Kind::Augmented
+        } else {
+            Kind::Llt
+        };
         self.kind = Some(kind);
-        self.peak_bytes = self.peak_bytes.max(self.bytes());
+        self.single = true;
         self.factorizations += 1;
-        self.factor_seconds += t0.elapsed().as_secs_f64();
-        Ok(kind)
+        self.single_factorizations += 1;
+        self.peak_bytes = self.peak_bytes.max(self.bytes());
+        Ok(Some(kind))
+    }
+
+    /// LDL^T of an indefinite K made the factor of a positive definite L |D| L^T: every
+    /// pivot replaced by its absolute value, at least MODIFIED_FLOOR of the largest (a
+    /// modified symmetric indefinite factorization, Nocedal and Wright 2006 sect. 3.4, with
+    /// D diagonal: faer's LDL^T does not pivot). Its solves give directions of descent of
+    /// the energy, (L |D| L^T)^-1 r, where LDL^T's K^-1 r could climb it. Returns how many
+    /// pivots it changed: the tangent's eigenvalues not positive (Sylvester's law of
+    /// inertia), and positive ones under the floor.
+    fn make_definite(&mut self) -> usize {
+        use faer::sparse::linalg::cholesky::SymbolicCholeskyRaw;
+        let at: Vec<usize> = match self.symbolic.raw() {
+            SymbolicCholeskyRaw::Supernodal(sn) => {
+                let (begin, end) = (sn.supernode_begin(), sn.supernode_end());
+                let (rows, vals) = (sn.col_ptr_for_row_idx(), sn.col_ptr_for_val());
+                (0..sn.n_supernodes())
+                    .flat_map(|k| {
+                        let w = end[k] - begin[k];
+                        let height = w + rows[k + 1] - rows[k];
+                        (0..w).map(move |j| vals[k] + j * height + j)
+                    })
+                    .collect()
+            }
+            SymbolicCholeskyRaw::Simplicial(sm) => sm.col_ptr()[..self.n].to_vec(),
+        };
+        let largest = at
+            .iter()
+            .fold(0.0f64, |m, &i| m.max(self.l_values[i].abs()));
+        let mut negative = 0;
+        for i in at {
+            let d = &mut self.l_values[i];
+            negative += usize::from(*d < 0.0);
+            *d = d.abs().max(MODIFIED_FLOOR * largest);
+        }
+        negative
     }
 
     /// Solves K_ff x = b in place with the last factor (b: one value per free DOF; an
@@ -534,8 +608,11 @@ impl Factor {
         match self.kind {
             Some(Kind::Llt) => LltRef::new(&self.symbolic, &self.l_values)
                 .solve_in_place_with_conj(Conj::No, rhs, par, stack),
-            Some(Kind::Ldlt | Kind::Augmented) => LdltRef::new(&self.symbolic, &self.l_values)
-                .solve_in_place_with_conj(Conj::No, rhs, par, stack),
+            Some(Kind::Ldlt | Kind::Modified | Kind::Augmented) => LdltRef::new(
+                &self.symbolic,
+                &self.l_values,
+            )
+            .solve_in_place_with_conj(Conj::No, rhs, par, stack),
             None => {}
         }
         if self.n > self.dofs {
@@ -548,6 +625,9 @@ impl Factor {
         self.kind
     }
 }
+
+/// The smallest pivot of a modified factor, over its largest ([`Factor::make_definite`]).
+const MODIFIED_FLOOR: f64 = 1e-8;
 
 /// Sum over the columns of L of their nonzeros squared: the multiply-adds of a factorization.
 fn factor_flops(s: &SymbolicCholesky<usize>) -> f64 {
@@ -782,13 +862,14 @@ mod tests {
     use crate::material::{NeoHookean, Solid};
     use crate::solver::Model;
 
-    /// A tet4-anp box of Poisson's ratio `nu` (8 x 6 x 10 cells over 40 x 30 x 50 mm, its
-    /// base held) at the displacement `at` of each node, its free DOFs and a right-hand side.
+    /// A tet4-anp box of Poisson's ratio `nu` (`cells` over 40 x 30 x 50 mm, its base held)
+    /// at the displacement `at` of each node, its free DOFs and a right-hand side.
     fn box_at(
         nu: f64,
+        cells: [usize; 3],
         at: impl Fn(&Vector3<f64>) -> Vector3<f64>,
     ) -> (Model<Solid>, Vec<Vector3<f64>>, Dofs, Vec<f64>) {
-        let mesh = box_tet(Vector3::zeros(), Vector3::new(0.04, 0.03, 0.05), [8, 6, 10]).unwrap();
+        let mesh = box_tet(Vector3::zeros(), Vector3::new(0.04, 0.03, 0.05), cells).unwrap();
         let mat = Solid::NeoHookean(NeoHookean::from_young_poisson(3000.0, nu, 1000.0));
         let qp = element_points(&mesh, ElementKind::Tet4Anp, 0.05, 1e4).unwrap();
         let model = Model::new(mesh.nodes.clone(), qp, mat, Vec::new()).unwrap();
@@ -821,15 +902,22 @@ mod tests {
         for nu in [0.45, 0.4999] {
             // Simple shear: where the volume changes, nu = 0.4999's pressure makes the
             // tangent of this state, not an equilibrium, indefinite from 0.2 % compression.
-            let (model, u, dofs, b) = box_at(nu, |x| Vector3::new(0.02 * x.z, 0.0, 0.0));
+            let (model, u, dofs, b) =
+                box_at(nu, [8, 6, 10], |x| Vector3::new(0.02 * x.z, 0.0, 0.0));
             for split in [false, true] {
                 let mut k = Tangent::new(&model, &[], split);
                 k.assemble(&model, &u);
                 let mut f = Factor::new(&k, &dofs, &model.nodes).unwrap();
-                let kind = if split { Kind::Augmented } else { Kind::Llt };
                 let mut errors = Vec::new();
                 let mut bytes = Vec::new();
                 for double in [true, false] {
+                    // In double precision K_ff is factored LDL^T (its pivots tell whether it
+                    // is positive definite), in single LL^T.
+                    let kind = match (split, double) {
+                        (true, _) => Kind::Augmented,
+                        (false, true) => Kind::Ldlt,
+                        (false, false) => Kind::Llt,
+                    };
                     assert_eq!(f.factor(&k, double).unwrap(), kind);
                     assert_eq!(f.is_single(), !double);
                     bytes.push(f.l_values.len() * 8 + f.l_single.len() * 4);
@@ -857,12 +945,14 @@ mod tests {
 
     /// The augmented factor of a tangent with split nodal-pressure units solves K x = b as
     /// the factor of the assembled two-ring matrix does, near incompressibility too, with a
-    /// factor of fewer nonzeros.
+    /// factor of fewer nonzeros. The state keeps the volume (J = 1), so that K_ff is positive
+    /// definite and its factor exact: compressed 20 %, it is not even at nu = 0.45, and its
+    /// factor is made positive definite (`an_indefinite_tangent_gets_...`).
     #[test]
     fn the_augmented_factor_solves_the_tangent_with_less_fill() {
         for nu in [0.45, 0.4999] {
             let (model, u, dofs, b) =
-                box_at(nu, |x| Vector3::new(0.1 * x.z, 0.05 * x.x, -0.2 * x.z));
+                box_at(nu, [8, 6, 10], |x| Vector3::new(0.1 * x.z, 0.05 * x.x, 0.0));
             let mut solved = Vec::new();
             let mut fill = Vec::new();
             for split in [false, true] {
@@ -891,6 +981,67 @@ mod tests {
             );
             assert!(d < 1e-8 * scale, "nu {nu}: {d:e} of {scale:e}");
             assert!(fill[1] < fill[0]);
+        }
+    }
+
+    /// The tangent of a box compressed 1 % at nu = 0.4999 (not an equilibrium: a pressure of
+    /// about 50 kPa against a shear modulus of 1 kPa) is indefinite. Its factor is made
+    /// positive definite, L |D| L^T: as many pivots changed as K_ff has negative eigenvalues
+    /// (Sylvester's law of inertia, against a dense symmetric eigensolver), and every solve
+    /// x = (L |D| L^T)^-1 b a direction of descent, b . x > 0. Uncompressed, the same box's
+    /// LDL^T is K_ff's: no pivot changed, and the solve exact.
+    #[test]
+    fn an_indefinite_tangent_gets_a_positive_definite_factor_with_its_inertia() {
+        for squeeze in [0.01, 0.0] {
+            let (model, u, dofs, _) = box_at(0.4999, [3, 3, 4], |x| {
+                Vector3::new(0.0, 0.0, -squeeze * x.z)
+            });
+            let mut k = Tangent::new(&model, &[], false);
+            k.assemble(&model, &u);
+            // K_ff dense, through the tangent's product with the unit vectors.
+            let n = dofs.len;
+            let mut dense = nalgebra::DMatrix::zeros(n, n);
+            for j in 0..n {
+                let mut e = vec![0.0; n];
+                e[j] = 1.0;
+                let col = residual(&k, &dofs, &e, &vec![0.0; n]);
+                dense.column_mut(j).copy_from_slice(&col);
+            }
+            let eigen = nalgebra::SymmetricEigen::new(dense.clone());
+            let negative = eigen.eigenvalues.iter().filter(|&&l| l < 0.0).count();
+            let mut f = Factor::new(&k, &dofs, &model.nodes).unwrap();
+            // Uncompressed, in double precision: LDL^T (single precision's LL^T is exact
+            // only to its rounding).
+            let kind = f.factor(&k, squeeze == 0.0).unwrap();
+            println!(
+                "squeeze {squeeze}: {kind:?}, {} pivots changed, {negative} negative \
+                 eigenvalues of {n}",
+                f.negative_pivots
+            );
+            let mut worst = f64::INFINITY;
+            for s in 0..20 {
+                let b: Vec<f64> = (0..n)
+                    .map(|i| (((i + 7) * (s + 3) * 2654435761usize) % 1000) as f64 - 499.5)
+                    .collect();
+                let mut x = b.clone();
+                f.solve(&mut x);
+                let bx: f64 = b.iter().zip(&x).map(|(a, c)| a * c).sum();
+                let bb: f64 = b.iter().map(|a| a * a).sum();
+                worst = worst.min(bx / bb);
+                if squeeze == 0.0 {
+                    let err = residual(&k, &dofs, &x, &b)
+                        .iter()
+                        .fold(0.0f64, |m, a| m.max(a.abs()));
+                    assert!(err < 1e-8 * 500.0, "|Kx - b| {err:e}");
+                }
+            }
+            assert!(worst > 0.0, "squeeze {squeeze}: b . x / b . b = {worst:e}");
+            if squeeze > 0.0 {
+                assert!(negative > 0);
+                assert_eq!((kind, f.negative_pivots), (Kind::Modified, negative));
+            } else {
+                assert_eq!((negative, kind, f.negative_pivots), (0, Kind::Ldlt, 0));
+            }
         }
     }
 
