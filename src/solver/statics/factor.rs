@@ -344,8 +344,10 @@ impl Factor {
     /// Takes the values of the assembled tangent `k` and factors them: LL^T (the augmented
     /// matrix: LDL^T) in single precision unless `double` (mixed precision: the solves that
     /// use it are refined by conjugate gradients on the double-precision tangent, Higham 2002
-    /// ch. 12), in double where single precision does not find the matrix positive definite
-    /// (or its factor is not finite), and LDL^T when it is not. Errors when it is singular.
+    /// ch. 12); otherwise, or where single precision does not find the matrix positive
+    /// definite (or its factor is not finite), LDL^T in double: exact where every pivot is
+    /// positive ([`Kind::Ldlt`]), made positive definite where one is not ([`Kind::Modified`]).
+    /// Errors when it is singular.
     pub fn factor(&mut self, k: &Tangent, double: bool) -> Result<Kind> {
         let t0 = std::time::Instant::now();
         self.take_values(k);
