@@ -120,7 +120,7 @@ pub struct Factor {
     /// Pivots of the last double-precision LDL^T changed to make it positive definite
     /// ([`Kind::Modified`]): the tangent's eigenvalues not positive, by Sylvester's law of
     /// inertia (and any positive one under MODIFIED_FLOOR of the largest pivot).
-    pub negative_pivots: usize,
+    pub changed_pivots: usize,
     /// Whether the last factor is the single-precision one.
     single: bool,
     kind: Option<Kind>,
@@ -292,7 +292,7 @@ impl Factor {
             symbolic,
             l_values: Vec::new(),
             l_single: Vec::new(),
-            negative_pivots: 0,
+            changed_pivots: 0,
             single: false,
             kind: None,
             ordering,
@@ -383,11 +383,12 @@ impl Factor {
                 Default::default(),
             )
             .map_err(|e| Error::Unstable(format!("the tangent stiffness is singular ({e:?})")))?;
+        self.changed_pivots = 0;
         let kind = if augmented {
             Kind::Augmented
         } else {
-            self.negative_pivots = self.make_definite();
-            if self.negative_pivots == 0 {
+            self.changed_pivots = self.make_definite();
+            if self.changed_pivots == 0 {
                 Kind::Ldlt
             } else {
                 self.modified_factorizations += 1;
@@ -1018,7 +1019,7 @@ mod tests {
             println!(
                 "squeeze {squeeze}: {kind:?}, {} pivots changed, {negative} negative \
                  eigenvalues of {n}",
-                f.negative_pivots
+                f.changed_pivots
             );
             let mut worst = f64::INFINITY;
             for s in 0..20 {
@@ -1040,9 +1041,9 @@ mod tests {
             assert!(worst > 0.0, "squeeze {squeeze}: b . x / b . b = {worst:e}");
             if squeeze > 0.0 {
                 assert!(negative > 0);
-                assert_eq!((kind, f.negative_pivots), (Kind::Modified, negative));
+                assert_eq!((kind, f.changed_pivots), (Kind::Modified, negative));
             } else {
-                assert_eq!((negative, kind, f.negative_pivots), (0, Kind::Ldlt, 0));
+                assert_eq!((negative, kind, f.changed_pivots), (0, Kind::Ldlt, 0));
             }
         }
     }

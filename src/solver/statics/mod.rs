@@ -1153,7 +1153,7 @@ impl<'a, M: Material> Newton<'a, M> {
         if k == Kind::Modified {
             log::debug!(
                 "    tangent not positive definite: {} pivots made positive",
-                self.c.factor.negative_pivots
+                self.c.factor.changed_pivots
             );
         }
         self.fresh = true;
