@@ -7,13 +7,14 @@ use faer::linalg::cholesky::ldlt::factor::LdltRegularization;
 use faer::linalg::cholesky::llt::factor::LltRegularization;
 use faer::sparse::linalg::cholesky::{
     factorize_symbolic_cholesky, CholeskySymbolicParams, LdltRef, LltRef, SymbolicCholesky,
-    SymmetricOrdering,
+    SymbolicCholeskyRaw, SymmetricOrdering,
 };
 use faer::sparse::{SparseColMatRef, SymbolicSparseColMatRef};
 use faer::{Conj, MatMut, Par, Side};
 use nalgebra::Vector3;
 
 use super::tangent::Tangent;
+use super::trisolve::{Scalar, TreeSolve, TASKS};
 use crate::{Error, InputKind, Result};
 
 /// Free-DOF numbering: the free components of every node, node by node.
@@ -110,6 +111,9 @@ pub struct Factor {
     /// `values`, or u32::MAX (a prescribed DOF or the lower triangle).
     scatter: Vec<[u32; 9]>,
     symbolic: SymbolicCholesky<usize>,
+    /// The supernodal factor's solves split over the threads by its elimination tree (None:
+    /// simplicial, or a tree that does not split).
+    tree: Option<TreeSolve>,
     /// The factor's values in double precision (LDL^T, or a factorization that single
     /// precision could not take); allocated at its first use.
     l_values: Vec<f64>,
@@ -280,6 +284,10 @@ impl Factor {
             }
         }
         let flops = factor_flops(&symbolic);
+        let tree = match symbolic.raw() {
+            SymbolicCholeskyRaw::Supernodal(sn) => TreeSolve::new(sn),
+            SymbolicCholeskyRaw::Simplicial(_) => None,
+        };
         Ok(Factor {
             n,
             dofs: dofs.len,
@@ -290,6 +298,7 @@ impl Factor {
             row_idx,
             scatter,
             symbolic,
+            tree,
             l_values: Vec::new(),
             l_single: Vec::new(),
             changed_pivots: 0,
@@ -324,6 +333,7 @@ impl Factor {
             + self.scatter.len() * size_of::<[u32; 9]>()
             + self.l_values.len() * size_of::<f64>()
             + self.l_single.len() * size_of::<f32>()
+            + self.tree.as_ref().map_or(0, TreeSolve::bytes)
     }
 
     /// Whether the last factor is in single precision (a preconditioner whose solves are
@@ -334,11 +344,12 @@ impl Factor {
 
     /// Bytes a factorization of `k` over `dofs` would hold, estimated before building it:
     /// the factor's nonzeros from the symbolic analysis are only known after it, so this
-    /// counts the matrix and a factor of `fill` times its nonzeros.
+    /// counts the matrix, a factor of `fill` times its nonzeros and the tree-split solves'
+    /// buffers.
     pub fn estimate_bytes(k: &Tangent, dofs: &Dofs, fill: f64) -> usize {
         let frac = dofs.len as f64 / (3 * dofs.index.len()).max(1) as f64;
         let nnz = k.blocks() as f64 * 4.5 * frac * frac;
-        (nnz * (16.0 + 36.0 / 4.5 + 8.0 * fill)) as usize
+        (nnz * (16.0 + 36.0 / 4.5 + 8.0 * fill)) as usize + TASKS * dofs.len * 8
     }
 
     /// Takes the values of the assembled tangent `k` and factors them: LL^T (the augmented
@@ -535,7 +546,6 @@ impl Factor {
     /// pivots it changed: the tangent's eigenvalues not positive (Sylvester's law of
     /// inertia), and positive ones under the floor.
     fn make_definite(&mut self) -> usize {
-        use faer::sparse::linalg::cholesky::SymbolicCholeskyRaw;
         let at: Vec<usize> = match self.symbolic.raw() {
             SymbolicCholeskyRaw::Supernodal(sn) => {
                 let (begin, end) = (sn.supernode_begin(), sn.supernode_end());
@@ -565,6 +575,9 @@ impl Factor {
     /// Solves K_ff x = b in place with the last factor (b: one value per free DOF; an
     /// augmented factor solves with zero on its extra unknowns and keeps the DOF part).
     pub fn solve(&self, b: &mut [f64]) {
+        if self.tree_solve(b) {
+            return;
+        }
         let par = Par::Seq;
         if self.is_single() {
             let req = self.symbolic.solve_in_place_scratch::<f32>(1, par);
@@ -623,9 +636,66 @@ impl Factor {
         }
     }
 
+    /// [`Self::solve`] by the tree-split solves ([`TreeSolve`]); false (b untouched) where
+    /// the factor has none.
+    fn tree_solve(&self, b: &mut [f64]) -> bool {
+        let (Some(tree), SymbolicCholeskyRaw::Supernodal(sn), Some(kind)) =
+            (&self.tree, self.symbolic.raw(), self.kind)
+        else {
+            return false;
+        };
+        // LL^T (either precision) has L's own diagonal; LDL^T a unit L and D.
+        let unit = kind != Kind::Llt;
+        if self.single {
+            permuted_solve(&self.symbolic, b, self.dofs, self.n, |x: &mut [f32]| {
+                tree.solve(sn, &self.l_single, x, unit)
+            });
+        } else {
+            permuted_solve(&self.symbolic, b, self.dofs, self.n, |x: &mut [f64]| {
+                tree.solve(sn, &self.l_values, x, unit)
+            });
+        }
+        true
+    }
+
     /// The kind of the last factorization (None before the first).
     pub fn kind(&self) -> Option<Kind> {
         self.kind
+    }
+}
+
+/// b's first `dofs` entries into the factor's order (zero on the rest of its `n`
+/// unknowns), solved by `solve`, and back.
+fn permuted_solve<T: Scalar>(
+    symbolic: &SymbolicCholesky<usize>,
+    b: &mut [f64],
+    dofs: usize,
+    n: usize,
+    solve: impl FnOnce(&mut [T]),
+) {
+    let mut x = vec![T::from_f64(0.0); n];
+    match symbolic.perm() {
+        Some(perm) => {
+            let (fwd, inv) = perm.arrays();
+            for (xi, &f) in x.iter_mut().zip(fwd) {
+                if f < dofs {
+                    *xi = T::from_f64(b[f]);
+                }
+            }
+            solve(&mut x);
+            for (bi, &k) in b[..dofs].iter_mut().zip(inv) {
+                *bi = x[k].to_f64();
+            }
+        }
+        None => {
+            for (xi, bi) in x.iter_mut().zip(&b[..dofs]) {
+                *xi = T::from_f64(*bi);
+            }
+            solve(&mut x);
+            for (bi, xi) in b[..dofs].iter_mut().zip(&x) {
+                *bi = xi.to_f64();
+            }
+        }
     }
 }
 
@@ -894,6 +964,69 @@ mod tests {
         let mut r = vec![0.0; dofs.len];
         dofs.gather(&kx, &mut r);
         r.iter().zip(b).map(|(a, c)| a - c).collect()
+    }
+
+    /// The triangular solves split over the elimination tree ([`TreeSolve`]) give faer's
+    /// sequential solves to rounding, for LL^T and LDL^T of K_ff and the augmented matrix in
+    /// either precision, and bitwise the same answer on 1 and 3 threads (the split and each
+    /// block of a large supernode's products are fixed by the structure alone).
+    #[test]
+    fn the_tree_split_solves_match_the_sequential_ones_on_any_thread_count() {
+        use faer::sparse::linalg::cholesky::SymbolicCholeskyRaw;
+        let (model, u, dofs, b) =
+            box_at(0.45, [12, 12, 14], |x| Vector3::new(0.02 * x.z, 0.0, 0.0));
+        for split in [false, true] {
+            let mut k = Tangent::new(&model, &[], split);
+            k.assemble(&model, &u);
+            let mut f = Factor::new(&k, &dofs, &model.nodes).unwrap();
+            assert!(f.tree.is_some(), "the factor of {} unknowns splits", f.n);
+            // A supernode large enough that its products are split into blocks too.
+            let SymbolicCholeskyRaw::Supernodal(sn) = f.symbolic.raw() else {
+                panic!("a simplicial factor of {} unknowns", f.n);
+            };
+            let largest = (0..sn.n_supernodes())
+                .map(|s| {
+                    (sn.supernode_end()[s] - sn.supernode_begin()[s])
+                        * sn.supernode(s).pattern().len()
+                })
+                .max()
+                .unwrap_or(0);
+            assert!(
+                largest >= super::super::trisolve::SPLIT_ENTRIES,
+                "{largest}"
+            );
+            for double in [true, false] {
+                let kind = f.factor(&k, double).unwrap();
+                let tree = f.tree.take();
+                let mut sequential = b.clone();
+                f.solve(&mut sequential);
+                f.tree = tree;
+                let on = |threads: usize| {
+                    let pool = rayon::ThreadPoolBuilder::new()
+                        .num_threads(threads)
+                        .build()
+                        .unwrap();
+                    let mut x = b.clone();
+                    pool.install(|| f.solve(&mut x));
+                    x
+                };
+                let (one, three) = (on(1), on(3));
+                assert!(
+                    one.iter()
+                        .zip(&three)
+                        .all(|(a, c)| a.to_bits() == c.to_bits()),
+                    "{kind:?}: 1 and 3 threads differ"
+                );
+                let scale = sequential.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+                let diff = one
+                    .iter()
+                    .zip(&sequential)
+                    .fold(0.0f64, |m, (a, c)| m.max((a - c).abs()));
+                let tol = if double { 1e-12 } else { 1e-5 };
+                eprintln!("{kind:?} double {double}: {:.2e}", diff / scale);
+                assert!(diff <= tol * scale, "{kind:?}: {diff:e} of {scale:e}");
+            }
+        }
     }
 
     /// The single-precision factor (mixed precision), of the assembled K_ff (LL^T) and of the

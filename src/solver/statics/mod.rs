@@ -19,6 +19,7 @@
 pub mod factor;
 mod krylov;
 pub mod tangent;
+mod trisolve;
 
 use std::time::Instant;
 
