@@ -18,7 +18,9 @@
 //!
 //! The block pattern (node pairs that share a point or a unit) is built once per model; each
 //! assembly gathers row by row (node by node, points in slot order), so the values do not
-//! depend on the thread count.
+//! depend on the thread count. Only the blocks (a, b >= a) are computed; the others are
+//! copied from them transposed, and each diagonal block is replaced by its symmetric part, so
+//! K is exactly symmetric (c3: 34.6 against 37.2 ms an assembly).
 
 use nalgebra::{Matrix3, SMatrix, Vector3};
 use rayon::prelude::*;
@@ -190,6 +192,9 @@ pub struct Tangent {
     pub cols: Vec<u32>,
     /// One 3x3 block per entry of `cols`, N/m: row DOFs of node a, column DOFs of the column.
     pub values: Vec<Matrix3<f64>>,
+    /// Per entry (a, b), the entry (b, a): the assembly computes the blocks with b >= a and
+    /// copies the others transposed (K is symmetric), half the work of every row's points.
+    mirror: Vec<u32>,
     units: Units,
     states: Vec<PointState>,
     /// Per unit: (V U''(J_u), then g_ua for each of its nodes in `gradients`).
@@ -248,11 +253,25 @@ impl Tangent {
         }
         let cols: Vec<u32> = rows.into_iter().flatten().collect();
         let values = vec![Matrix3::zeros(); cols.len()];
+        // The pattern is symmetric (a pair joined by a point, a unit or a clique is joined
+        // both ways), so every (b, a) is there.
+        let mirror: Vec<u32> = (0..n)
+            .into_par_iter()
+            .flat_map_iter(|a| {
+                let (offsets, cols) = (&offsets, &cols);
+                cols[offsets[a]..offsets[a + 1]].iter().map(move |&b| {
+                    let row = &cols[offsets[b as usize]..offsets[b as usize + 1]];
+                    row.binary_search(&(a as u32))
+                        .map_or(u32::MAX, |k| (offsets[b as usize] + k) as u32)
+                })
+            })
+            .collect();
         let gradients = vec![Vector3::zeros(); units.nodes.len()];
         Tangent {
             offsets,
             cols,
             values,
+            mirror,
             unit_scale: vec![0.0; units.len()],
             gradients,
             states: Vec::new(),
@@ -295,7 +314,7 @@ impl Tangent {
     pub fn bytes(&self, points: usize) -> usize {
         use std::mem::size_of;
         self.offsets.len() * size_of::<usize>()
-            + self.cols.len() * (size_of::<u32>() + size_of::<Matrix3<f64>>())
+            + self.cols.len() * (2 * size_of::<u32>() + size_of::<Matrix3<f64>>())
             + self.units.bytes()
             + points * size_of::<PointState>()
             + self.unit_scale.len() * size_of::<f64>()
@@ -427,6 +446,9 @@ impl Tangent {
                     };
                     for sb in q.slots(p) {
                         let b = q.nodes[sb] as usize;
+                        if b < a {
+                            continue;
+                        }
                         let db = q.dphi[sb];
                         let mut blk = Matrix3::from_fn(|i, kk| {
                             t[i][3 * kk] * db.x + t[i][3 * kk + 1] * db.y + t[i][3 * kk + 2] * db.z
@@ -460,7 +482,9 @@ impl Tangent {
                     let base = units.node_offsets[k] as usize;
                     let ga = grads[base + pos as usize] * scale[k];
                     for (i, &b) in units.nodes[units.node_range(k)].iter().enumerate() {
-                        out[marker[b as usize] as usize] += ga * grads[base + i].transpose();
+                        if (b as usize) >= a {
+                            out[marker[b as usize] as usize] += ga * grads[base + i].transpose();
+                        }
                     }
                 }
                 for &c in rc {
@@ -468,6 +492,27 @@ impl Tangent {
                 }
             },
         );
+        // The lower blocks from the upper ones: row a writes its entries (a, b < a) and reads
+        // (b, a), an upper entry of row b, which no row writes here.
+        let mirror = &self.mirror;
+        (0..n).into_par_iter().with_min_len(256).for_each(|a| {
+            for e in offsets[a]..offsets[a + 1] {
+                let b = cols[e] as usize;
+                if b < a {
+                    let m = mirror[e] as usize;
+                    debug_assert!(mirror[e] != u32::MAX, "the pattern is symmetric");
+                    // SAFETY: entry e is row a's own and lower; entry m is upper (see above).
+                    unsafe { *vals.get().add(e) = (*vals.get().add(m)).transpose() };
+                } else if b == a {
+                    // The diagonal block, symmetric but for rounding, made exactly so.
+                    // SAFETY: row a's own entry.
+                    unsafe {
+                        let d = &mut *vals.get().add(e);
+                        *d = (*d + d.transpose()) * 0.5;
+                    }
+                }
+            }
+        });
         self.states = states;
     }
 
@@ -601,15 +646,20 @@ mod tests {
             worst < 1e-6 * scale,
             "{what}: |Kv - dF| = {worst:e} of {scale:e}"
         );
-        // Symmetric: block (a, b) is block (b, a) transposed.
+        // Symmetric: block (a, b) is block (b, a) transposed, exactly (the assembly computes
+        // the upper blocks and mirrors them, so every entry is mapped and none left zero, and
+        // makes each diagonal block symmetric).
         for a in 0..n {
             for e in k.offsets[a]..k.offsets[a + 1] {
                 let b = k.cols[e] as usize;
                 let back = (k.offsets[b]..k.offsets[b + 1])
                     .find(|&f| k.cols[f] as usize == a)
                     .expect("symmetric pattern");
-                let d = (k.values[e] - k.values[back].transpose()).amax();
-                assert!(d < 1e-9 * scale, "{what}: asymmetric block {a} {b}: {d:e}");
+                assert_eq!(
+                    k.values[e],
+                    k.values[back].transpose(),
+                    "{what}: asymmetric block {a} {b}"
+                );
             }
         }
     }
