@@ -201,6 +201,7 @@ impl TreeSolve {
         x: &mut [T],
         unit: bool,
     ) {
+        let l = Lower { sn, values, unit };
         let mut buffers = match self.buffers.lock() {
             Ok(b) => b,
             Err(e) => e.into_inner(),
@@ -220,13 +221,12 @@ impl TreeSolve {
                 let x = unsafe { std::slice::from_raw_parts_mut(xp.get(), len) };
                 let mut tmp = Vec::new();
                 for &s in &t.supernodes {
-                    forward(sn, values, s, x, unit, &mut tmp, |i, v| {
-                        if owner[i] == k as u32 {
-                            Some((i, v))
-                        } else {
+                    l.forward(s, x, &mut tmp, |i, v| {
+                        let own = owner[i] == k as u32;
+                        if !own {
                             buf[i] += v.to_f64();
-                            None
                         }
+                        own
                     });
                 }
             });
@@ -239,150 +239,143 @@ impl TreeSolve {
         }
         let mut tmp = Vec::new();
         for &s in &self.top {
-            forward(sn, values, s, x, unit, &mut tmp, |i, v| Some((i, v)));
+            l.forward(s, x, &mut tmp, |_, _| true);
         }
         if unit {
-            scale_by_diagonal(sn, values, x);
+            l.scale_by_diagonal(x);
         }
         // Backward: the separators from the root down, then the subtrees at once.
         for &s in self.top.iter().rev() {
-            backward(sn, values, s, x, unit, &mut tmp);
+            l.backward(s, x, &mut tmp);
         }
         self.tasks.par_iter().for_each(|t| {
             // SAFETY: as above; rows above the task are only read.
             let x = unsafe { std::slice::from_raw_parts_mut(xp.get(), len) };
             let mut tmp = Vec::new();
             for &s in t.supernodes.iter().rev() {
-                backward(sn, values, s, x, unit, &mut tmp);
+                l.backward(s, x, &mut tmp);
             }
         });
     }
 }
 
-/// Supernode `s`'s diagonal block and off-diagonal rows of the factor.
-fn blocks<'a, T: Scalar>(
+/// A supernodal factor's values with its structure: `unit` for LDL^T.
+struct Lower<'a, T> {
     sn: &'a SymbolicSupernodalCholesky<usize>,
     values: &'a [T],
-    s: usize,
-) -> (MatRef<'a, T>, MatRef<'a, T>, &'a [usize], usize) {
-    let start = sn.supernode_begin()[s];
-    let width = sn.supernode_end()[s] - start;
-    let pattern = sn.supernode(s).pattern();
-    let vals = sn.col_ptr_for_val();
-    let ls = MatRef::from_column_major_slice(
-        &values[vals[s]..vals[s + 1]],
-        width + pattern.len(),
-        width,
-    );
-    let (top, bot) = ls.split_at_row(width);
-    (top, bot, pattern, start)
+    unit: bool,
 }
 
-/// The forward step of supernode `s`: its block solved, then each off-diagonal row's update
-/// handed to `update(row, value)`, which returns the updates to subtract from x here.
-fn forward<T: Scalar>(
-    sn: &SymbolicSupernodalCholesky<usize>,
-    values: &[T],
-    s: usize,
-    x: &mut [T],
-    unit: bool,
-    tmp: &mut Vec<T>,
-    mut update: impl FnMut(usize, T) -> Option<(usize, T)>,
-) {
-    let (top, bot, pattern, start) = blocks(sn, values, s);
-    let width = top.ncols();
-    let xt = MatMut::from_column_major_slice_mut(&mut x[start..start + width], width, 1);
-    if unit {
-        solve_unit_lower_triangular_in_place(top, xt, Par::Seq);
-    } else {
-        solve_lower_triangular_in_place(top, xt, Par::Seq);
+impl<T: Scalar> Lower<'_, T> {
+    /// Supernode `s`'s diagonal block, its off-diagonal rows (values and row indices) and
+    /// its first column.
+    fn blocks(&self, s: usize) -> (MatRef<'_, T>, MatRef<'_, T>, &[usize], usize) {
+        let sn = self.sn;
+        let start = sn.supernode_begin()[s];
+        let width = sn.supernode_end()[s] - start;
+        let pattern = sn.supernode(s).pattern();
+        let vals = sn.col_ptr_for_val();
+        let ls = MatRef::from_column_major_slice(
+            &self.values[vals[s]..vals[s + 1]],
+            width + pattern.len(),
+            width,
+        );
+        let (top, bot) = ls.split_at_row(width);
+        (top, bot, pattern, start)
     }
-    if pattern.is_empty() {
-        return;
-    }
-    tmp.clear();
-    tmp.resize(pattern.len(), T::from_f64(0.0));
-    {
+
+    /// The forward step of supernode `s`: its block solved, then each off-diagonal row's
+    /// update v handed to `direct(row, v)`, subtracted from x where that returns true.
+    fn forward(
+        &self,
+        s: usize,
+        x: &mut [T],
+        tmp: &mut Vec<T>,
+        mut direct: impl FnMut(usize, T) -> bool,
+    ) {
+        let (top, bot, pattern, start) = self.blocks(s);
+        let width = top.ncols();
+        let xt = MatMut::from_column_major_slice_mut(&mut x[start..start + width], width, 1);
+        if self.unit {
+            solve_unit_lower_triangular_in_place(top, xt, Par::Seq);
+        } else {
+            solve_lower_triangular_in_place(top, xt, Par::Seq);
+        }
+        if pattern.is_empty() {
+            return;
+        }
+        tmp.clear();
+        tmp.resize(pattern.len(), T::from_f64(0.0));
         let xt = MatRef::from_column_major_slice(&x[start..start + width], width, 1);
+        // A large supernode's product by fixed blocks of rows on the threads: each row's sum
+        // is its block's, whatever thread takes it.
         let rows = if width * pattern.len() >= SPLIT_ENTRIES {
             ROW_CHUNK
         } else {
             pattern.len()
         };
-        // A large supernode's product by fixed blocks of rows on the threads: each row's
-        // sum is its block's, whatever thread takes it.
-        tmp.par_chunks_mut(rows).enumerate().for_each(|(c, out)| {
+        in_blocks(tmp, rows, |c, out| {
             let m = out.len();
             let dst = MatMut::from_column_major_slice_mut(out, m, 1);
-            matmul(
-                dst,
-                Accum::Replace,
-                bot.subrows(c * rows, m),
-                xt,
-                T::from_f64(1.0),
-                Par::Seq,
-            );
+            let lhs = bot.subrows(c * rows, m);
+            matmul(dst, Accum::Replace, lhs, xt, T::from_f64(1.0), Par::Seq);
         });
-    }
-    for (&i, &v) in pattern.iter().zip(tmp.iter()) {
-        if let Some((i, v)) = update(i, v) {
-            x[i] = x[i] - v;
+        for (&i, &v) in pattern.iter().zip(tmp.iter()) {
+            if direct(i, v) {
+                x[i] = x[i] - v;
+            }
         }
     }
-}
 
-/// x /= D for LDL^T (D on the diagonal of each supernode's diagonal block).
-fn scale_by_diagonal<T: Scalar>(sn: &SymbolicSupernodalCholesky<usize>, values: &[T], x: &mut [T]) {
-    for s in 0..sn.n_supernodes() {
-        let (top, _, _, start) = blocks(sn, values, s);
-        for k in 0..top.ncols() {
-            x[start + k] = T::from_f64(x[start + k].to_f64() / top[(k, k)].to_f64());
+    /// x /= D for LDL^T (D on the diagonal of each supernode's diagonal block).
+    fn scale_by_diagonal(&self, x: &mut [T]) {
+        for s in 0..self.sn.n_supernodes() {
+            let (top, _, _, start) = self.blocks(s);
+            for k in 0..top.ncols() {
+                x[start + k] = T::from_f64(x[start + k].to_f64() / top[(k, k)].to_f64());
+            }
         }
     }
-}
 
-/// The backward step of supernode `s`: its rows less the off-diagonal block's product with
-/// the rows above, then its transposed block solved.
-fn backward<T: Scalar>(
-    sn: &SymbolicSupernodalCholesky<usize>,
-    values: &[T],
-    s: usize,
-    x: &mut [T],
-    unit: bool,
-    tmp: &mut Vec<T>,
-) {
-    let (top, bot, pattern, start) = blocks(sn, values, s);
-    let width = top.ncols();
-    if !pattern.is_empty() {
-        tmp.clear();
-        tmp.extend(pattern.iter().map(|&i| x[i]));
-        let t = MatRef::from_column_major_slice(tmp, pattern.len(), 1);
-        let cols = if width * pattern.len() >= SPLIT_ENTRIES {
-            COLUMN_CHUNK
-        } else {
-            width
-        };
-        // By fixed blocks of the supernode's columns, each its own rows of x.
-        x[start..start + width]
-            .par_chunks_mut(cols)
-            .enumerate()
-            .for_each(|(c, out)| {
+    /// The backward step of supernode `s`: its rows less the off-diagonal block's product
+    /// with the rows above, then its transposed block solved.
+    fn backward(&self, s: usize, x: &mut [T], tmp: &mut Vec<T>) {
+        let (top, bot, pattern, start) = self.blocks(s);
+        let width = top.ncols();
+        if !pattern.is_empty() {
+            tmp.clear();
+            tmp.extend(pattern.iter().map(|&i| x[i]));
+            let t = MatRef::from_column_major_slice(tmp, pattern.len(), 1);
+            // By fixed blocks of the supernode's columns, each its own rows of x.
+            let cols = if width * pattern.len() >= SPLIT_ENTRIES {
+                COLUMN_CHUNK
+            } else {
+                width
+            };
+            in_blocks(&mut x[start..start + width], cols, |c, out| {
                 let m = out.len();
                 let xt = MatMut::from_column_major_slice_mut(out, m, 1);
-                matmul(
-                    xt,
-                    Accum::Add,
-                    bot.subcols(c * cols, m).transpose(),
-                    t,
-                    T::from_f64(-1.0),
-                    Par::Seq,
-                );
+                let lhs = bot.subcols(c * cols, m).transpose();
+                matmul(xt, Accum::Add, lhs, t, T::from_f64(-1.0), Par::Seq);
             });
+        }
+        let xt = MatMut::from_column_major_slice_mut(&mut x[start..start + width], width, 1);
+        if self.unit {
+            solve_unit_upper_triangular_in_place(top.transpose(), xt, Par::Seq);
+        } else {
+            solve_upper_triangular_in_place(top.transpose(), xt, Par::Seq);
+        }
     }
-    let xt = MatMut::from_column_major_slice_mut(&mut x[start..start + width], width, 1);
-    if unit {
-        solve_unit_upper_triangular_in_place(top.transpose(), xt, Par::Seq);
+}
+
+/// `f(k, block)` for the k-th block of `size` entries of `v`: on the threads where there are
+/// several, directly where there is one (most supernodes, whose products are small).
+fn in_blocks<T: Send>(v: &mut [T], size: usize, f: impl Fn(usize, &mut [T]) + Sync) {
+    if size >= v.len() {
+        f(0, v);
     } else {
-        solve_upper_triangular_in_place(top.transpose(), xt, Par::Seq);
+        v.par_chunks_mut(size)
+            .enumerate()
+            .for_each(|(c, b)| f(c, b));
     }
 }
