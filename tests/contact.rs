@@ -36,10 +36,15 @@ fn plate_run(extra: &[&str]) -> hytled::Result<Summary> {
     let text = format!("{}{}", &text[..start], &text[end..]);
     let dir = std::env::temp_dir().join(format!("hytled-contact-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
-    let file = dir.join(format!(
-        "plate-{}.toml",
-        extra.join("-").replace(['/', ' '], "_")
-    ));
+    let mut name = extra.join("-").replace(['/', ' '], "_");
+    if name.len() > 120 {
+        // Past the file system's limit on a name: a hash of the overrides instead.
+        use std::hash::{Hash, Hasher};
+        let mut h = std::collections::hash_map::DefaultHasher::new();
+        name.hash(&mut h);
+        name = format!("{:016x}", h.finish());
+    }
+    let file = dir.join(format!("plate-{name}.toml"));
     std::fs::write(&file, text).unwrap();
     o.retain(|s| s != "boundaries.top=");
     let sc = hytled::scene::load(&file, &o).unwrap_or_else(|e| panic!("{e}"));
@@ -759,4 +764,44 @@ fn the_static_solve_keeps_points_on_a_flat_punch() {
     assert_eq!(ca.points_in_contact, cb.points_in_contact);
     let (w, u) = (st.energy.external_work, st.energy.strain_energy);
     assert!((w - u).abs() < 1e-2 * u, "work {w} J, strain energy {u} J");
+}
+
+/// Issue 57: a body that contact holds, the static solve from the unloaded state. The cube
+/// hangs from a post (a 25 mm square column along one edge, fixed) under 1.1 g onto a floor
+/// 0.5 mm below it: free, it would sag by tens of millimetres, so most of its weight ends on
+/// the floor, as the MNI brain's ends on its skull. Points come into contact while the
+/// residual rises and falls; with a window of 3 iterations to halve it the solve stalled at
+/// 0.96 % of the load. Relaxation's force and contact set; the weight (1.1 x 9.81 x 1 kg)
+/// shared between the post and the floor.
+#[test]
+fn the_static_solve_settles_a_body_hanging_onto_a_floor() {
+    let hang = [
+        "boundaries={}",
+        "boundaries.post={ select = { box = { min = [-0.001, -0.001, -0.001], max = [0.026, 0.026, 0.101] } }, fix = [\"all\"] }",
+        "loads.g={ gravity = [0.0, 0.0, -10.791] }",
+        "contact.plate={ shape = \"plane\", point = [0.0, 0.0, -0.0005], normal = [0.0, 0.0, 1.0] }",
+    ];
+    let mut with_static = hang.to_vec();
+    with_static.push("solver.mode=static");
+    let st = plate(&with_static);
+    let rx = plate(&hang);
+    let (a, b) = (st.reactions["plate"][2], rx.reactions["plate"][2]);
+    let (ca, cb) = (&st.contact["plate"], &rx.contact["plate"]);
+    let weight = st.reactions["post"][2] + a;
+    let s = st.statics.as_ref().unwrap();
+    println!(
+        "hanging cube: static {a} N, {} points, {} load steps, {} Newton iterations, {} \
+         evaluations; relaxation {b} N, {} points, {} evaluations; post + floor {weight} N",
+        ca.points_in_contact,
+        s.load_steps,
+        s.newton_iterations,
+        st.force_evaluations,
+        cb.points_in_contact,
+        rx.force_evaluations
+    );
+    assert!(st.converged && rx.converged);
+    assert!(a > 5.0 && (a - b).abs() < 1e-6 * b, "{a} {b}");
+    assert_eq!(ca.points_in_contact, cb.points_in_contact);
+    assert!(ca.max_penetration <= ca.tolerance);
+    assert!((weight - 10.791).abs() < 1e-6 * 10.791, "{weight}");
 }

@@ -465,3 +465,88 @@ fn a_warm_resolve_drops_the_steady_frames_warning_by_its_kind() {
         warm.summary.warnings
     );
 }
+
+/// Issue 57: a static re-solve of a contact scene starts from the last equilibrium with the
+/// contact forces it held. The cube hangs sideways under gravity (x) against a wall 0.5 mm off
+/// its far face: its points sit on the wall at the equilibrium, where the penalty alone pushes
+/// nothing, so without multipliers estimated from the state's residual the first tangent had
+/// no contact and the warm step's predictor pushed the face through the wall. The warm answer
+/// is the cold one's.
+#[test]
+fn a_static_resolve_with_contact_stays_warm() {
+    let file = cube_without_top("wall-static", "");
+    let o: Vec<String> = vec![
+        "references={}".into(),
+        "discretization.size=0.025".into(),
+        "solver.mode=static".into(),
+        "boundaries={}".into(),
+        "boundaries.post={ select = { box = { min = [-0.001, -0.001, -0.001], max = [0.026, 0.026, 0.101] } }, fix = [\"all\"] }".into(),
+        "loads.g={ gravity = [0.0, 0.0, -9.81] }".into(),
+        "contact.wall={ shape = \"plane\", point = [0.0, 0.0, -0.0005], normal = [0.0, 0.0, 1.0] }".into(),
+    ];
+    let mut session = Session::new(hytled::scene::load(&file, &o).unwrap()).unwrap();
+    let first = session.solve().unwrap();
+    assert!(first.summary.converged);
+    session.set_load_factor("g", 1.1).unwrap();
+    let warm = session.solve().unwrap();
+    let fell_back: Vec<&str> = warm
+        .summary
+        .warnings
+        .iter()
+        .map(|w| w.message.as_str())
+        .filter(|m| m.contains("warm start"))
+        .collect();
+    let cold = session.solve_cold().unwrap();
+    let (fw, fc) = (
+        warm.summary.reactions["wall"][2],
+        cold.summary.reactions["wall"][2],
+    );
+    let (sw, sc) = (
+        warm.summary.statics.as_ref().unwrap(),
+        cold.summary.statics.as_ref().unwrap(),
+    );
+    println!(
+        "wall at 1.1 g: first {} N; warm {fw} N ({} Newton iterations, {} load steps), cold {fc} N \
+         ({} Newton iterations, {} load steps); {fell_back:?}",
+        first.summary.reactions["wall"][2],
+        sw.newton_iterations,
+        sw.load_steps,
+        sc.newton_iterations,
+        sc.load_steps
+    );
+    assert!(warm.warm && warm.summary.converged && cold.summary.converged);
+    assert!(fell_back.is_empty(), "{fell_back:?}");
+    assert_eq!(sw.load_steps, 1);
+    assert!(((fw - fc) / fc).abs() < 1e-6, "warm {fw} N, cold {fc} N");
+}
+
+/// Issue 57: a cold static re-solve (`Session::solve_cold`) is the solve of a fresh session.
+/// It used the kept factor of the last equilibrium for its first steps: the ball moved from
+/// 24 to 25 mm into the cube then stopped unconverged at -1.07 N, where a fresh session
+/// gives 0.8392 N.
+#[test]
+fn a_cold_static_resolve_is_a_fresh_solve() {
+    let file = cube_without_top("ball-cold", "");
+    let ball = |z: f64| {
+        let o: Vec<String> = vec![
+            "references={}".into(),
+            "discretization.size=0.025".into(),
+            "solver.mode=static".into(),
+            format!("contact.ball={{ shape = \"sphere\", center = [0.05, 0.05, 0.12], radius = 0.02, motion = [0.0, 0.0, {z}] }}"),
+        ];
+        hytled::scene::load(&file, &o).unwrap()
+    };
+    let mut session = Session::new(ball(-0.024)).unwrap();
+    assert!(session.solve().unwrap().summary.converged);
+    session.set_tool_motion("ball", [0.0, 0.0, -0.025]).unwrap();
+    let cold = session.solve_cold().unwrap();
+    let fresh = Session::new(ball(-0.025)).unwrap().solve().unwrap();
+    let (a, b) = (
+        cold.summary.reactions["ball"],
+        fresh.summary.reactions["ball"],
+    );
+    println!("ball at 25 mm: cold re-solve {a:?} N, fresh {b:?} N");
+    assert!(cold.summary.converged && fresh.summary.converged);
+    assert_eq!(a, b);
+    assert_eq!(cold.output.u, fresh.output.u);
+}
