@@ -4,7 +4,7 @@
 //! exact cube (docs/reference.md); an oblique copy of the image gives the same answer rotated.
 
 mod common;
-use common::path;
+use common::{path, warnings_with};
 
 use std::path::{Path, PathBuf};
 
@@ -616,13 +616,7 @@ fn the_mni_case_settles_statically() {
     session.settings_mut().tolerance = tight;
     let warm = session.solve().unwrap();
     let w = warm.summary.statics.as_ref().unwrap();
-    let fell_back: Vec<&str> = warm
-        .summary
-        .warnings
-        .iter()
-        .map(|w| w.message.as_str())
-        .filter(|m| m.contains("warm start"))
-        .collect();
+    let fell_back = warnings_with(&warm.summary, "warm start");
     println!(
         "mni warm static after relaxation at {:.0e} m ({:.1} s): {} Newton iterations, {} \
          factorizations, {:.1} s, largest difference {:.2e} N; {fell_back:?}",

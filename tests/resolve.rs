@@ -5,7 +5,7 @@
 //! the model cannot take are errors.
 
 mod common;
-use common::{largest_difference, path};
+use common::{largest_difference, path, warnings_with};
 
 use std::path::PathBuf;
 
@@ -489,13 +489,7 @@ fn a_static_resolve_with_contact_stays_warm() {
     assert!(first.summary.converged);
     session.set_load_factor("g", 1.1).unwrap();
     let warm = session.solve().unwrap();
-    let fell_back: Vec<&str> = warm
-        .summary
-        .warnings
-        .iter()
-        .map(|w| w.message.as_str())
-        .filter(|m| m.contains("warm start"))
-        .collect();
+    let fell_back = warnings_with(&warm.summary, "warm start");
     let cold = session.solve_cold().unwrap();
     let (fw, fc) = (
         warm.summary.reactions["wall"][2],

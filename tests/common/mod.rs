@@ -174,3 +174,12 @@ pub fn coarse_dynamic_cube() -> std::process::Command {
     ]);
     c
 }
+
+/// The messages of a run's warnings that contain `text`.
+pub fn warnings_with<'a>(s: &'a Summary, text: &str) -> Vec<&'a str> {
+    s.warnings
+        .iter()
+        .map(|w| w.message.as_str())
+        .filter(|m| m.contains(text))
+        .collect()
+}

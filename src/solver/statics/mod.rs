@@ -591,8 +591,11 @@ struct Newton<'a, M: Material> {
     /// The last load step ended on modified-Newton steps with the kept factor that still
     /// contracted ([`CHEAP_CONTRACTION`]).
     kept_contracting: bool,
-    /// Rigid contact whose bodies all stay where they are ([`CONTACT_STALL_ITERATIONS`]).
-    resting_contact: bool,
+    /// Iterations within which a load step's residual must halve, and in all: with rigid
+    /// contact whose bodies all stay where they are, [`CONTACT_STALL_ITERATIONS`] and
+    /// [`CONTACT_MAX_ITERATIONS`]; otherwise [`STALL_ITERATIONS`] and [`MAX_ITERATIONS`].
+    stall_window: usize,
+    iteration_limit: usize,
 }
 
 impl<'a, M: Material> Newton<'a, M> {
@@ -613,11 +616,15 @@ impl<'a, M: Material> Newton<'a, M> {
             ..Default::default()
         };
         let path_curve = path_curve(model);
-        let resting_contact = model.contact.as_ref().is_some_and(|ct| {
-            (0..ct.len()).all(|b| {
-                (1..=8).all(|k| ct.body_displacement(b, k as f64 / 8.0) == Vector3::zeros())
-            })
-        });
+        let resting_contact = model
+            .contact
+            .as_ref()
+            .is_some_and(|ct| ct.motion_curves().next().is_none());
+        let (stall_window, iteration_limit) = if resting_contact {
+            (CONTACT_STALL_ITERATIONS, CONTACT_MAX_ITERATIONS)
+        } else {
+            (STALL_ITERATIONS, MAX_ITERATIONS)
+        };
         Newton {
             model,
             s,
@@ -670,7 +677,8 @@ impl<'a, M: Material> Newton<'a, M> {
             // stopped unconverged at -1.07 N against 0.84 N.
             factor_stale: s.warm_start.is_none(),
             predictor_factorizations: 0,
-            resting_contact,
+            stall_window,
+            iteration_limit,
         }
     }
 
@@ -1689,11 +1697,7 @@ impl<'a, M: Material> Newton<'a, M> {
                 return Ok(false);
             }
             // Not converging: no halving of the residual over a window of iterations.
-            let window = if self.resting_contact {
-                CONTACT_STALL_ITERATIONS
-            } else {
-                STALL_ITERATIONS
-            };
+            let window = self.stall_window;
             if trail.len() >= window + 1
                 && r > 0.5 * trail[trail.len() - window - 1]
                 && !self.is_converged(r, scale, last_update)
@@ -1745,12 +1749,7 @@ impl<'a, M: Material> Newton<'a, M> {
                 self.kept_contracting = cheap;
                 return Ok(true);
             }
-            let most = if self.resting_contact {
-                CONTACT_MAX_ITERATIONS
-            } else {
-                MAX_ITERATIONS
-            };
-            if it - round_start >= most {
+            if it - round_start >= self.iteration_limit {
                 self.report.newton_iterations += it;
                 self.stalled = true;
                 return Ok(false);
