@@ -601,6 +601,17 @@ impl Summary {
                 st.factor_seconds,
                 self.force_evaluations
             );
+            if st.relaxed_start_steps > 0 {
+                let _ = writeln!(
+                    s,
+                    "relaxed start    {} relaxation steps to {} x the tolerance ({:.2} s; contact at rest, \
+                     solver.relaxed_start), then the static solve from there; the force evaluations \
+                     above count both",
+                    st.relaxed_start_steps,
+                    crate::solver::integrate::RELAXED_START_SHARE,
+                    st.relaxed_start_seconds
+                );
+            }
         } else {
             let _ = writeln!(
                 s,

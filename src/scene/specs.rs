@@ -416,6 +416,11 @@ pub struct SolverSpec {
     /// factorization alone). See docs/methods.md.
     #[serde(default)]
     pub static_variant: crate::solver::StaticVariant,
+    /// Static, with rigid contact that no rigid body moves and no load stages: relax to 100 x
+    /// `tolerance` first and solve statically from there (default true; false: Newton's load
+    /// steps from the unloaded state). See docs/methods.md "Static solve".
+    #[serde(default = "default_true")]
+    pub relaxed_start: bool,
 }
 
 pub(super) fn default_true() -> bool {
@@ -456,6 +461,7 @@ impl Default for SolverSpec {
             mass_scaling: None,
             device: Default::default(),
             static_variant: Default::default(),
+            relaxed_start: true,
         }
     }
 }

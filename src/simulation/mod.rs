@@ -298,11 +298,20 @@ fn add_loads_and_contact(
         Some(s) => s,
         None => !all_anp,
     };
-    if scene.solver.mode == Mode::Relaxation && scale {
-        model.scale_masses()?;
-    }
     let contact = loads::scene_contact(scene, d, input, model.boundaries(), warnings)?;
     model.set_contact(contact);
+    // A static solve's relaxed start relaxes with the masses relaxation would have (the MNI
+    // brain's relaxed start with its physical masses, the ventricles' small tets setting the
+    // step, had not converged after 115,000 steps); the static solve uses no masses, and
+    // gravity took the physical ones above.
+    let relaxed = scene.solver.mode == Mode::Static
+        && crate::solver::integrate::relaxed_start_applies(
+            model,
+            &translate::settings(scene, false),
+        );
+    if (scene.solver.mode == Mode::Relaxation || relaxed) && scale {
+        model.scale_masses()?;
+    }
     Ok(())
 }
 

@@ -729,6 +729,7 @@ pub fn settings(scene: &Scene, progress: bool) -> Settings {
         stages: stages(scene),
         warm_start: None,
         static_variant: s.static_variant,
+        relaxed_start: s.relaxed_start,
         refresh_factor: false,
         initial_velocity: None,
         initial_motion: scene.initial.as_ref().map(|i| {

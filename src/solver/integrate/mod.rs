@@ -121,6 +121,13 @@ pub struct Settings {
     pub warm_start: Option<WarmStart>,
     /// Static: how each Newton iteration solves its linear system.
     pub static_variant: crate::solver::statics::Variant,
+    /// Static, where rigid contact holds a body that no rigid body moves and the load has no
+    /// stages: relax first to [`RELAXED_START_SHARE`] x `tolerance`, then solve statically
+    /// from there (see [`relaxed_start_applies`]). Relaxation finds which points rest on a
+    /// surface; Newton's iterations from the unloaded state swing the body across it (the
+    /// MNI brain: 41 s statically from the unloaded state, 6.8 s of relaxation then 5-6 s
+    /// of Newton, against 16 s of relaxation to the tolerance).
+    pub relaxed_start: bool,
     /// Static: the model will be solved again from this equilibrium (a
     /// [`crate::simulation::Session`]): where the kept factor stopped contracting in the last
     /// load step, it is made again at the equilibrium, so that the next warm solve's
@@ -177,6 +184,7 @@ impl Default for Settings {
             stages: Vec::new(),
             warm_start: None,
             static_variant: Default::default(),
+            relaxed_start: true,
             refresh_factor: false,
         }
     }
@@ -597,6 +605,23 @@ fn run_on_pool<M: Material>(
                  (set solver.mode = \"relaxation\" for the GPU, or solver.device = \"cpu\")",
             ));
         }
+        let mut sink = sink;
+        let pre = if relaxed_start_applies(model, s) {
+            relax_to_start(model, s, &mut sink)?
+        } else {
+            None
+        };
+        let warmed;
+        let s = match &pre {
+            Some(p) => {
+                warmed = Settings {
+                    warm_start: Some(p.warm_start()),
+                    ..s.clone()
+                };
+                &warmed
+            }
+            None => s,
+        };
         let mut cache = model.static_cache.take();
         let out = if rayon::current_thread_index().is_some() {
             super::statics::solve(model, s, sink, &mut cache)
@@ -604,7 +629,26 @@ fn run_on_pool<M: Material>(
             rayon::scope(|_| super::statics::solve(model, s, sink, &mut cache))
         };
         model.static_cache = cache;
-        let out = out?;
+        let mut out = out?;
+        if let Some(p) = pre {
+            out.force_evaluations += p.force_evaluations;
+            // The static solve's work runs from the relaxed state on; the relaxation's up to it.
+            out.external_work += p.external_work;
+            out.peak_external_work = out.peak_external_work.max(p.peak_external_work);
+            out.solve_seconds += p.solve_seconds;
+            let mut frames = p.frames;
+            frames.truncate(1);
+            // A warm start that failed went back to the unloaded state, a frame already.
+            let again = out.frames.first().is_some_and(|f| f.0 == 0.0);
+            frames.extend(out.frames.drain(..).skip(usize::from(again)));
+            out.frames = frames;
+            if let Some(st) = out.statics.as_mut() {
+                st.relaxed_start_steps = p.steps + p.failed_steps;
+                st.relaxed_start_seconds = p.solve_seconds;
+            }
+            out.notes.extend(p.notes);
+            out.restarts.extend(p.restarts);
+        }
         // A tool that passed between the surface's nodes presses nothing and "converges" with
         // no force, statically as in relaxation (a 20 mm ball driven 100 mm through the cube).
         let full = out.statics.as_ref().is_none_or(|st| st.load_reached >= 1.0);
@@ -618,6 +662,68 @@ fn run_on_pool<M: Material>(
     } else {
         rayon::scope(|_| run_on_worker(model, s, sink))
     }
+}
+
+/// The relaxed start's tolerance over the run's ([`Settings::relaxed_start`]): the MNI
+/// brain's Newton polish took 50 iterations (6.1 s) from a relaxation to 100 x and 45 (4.9
+/// s) from 30 x, the relaxations 6.8 and 8.1 s.
+pub const RELAXED_START_SHARE: f64 = 100.0;
+
+/// A static solve starts from a loose relaxation ([`Settings::relaxed_start`]) where it is
+/// on, on the CPU, from the unloaded state, with rigid contact whose bodies all stay where
+/// they are, and without load stages (a warm start has no intermediate states to give them).
+pub fn relaxed_start_applies<M: Material>(model: &Model<M>, s: &Settings) -> bool {
+    s.mode == Mode::Static
+        && s.relaxed_start
+        && s.warm_start.is_none()
+        && s.device == Device::Cpu
+        && s.stages.iter().all(|&l| !(l > 0.0 && l < 1.0))
+        && model
+            .contact
+            .as_ref()
+            .is_some_and(|c| c.motion_curves().next().is_none())
+}
+
+/// The relaxed start: relaxation to [`RELAXED_START_SHARE`] x the tolerance from the unloaded
+/// state, its first frame (the unloaded state) handed to `sink`. None (the static solve then
+/// starts from the unloaded state, as without it) where the relaxation does not converge or
+/// is unstable.
+fn relax_to_start<M: Material>(
+    model: &mut Model<M>,
+    s: &Settings,
+    sink: &mut Option<&mut FrameSink<'_, M>>,
+) -> Result<Option<RunOutput>> {
+    let loose = Settings {
+        mode: Mode::Relaxation,
+        tolerance: s.tolerance * RELAXED_START_SHARE,
+        frames: 2,
+        history_rows: 0,
+        ..s.clone()
+    };
+    log::info!(
+        "static solve: relaxing to {:.1e} m first (contact at rest)",
+        loose.tolerance
+    );
+    let out = if rayon::current_thread_index().is_some() {
+        run_on_worker(model, &loose, None)
+    } else {
+        rayon::scope(|_| run_on_worker(model, &loose, None))
+    };
+    let mut out = match out {
+        Ok(o) if o.converged => o,
+        Ok(_) | Err(Error::Unstable(_)) => {
+            if let Some(c) = model.contact.as_mut() {
+                c.reset_statistics();
+            }
+            return Ok(None);
+        }
+        Err(e) => return Err(e),
+    };
+    if let (Some(sink), Some((t, u))) = (sink.as_mut(), out.frames.first()) {
+        sink(model, *t, u)?;
+        out.frames.clear();
+    }
+    Ok(Some(out))
 }
 
 fn run_on_worker<M: Material>(
