@@ -766,6 +766,15 @@ fn the_static_solve_keeps_points_on_a_flat_punch() {
     assert!((w - u).abs() < 1e-2 * u, "work {w} J, strain energy {u} J");
 }
 
+/// The cube hanging from a post (a 25 mm square column along one edge, fixed) under 1.1 g
+/// onto a floor 0.5 mm below it.
+const HANG: [&str; 4] = [
+    "boundaries={}",
+    "boundaries.post={ select = { box = { min = [-0.001, -0.001, -0.001], max = [0.026, 0.026, 0.101] } }, fix = [\"all\"] }",
+    "loads.g={ gravity = [0.0, 0.0, -10.791] }",
+    "contact.plate={ shape = \"plane\", point = [0.0, 0.0, -0.0005], normal = [0.0, 0.0, 1.0] }",
+];
+
 /// Issue 57: a body that contact holds, the static solve from the unloaded state. The cube
 /// hangs from a post (a 25 mm square column along one edge, fixed) under 1.1 g onto a floor
 /// 0.5 mm below it: free, it would sag by tens of millimetres, so most of its weight ends on
@@ -775,12 +784,7 @@ fn the_static_solve_keeps_points_on_a_flat_punch() {
 /// shared between the post and the floor.
 #[test]
 fn the_static_solve_settles_a_body_hanging_onto_a_floor() {
-    let hang = [
-        "boundaries={}",
-        "boundaries.post={ select = { box = { min = [-0.001, -0.001, -0.001], max = [0.026, 0.026, 0.101] } }, fix = [\"all\"] }",
-        "loads.g={ gravity = [0.0, 0.0, -10.791] }",
-        "contact.plate={ shape = \"plane\", point = [0.0, 0.0, -0.0005], normal = [0.0, 0.0, 1.0] }",
-    ];
+    let hang = HANG;
     let mut with_static = hang.to_vec();
     with_static.push("solver.mode=static");
     // Newton's load steps from the unloaded state, not the relaxed start (the test below).
@@ -816,12 +820,7 @@ fn the_static_solve_settles_a_body_hanging_onto_a_floor() {
 /// from the unloaded state as before.
 #[test]
 fn a_body_resting_on_a_surface_is_relaxed_first_then_solved_statically() {
-    let hang = [
-        "boundaries={}",
-        "boundaries.post={ select = { box = { min = [-0.001, -0.001, -0.001], max = [0.026, 0.026, 0.101] } }, fix = [\"all\"] }",
-        "loads.g={ gravity = [0.0, 0.0, -10.791] }",
-        "contact.plate={ shape = \"plane\", point = [0.0, 0.0, -0.0005], normal = [0.0, 0.0, 1.0] }",
-    ];
+    let hang = HANG;
     let mut with_static = hang.to_vec();
     with_static.push("solver.mode=static");
     let st = plate(&with_static);

@@ -618,7 +618,7 @@ fn the_mni_case_settles_statically() {
     assert!(worst(&st, &rx) < 1e-4 * weight);
 
     // The case's default: relaxation to 100 x the tolerance, then the static solve from there
-    // (13.8 s against relaxation's 16 s; 973 force evaluations against 1,498).
+    // (13.3 s against relaxation's 16 s; 1,024 force evaluations against 1,498).
     let rs = run_scene(&load("static"), &RunOptions::default()).unwrap();
     let r = rs.statics.as_ref().unwrap();
     let rs_total: f64 = reactions(&rs).iter().map(|r| r[2]).sum();

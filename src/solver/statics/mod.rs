@@ -206,8 +206,7 @@ pub struct StaticReport {
     pub newton_iterations: usize,
     /// Conjugate-gradient iterations (Newton-Krylov).
     pub linear_iterations: usize,
-    /// GMRES products (pairs of triangular solves) of the EBCIEM and contact multiplier
-    /// updates.
+    /// GMRES products (pairs of triangular solves) of EBCIEM's multiplier updates.
     pub multiplier_iterations: usize,
     /// Relaxation steps of the relaxed start ([`crate::solver::Settings::relaxed_start`]),
     /// and their wall time, s; 0 where the solve started from the unloaded state.
@@ -1132,99 +1131,6 @@ impl<'a, M: Material> Newton<'a, M> {
         );
     }
 
-    /// The contact multipliers' update at a converged iterate: lambda += S^-1 d over the
-    /// points that push (d their depths, m), S = N Phi K^-1 Phi^T N^T the depths' response
-    /// to their pushes through the kept factor, solved by GMRES; a point whose multiplier
-    /// would pull is released (lambda = 0). Points that do not push take lambda = max(0,
-    /// lambda + k d) = 0. The update lambda = lambda + k d alone (S taken as 1 / k) halved
-    /// the residual per round: the MNI brain's polish from a relaxed state took 39 of its 50
-    /// Newton iterations in 10 rounds.
-    fn update_contact_multipliers(&mut self) {
-        let Some(ct) = self.model.contact.as_ref() else {
-            return;
-        };
-        let active: Vec<usize> = (0..self.touch.len())
-            .filter(|&k| self.t_state[k].2 > 0.0)
-            .collect();
-        if active.is_empty() || self.c.factor.kind().is_none() {
-            for k in 0..self.touch.len() {
-                self.t_lambda[k] = self.t_state[k].2;
-            }
-            return;
-        }
-        let t0 = Instant::now();
-        let rows: Vec<(&[(u32, f64)], Vector3<f64>)> = active
-            .iter()
-            .map(|&k| {
-                let (b, i) = self.touch[k];
-                (
-                    &ct.points_of(b as usize)[i as usize].row[..],
-                    self.t_state[k].1,
-                )
-            })
-            .collect();
-        let depth: Vec<f64> = active.iter().map(|&k| self.t_state[k].0).collect();
-        // Right preconditioner: S's diagonal taken as the penalty's w^T w / k.
-        let diag: Vec<f64> = rows
-            .iter()
-            .zip(&active)
-            .map(|((row, _), &k)| {
-                let w2: f64 = row.iter().map(|&(_, w)| w * w).sum();
-                let kp = self.t_penalty.get(k).copied().unwrap_or(0.0);
-                if w2 > 0.0 && kp > 0.0 {
-                    kp / w2
-                } else {
-                    1.0
-                }
-            })
-            .collect();
-        let (dofs, factor) = (&self.c.dofs, &self.c.factor);
-        let n = self.u.len();
-        let mut nodal = vec![Vector3::zeros(); n];
-        let mut free = vec![0.0; dofs.len];
-        let apply = |x: &[f64], out: &mut [f64]| {
-            nodal.iter_mut().for_each(|v| *v = Vector3::zeros());
-            for ((row, nrm), &xi) in rows.iter().zip(x) {
-                for &(j, w) in *row {
-                    nodal[j as usize] += nrm * (w * xi);
-                }
-            }
-            dofs.gather(&nodal, &mut free);
-            factor.solve(&mut free);
-            dofs.scatter(&free, &mut nodal);
-            for ((row, nrm), o) in rows.iter().zip(out.iter_mut()) {
-                *o = row
-                    .iter()
-                    .map(|&(j, w)| w * nrm.dot(&nodal[j as usize]))
-                    .sum();
-            }
-        };
-        let (dl, outcome) = krylov::gmres(apply, &diag, &depth, 1e-3, 40, 80);
-        for k in 0..self.touch.len() {
-            if !(self.t_state[k].2 > 0.0) {
-                self.t_lambda[k] = 0.0;
-            }
-        }
-        // Never less than lambda += k d for a point still inside: the kept factor, of an
-        // earlier tangent, answered some points' pushes with too much depth change, and their
-        // depths then fell by a fifth a round (the MNI polish: 24 -> 3 points over the
-        // tolerance in 18 rounds, and it stopped).
-        for (&k, x) in active.iter().zip(dl) {
-            let (d, _, _) = self.t_state[k];
-            let kd = self.t_penalty.get(k).copied().unwrap_or(0.0) * d;
-            let x = if d > 0.0 { x.max(kd) } else { x };
-            self.t_lambda[k] = (self.t_lambda[k] + x).max(0.0);
-        }
-        self.report.multiplier_iterations += outcome.iterations;
-        self.report.solve_seconds += t0.elapsed().as_secs_f64();
-        log::debug!(
-            "    contact multipliers: {} points, {} GMRES products, relative residual {:.2e}",
-            active.len(),
-            outcome.iterations,
-            outcome.relative_residual
-        );
-    }
-
     /// Adds the penalties' stiffness k w w^T to the assembled tangent.
     fn add_constraint_stiffness(&mut self) {
         for (i, lc) in self.rows.iter().enumerate() {
@@ -1821,15 +1727,7 @@ impl<'a, M: Material> Newton<'a, M> {
                     .contact
                     .as_ref()
                     .map_or(f64::INFINITY, |c| c.tolerance());
-                // Also a point that pushes while off the surface by more than the tolerance:
-                // the multipliers' GMRES update can overshoot (the sphere in the hex8 cube:
-                // -1.227510 N against relaxation's -1.227473 N when the rounds stopped on depth
-                // alone).
-                let pushing = self.worst_penetration() > contact_tol
-                    || self
-                        .t_state
-                        .iter()
-                        .any(|&(d, _, g)| g > 0.0 && d < -contact_tol);
+                let pushing = self.worst_penetration() > contact_tol;
                 // The constraints to a hundredth of the tolerance: relaxation's corrector
                 // meets them to rounding, and a violation of the tolerance itself moved the
                 // meshless cube's corner by as much.
@@ -1843,7 +1741,9 @@ impl<'a, M: Material> Newton<'a, M> {
                     }
                     round_start = it;
                     self.update_multipliers();
-                    self.update_contact_multipliers();
+                    for k in 0..self.touch.len() {
+                        self.t_lambda[k] = self.t_state[k].2;
+                    }
                     self.forces(tau1);
                     trail.clear();
                     trail.extend(std::iter::repeat_n(f64::INFINITY, it + 1));
