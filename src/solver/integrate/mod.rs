@@ -606,10 +606,13 @@ fn run_on_pool<M: Material>(
             ));
         }
         let mut sink = sink;
-        let pre = if relaxed_start_applies(model, s) {
-            relax_to_start(model, s, &mut sink)?
+        let (pre, gave_up) = if relaxed_start_applies(model, s) {
+            match relax_to_start(model, s, &mut sink)? {
+                Ok(p) => (Some(p), None),
+                Err(why) => (None, Some(why)),
+            }
         } else {
-            None
+            (None, None)
         };
         let warmed;
         let s = match &pre {
@@ -649,6 +652,7 @@ fn run_on_pool<M: Material>(
             out.notes.extend(p.notes);
             out.restarts.extend(p.restarts);
         }
+        out.notes.extend(gave_up);
         // A tool that passed between the surface's nodes presses nothing and "converges" with
         // no force, statically as in relaxation (a 20 mm ball driven 100 mm through the cube).
         let full = out.statics.as_ref().is_none_or(|st| st.load_reached >= 1.0);
@@ -685,14 +689,14 @@ pub fn relaxed_start_applies<M: Material>(model: &Model<M>, s: &Settings) -> boo
 }
 
 /// The relaxed start: relaxation to [`RELAXED_START_SHARE`] x the tolerance from the unloaded
-/// state, its first frame (the unloaded state) handed to `sink`. None (the static solve then
-/// starts from the unloaded state, as without it) where the relaxation does not converge or
-/// is unstable.
+/// state, its first frame (the unloaded state) handed to `sink`. Where the relaxation does not
+/// converge or is unstable, the note that says so (the static solve then starts from the
+/// unloaded state, as without it).
 fn relax_to_start<M: Material>(
     model: &mut Model<M>,
     s: &Settings,
     sink: &mut Option<&mut FrameSink<'_, M>>,
-) -> Result<Option<RunOutput>> {
+) -> Result<std::result::Result<RunOutput, String>> {
     let loose = Settings {
         mode: Mode::Relaxation,
         tolerance: s.tolerance * RELAXED_START_SHARE,
@@ -709,21 +713,27 @@ fn relax_to_start<M: Material>(
     } else {
         rayon::scope(|_| run_on_worker(model, &loose, None))
     };
-    let mut out = match out {
-        Ok(o) if o.converged => o,
-        Ok(_) | Err(Error::Unstable(_)) => {
-            if let Some(c) = model.contact.as_mut() {
-                c.reset_statistics();
+    let why = match out {
+        Ok(mut o) if o.converged => {
+            if let (Some(sink), Some((t, u))) = (sink.as_mut(), o.frames.first()) {
+                sink(model, *t, u)?;
+                o.frames.clear();
             }
-            return Ok(None);
+            return Ok(Ok(o));
         }
+        Ok(o) => format!("it did not converge in {} steps", o.steps),
+        Err(Error::Unstable(msg)) => format!("it was unstable ({msg})"),
         Err(e) => return Err(e),
     };
-    if let (Some(sink), Some((t, u))) = (sink.as_mut(), out.frames.first()) {
-        sink(model, *t, u)?;
-        out.frames.clear();
+    if let Some(c) = model.contact.as_mut() {
+        c.reset_statistics();
     }
-    Ok(Some(out))
+    Ok(Err(format!(
+        "static solve: the relaxed start (relaxation to {:.1e} m, solver.relaxed_start) was \
+         given up, {why}; solved from the unloaded state (its steps are not counted in the \
+         force evaluations)",
+        loose.tolerance
+    )))
 }
 
 fn run_on_worker<M: Material>(
