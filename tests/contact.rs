@@ -16,6 +16,10 @@ fn plate(extra: &[&str]) -> Summary {
 }
 
 fn plate_run(extra: &[&str]) -> hytled::Result<Summary> {
+    plate_run_with(extra, &RunOptions::default())
+}
+
+fn plate_run_with(extra: &[&str], ro: &RunOptions) -> hytled::Result<Summary> {
     // Relaxation unless `extra` says otherwise (the cube's case solves statically by default).
     let mut o: Vec<String> = [
         "boundaries.top=",
@@ -48,7 +52,7 @@ fn plate_run(extra: &[&str]) -> hytled::Result<Summary> {
     std::fs::write(&file, text).unwrap();
     o.retain(|s| s != "boundaries.top=");
     let sc = hytled::scene::load(&file, &o).unwrap_or_else(|e| panic!("{e}"));
-    run_scene(&sc, &RunOptions::default())
+    run_scene(&sc, ro)
 }
 
 /// A rigid frictionless plate compressing the cube by 20 % gives the exact uniaxial reaction
@@ -863,4 +867,59 @@ fn a_body_resting_on_a_surface_is_relaxed_first_then_solved_statically() {
     let mv = plate(&["solver.mode=static"]);
     assert!(mv.converged);
     assert_eq!(mv.statics.as_ref().unwrap().relaxed_start_steps, 0);
+}
+
+/// Issue 57: a relaxed start writing its frames as it goes hands the unloaded state to the
+/// output once. The relaxation delivers it; here its one step (load_steps = 1, to a loose
+/// tolerance, under 50 m/s^2) leaves the cube swinging far from equilibrium, the static
+/// solve's warm step from there fails, and its fallback from the unloaded state delivered that
+/// state again. Two files and two times in the collection, the unloaded state and the answer.
+#[test]
+fn a_relaxed_start_writes_each_frame_once() {
+    let mut o = HANG.to_vec();
+    o.extend([
+        "solver.mode=static",
+        "solver.tolerance=1e-3",
+        "solver.load_steps=1",
+        "loads.g={ gravity = [0.0, 0.0, -50.0] }",
+    ]);
+    let kept = plate(&o);
+    let dir = std::env::temp_dir().join(format!("hytled-relaxed-frames-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let ro = RunOptions {
+        out: Some(dir.clone()),
+        ..Default::default()
+    };
+    let written = plate_run_with(&o, &ro).unwrap();
+    assert!(written.statics.as_ref().unwrap().relaxed_start_steps > 0);
+    // The case this test is for: the warm step failed and the solve went back.
+    assert_eq!(
+        common::warnings_with(&written, "warm start from the last equilibrium failed").len(),
+        1
+    );
+    assert_eq!(kept.reactions["plate"], written.reactions["plate"]);
+    let names: Vec<std::path::PathBuf> = std::fs::read_dir(&dir)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .collect();
+    let vtus = names
+        .iter()
+        .filter(|p| p.extension().is_some_and(|x| x == "vtu"))
+        .count();
+    let pvd = names
+        .iter()
+        .find(|p| p.extension().is_some_and(|x| x == "pvd"))
+        .expect("a .pvd collection");
+    let pvd = std::fs::read_to_string(pvd).unwrap();
+    let times: Vec<f64> = pvd
+        .split("timestep=\"")
+        .skip(1)
+        .map(|t| t[..t.find('"').unwrap()].parse().unwrap())
+        .collect();
+    let _ = std::fs::remove_dir_all(&dir);
+    assert_eq!(vtus, 2, "{names:?}");
+    assert!(
+        times.len() == 2 && times[0] == 0.0 && times[1] > 0.0,
+        "{times:?}"
+    );
 }

@@ -625,11 +625,31 @@ fn run_on_pool<M: Material>(
             }
             None => s,
         };
+        // The relaxed start handed the unloaded state to the sink: a warm step that fails goes
+        // back to it and would hand it again.
+        let mut once;
+        let static_sink: Option<&mut FrameSink<'_, M>> = match sink {
+            Some(inner) if pre.is_some() => {
+                once = move |m: &mut Model<M>, t: f64, u: &[Vector3<f64>]| {
+                    if t == 0.0 {
+                        Ok(())
+                    } else {
+                        inner(m, t, u)
+                    }
+                };
+                Some(&mut once)
+            }
+            Some(inner) => {
+                let shorter: &mut FrameSink<'_, M> = inner;
+                Some(shorter)
+            }
+            None => None,
+        };
         let mut cache = model.static_cache.take();
         let out = if rayon::current_thread_index().is_some() {
-            super::statics::solve(model, s, sink, &mut cache)
+            super::statics::solve(model, s, static_sink, &mut cache)
         } else {
-            rayon::scope(|_| super::statics::solve(model, s, sink, &mut cache))
+            rayon::scope(|_| super::statics::solve(model, s, static_sink, &mut cache))
         };
         model.static_cache = cache;
         let mut out = out?;
