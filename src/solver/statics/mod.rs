@@ -15,9 +15,24 @@
 //! boundary follow it instead of being torn from it in the first evaluation. Follower pressure
 //! enters the residual but not the tangent (its load stiffness is left out: convergence is
 //! then linear where pressure dominates).
+//!
+//! Where things are: this file holds the load stepping ([`Newton::run`]: stages, step
+//! growth, cuts, the stop) and a load step's Newton iterations with their line search;
+//! [`predictor`] starts each load step; [`linear`] solves K_ff du = r (factorizations, the
+//! kept factor, preconditioned CG); [`contact`] and [`constraints`] hold rigid contact and
+//! linear constraints (augmented Lagrangians); [`record`] the residual history, frames,
+//! stages, the work and the output; [`checks`] what is refused before the start;
+//! [`tangent`], [`factor`], [`trisolve`] and [`krylov`] the sparse tangent, its
+//! factorization, the triangular solves on the threads and GMRES.
 
+mod checks;
+mod constraints;
+mod contact;
 pub mod factor;
 mod krylov;
+mod linear;
+mod predictor;
+mod record;
 pub mod tangent;
 mod trisolve;
 
@@ -26,11 +41,14 @@ use std::time::Instant;
 use nalgebra::{Matrix3, Vector3};
 use serde::{Deserialize, Serialize};
 
-use super::integrate::{FrameSink, HistoryRow, Momentum, RunOutput, Settings, Stage, StepUpdates};
+use super::integrate::{FrameSink, HistoryRow, RunOutput, Settings, Stage};
 use super::Model;
 use crate::bc::LoadCurve;
 use crate::material::Material;
 use crate::{Error, InputKind, Result};
+use checks::check_supported;
+pub use checks::free_rigid_motions;
+use constraints::{violation, CONSTRAINT_SHARE};
 use factor::{Dofs, Factor, Kind};
 pub use tangent::Tangent;
 
@@ -71,8 +89,6 @@ const CG_TOLERANCE: f64 = 1e-4;
 /// within [CG_TOLERANCE, ETA_MAX]. An early iteration's direction need not be exact to the
 /// fourth digit where the residual is still of the order of the load.
 const ETA_MAX: f64 = 0.1;
-/// How many times more multiply-adds per second a factorization does than a CG iteration.
-const FACTOR_EFFICIENCY: f64 = 9.0;
 /// Newton iterations per load step (after its last multiplier update) before the step is cut.
 const MAX_ITERATIONS: usize = 25;
 /// ... where rigid bodies that do not move hold the body ([`CONTACT_STALL_ITERATIONS`]):
@@ -89,13 +105,6 @@ const MAX_ROUNDS: usize = 20;
 const LINE_SEARCH: f64 = 0.5;
 /// At most this many force evaluations in one line search.
 const LINE_SEARCH_EVALUATIONS: usize = 8;
-/// A contact point's penalty over the mean diagonal stiffness of its nodes. Stiffer
-/// penalties need fewer multiplier updates, but the Newton directions overshoot where
-/// points come into contact and the active set cycles. A sphere pressed 20 mm into the cube
-/// (`tests/contact.rs`): at 1e3, hex8, tet4 and tet4-anp all stall; at 10, hex8 stalls; at 3,
-/// all three converge to relaxation's force (286-421 force evaluations). brain-contact
-/// (coupled): 34 % of the load in 150 s at 1e3, all of it in 356 s at 10, 12.7 % in 197 s at 3.
-const CONTACT_BETA: f64 = 3.0;
 /// A load step that did not converge is tried once more with every node's diagonal block
 /// raised by this share of itself times the relative residual (pseudo-transient
 /// continuation with switched evolution relaxation, Kelley and Keyes 1998: the shift damps
@@ -270,154 +279,6 @@ impl Cache {
     }
 }
 
-/// Moduli far out of range (E = 1e308 Pa) overflow the tangent: the factorization then met a
-/// zero pivot ("the tangent stiffness is singular"), which named neither the cause nor the
-/// keys. The static form of relaxation's wave-speed check, which also reads the density.
-fn check_moduli<M: Material>(model: &Model<M>) -> Result<()> {
-    for m in &model.forces.materials {
-        let (lambda, mu) = m.lame();
-        let p = lambda + 2.0 * mu;
-        if !(p.is_finite() && p > 0.0 && mu.is_finite() && mu > 0.0 && p < 1e30) {
-            return Err(Error::input(
-                InputKind::Value,
-                format!(
-                    "the dilatational modulus lambda + 2 mu of a material is {} Pa (mu {} Pa): the \
-                     static solve's tangent cannot hold it; check the moduli (Pa) of [material] and \
-                     [regions] (soft tissue: about 1e3-1e5 Pa)",
-                    crate::error::Sci(p),
-                    crate::error::Sci(mu)
-                ),
-            ));
-        }
-    }
-    Ok(())
-}
-
-/// Refuses what the static solve does not handle yet, saying what to use instead.
-fn check_supported<M: Material>(model: &Model<M>) -> Result<()> {
-    check_moduli(model)?;
-    let what = if model
-        .corrector
-        .as_ref()
-        .is_some_and(|c| c.linear_constraints(1.0).is_none())
-    {
-        Some("this model's corrected essential boundaries")
-    } else {
-        None
-    };
-    match what {
-        Some(w) => Err(Error::input(
-            InputKind::Unsupported,
-            format!(
-            "solver.mode = \"static\" does not handle {w} yet; set solver.mode = \"relaxation\""
-        ),
-        )),
-        None => Ok(()),
-    }
-}
-
-/// The rigid motions (translations, rotations about the body's centroid) that no prescribed
-/// component holds, named; empty when the boundaries hold the body. A rigid motion is held
-/// when some prescribed DOF moves under it: the null space of the 6 x 6 Gram matrix of the
-/// motions restricted to the prescribed DOFs.
-pub fn free_rigid_motions<M: Material>(model: &Model<M>) -> Vec<String> {
-    let n = model.nodes.len();
-    if n == 0 {
-        return Vec::new();
-    }
-    let c: Vector3<f64> = model.nodes.iter().sum::<Vector3<f64>>() / n as f64;
-    let size = model
-        .nodes
-        .iter()
-        .map(|x| (x - c).norm())
-        .fold(0.0, f64::max)
-        .max(f64::MIN_POSITIVE);
-    let mode = |m: usize, x: &Vector3<f64>| -> Vector3<f64> {
-        if m < 3 {
-            Vector3::ith(m, 1.0)
-        } else {
-            Vector3::ith(m - 3, 1.0).cross(&((x - c) / size))
-        }
-    };
-    let mut g = nalgebra::SMatrix::<f64, 6, 6>::zeros();
-    for (i, mask) in model.constraints.mask.iter().enumerate() {
-        for k in 0..3 {
-            if mask[k] {
-                let r: [f64; 6] = std::array::from_fn(|m| mode(m, &model.nodes[i])[k]);
-                for a in 0..6 {
-                    for b in 0..6 {
-                        g[(a, b)] += r[a] * r[b];
-                    }
-                }
-            }
-        }
-    }
-    if let Some(rows) = model
-        .corrector
-        .as_ref()
-        .and_then(|c| c.linear_constraints(1.0))
-    {
-        for lc in &rows {
-            let mut r = [0.0; 6];
-            for &(j, w) in &lc.row {
-                for (m, rm) in r.iter_mut().enumerate() {
-                    *rm += w * mode(m, &model.nodes[j as usize])[lc.axis];
-                }
-            }
-            for a in 0..6 {
-                for b in 0..6 {
-                    g[(a, b)] += r[a] * r[b];
-                }
-            }
-        }
-    }
-    let eig = g.symmetric_eigen();
-    let top = eig.eigenvalues.amax().max(1.0);
-    let names = ["x", "y", "z"];
-    let mut out = Vec::new();
-    for m in 0..6 {
-        if eig.eigenvalues[m] > 1e-10 * top {
-            continue;
-        }
-        let v = eig.eigenvectors.column(m);
-        let t = Vector3::new(v[0], v[1], v[2]);
-        let r = Vector3::new(v[3], v[4], v[5]);
-        let describe = |w: Vector3<f64>| {
-            let k = w.iamax();
-            let others = (0..3)
-                .filter(|&j| j != k && w[j].abs() > 0.05 * w[k].abs())
-                .count();
-            if others == 0 {
-                names[k].to_string()
-            } else {
-                format!(
-                    "({:.2}, {:.2}, {:.2})",
-                    w[0] / w[k],
-                    w[1] / w[k],
-                    w[2] / w[k]
-                )
-            }
-        };
-        if r.norm() < 1e-6 {
-            out.push(format!("translation along {}", describe(t)));
-        } else if t.norm() < 1e-6 {
-            out.push(format!(
-                "rotation about {} through ({:.4e}, {:.4e}, {:.4e}) m",
-                describe(r),
-                c.x,
-                c.y,
-                c.z
-            ));
-        } else {
-            out.push(format!(
-                "a combined translation and rotation (axis {})",
-                describe(r)
-            ));
-        }
-    }
-    out
-}
-
 /// Solves the model's steady state statically; the output has the fields a relaxation's
 /// has (no pseudo-time: `steps` counts Newton iterations, `dt` is 0).
 pub fn solve<M: Material>(
@@ -564,8 +425,9 @@ struct Newton<'a, M: Material> {
     /// The last (at most three) converged states on the load path: (load fraction, u).
     path: Vec<(f64, Vec<Vector3<f64>>)>,
     /// (chord length along the path, u, F_int) at the last (at most three) history rows, for
-    /// the work's quadrature ([`work_on_parabola`]); and the work of the first interval as
-    /// taken by a trapezoid, until a third row lets the parabola take it.
+    /// the work's quadrature ([`work_on_parabola`](record::work_on_parabola)); and the work
+    /// of the first interval as taken by a trapezoid, until a third row lets the parabola
+    /// take it.
     work_state: Vec<(f64, Vec<Vector3<f64>>, Vec<Vector3<f64>>)>,
     first_trapezoid: Option<f64>,
     peak_work: f64,
@@ -792,381 +654,6 @@ impl<'a, M: Material> Newton<'a, M> {
         )
     }
 
-    /// The contact penalties, once, from the first tangent: [`CONTACT_BETA`] x the mean diagonal
-    /// stiffness of the point's nodes.
-    fn set_contact_penalties(&mut self) {
-        if self.t_penalty.len() == self.touch.len() {
-            return;
-        }
-        let Some(ct) = self.model.contact.as_ref() else {
-            return;
-        };
-        self.t_penalty = self
-            .touch
-            .iter()
-            .map(|&(b, i)| {
-                let row = &ct.points_of(b as usize)[i as usize].row;
-                let (mut k, mut w2) = (0.0, 0.0);
-                for &(j, w) in row {
-                    k += w * w * self.c.tangent.diagonal(j as usize).trace() / 3.0;
-                    w2 += w * w;
-                }
-                CONTACT_BETA * (k / w2.max(f64::MIN_POSITIVE)).abs()
-            })
-            .collect();
-    }
-
-    /// The active points' stiffness w_a w_b (k n n^T - g sym(dn/dx)): the penalty along the
-    /// normal, and the normal's turning under the point's force g ([`Contact::normal_gradient`],
-    /// symmetrized as the factorization needs). Without the turning, a node of the 25 mm cube
-    /// pressed by a 20 mm ball 24 mm down, sliding around it under 0.9 N (its turning 45 N/m
-    /// against about 75 N/m of tissue), crept by 4e-5 m per Newton iteration and the solve stopped
-    /// at 91 % of the load.
-    ///
-    /// [`Contact::normal_gradient`]: crate::bc::contact::Contact::normal_gradient
-    fn add_contact_stiffness(&mut self) {
-        let Some(ct) = self.model.contact.as_ref() else {
-            return;
-        };
-        for (k, &(b, i)) in self.touch.iter().enumerate() {
-            let (_, n, g) = self.t_state[k];
-            if !(g > 0.0) {
-                continue;
-            }
-            let p = &ct.points_of(b as usize)[i as usize];
-            let turn = ct.normal_gradient(
-                b as usize,
-                p,
-                &self.u,
-                self.tau_now,
-                self.t_hint.get(k).copied().flatten(),
-            );
-            let nn = n * n.transpose() * self.t_penalty[k] - (turn + turn.transpose()) * (0.5 * g);
-            let row = &p.row;
-            for &(a, wa) in row {
-                for &(c, wc) in row {
-                    self.c
-                        .tangent
-                        .add(a as usize, c as usize, &(nn * (wa * wc)));
-                }
-            }
-        }
-    }
-
-    /// A point pressed deeper than the contact's tolerance that the boundary conditions
-    /// hold against the push: no multiplier can move it, so the rigid body would pass through
-    /// the tissue. The error relaxation gives, naming the contact, the point and the boundary.
-    fn contact_conflict(&self, tau: f64) -> Option<Error> {
-        let ct = self.model.contact.as_ref()?;
-        let mask = &self.model.constraints.mask;
-        let tol = ct.tolerance();
-        let k = (0..self.touch.len()).find(|&k| {
-            let (depth, n, _) = self.t_state[k];
-            let (b, i) = self.touch[k];
-            depth > tol
-                && ct.points_of(b as usize)[i as usize].held_along(&n, mask, STATIC_HELD_SHARE)
-        })?;
-        let (b, i) = (self.touch[k].0 as usize, self.touch[k].1 as usize);
-        let p = &ct.points_of(b)[i];
-        let (depth, n, _) = self.t_state[k];
-        let c = crate::bc::contact::Conflict {
-            body: b,
-            x: p.x,
-            depth,
-            node: p.main_node(),
-            normal: n,
-        };
-        Some(crate::solver::integrate::contact_conflict(
-            self.model,
-            &c,
-            self.report.load_steps + 1,
-            tau,
-        ))
-    }
-
-    /// The longest load step (a load fraction) over which no rigid surface read from a file
-    /// travels more than half the body's mean node spacing ([`Self::mean_spacing`]); 1
-    /// without one. Such a surface has a far side: put at its final
-    /// place in one step it can end nearer that side than the one it should press. A plate
-    /// 30 mm thick driven 20 mm onto the meshless cube met the cube's top 10 mm from its upper
-    /// face and pushed it up through the plate (+1.85 N against -7.63 N). Analytic tools are
-    /// measured from the side they press (a plane has none other) and keep the full step.
-    fn contact_step_limit(&self) -> f64 {
-        let Some(ct) = self.model.contact.as_ref() else {
-            return 1.0;
-        };
-        const SAMPLES: usize = 64;
-        let mut speed = 0.0f64;
-        for b in (0..ct.len()).filter(|&b| ct.is_surface(b)) {
-            for k in 1..=SAMPLES {
-                let (t0, t1) = (
-                    self.tau_of((k - 1) as f64 / SAMPLES as f64),
-                    self.tau_of(k as f64 / SAMPLES as f64),
-                );
-                let step = (ct.body_displacement(b, t1) - ct.body_displacement(b, t0)).norm();
-                speed = speed.max(step * SAMPLES as f64);
-            }
-        }
-        let spacing = self.mean_spacing();
-        if !(speed > 0.0 && spacing > 0.0) {
-            return 1.0;
-        }
-        (0.5 * spacing / speed).min(1.0)
-    }
-
-    /// Deepest penetration of a candidate point, m (0 without contact).
-    fn worst_penetration(&self) -> f64 {
-        self.t_state.iter().map(|&(d, _, _)| d).fold(0.0, f64::max)
-    }
-
-    /// A force the tissue carries, N: the largest shear modulus times the squared mean node
-    /// spacing ([`Self::mean_spacing`]).
-    fn force_scale(&self) -> f64 {
-        let mu = self
-            .model
-            .forces
-            .materials
-            .iter()
-            .map(|x| x.lame().1)
-            .fold(0.0, f64::max);
-        let h = self.mean_spacing();
-        mu * h * h
-    }
-
-    /// The body's mean node spacing, m: the cube root of its bounding box's volume per node.
-    fn mean_spacing(&self) -> f64 {
-        let nodes = &self.model.nodes;
-        let (lo, hi) = nodes.iter().fold(
-            (
-                Vector3::repeat(f64::INFINITY),
-                Vector3::repeat(f64::NEG_INFINITY),
-            ),
-            |(lo, hi), x| (lo.inf(x), hi.sup(x)),
-        );
-        let e = hi - lo;
-        (e.x * e.y * e.z / nodes.len().max(1) as f64).cbrt()
-    }
-
-    /// The contact multipliers of a warm start's state, estimated from its residual: a
-    /// point on the rigid surface (within [`WARM_CONTACT_SHARE`] of the body's mean node
-    /// spacing) takes the push along its normal that its nodes are short of, by least squares
-    /// over its weights. A state relaxed against a surface holds its points on it, where the
-    /// penalty alone pushes nothing: without multipliers its first tangent had no contact,
-    /// and the MNI brain fell through the skull in the linear predictor (min J -1,812).
-    fn warm_contact_multipliers(&mut self) {
-        let Some(ct) = self.model.contact.as_ref() else {
-            return;
-        };
-        let near = WARM_CONTACT_SHARE * self.mean_spacing();
-        let mut any = false;
-        for (k, &(b, i)) in self.touch.iter().enumerate() {
-            let (depth, n, _) = self.t_state[k];
-            if !(depth > -near) {
-                continue;
-            }
-            let row = &ct.points_of(b as usize)[i as usize].row;
-            let (mut push, mut w2) = (0.0, 0.0);
-            for &(j, w) in row {
-                let j = j as usize;
-                let mut r = self.fe[j] - self.f[j];
-                for c in 0..3 {
-                    if self.model.constraints.mask[j][c] {
-                        r[c] = 0.0;
-                    }
-                }
-                push -= w * n.dot(&r);
-                w2 += w * w;
-            }
-            if push > 0.0 && w2 > 0.0 {
-                self.t_lambda[k] = push / w2;
-                any = true;
-            }
-        }
-        if any {
-            self.forces(self.tau_now);
-        }
-    }
-
-    /// Hands the contact's end state (forces per body, points in contact) to the model.
-    fn contact_state(&mut self) {
-        let worst = self.worst_penetration();
-        let scale = self.force_scale();
-        let Some(ct) = self.model.contact.as_mut() else {
-            return;
-        };
-        let mut forces = vec![Vector3::zeros(); ct.len()];
-        let mut count = vec![0usize; ct.len()];
-        // A point counts as in contact where its force is more than rounding against the
-        // forces the tissue carries (its shear modulus times the mean node spacing squared): a
-        // ball driven through the cube in one step ended with 1e-14 N on a point it grazed,
-        // which hid that it pressed nothing.
-        let floor = 1e-9 * scale;
-        for (k, &(b, _)) in self.touch.iter().enumerate() {
-            let (_, n, g) = self.t_state[k];
-            if g > 0.0 {
-                forces[b as usize] += n * g;
-            }
-            if g > floor {
-                count[b as usize] += 1;
-            }
-        }
-        ct.set_static_state(forces, count, worst);
-    }
-
-    /// Sets the constraints' targets at load fraction `tau`.
-    fn set_targets(&mut self, tau: f64) {
-        if self.rows.is_empty() {
-            return;
-        }
-        if let Some(now) = self
-            .model
-            .corrector
-            .as_ref()
-            .and_then(|c| c.linear_constraints(tau))
-        {
-            for (r, n) in self.rows.iter_mut().zip(now) {
-                r.target = n.target;
-            }
-        }
-    }
-
-    /// Largest constraint violation, m.
-    fn worst_violation(&self) -> f64 {
-        self.rows
-            .iter()
-            .map(|lc| violation(lc, &self.u).abs())
-            .fold(0.0, f64::max)
-    }
-
-    /// The penalties, once, from the first tangent: BETA x the stiffness of the row's nodes
-    /// along its axis (weighted by the row), so one multiplier update leaves about 1 / BETA of
-    /// the violation.
-    fn set_penalties(&mut self) {
-        const BETA: f64 = 1e3;
-        if self.penalty.len() == self.rows.len() {
-            return;
-        }
-        self.penalty = self
-            .rows
-            .iter()
-            .map(|lc| {
-                let (mut k, mut w2) = (0.0, 0.0);
-                for &(j, w) in &lc.row {
-                    k += w * w * self.c.tangent.diagonal(j as usize)[(lc.axis, lc.axis)];
-                    w2 += w * w;
-                }
-                BETA * (k / w2.max(f64::MIN_POSITIVE)).abs()
-            })
-            .collect();
-    }
-
-    /// The constraints' multiplier update once Newton has converged at the current ones.
-    /// With the forces spread by the rows (SEBCIEM) the augmented Lagrangian's
-    /// lambda += k c, which leaves about 1 / BETA of the violation. With EBCIEM's spread V
-    /// that update does not contract (V is not Phi^T, nor of its scale): the change that
-    /// removes the violation c to first order, Phi K^-1 V dlambda = c with the kept factor of
-    /// K (its penalty stiffness included), solved by GMRES, each product a pair of triangular
-    /// solves; an inexact factor only costs another Newton pass and update.
-    fn update_multipliers(&mut self) {
-        if self.rows.iter().all(|lc| lc.spread.is_none()) || self.c.factor.kind().is_none() {
-            for i in 0..self.rows.len() {
-                self.lambda[i] += self.penalty[i] * violation(&self.rows[i], &self.u);
-            }
-            return;
-        }
-        let t0 = Instant::now();
-        let c: Vec<f64> = self.rows.iter().map(|lc| violation(lc, &self.u)).collect();
-        // Right preconditioner: the inverse diagonal of Phi K^-1 V with K^-1 taken as the
-        // penalty's 1 / k (exact where the penalty dominates the row's stiffness).
-        let d: Vec<f64> = self
-            .rows
-            .iter()
-            .zip(&self.penalty)
-            .map(|(lc, &k)| {
-                let v = lc.spread.as_deref().unwrap_or(&lc.row);
-                let pv: f64 = lc
-                    .row
-                    .iter()
-                    .map(|&(j, w)| w * v.iter().find(|e| e.0 == j).map_or(0.0, |e| e.1))
-                    .sum();
-                if pv > 0.0 && k > 0.0 {
-                    k / pv
-                } else {
-                    1.0
-                }
-            })
-            .collect();
-        let (rows, dofs, factor) = (&self.rows, &self.c.dofs, &self.c.factor);
-        let n = self.u.len();
-        let mut nodal = vec![Vector3::zeros(); n];
-        let mut free = vec![0.0; dofs.len];
-        let apply = |x: &[f64], out: &mut [f64]| {
-            nodal.iter_mut().for_each(|v| *v = Vector3::zeros());
-            for (lc, &xi) in rows.iter().zip(x) {
-                for &(j, w) in lc.spread.as_deref().unwrap_or(&lc.row) {
-                    nodal[j as usize][lc.axis] += w * xi;
-                }
-            }
-            dofs.gather(&nodal, &mut free);
-            factor.solve(&mut free);
-            dofs.scatter(&free, &mut nodal);
-            for (lc, o) in rows.iter().zip(out.iter_mut()) {
-                *o = lc
-                    .row
-                    .iter()
-                    .map(|&(j, w)| w * nodal[j as usize][lc.axis])
-                    .sum();
-            }
-        };
-        let (dl, outcome) = krylov::gmres(apply, &d, &c, 1e-6, 50, 500);
-        for (l, x) in self.lambda.iter_mut().zip(dl) {
-            *l += x;
-        }
-        self.report.multiplier_iterations += outcome.iterations;
-        self.report.solve_seconds += t0.elapsed().as_secs_f64();
-        log::debug!(
-            "    EBCIEM multipliers: {} GMRES products, relative residual {:.2e}",
-            outcome.iterations,
-            outcome.relative_residual
-        );
-    }
-
-    /// Adds the penalties' stiffness k w w^T to the assembled tangent.
-    fn add_constraint_stiffness(&mut self) {
-        for (i, lc) in self.rows.iter().enumerate() {
-            let k = self.penalty[i];
-            for &(a, wa) in &lc.row {
-                for &(b, wb) in &lc.row {
-                    let mut m = Matrix3::zeros();
-                    m[(lc.axis, lc.axis)] = k * wa * wb;
-                    self.c.tangent.add(a as usize, b as usize, &m);
-                }
-            }
-        }
-    }
-
-    /// The force each boundary's constraints apply to the body, N (negative of their share of
-    /// the residual's constraint forces), handed to the corrector as its reactions.
-    fn constraint_reactions(&mut self) {
-        if self.rows.is_empty() {
-            return;
-        }
-        let nb = self.model.boundaries.len();
-        let mut r = vec![Vector3::zeros(); nb];
-        for (i, lc) in self.rows.iter().enumerate() {
-            let pen = self.penalty.get(i).copied().unwrap_or(0.0) * violation(lc, &self.u);
-            let sum = |v: &[(u32, f64)]| v.iter().map(|&(_, w)| w).sum::<f64>();
-            let f =
-                self.lambda[i] * sum(lc.spread.as_deref().unwrap_or(&lc.row)) + pen * sum(&lc.row);
-            if let Some(rb) = r.get_mut(lc.boundary) {
-                rb[lc.axis] -= f;
-            }
-        }
-        if let Some(c) = self.model.corrector.as_mut() {
-            c.set_reactions(&r);
-        }
-    }
-
     /// Largest |F_ext - F_int| at a free DOF, and the largest nodal force (the scale).
     fn residual_norm(&self) -> (f64, f64) {
         let (mut r, mut scale) = (0.0f64, 0.0f64);
@@ -1234,136 +721,6 @@ impl<'a, M: Material> Newton<'a, M> {
         self.report.assemblies += 1;
         self.force_evaluations += 1;
         self.report.assembly_seconds += t0.elapsed().as_secs_f64();
-    }
-
-    fn refactor(&mut self, double: bool) -> Result<Kind> {
-        let k = self.c.factor.factor(&self.c.tangent, double)?;
-        if k == Kind::Modified {
-            log::debug!(
-                "    tangent not positive definite: {} pivots made positive",
-                self.c.factor.changed_pivots
-            );
-        }
-        self.fresh = true;
-        self.factor_stale = false;
-        Ok(k)
-    }
-
-    /// K_ff x = b to the relative residual `eta` with a factor of the current tangent just
-    /// made: a single-precision factor's solve refined by conjugate gradients, and where they
-    /// do not reach `eta` (a condition number near 1e7, where single precision's rounding
-    /// is felt), the tangent factored again in double precision and solved directly.
-    fn fresh_solve(&mut self, b: &mut [f64], eta: f64) -> Result<()> {
-        if self.c.factor.is_single() {
-            if self.pcg(b, eta, true) {
-                return Ok(());
-            }
-            self.refactor(true)?;
-        }
-        self.c.factor.solve(b);
-        Ok(())
-    }
-
-    /// K_ff x = b for the free DOFs (b in, x out), by the variant's rule; the tangent is
-    /// assembled at the current u by the caller where the variant needs it.
-    fn linear_solve(&mut self, b: &mut [f64], eta: f64) -> Result<()> {
-        let t0 = Instant::now();
-        let variant = self.s.static_variant;
-        let have = self.c.factor.kind().is_some();
-        let direct = match variant {
-            Variant::Newton => true,
-            Variant::Modified => !have || self.factor_stale,
-            Variant::NewtonKrylov => {
-                !have || self.factor_stale || self.c.factor.kind() == Some(Kind::Modified)
-            }
-        };
-        if direct {
-            self.refactor(false)?;
-            self.fresh_solve(b, eta)?;
-        } else if variant == Variant::Modified {
-            self.c.factor.solve(b);
-        } else if !self.pcg(b, eta, false) {
-            self.refactor(false)?;
-            self.fresh_solve(b, eta)?;
-        }
-        self.report.solve_seconds += t0.elapsed().as_secs_f64();
-        Ok(())
-    }
-
-    /// b = K_old^-1 b with the kept factor as it is (a modified-Newton step).
-    fn kept_solve(&mut self, b: &mut [f64]) {
-        let t0 = Instant::now();
-        self.c.factor.solve(b);
-        self.report.kept_solves += 1;
-        self.report.solve_seconds += t0.elapsed().as_secs_f64();
-    }
-
-    /// Conjugate gradients on the current tangent, preconditioned by the kept factor; b is
-    /// replaced by the solution. False (b unchanged) when CG does not reach the relative
-    /// residual `eta` (the forcing term, [`ETA_MAX`]) within its limit of iterations (at most
-    /// [`CG_LIMIT`]; `fresh`: the factor is of this tangent, and failing costs a factorization
-    /// in double precision, so the limit is CG_LIMIT) or meets a direction of non-positive
-    /// curvature.
-    fn pcg(&mut self, b: &mut [f64], eta: f64, fresh: bool) -> bool {
-        let n = b.len();
-        let dot = |x: &[f64], y: &[f64]| x.iter().zip(y).map(|(a, b)| a * b).sum::<f64>();
-        let bnorm = dot(b, b).sqrt();
-        if bnorm == 0.0 {
-            return true;
-        }
-        let mut x = vec![0.0; n];
-        let mut r = b.to_vec();
-        let mut z = r.clone();
-        self.c.factor.solve(&mut z);
-        let mut p = z.clone();
-        let mut rz = dot(&r, &z);
-        let mut q = vec![0.0; n];
-        // A factorization pays once CG would take longer than it. Their costs are counted,
-        // not timed, so that the path does not depend on the machine's load: a factorization's
-        // multiply-adds against a CG iteration's (two triangular solves and a product with
-        // the tangent), a factorization's dense kernels doing FACTOR_EFFICIENCY times more
-        // per second (measured 7.8-9.6 on tet4-anp, tet10 and Ogden cases, 2 threads).
-        let per_cg =
-            4.0 * self.c.factor.factor_nonzeros() as f64 + 18.0 * self.c.tangent.blocks() as f64;
-        let limit = if fresh {
-            CG_LIMIT
-        } else {
-            ((self.c.factor.flops / FACTOR_EFFICIENCY / per_cg) as usize).clamp(4, CG_LIMIT)
-        };
-        let mut done = false;
-        for _ in 0..limit {
-            self.c.dofs.scatter(&p, &mut self.t0);
-            self.c.tangent.multiply(&self.t0, &mut self.t1);
-            self.c.dofs.gather(&self.t1, &mut q);
-            self.report.linear_iterations += 1;
-            self.force_evaluations += 1;
-            let pq = dot(&p, &q);
-            if !(pq > 0.0) {
-                break;
-            }
-            let alpha = rz / pq;
-            for i in 0..n {
-                x[i] += alpha * p[i];
-                r[i] -= alpha * q[i];
-            }
-            if dot(&r, &r).sqrt() <= eta * bnorm {
-                b.copy_from_slice(&x);
-                done = true;
-                break;
-            }
-            z.copy_from_slice(&r);
-            self.c.factor.solve(&mut z);
-            let rz_new = dot(&r, &z);
-            let beta = rz_new / rz;
-            rz = rz_new;
-            for i in 0..n {
-                p[i] = z[i] + beta * p[i];
-            }
-        }
-        if !done {
-            self.cg_partial = x;
-        }
-        done
     }
 
     /// The run: from a warm start one step at the full load, and where that does not converge
@@ -1555,47 +912,6 @@ impl<'a, M: Material> Newton<'a, M> {
             self.forces(tau1);
             self.assemble();
         }
-        // The prescribed values' change over the step.
-        let mut target = self.u.clone();
-        self.model.constraints.prescribe(&mut target, tau1);
-        let mut delta = vec![Vector3::zeros(); n];
-        let mut moved = false;
-        for (i, m) in self.model.constraints.mask.iter().enumerate() {
-            for k in 0..3 {
-                if m[k] {
-                    delta[i][k] = target[i][k] - self.u[i][k];
-                    moved |= delta[i][k] != 0.0;
-                }
-            }
-        }
-        // The predictor: the load path extrapolated from its last converged states, by a
-        // parabola through three (the driven rim's stiffening bends the path: on the
-        // benchmark's c1, at the same steps, the residual after it fell from 0.39-0.55 of the
-        // largest force with a line to 0.07-0.12, and c3 took 52 Newton iterations against
-        // 71) or a line through two; where there are none or it inverts an element, the
-        // linear one u_f += K_ff^-1 (r_f - K_fp du_p).
-        let u0 = self.u.clone();
-        let mut last_update = 0.0f64;
-        let mut predicted = false;
-        self.predictor_factorizations = self.c.factor.factorizations;
-        if lam1 > lam0 && self.path.len() >= 2 {
-            let w = lagrange_weights(self.path.iter().map(|p| p.0), lam1);
-            for i in 0..n {
-                for c in 0..3 {
-                    self.u[i][c] = if self.model.constraints.mask[i][c] {
-                        target[i][c]
-                    } else {
-                        self.path.iter().zip(&w).map(|(p, w)| w * p.1[i][c]).sum()
-                    };
-                }
-                last_update = last_update.max((self.u[i] - u0[i]).amax());
-            }
-            if self.forces(tau1) > 0.0 {
-                predicted = true;
-            } else {
-                self.u.clone_from(&u0);
-            }
-        }
         // A kept factor of an earlier state (a warm start's, the previous load step's) often
         // still contracts: modified-Newton steps with it cost a force evaluation and two
         // triangular solves, no assembly. The first that does not cut the residual by
@@ -1604,81 +920,10 @@ impl<'a, M: Material> Newton<'a, M> {
         let mut cheap = self.s.static_variant == Variant::NewtonKrylov
             && !self.factor_stale
             && self.c.factor.kind().is_some_and(|k| k != Kind::Modified);
+        let Some(mut last_update) = self.predict(lam0, lam1, cheap)? else {
+            return Ok(false);
+        };
         let mut rhs = vec![0.0; self.c.dofs.len];
-        if !predicted {
-            self.forces(tau1);
-            let j_start = self.min_j.0;
-            for i in 0..n {
-                self.t0[i] = self.fe[i] - self.f[i];
-            }
-            // K_fp du_p from the tangent here, not from the last one assembled where that is
-            // a rejected step's (after a cut: the predictor from it inverted cylinder-mixed's
-            // elements at 1/16 of the load that its own tangent took whole).
-            let need_tangent = (moved && self.tangent_stale)
-                || (!cheap
-                    && (self.s.static_variant != Variant::Modified
-                        || self.c.factor.kind().is_none()));
-            if need_tangent {
-                self.assemble();
-            }
-            if moved {
-                // r_f - K_fp du_p
-                self.c.tangent.multiply(&delta, &mut self.t1);
-                for i in 0..n {
-                    self.t0[i] -= self.t1[i];
-                }
-            }
-            self.c.dofs.gather(&self.t0, &mut rhs);
-            if cheap {
-                self.kept_solve(&mut rhs);
-            } else {
-                self.linear_solve(&mut rhs, CG_TOLERANCE)?;
-            }
-            // A factor the predictor made is of the start: kept for a retry even where the
-            // predictor inverts an element below.
-            self.predictor_factorizations = self.c.factor.factorizations;
-            self.c.dofs.scatter(&rhs, &mut self.t0);
-            for i in 0..n {
-                self.u[i] += self.t0[i] + delta[i];
-            }
-            last_update = self
-                .t0
-                .iter()
-                .chain(&delta)
-                .map(|v| v.amax())
-                .fold(0.0, f64::max);
-            let mut j = self.forces(tau1);
-            log::debug!("    linear predictor: min J {j:.4}");
-            // With rigid contact, a predictor that inverts an element is shortened rather
-            // than the load step: the residual a loosely converged sub-step carries swings a
-            // body held by contact (its tangent free along the surface where points do not
-            // press yet) by millimetres whatever the load step's length. The MNI brain's
-            // predictors at 7.74 % of gravity reached J = -17.1 for every cut down to the
-            // shortest load step; a quarter at a time, the Newton iterations then take it.
-            let mut share = 1.0;
-            while !(j > 0.0) && !self.touch.is_empty() && share > PREDICTOR_SHORTEST {
-                share *= 0.25;
-                for i in 0..n {
-                    self.u[i] = u0[i] + self.t0[i] * share + delta[i];
-                }
-                j = self.forces(tau1);
-                log::debug!("    linear predictor x {share:.2e}: min J {j:.4}");
-            }
-            if !(j > 0.0) {
-                return Ok(false);
-            }
-            // A linear predictor that shrinks the smallest volume ratio below PREDICTOR_J of
-            // its value at the step's start has taken the step too long for its tangent: cut
-            // now, at the cost of a force evaluation (the retry's predictor reuses this factor
-            // of the start), rather than after Newton iterations and factorizations of the
-            // states it leads to. Not with average nodal pressure, whose nodes' volumes, not
-            // its points', are held near incompressible.
-            let nodal_pressure = !self.c.tangent.pressure_units().is_empty();
-            if lam1 > lam0 && !nodal_pressure && j < PREDICTOR_J * j_start {
-                log::debug!("    predictor cut: min J {j:.4} against {j_start:.4} at the start");
-                return Ok(false);
-            }
-        }
         let (r0, scale0) = self.residual_norm();
         self.peak_force = self.peak_force.max(scale0);
         self.push_residual(lam1, 0, r0, scale0, last_update);
@@ -1904,18 +1149,6 @@ impl<'a, M: Material> Newton<'a, M> {
         Ok(false)
     }
 
-    /// Every contact point keeps, for the next load step, the push direction it has at this
-    /// equilibrium: a point pressing keeps the face it presses, and one not yet touching the
-    /// face it is nearest to, which it will enter through (a flat punch's end, for a point
-    /// beneath it). Measured afresh after a long step, a point carried under the end deeper
-    /// than its distance to the side wall was pushed out sideways: the brain under the punch
-    /// took two load steps and settled at 42.2 mN against relaxation's 58.87 mN.
-    fn keep_faces(&mut self) {
-        for (h, st) in self.t_hint.iter_mut().zip(&self.t_state) {
-            *h = Some(st.1);
-        }
-    }
-
     /// Back to `base` (the iteration's start) at load fraction `tau`, its residual taken off
     /// `trail`: a kept-factor step that did not pay is undone.
     fn undo(&mut self, base: &[Vector3<f64>], tau: f64, trail: &mut Vec<f64>) {
@@ -2002,240 +1235,6 @@ impl<'a, M: Material> Newton<'a, M> {
             || r <= 1e-13 * scale
             || (self.loose && r <= SUBSTEP_TOLERANCE * scale)
     }
-
-    fn push_residual(&mut self, load: f64, iteration: usize, r: f64, scale: f64, update: f64) {
-        let scale = scale.max(self.peak_force).max(f64::MIN_POSITIVE);
-        {
-            log::debug!(
-                "  load {load:.4} it {iteration}: residual {:.3e} update {update:.3e} m, {} points pushing, factorizations {} ({:.2} s, L nnz {}), cg {}, evals {}, assembly {:.2} s, solves {:.2} s, {:.2} s",
-                r / scale,
-                self.t_state.iter().filter(|s| s.2 > 0.0).count(),
-                self.c.factor.factorizations,
-                self.c.factor.factor_seconds,
-                self.c.factor.factor_nonzeros(),
-                self.report.linear_iterations,
-                self.force_evaluations,
-                self.report.assembly_seconds,
-                self.report.solve_seconds,
-                self.start.elapsed().as_secs_f64()
-            );
-        }
-        self.report.residual_history.push(ResidualRow {
-            load,
-            iteration,
-            residual: r / scale,
-            update,
-        });
-    }
-
-    /// A history row at load fraction `tau` (after its forces were evaluated at u). The work
-    /// of every force on the body (loads and reactions) is the integral of F_int . du along
-    /// the equilibrium path, by trapezoids between load steps.
-    fn record_row(&mut self, tau: f64) {
-        let m = &mut *self.model;
-        let se = m.forces.strain_energy(&m.points, &m.slots, &self.u);
-        // The work done on the body equals its internal forces' at equilibrium, whatever
-        // applies them (loads, prescribed values, constraints, contact).
-        let f_int = if self.f_int.is_empty() {
-            &self.f
-        } else {
-            &self.f_int
-        };
-        // The work of F_int along the path through the rows, parametrised by its chord
-        // length: F_int and u interpolated by the parabola through the last three rows, their
-        // product integrated exactly over the newest interval; the first interval by a
-        // trapezoid until a third row comes, then by the parabola too (the earlier rows'
-        // work corrected). The trapezoids over the brain's two load steps under the punch
-        // gave 1.0 % more work than strain energy.
-        let chord = self.work_state.last().map_or(0.0, |(t, u0, _)| {
-            t + u0
-                .iter()
-                .zip(&self.u)
-                .map(|(a, b)| (b - a).norm_squared())
-                .sum::<f64>()
-                .sqrt()
-        });
-        if self.work_state.len() == 3 {
-            self.work_state.remove(0);
-        }
-        self.work_state.push((chord, self.u.clone(), f_int.clone()));
-        let ws = &self.work_state;
-        match ws.len() {
-            2 if ws[1].0 > ws[0].0 => {
-                let w: f64 = (0..self.u.len())
-                    .map(|i| 0.5 * (ws[0].2[i] + ws[1].2[i]).dot(&(ws[1].1[i] - ws[0].1[i])))
-                    .sum();
-                self.first_trapezoid = Some(w);
-                self.external_work += w;
-            }
-            3 if ws[2].0 > ws[1].0 && ws[1].0 > ws[0].0 => {
-                self.external_work += work_on_parabola(ws, 1);
-                if let Some(trap) = self.first_trapezoid.take() {
-                    let fix = work_on_parabola(ws, 0) - trap;
-                    self.external_work += fix;
-                    // The rows from the end of the first interval on.
-                    let n = self.history.len();
-                    for h in &mut self.history[n - 1..] {
-                        h.external_work += fix;
-                    }
-                }
-            }
-            _ => {}
-        }
-        if !m.f_ext.is_empty() {
-            m.f_ext.clone_from(&self.fe);
-        }
-        let reactions = m.reaction_rows(&self.f);
-        self.peak_force = self
-            .peak_force
-            .max(self.f.iter().map(|v| v.amax()).fold(0.0, f64::max));
-        self.peak_work = self.peak_work.max(self.external_work.abs());
-        self.history.push(HistoryRow {
-            step: self.report.newton_iterations,
-            time: tau,
-            reactions,
-            external_work: self.external_work,
-            strain_energy: se,
-            kinetic_energy: 0.0,
-        });
-    }
-
-    /// Keeps the state at load stage `load`.
-    fn stage(&mut self, load: f64) -> Result<()> {
-        let reactions = self.model.reaction_rows(&self.f);
-        self.stages.push(Stage {
-            load,
-            step: self.report.newton_iterations,
-            reactions,
-            u: self.u.clone(),
-        });
-        Ok(())
-    }
-
-    fn frame(&mut self, t: f64, sink: &mut Option<&mut FrameSink<'_, M>>) -> Result<()> {
-        if let Some(sink) = sink.as_mut() {
-            let t0 = Instant::now();
-            sink(self.model, t, &self.u)?;
-            self.sink_seconds += t0.elapsed().as_secs_f64();
-        } else {
-            self.frames.push((t, self.u.clone()));
-        }
-        Ok(())
-    }
-
-    fn progress(&mut self, tau: f64) {
-        let every = match (self.s.progress_lines, self.s.progress) {
-            (Some(e), _) => e,
-            (None, true) => 0.0,
-            _ => return,
-        };
-        if self.last_progress.elapsed().as_secs_f64() >= every || tau >= 1.0 {
-            self.last_progress = Instant::now();
-            let r = self
-                .report
-                .residual_history
-                .last()
-                .map_or(0.0, |h| h.residual);
-            eprintln!(
-                "static: {:.1} % of the load, {} load steps, {} Newton iterations, {} factorizations, \
-                 residual {r:.2e}, {:.1} s",
-                100.0 * tau,
-                self.report.load_steps,
-                self.report.newton_iterations,
-                self.c.factor.factorizations,
-                self.start.elapsed().as_secs_f64()
-            );
-        }
-    }
-
-    /// A path of one interval (one load step) has no third state for the parabola of
-    /// [`Self::record_row`]: its work by Simpson's rule on the straight segment instead (F_int
-    /// is the gradient of the strain energy, so any path between the two gives the same), the
-    /// forces at its midpoint evaluated, then those at u again for what reads them after.
-    /// The exact cube's one load step: the trapezoid gave 9 % more work than strain energy.
-    fn simpson_work(&mut self) {
-        let (Some(trap), 2) = (self.first_trapezoid, self.work_state.len()) else {
-            return;
-        };
-        let ws = &self.work_state;
-        let mid: Vec<Vector3<f64>> = ws[0]
-            .1
-            .iter()
-            .zip(&ws[1].1)
-            .map(|(a, b)| 0.5 * (a + b))
-            .collect();
-        let m = &mut *self.model;
-        let mut f_mid = vec![Vector3::zeros(); mid.len()];
-        m.forces.compute(&m.points, &m.slots, &mid, &mut f_mid);
-        let valid = m.forces.min_j().0 > 0.0;
-        let mut at_u = vec![Vector3::zeros(); mid.len()];
-        m.forces.compute(&m.points, &m.slots, &self.u, &mut at_u);
-        self.force_evaluations += 2;
-        if !valid {
-            return;
-        }
-        let w: f64 = (0..mid.len())
-            .map(|i| {
-                (ws[0].2[i] + 4.0 * f_mid[i] + ws[1].2[i]).dot(&(ws[1].1[i] - ws[0].1[i])) / 6.0
-            })
-            .sum();
-        let fix = w - trap;
-        self.first_trapezoid = None;
-        self.external_work += fix;
-        if let Some(h) = self.history.last_mut() {
-            h.external_work += fix;
-        }
-    }
-
-    /// The run's output.
-    fn finish(&mut self) -> RunOutput {
-        self.constraint_reactions();
-        self.contact_state();
-        self.simpson_work();
-        let m = &mut *self.model;
-        if !m.f_ext.is_empty() {
-            m.f_ext.clone_from(&self.fe);
-        }
-        self.report.factorizations = self.c.factor.factorizations;
-        self.report.single_factorizations = self.c.factor.single_factorizations;
-        self.report.modified_factorizations = self.c.factor.modified_factorizations;
-        self.report.factor_bytes = self.c.peak_bytes(self.model.points.len());
-        self.report.factor_seconds = self.c.factor.factor_seconds;
-        let strain_energy = self.history.last().map_or(0.0, |h| h.strain_energy);
-        RunOutput {
-            device: "cpu".into(),
-            device_setup_seconds: 0.0,
-            u: self.u.clone(),
-            u_prev: self.u.clone(),
-            f_int: self.f.clone(),
-            dt: 0.0,
-            dt_critical: 0.0,
-            critical: super::integrate::Critical::Node(0),
-            steps: self.report.newton_iterations,
-            load_steps: Some(self.report.load_steps),
-            simulated_time: self.tau_of(self.report.load_reached),
-            converged: self.converged,
-            history: std::mem::take(&mut self.history),
-            relaxation: Vec::new(),
-            frames: std::mem::take(&mut self.frames),
-            external_work: self.external_work,
-            peak_external_work: self.peak_work,
-            initial_kinetic: 0.0,
-            damping_dissipation: 0.0,
-            momentum: Momentum::default(),
-            strain_energy,
-            kinetic_energy: 0.0,
-            solve_seconds: self.start.elapsed().as_secs_f64() - self.sink_seconds,
-            restarts: Vec::new(),
-            notes: std::mem::take(&mut self.notes),
-            failed_steps: 0,
-            step_updates: StepUpdates::default(),
-            stages: std::mem::take(&mut self.stages),
-            peak_nodal_force: self.peak_force,
-            force_evaluations: self.force_evaluations,
-            statics: Some(std::mem::take(&mut self.report)),
-        }
-    }
 }
 
 /// The curve the static solve steps along: the one every changing input (a boundary with
@@ -2266,83 +1265,10 @@ fn path_curve<M: Material>(model: &Model<M>) -> Option<LoadCurve> {
         .then(|| first.clone())
 }
 
-/// A warm start's contact point within this share of the mean node spacing of its rigid
-/// surface counts as touching it ([`Newton::warm_contact_multipliers`]).
-const WARM_CONTACT_SHARE: f64 = 1e-3;
-/// The share of `solver.tolerance` (m) below which the linear constraints count as met.
-const CONSTRAINT_SHARE: f64 = 1e-2;
-
-/// The work of F along the path through three states (t_k, u_k, F_k) (t the chord length)
-/// over the interval [t_m, t_m+1]: the integral of F(t) . u'(t) with F and u the parabolas
-/// through the three, exact by two Gauss points (the integrand is a cubic).
-fn work_on_parabola(ws: &[(f64, Vec<Vector3<f64>>, Vec<Vector3<f64>>)], m: usize) -> f64 {
-    let t = [ws[0].0, ws[1].0, ws[2].0];
-    let basis = |x: f64| -> ([f64; 3], [f64; 3]) {
-        let mut l = [0.0; 3];
-        let mut dl = [0.0; 3];
-        for k in 0..3 {
-            let (i, j) = ((k + 1) % 3, (k + 2) % 3);
-            let den = (t[k] - t[i]) * (t[k] - t[j]);
-            l[k] = (x - t[i]) * (x - t[j]) / den;
-            dl[k] = (2.0 * x - t[i] - t[j]) / den;
-        }
-        (l, dl)
-    };
-    let (a, b) = (t[m], t[m + 1]);
-    let g = 0.5 / 3f64.sqrt();
-    let mut weights = [[0.0; 3]; 3];
-    for x in [0.5 - g, 0.5 + g] {
-        let (l, dl) = basis(a + x * (b - a));
-        for j in 0..3 {
-            for k in 0..3 {
-                weights[j][k] += 0.5 * (b - a) * l[j] * dl[k];
-            }
-        }
-    }
-    let mut w = 0.0;
-    for j in 0..3 {
-        for k in 0..3 {
-            if weights[j][k] != 0.0 {
-                w += weights[j][k]
-                    * ws[j]
-                        .2
-                        .iter()
-                        .zip(&ws[k].1)
-                        .map(|(f, u)| f.dot(u))
-                        .sum::<f64>();
-            }
-        }
-    }
-    w
-}
-
-/// The Lagrange interpolation weights of the points `at` evaluated at `t`: the polynomial
-/// through the points, of degree one less than their number.
-fn lagrange_weights(at: impl Iterator<Item = f64>, t: f64) -> Vec<f64> {
-    let xs: Vec<f64> = at.collect();
-    (0..xs.len())
-        .map(|i| {
-            xs.iter()
-                .enumerate()
-                .filter(|&(j, _)| j != i)
-                .map(|(_, &xj)| (t - xj) / (xs[i] - xj))
-                .product()
-        })
-        .collect()
-}
-
-/// row . u[axis] - target, m.
-fn violation(lc: &crate::solver::LinearConstraint, u: &[Vector3<f64>]) -> f64 {
-    lc.row
-        .iter()
-        .map(|&(j, w)| w * u[j as usize][lc.axis])
-        .sum::<f64>()
-        - lc.target
-}
-
 #[cfg(test)]
 mod tests {
-    use super::{give_up, lagrange_weights, MAX_CUTS, MIN_STEP};
+    use super::predictor::lagrange_weights;
+    use super::{give_up, MAX_CUTS, MIN_STEP};
 
     /// The solve stops after MAX_CUTS cuts in a row, or when a cut would take the load step
     /// under MIN_STEP; each reason is said.
