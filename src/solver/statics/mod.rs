@@ -115,8 +115,9 @@ const LINE_SEARCH_EVALUATIONS: usize = 8;
 /// load step (42 Newton iterations, 4 factorizations, 1.0 s, relaxation's force to 1e-6).
 /// Not on every step: the tet cylinders took 46-57 Newton iterations with it against 5-6.
 const SHIFT: f64 = 1.0;
-/// A load step whose linear predictor takes the smallest volume ratio J of the model below
-/// this share of its value at the step's start is cut before any Newton iteration. The
+/// A load step whose predictor (linear, or the load path extrapolated) takes the smallest
+/// volume ratio J of the model below this share of its value at the step's start is cut
+/// before any Newton iteration. The
 /// driven tet10 plug (2 cores): brain-indentation 3.43 -> 1.99 s (12 -> 5 factorizations;
 /// its full-load predictor reached J = 0.29 from 1, its tangents after it 474 negative
 /// pivots), the benchmark's c2 2.04 -> 1.74 s, c3 5.97 -> 5.48 s; at 0.9, brain-shift's
@@ -424,6 +425,8 @@ struct Newton<'a, M: Material> {
     loose: bool,
     /// The last (at most three) converged states on the load path: (load fraction, u).
     path: Vec<(f64, Vec<Vector3<f64>>)>,
+    /// The smallest volume ratio J at the last of them.
+    path_j: f64,
     /// (chord length along the path, u, F_int) at the last (at most three) history rows, for
     /// the work's quadrature ([`work_on_parabola`](record::work_on_parabola)); and the work
     /// of the first interval as taken by a trapezoid, until a third row lets the parabola
@@ -520,6 +523,7 @@ impl<'a, M: Material> Newton<'a, M> {
             last_iterations: 0,
             loose: false,
             path: Vec::new(),
+            path_j: 1.0,
             work_state: Vec::new(),
             first_trapezoid: None,
             peak_work: 0.0,
@@ -784,6 +788,7 @@ impl<'a, M: Material> Newton<'a, M> {
         targets.push(1.0);
         if !warm {
             self.path = vec![(tau, self.u.clone())];
+            self.path_j = self.min_j.0;
         }
         let longest = self.contact_step_limit();
         let mut dtau = longest;
@@ -824,6 +829,7 @@ impl<'a, M: Material> Newton<'a, M> {
                                 self.path.remove(0);
                             }
                             self.path.push((next, self.u.clone()));
+                            self.path_j = self.min_j.0;
                         }
                         tau = next;
                         cuts_in_row = 0;
