@@ -117,10 +117,11 @@ const LINE_SEARCH_EVALUATIONS: usize = 8;
 const SHIFT: f64 = 1.0;
 /// A load step whose predictor (linear, or the load path extrapolated) takes the smallest
 /// volume ratio J of the model below this share of its value at the step's start is cut
-/// before any Newton iteration. The
-/// driven tet10 plug (2 cores): brain-indentation 3.43 -> 1.99 s (12 -> 5 factorizations;
-/// its full-load predictor reached J = 0.29 from 1, its tangents after it 474 negative
-/// pivots), the benchmark's c2 2.04 -> 1.74 s, c3 5.97 -> 5.48 s; at 0.9, brain-shift's
+/// before any Newton iteration. The driven tet10 plug (2 cores), for the linear predictor:
+/// brain-indentation 3.43 -> 1.99 s (12 -> 5 factorizations; its full-load predictor reached
+/// J = 0.29 from 1, its tangents after it 474 negative pivots), the benchmark's c2 2.04 ->
+/// 1.74 s, c3 5.97 -> 5.48 s; for the extrapolated path too, c1 0.77 -> 0.59 s (no tangent
+/// not positive definite, 2 of 15 factorizations before); at 0.9, brain-shift's
 /// gravity step was cut twice for nothing (0.25 -> 0.34 s); at 0.7, brain-indentation 2.21 s.
 /// Not applied to average-nodal-pressure elements, whose points' J is not held near 1 (their
 /// nodes' is): the tet4-anp cylinder 75-80 % compressed settles with point J down to 0.12 at
