@@ -100,6 +100,14 @@ const CONTACT_MAX_ITERATIONS: usize = 40;
 /// Multiplier updates (constraints and contact, augmented Lagrangian rounds) per load step
 /// before the step is cut.
 const MAX_ROUNDS: usize = 20;
+/// A round of multiplier updates after the first ends once the Newton iterations have cut the
+/// residual the last update left by this factor, not at convergence (the inner solves of
+/// an augmented Lagrangian need not be exact while the multipliers are still moving: Nocedal
+/// and Wright 2006, sect. 17.4); the last round converges fully. The MNI brain's polish
+/// after its relaxed start: 50 -> 35 Newton iterations, 13.9 -> 12.0 s (0.1: 37, 0.3: 36);
+/// from the unloaded state 216 -> 194 iterations, the reactions the same to the digits
+/// printed.
+const ROUND_CONTRACTION: f64 = 0.5;
 /// The line search ends where the slope along the direction is within this fraction of its
 /// start's.
 const LINE_SEARCH: f64 = 0.5;
@@ -940,6 +948,8 @@ impl<'a, M: Material> Newton<'a, M> {
         // linearly (the meshless cube under a plate: the residual after each 2.2e-5, 7.4e-6,
         // 3.6e-8, 5.5e-9, ...) and used up the step's iterations at 25 in all.
         let (mut round_start, mut rounds) = (0, 0);
+        // The residual at the first iteration of the current round.
+        let mut round_r0: Option<f64> = None;
         'newton: for it in 1.. {
             // Ctrl-C within a Newton iteration, not only between load steps: the exact cube
             // at 5 mm solves in one load step of over a second (the Python test's 1.3 s).
@@ -971,7 +981,11 @@ impl<'a, M: Material> Newton<'a, M> {
             if let Some(e) = self.contact_conflict(tau1) {
                 return Err(e);
             }
-            if self.is_converged(r, scale, last_update) {
+            let round_r = *round_r0.get_or_insert(r);
+            let converged = self.is_converged(r, scale, last_update);
+            // After the first round, the multipliers are updated once the iterations have cut
+            // the residual the last update left by ROUND_CONTRACTION, not at convergence.
+            if converged || (rounds >= 1 && r <= ROUND_CONTRACTION * round_r) {
                 // The constraints met to the tolerance, or their multipliers updated
                 // (lambda += k c) and the iterations go on.
                 let contact_tol = self
@@ -979,7 +993,7 @@ impl<'a, M: Material> Newton<'a, M> {
                     .contact
                     .as_ref()
                     .map_or(f64::INFINITY, |c| c.tolerance());
-                let pushing = self.worst_penetration() > contact_tol;
+                let pushing = self.contact_unsettled(contact_tol);
                 // The constraints to a hundredth of the tolerance: relaxation's corrector
                 // meets them to rounding, and a violation of the tolerance itself moved the
                 // meshless cube's corner by as much.
@@ -1000,12 +1014,15 @@ impl<'a, M: Material> Newton<'a, M> {
                     trail.clear();
                     trail.extend(std::iter::repeat_n(f64::INFINITY, it + 1));
                     last_update = f64::INFINITY;
+                    round_r0 = None;
                     continue;
                 }
-                self.report.newton_iterations += it - 1;
-                self.last_iterations = it - 1;
-                self.kept_contracting = cheap;
-                return Ok(true);
+                if converged {
+                    self.report.newton_iterations += it - 1;
+                    self.last_iterations = it - 1;
+                    self.kept_contracting = cheap;
+                    return Ok(true);
+                }
             }
             if it - round_start >= self.iteration_limit {
                 self.report.newton_iterations += it;
