@@ -380,6 +380,17 @@ fn the_static_solve_is_the_same_for_any_thread_count() {
     );
 }
 
+/// The indentation benchmark's case on its coarsest mesh (c1, 3,651 nodes), prepared.
+fn benchmark_c1() -> (hytled::scene::Scene, hytled::simulation::Prepared) {
+    let scene = hytled::scene::load(
+        &path("cases/brain-indentation-benchmark.toml"),
+        &["geometry.mesh=../meshes/brain-indentation-c1.msh".into()],
+    )
+    .unwrap();
+    let prep = hytled::simulation::prepare(&scene).unwrap();
+    (scene, prep)
+}
+
 /// A warm static solve through the low-level API (`simulation::solve` with
 /// `Settings::warm_start`) whose one step at the full load does not converge solves again from
 /// the unloaded state and says so, as `Session` does (it was an error): the benchmark's c1,
@@ -387,13 +398,8 @@ fn the_static_solve_is_the_same_for_any_thread_count() {
 /// cold answer.
 #[test]
 fn a_warm_static_solve_that_does_not_converge_goes_on_from_the_unloaded_state() {
-    use hytled::simulation::{prepare, settings, solve};
-    let scene = hytled::scene::load(
-        &path("cases/brain-indentation-benchmark.toml"),
-        &["geometry.mesh=../meshes/brain-indentation-c1.msh".into()],
-    )
-    .unwrap();
-    let mut prep = prepare(&scene).unwrap();
+    use hytled::simulation::{settings, solve};
+    let (scene, mut prep) = benchmark_c1();
     let cold = solve(&mut prep, &settings(&scene, false)).unwrap();
     let mut s = settings(&scene, false);
     s.warm_start = Some(hytled::solver::WarmStart {
@@ -423,13 +429,8 @@ fn a_warm_static_solve_that_does_not_converge_goes_on_from_the_unloaded_state() 
 /// 10 factorizations, none of an indefinite tangent, 167 force evaluations.
 #[test]
 fn a_predictor_that_squeezes_an_element_cuts_the_load_step_at_once() {
-    use hytled::simulation::{prepare, settings, solve};
-    let scene = hytled::scene::load(
-        &path("cases/brain-indentation-benchmark.toml"),
-        &["geometry.mesh=../meshes/brain-indentation-c1.msh".into()],
-    )
-    .unwrap();
-    let mut prep = prepare(&scene).unwrap();
+    use hytled::simulation::{settings, solve};
+    let (scene, mut prep) = benchmark_c1();
     let out = solve(&mut prep, &settings(&scene, false)).unwrap();
     let st = out.statics.as_ref().unwrap();
     println!(
