@@ -20,6 +20,10 @@ fn plate_run(extra: &[&str]) -> hytled::Result<Summary> {
 }
 
 fn plate_run_with(extra: &[&str], ro: &RunOptions) -> hytled::Result<Summary> {
+    run_scene(&plate_scene(extra), ro)
+}
+
+fn plate_scene(extra: &[&str]) -> hytled::scene::Scene {
     // Relaxation unless `extra` says otherwise (the cube's case solves statically by default).
     let mut o: Vec<String> = [
         "boundaries.top=",
@@ -51,8 +55,7 @@ fn plate_run_with(extra: &[&str], ro: &RunOptions) -> hytled::Result<Summary> {
     let file = dir.join(format!("plate-{name}.toml"));
     std::fs::write(&file, text).unwrap();
     o.retain(|s| s != "boundaries.top=");
-    let sc = hytled::scene::load(&file, &o).unwrap_or_else(|e| panic!("{e}"));
-    run_scene(&sc, ro)
+    hytled::scene::load(&file, &o).unwrap_or_else(|e| panic!("{e}"))
 }
 
 /// A rigid frictionless plate compressing the cube by 20 % gives the exact uniaxial reaction
@@ -884,6 +887,15 @@ fn a_relaxed_start_writes_each_frame_once() {
         "loads.g={ gravity = [0.0, 0.0, -50.0] }",
     ]);
     let kept = plate(&o);
+    // The frames kept in memory: the unloaded state once too.
+    let sc = plate_scene(&o);
+    let mut prep = prepare(&sc).unwrap();
+    let out = hytled::simulation::solve(&mut prep, &settings(&sc, false)).unwrap();
+    let kept_times: Vec<f64> = out.frames.iter().map(|f| f.0).collect();
+    assert!(
+        kept_times.len() == 2 && kept_times[0] == 0.0 && kept_times[1] > 0.0,
+        "{kept_times:?}"
+    );
     let dir = std::env::temp_dir().join(format!("hytled-relaxed-frames-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     let ro = RunOptions {

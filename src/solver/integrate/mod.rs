@@ -639,6 +639,7 @@ fn run_on_pool<M: Material>(
                 };
                 Some(&mut once)
             }
+            // Reborrowed as a sink of the shorter lifetime the arm above has.
             Some(inner) => {
                 let shorter: &mut FrameSink<'_, M> = inner;
                 Some(shorter)
@@ -646,11 +647,7 @@ fn run_on_pool<M: Material>(
             None => None,
         };
         let mut cache = model.static_cache.take();
-        let out = if rayon::current_thread_index().is_some() {
-            super::statics::solve(model, s, static_sink, &mut cache)
-        } else {
-            rayon::scope(|_| super::statics::solve(model, s, static_sink, &mut cache))
-        };
+        let out = on_a_worker(|| super::statics::solve(model, s, static_sink, &mut cache));
         model.static_cache = cache;
         let mut out = out?;
         if let Some(p) = pre {
@@ -661,9 +658,8 @@ fn run_on_pool<M: Material>(
             out.solve_seconds += p.solve_seconds;
             let mut frames = p.frames;
             frames.truncate(1);
-            // A warm start that failed went back to the unloaded state, a frame already.
-            let again = out.frames.first().is_some_and(|f| f.0 == 0.0);
-            frames.extend(out.frames.drain(..).skip(usize::from(again)));
+            // As the streamed frames above: the unloaded state is the relaxation's.
+            frames.extend(out.frames.drain(..).filter(|f| f.0 != 0.0));
             out.frames = frames;
             if let Some(st) = out.statics.as_mut() {
                 st.relaxed_start_steps = p.steps + p.failed_steps;
@@ -681,10 +677,16 @@ fn run_on_pool<M: Material>(
         }
         return Ok(out);
     }
+    on_a_worker(|| run_on_worker(model, s, sink))
+}
+
+/// Runs `f` on a worker of the current rayon pool (the global one when called from outside a
+/// pool), so that its parallel loops fork through the worker's own queue ([`run`]).
+fn on_a_worker<T: Send>(f: impl FnOnce() -> T + Send) -> T {
     if rayon::current_thread_index().is_some() {
-        run_on_worker(model, s, sink)
+        f()
     } else {
-        rayon::scope(|_| run_on_worker(model, s, sink))
+        rayon::scope(|_| f())
     }
 }
 
@@ -728,11 +730,7 @@ fn relax_to_start<M: Material>(
         "static solve: relaxing to {:.1e} m first (contact at rest)",
         loose.tolerance
     );
-    let out = if rayon::current_thread_index().is_some() {
-        run_on_worker(model, &loose, None)
-    } else {
-        rayon::scope(|_| run_on_worker(model, &loose, None))
-    };
+    let out = on_a_worker(|| run_on_worker(model, &loose, None));
     let why = match out {
         Ok(mut o) if o.converged => {
             if let (Some(sink), Some((t, u))) = (sink.as_mut(), o.frames.first()) {
