@@ -612,6 +612,17 @@ impl Summary {
                     st.relaxed_start_seconds
                 );
             }
+            if let Some(from) = st.fallback_from {
+                let _ = writeln!(
+                    s,
+                    "fallback         the load steps stopped at {:.4} % of the load; {} relaxation \
+                     steps from the unloaded state ({:.2} s, solver.relaxation_fallback) gave the \
+                     result; the force evaluations above count both",
+                    100.0 * from,
+                    st.fallback_steps,
+                    st.fallback_seconds
+                );
+            }
         } else {
             let _ = writeln!(
                 s,

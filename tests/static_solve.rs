@@ -190,18 +190,36 @@ fn a_body_free_to_move_is_refused_naming_the_motions() {
 /// A load no equilibrium can carry (the cube pressed through its own height) ends with the last
 /// equilibrium reached, not converged, the load fraction named; no NaN. Since the factor of a
 /// tangent not positive definite is made so (2026-11-30), the solve stops where the tangents
-/// beyond its last equilibrium turn indefinite (48.8 % of the load, 58.5 mm of the 100 mm
-/// cube, 3 negative pivots): before, LDL^T's directions climbed on to 83.2 % with J = 0.13.
+/// beyond its last equilibrium turn indefinite (42-49 % of the load, 3 negative pivots):
+/// before, LDL^T's directions climbed on to 83.2 % with J = 0.13. Here without the fallback
+/// to relaxation (`solver.relaxation_fallback`), and with it where the relaxation fails too
+/// (unstable, no restart allowed): the run stops at the same last equilibrium, saying both.
 #[test]
 fn a_load_that_cannot_converge_stops_at_the_last_equilibrium() {
-    let s = run_case(
-        "cases/cube-compression.toml",
-        &[
-            "solver.mode=static",
-            "boundaries.top.displacement={ z = -0.12 }",
-            "references={}",
-        ],
+    let through = [
+        "solver.mode=static",
+        "boundaries.top.displacement={ z = -0.12 }",
+        "references={}",
+    ];
+    let mut no_fallback = through.to_vec();
+    no_fallback.push("solver.relaxation_fallback=false");
+    let mut failing = through.to_vec();
+    failing.push("solver.retries=0");
+    let s = run_case("cases/cube-compression.toml", &no_fallback);
+    let f = run_case("cases/cube-compression.toml", &failing);
+    assert!(
+        !f.converged && f.status == "not converged",
+        "{:?}",
+        f.warnings
     );
+    assert_eq!(warnings_with(&f, "the relaxation it fell back to").len(), 1);
+    assert_eq!(warnings_with(&f, "last equilibrium is at").len(), 1);
+    assert_eq!(
+        f.statics.as_ref().unwrap().load_reached,
+        s.statics.as_ref().unwrap().load_reached
+    );
+    assert!(f.statics.as_ref().unwrap().fallback_from.is_none());
+    assert_eq!(f.reactions["top"], s.reactions["top"]);
     assert!(!s.converged);
     assert_eq!(s.status, "not converged");
     let note = s
@@ -221,6 +239,73 @@ fn a_load_that_cannot_converge_stops_at_the_last_equilibrium() {
         .iter()
         .all(|x| x.is_finite()));
     assert!(s.reactions["top"][2].is_finite());
+}
+
+/// Where the load steps stop short of the full load (Newton's directions bouncing at a rim
+/// squeezed to J = 0.05), the run relaxes from the unloaded state instead
+/// (`solver.relaxation_fallback`, on by default). brain-indentation on a coarse mesh (4,664
+/// nodes) with the plug driven 10 mm, a load stage at half of it: the load steps stop at
+/// 93.7 % of the load. The answer is relaxation's (the same relaxation as
+/// `solver.mode = "relaxation"` without the stage, the masses scaled as it scales them: the
+/// same forces to the last bit); the stage is the static solve's, a converged load step: the
+/// force of a static solve with the plug driven 5 mm; the force evaluations count both; the
+/// warnings say where the load steps stopped and that relaxation gave the result.
+#[test]
+fn a_static_solve_that_stops_short_relaxes_instead() {
+    let o = [
+        "discretization.size=0.012",
+        "discretization.refine=[{ near = \"indenter\", size = 0.003, growth = 1.25 }]",
+        "boundaries.indenter.displacement={ x = 0.0, y = 0.0, z = -0.010 }",
+        "references={ half = { quantity = \"reaction.indenter.z\", at = 0.5, value = -0.05 } }",
+    ];
+    let with = |set: &[&str]| {
+        let mut v = o.to_vec();
+        v.extend(set);
+        run_case("cases/brain-indentation.toml", &v)
+    };
+    let fell = with(&["solver.mode=static"]);
+    let relaxed = with(&["solver.mode=relaxation", "references={}"]);
+    let half = with(&[
+        "solver.mode=static",
+        "boundaries.indenter.displacement={ x = 0.0, y = 0.0, z = -0.005 }",
+        "references={}",
+    ]);
+    let st = fell.statics.as_ref().expect("a static report");
+    let from = st.fallback_from.expect("the fallback");
+    println!(
+        "stopped at {:.4} %, {} load steps; fallback {} steps, {:.2} s; {} force evaluations; \
+         indenter {:?} / relaxation {:?}; stage {} / static at 5 mm {}",
+        100.0 * from,
+        st.load_steps,
+        st.fallback_steps,
+        st.fallback_seconds,
+        fell.force_evaluations,
+        fell.reactions["indenter"],
+        relaxed.reactions["indenter"],
+        fell.reference["half"].computed,
+        half.reactions["indenter"][2]
+    );
+    assert!(
+        fell.converged && fell.status == "converged",
+        "{:?}",
+        fell.warnings
+    );
+    assert!(from > 0.5 && from < 1.0, "{from}");
+    assert_eq!(st.load_reached, from);
+    assert_eq!(st.fallback_steps, relaxed.steps);
+    assert_eq!(fell.reactions["indenter"], relaxed.reactions["indenter"]);
+    assert_eq!(fell.reactions["base"], relaxed.reactions["base"]);
+    assert!(fell.force_evaluations > relaxed.force_evaluations + st.newton_iterations);
+    // Two static solves to 1e-6 of the largest nodal force, along different load steps.
+    let (a, b) = (
+        fell.reference["half"].computed,
+        half.reactions["indenter"][2],
+    );
+    assert!((a - b).abs() < 1e-5 * b.abs(), "{a} / {b}");
+    let said = warnings_with(&fell, "relaxed from the unloaded state instead");
+    assert_eq!(said.len(), 1, "{:?}", fell.warnings);
+    assert!(said[0].contains("last equilibrium is at"), "{}", said[0]);
+    assert!(warnings_with(&fell, "written as the result").is_empty());
 }
 
 /// Meshless essential boundaries are linear constraints on the nodal parameters (the shape

@@ -421,6 +421,12 @@ pub struct SolverSpec {
     /// steps from the unloaded state). See docs/methods.md "Static solve".
     #[serde(default = "default_true")]
     pub relaxed_start: bool,
+    /// Static, where the load steps stop short of the full load after the last stage (a
+    /// bifurcation, an element squeezed flat): relax from the unloaded state instead, the
+    /// static stages kept (default true; false: the run stops there, exit 4). See
+    /// docs/methods.md "Static solve".
+    #[serde(default = "default_true")]
+    pub relaxation_fallback: bool,
 }
 
 pub(super) fn default_true() -> bool {
@@ -462,6 +468,7 @@ impl Default for SolverSpec {
             device: Default::default(),
             static_variant: Default::default(),
             relaxed_start: true,
+            relaxation_fallback: true,
         }
     }
 }

@@ -730,6 +730,7 @@ pub fn settings(scene: &Scene, progress: bool) -> Settings {
         warm_start: None,
         static_variant: s.static_variant,
         relaxed_start: s.relaxed_start,
+        relaxation_fallback: s.relaxation_fallback,
         refresh_factor: false,
         initial_velocity: None,
         initial_motion: scene.initial.as_ref().map(|i| {

@@ -233,6 +233,19 @@ pub struct StaticReport {
     pub relaxed_start_steps: usize,
     #[serde(default)]
     pub relaxed_start_seconds: f64,
+    /// Where the load steps stopped short of the full load and the run relaxed instead
+    /// ([`crate::solver::Settings::relaxation_fallback`]): the load share they reached, and
+    /// the relaxation's steps and wall time, s (None, 0, 0 otherwise).
+    #[serde(default)]
+    pub fallback_from: Option<f64>,
+    #[serde(default)]
+    pub fallback_steps: usize,
+    #[serde(default)]
+    pub fallback_seconds: f64,
+    /// Why the load steps stopped short of the full load (None where they did not): the
+    /// caller says it in the notes.
+    #[serde(skip)]
+    pub stop: Option<String>,
     pub assemblies: usize,
     pub factorizations: usize,
     /// Of the factorizations, those in single precision (mixed precision: refined by CG on
@@ -873,7 +886,7 @@ impl<'a, M: Material> Newton<'a, M> {
                         if let Some(why) = give_up(cuts_in_row, next - tau) {
                             self.forces(self.tau_of(tau));
                             let (r, scale) = self.residual_norm();
-                            self.notes.push(format!(
+                            self.report.stop = Some(format!(
                                 "static solve: a load step of {:.2e} of the load from {:.4} % did not converge \
                                  {why}; the last equilibrium is at {:.4} % of the load (residual \
                                  {:.2e} of the largest nodal force; smallest J {}), written as the result; \
