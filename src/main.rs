@@ -20,7 +20,8 @@ use hytled::simulation::{self, RunOptions};
     about,
     after_help = "Exit codes: 0 success (a dynamic run completed, a relaxation converged); \
 2 input error (scene, mesh, selection, flag, a discretization too large for the memory); 3 the solution diverged or a point inverted; \
-4 relaxation not converged within solver.max_steps (the summary is still printed and written); \
+4 relaxation not converged within solver.max_steps, or a static solve stopped short of the full load \
+(solver.relaxation_fallback = false, or its relaxation failing too; the summary is still printed and written); \
 5 a file could not be read or written; 130 stopped by Ctrl-C (SIGINT), 143 by SIGTERM (between two steps, \
 summary.json says \"failed\" with error \"interrupted\"; a second signal ends at once); 1 anything else. With --json, a failed command prints \
 {\"status\": \"failed\", \"error\", \"exit_code\", \"message\"} on stdout."
@@ -439,7 +440,12 @@ fn run(
         }
     }
     if summary.status == "not converged" {
-        match &summary.statics {
+        // A static solve that fell back to relaxation ends as that relaxation does.
+        match summary
+            .statics
+            .as_ref()
+            .filter(|st| st.fallback_from.is_none())
+        {
             Some(st) => eprintln!(
                 "error: the static solve reached equilibrium up to {:.4} % of the load only (the \
                  warnings above say where it stopped); the results there are written: try \

@@ -791,6 +791,13 @@ fn relax_instead<M: Material>(
         r.steps + r.failed_steps,
         r.solve_seconds
     ));
+    if !r.converged {
+        notes.push(format!(
+            "static solve: the relaxation it fell back to (solver.relaxation_fallback) did not \
+             converge in {} steps (solver.max_steps)",
+            r.steps
+        ));
+    }
     notes.extend(std::mem::take(&mut r.notes));
     r.notes = notes;
     let end = r.frames.pop();
