@@ -423,7 +423,8 @@ pub struct SolverSpec {
     pub relaxed_start: bool,
     /// Static, where the load steps stop short of the full load after the last stage (a
     /// bifurcation, an element squeezed flat): relax from the unloaded state instead, the
-    /// static stages kept (default true; false: the run stops there, exit 4). See
+    /// static stages kept, unless that relaxation inverts a point and restarts (default true;
+    /// false: the run stops there, exit 4). See
     /// docs/methods.md "Static solve".
     #[serde(default = "default_true")]
     pub relaxation_fallback: bool,

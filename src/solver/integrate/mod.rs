@@ -131,8 +131,9 @@ pub struct Settings {
     /// Static, where the load steps stop short of the full load after every stage
     /// (repeated cuts where Newton's directions do not descend: the benchmark's c5 at 94.5 %,
     /// a graded rim at 76 %, points there at J = 0.002-0.06): relax from the unloaded state
-    /// instead, the static solve's stages kept (see [`relaxation_fallback_applies`]). False:
-    /// the run stops at the last equilibrium (exit 4).
+    /// instead, the static solve's stages kept (see [`relaxation_fallback_applies`]); a
+    /// relaxation that inverts a point and restarts, or fails, is not taken. False: the run
+    /// stops at the last equilibrium (exit 4).
     pub relaxation_fallback: bool,
     /// Static: the model will be solved again from this equilibrium (a
     /// [`crate::simulation::Session`]): where the kept factor stopped contracting in the last
@@ -729,7 +730,8 @@ pub fn relaxation_fallback_applies(s: &Settings, out: &RunOutput) -> bool {
 
 /// The fallback to relaxation: where the load steps of `stopped` stopped short of the full
 /// load (`why`), relaxation from the unloaded state to the run's tolerance, with no stage to
-/// stop at. The output is
+/// stop at. A relaxation that is unstable, or restarts after an instability, leaves `stopped`
+/// as the output, with notes that say so. Otherwise the output is
 /// the relaxation's, with `stopped`'s stages (converged static states) and frames, its
 /// static report (with the fallback's steps and time) and the force evaluations and time of
 /// both. The relaxation's frames are not handed on: the static solve handed the unloaded
@@ -769,6 +771,21 @@ fn relax_instead<M: Material>(
         }
     });
     let mut r = match relaxed {
+        // A relaxation that inverted a point on its way and restarted is not taken: the cube
+        // pressed 120 mm through its 100 mm height "converged" so, after one restart, to a
+        // tangled mesh whose one-point hexahedra keep J > 0; the static solve's stop is the
+        // better answer there (the 0.6 mm rim and c5 relax without a restart).
+        Ok(r) if !r.restarts.is_empty() => {
+            stopped.notes.push(why);
+            stopped.notes.push(format!(
+                "static solve: the relaxation it fell back to (solver.relaxation_fallback) \
+                 inverted a point and restarted ({}); its answer is not taken (the load may \
+                 exceed what the mesh and the material hold); the result is the static solve's \
+                 last equilibrium; solver.mode = \"relaxation\" gives relaxation's answer",
+                r.restarts.join("; ")
+            ));
+            return Ok(stopped);
+        }
         Ok(r) => r,
         Err(Error::Unstable(msg)) => {
             stopped.notes.push(why);
