@@ -679,7 +679,15 @@ fn run_on_pool<M: Material>(
         if let Some(p) = pre {
             out.force_evaluations += p.force_evaluations;
             // The static solve's work runs from the relaxed state on; the relaxation's up to it.
-            out.external_work += p.external_work;
+            // Not where the static solve went back to the unloaded state, or fell back to a
+            // relaxation from there: their work runs from it.
+            if out
+                .statics
+                .as_ref()
+                .is_some_and(|st| !st.from_unloaded && st.fallback_from.is_none())
+            {
+                out.external_work += p.external_work;
+            }
             out.peak_external_work = out.peak_external_work.max(p.peak_external_work);
             out.solve_seconds += p.solve_seconds;
             let mut frames = p.frames;

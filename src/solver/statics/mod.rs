@@ -246,6 +246,10 @@ pub struct StaticReport {
     /// caller says it in the notes.
     #[serde(skip)]
     pub stop: Option<String>,
+    /// A warm start's step failed and the load steps went on from the unloaded state: the
+    /// work along the path is theirs alone.
+    #[serde(skip)]
+    pub from_unloaded: bool,
     pub assemblies: usize,
     pub factorizations: usize,
     /// Of the factorizations, those in single precision (mixed precision: refined by CG on
@@ -764,6 +768,7 @@ impl<'a, M: Material> Newton<'a, M> {
                      solved from the unloaded state"
                 ));
                 self.u.iter_mut().for_each(|x| *x = Vector3::zeros());
+                self.report.from_unloaded = true;
                 self.tangent_stale = true;
                 self.factor_stale = true;
                 self.lambda.iter_mut().for_each(|x| *x = 0.0);
