@@ -913,7 +913,10 @@ fn a_relaxed_start_writes_each_frame_once() {
     // The work is the static solve's from the unloaded state alone (the relaxed start's was
     // added to it before): the work of the internal forces along the path, the strain energy.
     let e = &written.energy;
-    println!("work {} J, strain energy {} J", e.external_work, e.strain_energy);
+    println!(
+        "work {} J, strain energy {} J",
+        e.external_work, e.strain_energy
+    );
     assert!(
         (e.external_work - e.strain_energy).abs() < 1e-2 * e.strain_energy,
         "{e:?}"
