@@ -778,33 +778,28 @@ fn relax_instead<M: Material>(
             run_on_worker(model, &relax, None)
         }
     });
-    let mut r = match relaxed {
-        // A relaxation that inverted a point on its way and restarted is not taken: the cube
-        // pressed 120 mm through its 100 mm height "converged" so, after one restart, to a
-        // tangled mesh whose one-point hexahedra keep J > 0; the static solve's stop is the
-        // better answer there (the 0.6 mm rim and c5 relax without a restart).
-        Ok(r) if !r.restarts.is_empty() => {
-            stopped.notes.push(why);
-            stopped.notes.push(format!(
-                "static solve: the relaxation it fell back to (solver.relaxation_fallback) \
-                 inverted a point and restarted ({}); its answer is not taken (the load may \
-                 exceed what the mesh and the material hold); the result is the static solve's \
-                 last equilibrium; solver.mode = \"relaxation\" gives relaxation's answer",
-                r.restarts.join("; ")
-            ));
-            return Ok(stopped);
-        }
-        Ok(r) => r,
-        Err(Error::Unstable(msg)) => {
-            stopped.notes.push(why);
-            stopped.notes.push(format!(
-                "static solve: the relaxation it fell back to (solver.relaxation_fallback) was \
-                 unstable ({msg}); the result is the static solve's last equilibrium"
-            ));
-            return Ok(stopped);
-        }
-        Err(e) => return Err(e),
+    // A relaxation that inverted a point on its way and restarted is not taken: the cube
+    // pressed 120 mm through its 100 mm height "converged" so, after one restart, to a
+    // tangled mesh whose one-point hexahedra keep J > 0; the static solve's stop is the better
+    // answer there (the 0.6 mm rim and c5 relax without a restart).
+    let refused = match &relaxed {
+        Ok(r) if !r.restarts.is_empty() => Some(format!(
+            "inverted a point and restarted ({}); its answer is not taken (the load may exceed \
+             what the mesh and the material hold); solver.mode = \"relaxation\" gives it",
+            r.restarts.join("; ")
+        )),
+        Err(Error::Unstable(msg)) => Some(format!("was unstable ({msg})")),
+        _ => None,
     };
+    if let Some(how) = refused {
+        stopped.notes.push(why);
+        stopped.notes.push(format!(
+            "static solve: the relaxation it fell back to (solver.relaxation_fallback) {how}; \
+             the result is the static solve's last equilibrium"
+        ));
+        return Ok(stopped);
+    }
+    let mut r = relaxed?;
     if let Some(sink) = sink {
         sink(model, 1.0, &r.u)?;
     }
@@ -840,7 +835,7 @@ fn relax_instead<M: Material>(
         st.fallback_seconds = r.solve_seconds;
         r.statics = Some(st);
     }
-    // The time handing the end to the sink is not the solve's, as in the runs themselves.
+    // Both parts' solve times; the sink's time above is left out, as in the runs themselves.
     r.solve_seconds += stopped.solve_seconds;
     Ok(r)
 }
