@@ -1082,7 +1082,7 @@ impl<'a, M: Material> Newton<'a, M> {
             {
                 let t0 = Instant::now();
                 let mut x = rhs.clone();
-                if self.pcg(&mut x, eta, false) {
+                if self.pcg(&mut x, eta, linear::Cg::Probe) {
                     rhs = x;
                 } else {
                     rhs = std::mem::take(&mut self.cg_partial);
