@@ -34,7 +34,7 @@ const CG_CHECK: usize = 6;
 /// at 0.45-0.75 of |b| after 6 iterations, extrapolated to 33-111 iterations (three beyond
 /// 48); those that converged, to 6-15. cylinder-mixed's slowest success extrapolated to 1.29
 /// x its limit (it converged at 39 of 40), brain-indentation's to 1.05 x. With it, c4's CG
-/// iterations fell from 330 to 276 and its run from 20.0 to 18.3 s on 2 cores, every Newton
+/// iterations fell from 330 to 276 and its run from 20.0 to 17.8 s on 2 cores, every Newton
 /// iterate the same: an abandoned run's factorization and fresh solve do not depend on it.
 /// Not on the first iteration of a load step ([`Cg::Probe`]), whose last iterate is used.
 const CG_ABANDON: f64 = 2.0;
