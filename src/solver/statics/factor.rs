@@ -928,7 +928,7 @@ fn expand_to_dofs(order: &[u32], k: &Tangent, dofs: &Dofs) -> (Vec<usize>, Vec<u
 }
 
 #[cfg(test)]
-mod tests {
+pub(super) mod tests {
     use super::*;
     use crate::fe::{element_points, ElementKind};
     use crate::geometry::shapes::box_tet;
@@ -937,7 +937,7 @@ mod tests {
 
     /// A tet4-anp box of Poisson's ratio `nu` (`cells` over 40 x 30 x 50 mm, its base held)
     /// at the displacement `at` of each node, its free DOFs and a right-hand side.
-    fn box_at(
+    pub(in crate::solver::statics) fn box_at(
         nu: f64,
         cells: [usize; 3],
         at: impl Fn(&Vector3<f64>) -> Vector3<f64>,
